@@ -1,0 +1,110 @@
+"""The only module that imports embreex: batched first-hit and occlusion-segment queries.
+
+The accelerator is built once from the original elements (a quad is two triangles that map back
+to it). Embree works in float32, so geometry is moved to a normalised frame (centred on the
+bounding box, divided by its diagonal) and every epsilon is relative to the scene's size:
+results do not change when the whole scene is scaled.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+
+from . import config
+
+BATCH = 1 << 20  # rays per Embree call: bounds the temporary float32 buffers
+
+
+def _embree():
+    try:
+        from embreex import mesh_construction, rtcore_scene
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise ImportError("the 'embreex' package is required for ray casting: pip install embreex") from e
+    return rtcore_scene, mesh_construction
+
+
+def element_triangles(verts: np.ndarray, nverts: np.ndarray):
+    """Triangles (t, 3, 3) of the elements and the element of each triangle (t,) int32."""
+    quad = np.nonzero(nverts == 4)[0]
+    tris = np.concatenate([verts[:, [0, 1, 2]], verts[quad][:, [0, 2, 3]]])
+    owner = np.concatenate([np.arange(len(verts)), quad]).astype(np.int32)
+    return tris, owner
+
+
+class RayCaster:
+    """Embree scene of a set of polygons (verts (n, 4, 3), nverts (n,)), queried in world units."""
+
+    def __init__(self, verts: np.ndarray, nverts: np.ndarray, epsilon: float | None = None):
+        rtcore_scene, mesh_construction = _embree()
+        tris, self.owner = element_triangles(np.asarray(verts, float), np.asarray(nverts))
+        lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
+        self.origin = 0.5 * (lo + hi)
+        self.scale = float(np.linalg.norm(hi - lo)) or 1.0
+        self.epsilon = float(config.get("rays.epsilon", epsilon))  # in the normalised frame
+        self._scene = rtcore_scene.EmbreeScene()
+        self._mesh = mesh_construction.TriangleMesh(
+            self._scene, ((tris - self.origin) / self.scale).astype(np.float32))
+
+    def _to_frame(self, p: np.ndarray) -> np.ndarray:
+        return (p - self.origin) / self.scale
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray):
+        """Nearest element hit by each ray.
+
+        origins, directions : (n, 3) float64 (directions need not be unit)
+        Returns elem (n,) int32 (-1 for a miss) and t (n,) float64, the world distance along the
+        unit direction (inf for a miss).
+        """
+        n = len(directions)
+        elem = np.full(n, -1, np.int32)
+        t = np.full(n, np.inf)
+        for s in range(0, n, BATCH):
+            sl = slice(s, min(n, s + BATCH))
+            o = self._to_frame(origins[sl] if origins.ndim == 2 else origins[None, :])
+            d = directions[sl] / np.linalg.norm(directions[sl], axis=1, keepdims=True)
+            o = np.ascontiguousarray(np.broadcast_to(o, d.shape), np.float32)
+            res = self._scene.run(o, np.ascontiguousarray(d, np.float32), output=1)
+            prim = res["primID"]
+            hit = prim >= 0
+            e = np.where(hit, self.owner[np.where(hit, prim, 0)], -1)
+            elem[sl] = e
+            t[sl] = np.where(hit, res["tfar"].astype(np.float64) * self.scale, np.inf)
+        return elem, t
+
+    def occluded(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Whether the open segment between p[k] and q[k] hits any element, (n,) bool.
+
+        The segment is shortened by epsilon at both ends so that it does not hit the elements it
+        joins. Segments shorter than 2 epsilon are never occluded.
+        """
+        n = len(p)
+        out = np.zeros(n, bool)
+        eps = self.epsilon
+        for s in range(0, n, BATCH):
+            sl = slice(s, min(n, s + BATCH))
+            a = self._to_frame(p[sl])
+            d = self._to_frame(q[sl]) - a
+            length = np.linalg.norm(d, axis=1)
+            ok = length > 2 * eps
+            d = d / np.where(ok, length, 1.0)[:, None]
+            o = (a + eps * d).astype(np.float32)
+            far = np.where(ok, length - 2 * eps, 0.0).astype(np.float32)
+            res = self._scene.run(o, d.astype(np.float32), dists=far, query="OCCLUDED")
+            out[sl] = (np.asarray(res) != -1) & ok
+        return out
+
+
+_CACHE: "OrderedDict[str, RayCaster]" = OrderedDict()
+
+
+def caster_for(key: str, verts: np.ndarray, nverts: np.ndarray) -> RayCaster:
+    """A RayCaster memoised per process by `key` (build once per worker, then reuse)."""
+    rc = _CACHE.get(key)
+    if rc is None:
+        rc = RayCaster(verts, nverts)
+        _CACHE[key] = rc
+        while len(_CACHE) > 4:
+            _CACHE.popitem(last=False)
+    return rc

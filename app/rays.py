@@ -50,28 +50,34 @@ class RayCaster:
     def _to_frame(self, p: np.ndarray) -> np.ndarray:
         return (p - self.origin) / self.scale
 
-    def first_hit(self, origins: np.ndarray, directions: np.ndarray):
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray, distances: bool = False,
+                  unit: bool = False):
         """Nearest element hit by each ray.
 
-        origins, directions : (n, 3) float64 (directions need not be unit)
-        Returns elem (n,) int32 (-1 for a miss) and t (n,) float64, the world distance along the
-        unit direction (inf for a miss).
+        origins : (n, 3) or (3,) float64; directions : (n, 3), unit vectors if `unit` (then a
+        float32 array is passed to Embree as is)
+        Returns elem (n,) int32 (-1 for a miss) and, if `distances`, t (n,) float64: the world
+        distance along the unit direction (inf for a miss).
         """
         n = len(directions)
         elem = np.full(n, -1, np.int32)
-        t = np.full(n, np.inf)
+        t = np.full(n, np.inf) if distances else None
         for s in range(0, n, BATCH):
             sl = slice(s, min(n, s + BATCH))
             o = self._to_frame(origins[sl] if origins.ndim == 2 else origins[None, :])
-            d = directions[sl] / np.linalg.norm(directions[sl], axis=1, keepdims=True)
-            o = np.ascontiguousarray(np.broadcast_to(o, d.shape), np.float32)
-            res = self._scene.run(o, np.ascontiguousarray(d, np.float32), output=1)
-            prim = res["primID"]
-            hit = prim >= 0
-            e = np.where(hit, self.owner[np.where(hit, prim, 0)], -1)
-            elem[sl] = e
-            t[sl] = np.where(hit, res["tfar"].astype(np.float64) * self.scale, np.inf)
-        return elem, t
+            d = directions[sl]
+            if not unit:
+                d = d / np.linalg.norm(d, axis=1, keepdims=True)
+            o = np.ascontiguousarray(np.broadcast_to(o.astype(np.float32), d.shape))
+            d = np.ascontiguousarray(d, np.float32)
+            if distances:
+                res = self._scene.run(o, d, output=1)
+                prim, tfar = res["primID"], res["tfar"]
+                t[sl] = np.where(prim >= 0, tfar.astype(np.float64) * self.scale, np.inf)
+            else:
+                prim = np.asarray(self._scene.run(o, d))
+            elem[sl] = np.where(prim >= 0, self.owner[np.maximum(prim, 0)], -1)
+        return (elem, t) if distances else elem
 
     def occluded(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Whether the open segment between p[k] and q[k] hits any element, (n,) bool.

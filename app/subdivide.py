@@ -272,32 +272,16 @@ def merge_partitions(pieces: list, element_ranges: list, n_elements: int) -> Par
 
 # ----------------------------------------------------------------------------- the raster
 
-def hit_points(origin: np.ndarray, dirs: np.ndarray, elem: np.ndarray, normal: np.ndarray,
-               center: np.ndarray) -> np.ndarray:
-    """Exact (float64) intersection of each ray with the plane of the element it hit, (n, 3).
-
-    Embree finds *which* element (float32); the point is recomputed in float64 so that the
-    subdivision does not depend on Embree's rounding or on the scene's scale.
-    """
-    pts = np.zeros((len(dirs), 3))
-    hit = elem >= 0
-    e = elem[hit]
-    d = dirs[hit]
-    t = np.einsum("ij,ij->i", normal[e], center[e] - origin) / np.einsum("ij,ij->i", normal[e], d)
-    pts[hit] = origin + t[:, None] * d
-    return pts
-
-
 def raster_band(caster, elements, camera, subpixel: int, rows: slice):
     """First hits of the camera rays through the fine-raster rows `rows`.
 
     Returns orig (p,) int32 (-1 where nothing is hit) and points (p, 3) float64.
     """
-    from .camera import pixel_directions
+    from .camera import hit_points, ray_directions32
 
-    dirs = pixel_directions(camera, subpixel, rows)
-    elem, _ = caster.first_hit(camera.center, dirs)
-    return elem, hit_points(camera.center, dirs, elem, elements.normal, elements.center)
+    dirs = ray_directions32(camera, subpixel, rows.start, rows.stop)
+    elem = caster.first_hit(camera.center, dirs, unit=True)
+    return elem, hit_points(camera, subpixel, rows.start, elem, elements.normal, elements.center)
 
 
 def subdivide_scene(elements, camera, subpixel: int = 1, max_depth: int = 48, caster=None):

@@ -1,0 +1,71 @@
+"""Shared fixtures: a real LocalCluster (dashboard off), seeded rng, tiny scenes on disk."""
+
+from __future__ import annotations
+
+import os
+import textwrap
+
+import numpy as np
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCENES = os.path.join(ROOT, "scenes")
+
+
+def scene_path(name: str) -> str:
+    return os.path.join(SCENES, name, "scene.toml")
+
+
+@pytest.fixture(scope="session")
+def client():
+    """Two worker processes on 127.0.0.1, no dashboard: the real thing, shared by the session."""
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=40) as cluster, Client(cluster) as c:
+        yield c
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20261122)
+
+
+def write_scene(tmp_path, obj: str, toml_extra: str = "", camera: str | None = None,
+                mtl: str | None = None, name: str = "scene.toml") -> str:
+    """Write an OBJ (and MTL) plus a scene TOML into tmp_path; return the TOML path."""
+    (tmp_path / "mesh.obj").write_text(textwrap.dedent(obj))
+    if mtl is not None:
+        (tmp_path / "mesh.mtl").write_text(textwrap.dedent(mtl))
+    if camera is None:
+        camera = """
+        [camera]
+        position = [0.5, 2.0, -1.5]
+        look_at = [0.5, 0.0, 0.5]
+        up = [0.0, 1.0, 0.0]
+        fov_y = 50.0
+        resolution = [32, 24]
+        """
+    text = '[[mesh]]\npath = "mesh.obj"\n' + textwrap.dedent(toml_extra) + textwrap.dedent(camera)
+    p = tmp_path / name
+    p.write_text(text)
+    return str(p)
+
+
+FLOOR_AND_TRIANGLE = """
+v 0 0 0
+v 1 0 0
+v 1 0 1
+v 0 0 1
+v 0 0.5 0.2
+v 0.5 0.6 0.2
+v 0.2 0.9 0.3
+f 1 4 3 2
+f 5 6 7
+"""
+
+
+@pytest.fixture
+def small_scene(tmp_path):
+    """A unit floor quad (facing up) and a tilted triangle above it, seen from above."""
+    return write_scene(tmp_path, FLOOR_AND_TRIANGLE, "[material.default]\nreflectance = [0.5, 0.5, 0.5]\n")

@@ -79,14 +79,22 @@ class RayCaster:
             elem[sl] = np.where(prim >= 0, self.owner[np.maximum(prim, 0)], -1)
         return (elem, t) if distances else elem
 
-    def occluded(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """Whether the open segment between p[k] and q[k] hits any element, (n,) bool.
+    def occluded(self, p: np.ndarray, q: np.ndarray, ep: np.ndarray | None = None,
+                 eq: np.ndarray | None = None) -> np.ndarray:
+        """Whether the open segment between p[k] and q[k] hits an element, (n,) bool.
 
-        The segment is shortened by epsilon at both ends so that it does not hit the elements it
-        joins. Segments shorter than 2 epsilon are never occluded.
+        ep, eq (n,) int: the elements the endpoints lie on. The segment cannot cross the planar
+        element it starts or ends on, so a hit on those is float32 rounding at a grazing angle:
+        it is stepped over and the search goes on. The query is symmetric (it always runs from
+        the lexicographically smaller endpoint), and the segment is shortened by epsilon at both
+        ends; segments shorter than 2 epsilon are never occluded.
         """
         n = len(p)
         out = np.zeros(n, bool)
+        swap = _lex_less(q, p)
+        p, q = np.where(swap[:, None], q, p), np.where(swap[:, None], p, q)
+        if ep is not None:
+            ep, eq = np.where(swap, eq, ep), np.where(swap, ep, eq)
         eps = self.epsilon
         for s in range(0, n, BATCH):
             sl = slice(s, min(n, s + BATCH))
@@ -96,10 +104,43 @@ class RayCaster:
             ok = length > 2 * eps
             d = d / np.where(ok, length, 1.0)[:, None]
             o = (a + eps * d).astype(np.float32)
+            d32 = d.astype(np.float32)
             far = np.where(ok, length - 2 * eps, 0.0).astype(np.float32)
-            res = self._scene.run(o, d.astype(np.float32), dists=far, query="OCCLUDED")
-            out[sl] = (np.asarray(res) != -1) & ok
+            occ = (np.asarray(self._scene.run(o, d32, dists=far, query="OCCLUDED")) != -1) & ok
+            if ep is not None and occ.any():
+                occ[occ] = self._beyond_own(a[occ], d[occ], length[occ], ep[sl][occ], eq[sl][occ])
+            out[sl] = occ
         return out
+
+    def _beyond_own(self, a, d, length, ea, eb, rounds: int = 8) -> np.ndarray:
+        """For segments reported occluded: is the first hit on another element than ea, eb?"""
+        eps = self.epsilon
+        t0 = np.full(len(a), eps)
+        result = np.zeros(len(a), bool)
+        live = np.arange(len(a))
+        for _ in range(rounds):
+            if not len(live):
+                break
+            o = (a[live] + t0[live, None] * d[live]).astype(np.float32)
+            far = (length[live] - eps - t0[live]).astype(np.float32)
+            res = self._scene.run(o, d[live].astype(np.float32), dists=np.maximum(far, 0), output=1)
+            prim = res["primID"]
+            hit = (prim >= 0) & (far > 0)
+            own = np.where(hit, self.owner[np.maximum(prim, 0)], -1)
+            other = hit & (own != ea[live]) & (own != eb[live])
+            result[live[other]] = True
+            again = hit & ~other
+            t0[live[again]] += res["tfar"][again].astype(np.float64) + eps
+            live = live[again]
+        result[live] = True  # still hitting its own elements after many steps: say occluded
+        return result
+
+
+def _lex_less(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Row-wise lexicographic x < y, (n,) bool."""
+    lt = x < y
+    eq = x == y
+    return lt[:, 0] | (eq[:, 0] & (lt[:, 1] | (eq[:, 1] & lt[:, 2])))
 
 
 _CACHE: "OrderedDict[str, RayCaster]" = OrderedDict()

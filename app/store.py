@@ -8,6 +8,10 @@ Layout of `RUN_DIR/store.zarr` (every array named with its shape and dtype in th
     partition/       sub-elements and their split trees (types.Partition)
     raster/orig      (H*K, W*K) int32: original element seen through each fine pixel (-1: none)
     raster/sub       (H*K, W*K) int32: sub-element seen through each fine pixel (-1: none)
+    visibility/bits  (total,) uint8, chunked: bit-packed tiles (layout in plan.py)
+    visibility/tiles, tasks, culled: the plan (plan.VisibilityPlan)
+    RUN_DIR/visibility.manifest.jsonl: one line per finished task (crc32, counts); the first
+                     line names the plan it belongs to
 
 Later stages add their own groups (visibility/, solution/); a stage that is re-run deletes the
 groups of the stages after it, so a store never mixes results of different inputs.
@@ -18,6 +22,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import zlib
 
 import numpy as np
 
@@ -147,3 +152,112 @@ def _json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()
     raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+# ----------------------------------------------------------------------------- visibility bits
+
+def bits_path(store_path: str) -> str:
+    return os.path.join(store_path, "visibility", "bits")
+
+
+def write_bits(store_path: str, start: int, buf: np.ndarray) -> None:
+    """Write a task's bytes at `start` (chunk-aligned, whole chunks): called on the workers."""
+    zarr = _zarr()
+    arr = zarr.open_array(bits_path(store_path), mode="r+")
+    arr[start:start + len(buf)] = buf
+
+
+class VisibilityStore:
+    """The visibility group of a run store: plan arrays, packed bits and the task manifest."""
+
+    def __init__(self, rs: RunStore):
+        self.rs = rs
+        self.manifest = os.path.join(rs.run_dir, "visibility.manifest.jsonl")
+
+    def create(self, plan, token: str, attrs: dict) -> None:
+        """A fresh visibility group for `plan` (drops an old one and its manifest)."""
+        root = self.rs.root
+        if "visibility" in root:
+            del root["visibility"]
+        g = root.create_group("visibility")
+        g.create_array("bits", shape=(max(plan.total, 1),), dtype="uint8", chunks=(plan.chunk,),
+                       fill_value=0)
+        for name in ("tiles", "tasks", "culled"):
+            a = getattr(plan, name)
+            g.create_array(name, data=np.ascontiguousarray(a), chunks=_chunks(a))
+        g.attrs.update({"token": token, "chunk": plan.chunk, "total": plan.total,
+                        "unit": plan.unit, **attrs})
+        with open(self.manifest, "w") as f:
+            f.write(json.dumps({"plan": token}) + "\n")
+
+    def token(self) -> str | None:
+        if "visibility" not in self.rs.root:
+            return None
+        return self.rs.root["visibility"].attrs.get("token")
+
+    def plan(self):
+        from .plan import VisibilityPlan
+
+        g = self.rs.root["visibility"]
+        at = g.attrs
+        return VisibilityPlan(tiles=g["tiles"][...], tasks=g["tasks"][...], culled=g["culled"][...],
+                              chunk=int(at["chunk"]), total=int(at["total"]), unit=at["unit"])
+
+    def rewrite_manifest(self, token: str, entries: dict) -> None:
+        """Keep only `entries` (task -> entry) in the manifest."""
+        tmp = self.manifest + ".tmp"
+        with open(tmp, "w") as f:
+            f.write(json.dumps({"plan": token}) + "\n")
+            for task, e in sorted(entries.items()):
+                f.write(json.dumps({"task": int(task), "crc": int(e["crc"]), "nbytes": int(e["nbytes"]),
+                                    "counts": [int(c) for c in e["counts"]]}) + "\n")
+        os.replace(tmp, self.manifest)
+
+    def record(self, task: int, result: dict) -> None:
+        """Append one finished task to the manifest (the master is its only writer)."""
+        line = {"task": int(task), "crc": int(result["crc"]), "nbytes": int(result["nbytes"]),
+                "counts": [int(c) for c in result["counts"]]}
+        with open(self.manifest, "a") as f:
+            f.write(json.dumps(line) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    def finished(self, token: str) -> dict:
+        """task -> manifest entry, for the plan `token` (a torn last line is ignored)."""
+        if not os.path.exists(self.manifest):
+            return {}
+        done = {}
+        with open(self.manifest) as f:
+            lines = f.read().splitlines()
+        if not lines:
+            return {}
+        try:
+            head = json.loads(lines[0])
+        except json.JSONDecodeError:
+            return {}
+        if head.get("plan") != token:
+            return {}
+        for line in lines[1:]:
+            try:
+                e = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            done[int(e["task"])] = e
+        return done
+
+    def read_task(self, plan, task: int, nbytes: int | None = None) -> np.ndarray:
+        """The bytes of one task (unpadded if nbytes is given)."""
+        from .plan import TBYTES, TSTART
+
+        arr = self.rs.root["visibility"]["bits"]
+        s = int(plan.tasks[task, TSTART])
+        n = int(plan.tasks[task, TBYTES]) if nbytes is None else int(nbytes)
+        return arr[s:s + n]
+
+    def verify(self, plan, task: int, entry: dict) -> bool:
+        """Do the stored bytes of `task` match the checksum recorded when it finished?"""
+        try:
+            data = self.read_task(plan, task, entry["nbytes"])
+        except Exception:  # an unreadable (corrupted) chunk
+            return False
+        return zlib.crc32(data.tobytes()) == entry["crc"]

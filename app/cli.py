@@ -89,5 +89,39 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, workers, sc
     click.echo(f"wrote {out}/store.zarr and {out}/report.json")
 
 
+@main.command()
+@click.argument("run_dir", type=click.Path())
+@click.option("--task-unit", type=click.Choice(["block", "stripe", "auto"]), default=None,
+              help="One task per pair of originals (block), per original (stripe), or auto.")
+@click.option("--resume", is_flag=True, help="Keep the finished tasks of an interrupted run.")
+@cluster_options
+@_friendly
+def visibility(run_dir, task_unit, resume, workers, scheduler, cluster_kind):
+    """The visibility matrix of a preprocessed RUN_DIR (seed §4.3), bit-packed in its store."""
+    from .cluster import open_client
+    from .store import RunStore
+    from .visibility import compute_visibility
+
+    RunStore(run_dir).load_partition()  # fail before starting a cluster
+    with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+        fig = compute_visibility(run_dir, client, unit=task_unit, resume=resume)
+    click.echo(_visibility_summary(fig))
+
+
+def _visibility_summary(fig: dict) -> str:
+    pt = max(1, fig["pairs_total"])
+    rows = [("sub-elements", fig["sub_elements"]),
+            ("pairs", fig["pairs_total"]),
+            ("culled by orientation", f"{fig['pairs_culled_by_orientation']} ({fig['pairs_culled_by_orientation'] / pt:.1%})"),
+            ("proven visible by shafts", f"{fig['pairs_shaft_visible']} ({fig['pairs_shaft_visible'] / pt:.1%})"),
+            ("rays cast", f"{fig['rays']} ({fig['rays'] / pt:.1%})"),
+            ("visible pairs", fig["pairs_visible"]),
+            ("tasks", f"{fig['tasks']} {fig['task_unit']} ({fig['tasks_computed']} computed, "
+                      f"{fig['tasks_reused']} reused)"),
+            ("idle fraction", "-" if fig["idle_fraction"] is None else f"{fig['idle_fraction']:.1%}"),
+            ("time", f"{fig['time_s']:.2f} s")]
+    return _table(rows)
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

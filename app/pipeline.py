@@ -27,7 +27,7 @@ def _progress(total: int, desc: str, enabled: bool):
     return tqdm(total=total, desc=desc, unit="task", disable=not enabled, leave=False)
 
 
-def _peak_rss_mb(client) -> dict:
+def peak_rss_mb(client) -> dict:
     """Peak resident memory of the client process and each worker (MiB)."""
     import resource
 
@@ -190,6 +190,6 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     store.save_partition(part, figures)
     store.write_arrays("raster", {"orig": elem.reshape(h, w), "sub": sub.reshape(h, w)})
     figures["time_total_s"] = round(time.perf_counter() - t0, 4)
-    figures["peak_rss_mb"] = _peak_rss_mb(client)
+    figures["peak_rss_mb"] = peak_rss_mb(client)
     update_report(out, "preprocess", figures)
     return figures

@@ -8,11 +8,14 @@ results do not change when the whole scene is scaled.
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 
+import numba
 import numpy as np
 
 from . import config
+from .geometry import polygon_properties
 
 BATCH = 1 << 20  # rays per Embree call: bounds the temporary float32 buffers
 
@@ -43,12 +46,14 @@ class RayCaster:
         self.origin = 0.5 * (lo + hi)
         self.scale = float(np.linalg.norm(hi - lo)) or 1.0
         self.epsilon = float(config.get("rays.epsilon", epsilon))  # in the normalised frame
+        self._local = threading.local()
+        self.normal = polygon_properties(np.asarray(verts, float), np.asarray(nverts))[1]
         self._scene = rtcore_scene.EmbreeScene()
         self._mesh = mesh_construction.TriangleMesh(
             self._scene, ((tris - self.origin) / self.scale).astype(np.float32))
 
     def _to_frame(self, p: np.ndarray) -> np.ndarray:
-        return (p - self.origin) / self.scale
+        return (p - self.origin) * (1.0 / self.scale)
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray, distances: bool = False,
                   unit: bool = False):
@@ -83,34 +88,63 @@ class RayCaster:
                  eq: np.ndarray | None = None) -> np.ndarray:
         """Whether the open segment between p[k] and q[k] hits an element, (n,) bool.
 
-        ep, eq (n,) int: the elements the endpoints lie on. The segment cannot cross the planar
-        element it starts or ends on, so a hit on those is float32 rounding at a grazing angle:
-        it is stepped over and the search goes on. The query is symmetric (it always runs from
-        the lexicographically smaller endpoint), and the segment is shortened by epsilon at both
-        ends; segments shorter than 2 epsilon are never occluded.
+        See `occluded_pairs`; ep, eq (n,) are the elements the endpoints lie on, if known.
         """
         n = len(p)
+        pts = np.concatenate([np.asarray(p, np.float64), np.asarray(q, np.float64)])
+        idx = np.arange(n)
+        e = None if ep is None else np.concatenate([ep, eq])
+        return self.occluded_pairs(pts, idx, idx + n, e)
+
+    def occluded_pairs(self, points: np.ndarray, ia: np.ndarray, ib: np.ndarray,
+                       elem: np.ndarray | None = None) -> np.ndarray:
+        """Whether the open segment points[ia[k]] - points[ib[k]] hits an element, (n,) bool.
+
+        points (m, 3) float64 world coordinates; ia, ib (n,) int indices; elem (m,) int, the
+        element each point lies on (optional). A segment cannot cross the planar element it
+        starts or ends on, so when it leaves one at a grazing angle (where float32 rounding can
+        report such a hit) a reported occlusion is re-checked and hits on those two elements are
+        stepped over. The query is symmetric (it always runs from the lexicographically smaller
+        endpoint); the segment is shortened by epsilon at both ends, and segments shorter than
+        2 epsilon are never occluded.
+        """
+        n = len(ia)
         out = np.zeros(n, bool)
-        swap = _lex_less(q, p)
-        p, q = np.where(swap[:, None], q, p), np.where(swap[:, None], p, q)
-        if ep is not None:
-            ep, eq = np.where(swap, eq, ep), np.where(swap, ep, eq)
-        eps = self.epsilon
+        points = np.ascontiguousarray(points, np.float64)
+        ia = np.ascontiguousarray(ia, np.int64)
+        ib = np.ascontiguousarray(ib, np.int64)
+        has_e = elem is not None
+        elem = np.ascontiguousarray(elem, np.int64) if has_e else np.zeros(1, np.int64)
+        buf = self._buffers()
         for s in range(0, n, BATCH):
             sl = slice(s, min(n, s + BATCH))
-            a = self._to_frame(p[sl])
-            d = self._to_frame(q[sl]) - a
-            length = np.linalg.norm(d, axis=1)
-            ok = length > 2 * eps
-            d = d / np.where(ok, length, 1.0)[:, None]
-            o = (a + eps * d).astype(np.float32)
-            d32 = d.astype(np.float32)
-            far = np.where(ok, length - 2 * eps, 0.0).astype(np.float32)
-            occ = (np.asarray(self._scene.run(o, d32, dists=far, query="OCCLUDED")) != -1) & ok
-            if ep is not None and occ.any():
-                occ[occ] = self._beyond_own(a[occ], d[occ], length[occ], ep[sl][occ], eq[sl][occ])
+            k = sl.stop - sl.start
+            o32, d32, far, graze = (b[:k] for b in buf)
+            _segments(points, ia[sl], ib[sl], self.origin, self.scale, self.epsilon, self.normal,
+                      elem, has_e, GRAZING, o32, d32, far, graze)
+            occ = np.asarray(self._scene.run(o32, d32, dists=far, query="OCCLUDED")) != -1
+            occ &= far > 0
+            g = np.nonzero(occ & graze)[0]
+            if len(g):
+                x = self._to_frame(points[ia[sl][g]])
+                y = self._to_frame(points[ib[sl][g]])
+                swap = _lex_less(y, x)
+                x, y = np.where(swap[:, None], y, x), np.where(swap[:, None], x, y)
+                d = y - x
+                length = np.linalg.norm(d, axis=1)
+                occ[g] = self._beyond_own(x, d / length[:, None], length, elem[ia[sl][g]],
+                                          elem[ib[sl][g]])
             out[sl] = occ
         return out
+
+    def _buffers(self):
+        """Per-thread segment buffers of BATCH rays, allocated once."""
+        b = getattr(self._local, "buf", None)
+        if b is None:
+            b = (np.empty((BATCH, 3), np.float32), np.empty((BATCH, 3), np.float32),
+                 np.empty(BATCH, np.float32), np.empty(BATCH, np.bool_))
+            self._local.buf = b
+        return b
 
     def _beyond_own(self, a, d, length, ea, eb, rounds: int = 8) -> np.ndarray:
         """For segments reported occluded: is the first hit on another element than ea, eb?"""
@@ -136,11 +170,56 @@ class RayCaster:
         return result
 
 
+GRAZING = 0.1  # |cos| below which a segment leaving its element may self-hit in float32
+
+
 def _lex_less(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Row-wise lexicographic x < y, (n,) bool."""
+    """Row-wise lexicographic x < y, (n,) bool (the same order as _segments)."""
     lt = x < y
     eq = x == y
     return lt[:, 0] | (eq[:, 0] & (lt[:, 1] | (eq[:, 1] & lt[:, 2])))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _segments(pts, ia, ib, origin, scale, eps, normal, elem, has_e, grazing, o32, d32, far, graze):
+    """Embree's float32 origins, unit directions and lengths of the normalised segments
+    pts[ia] - pts[ib], run from the lexicographically smaller end and shortened by eps at both
+    ends (length 0 when shorter than 2 eps), and whether a segment leaves the element of either
+    end at a grazing angle. Writes into the given buffers (reused: fresh pages cost more than
+    the arithmetic)."""
+    n = ia.shape[0]
+    inv_s = 1.0 / scale
+    for k in range(n):
+        u, v = ia[k], ib[k]
+        px, py, pz = pts[u, 0], pts[u, 1], pts[u, 2]
+        qx, qy, qz = pts[v, 0], pts[v, 1], pts[v, 2]
+        if qx < px or (qx == px and (qy < py or (qy == py and qz < pz))):
+            px, py, pz, qx, qy, qz = qx, qy, qz, px, py, pz
+        ax = (px - origin[0]) * inv_s
+        ay = (py - origin[1]) * inv_s
+        az = (pz - origin[2]) * inv_s
+        dx = (qx - origin[0]) * inv_s - ax
+        dy = (qy - origin[1]) * inv_s - ay
+        dz = (qz - origin[2]) * inv_s - az
+        L = np.sqrt(dx * dx + dy * dy + dz * dz)
+        inv = 1.0 / L if L > 0 else 0.0
+        dx *= inv
+        dy *= inv
+        dz *= inv
+        o32[k, 0] = ax + eps * dx
+        o32[k, 1] = ay + eps * dy
+        o32[k, 2] = az + eps * dz
+        d32[k, 0] = dx
+        d32[k, 1] = dy
+        d32[k, 2] = dz
+        far[k] = L - 2 * eps if L > 2 * eps else 0.0
+        if has_e:
+            i, j = elem[u], elem[v]
+            c1 = abs(normal[i, 0] * dx + normal[i, 1] * dy + normal[i, 2] * dz)
+            c2 = abs(normal[j, 0] * dx + normal[j, 1] * dy + normal[j, 2] * dz)
+            graze[k] = min(c1, c2) < grazing
+        else:
+            graze[k] = False
 
 
 _CACHE: "OrderedDict[str, RayCaster]" = OrderedDict()

@@ -42,13 +42,14 @@ def _zarr():
 
 
 class RunStore:
-    """A run directory's Zarr store. mode: 'r' (must exist), 'a' (create if missing), 'w' (fresh)."""
+    """A run directory's Zarr store. mode: 'r' (read), 'r+' (read and write; both must exist),
+    'w' (a fresh store)."""
 
     def __init__(self, run_dir: str, mode: str = "r"):
         zarr = _zarr()
         self.run_dir = os.path.abspath(run_dir)
         self.path = os.path.join(self.run_dir, STORE)
-        if mode == "r" and not os.path.exists(self.path):
+        if mode in ("r", "r+") and not os.path.exists(self.path):
             raise StoreError(f"{self.run_dir} is not a run directory (no {STORE}); "
                              f"create one with: radiosity preprocess SCENE --out {run_dir}")
         os.makedirs(self.run_dir, exist_ok=True)

@@ -252,6 +252,7 @@ class VisInputs:
         self.center = part.center
         self.normal = part.normal
         self.two_sided = elements.two_sided[part.orig]
+        self.orig = part.orig
         v = np.where(part.nverts[:, None, None] == 3, part.verts[:, [0, 1, 2, 2]], part.verts)
         self.lo = v.min(axis=1)
         self.hi = v.max(axis=1)
@@ -291,8 +292,7 @@ def tile_bits(inp: VisInputs, caster, i: int, j: int, r0: int, r1: int):
     need = np.nonzero(code == 2)[0]
     nb = b1 - b0
     if len(need):
-        occ = caster.occluded(inp.center[a0 + need // nb], inp.center[b0 + need % nb],
-                              np.full(len(need), i), np.full(len(need), j))
+        occ = caster.occluded_pairs(inp.center, a0 + need // nb, b0 + need % nb, inp.orig)
         bits[need] = ~occ
     counts = np.array([len(code), int(np.count_nonzero(code)), int(np.count_nonzero(code == 1)),
                        len(need), int(bits.sum()), tests], np.int64)
@@ -357,7 +357,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
     from .store import RunStore, VisibilityStore, update_report
 
     t_start = time.perf_counter()
-    rs = RunStore(run_dir, "a")
+    rs = RunStore(run_dir, "r+")
     part = rs.load_partition()
     el = rs.load_elements()
     plan = _plan_for(part, el, unit)
@@ -460,6 +460,8 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
         "idle_fraction": (1.0 - sum(busy.values()) / (nworkers * wall)) if wall > 0 and busy else None,
         "workers": nworkers,
     }
+    from .pipeline import peak_rss_mb
+    figures["peak_rss_mb"] = peak_rss_mb(client)
     update_report(run_dir, "visibility", figures)
     return figures
 

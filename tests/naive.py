@@ -24,7 +24,7 @@ def visibility(part, elements) -> np.ndarray:
     m = len(part)
     a, b = np.nonzero(~np.eye(m, dtype=bool))
     occ = np.zeros((m, m), bool)
-    occ[a, b] = rc.occluded(part.center[a], part.center[b], part.orig[a], part.orig[b])
+    occ[a, b] = rc.occluded(part.center[a], part.center[b], part.orig[a], part.orig[b])  # no pair indexing
     f = facing(part, elements.two_sided[part.orig])
     V = ~occ & f & f.T
     np.fill_diagonal(V, False)

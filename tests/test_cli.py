@@ -39,3 +39,23 @@ def test_bad_input_is_one_line_not_a_traceback(tmp_path):
 def test_bad_resolution_flag(tmp_path, small_scene):
     r = CliRunner().invoke(main, ["preprocess", small_scene, "--out", str(tmp_path / "r"), "--resolution", "0x5"])
     assert r.exit_code == 2 and "--resolution: resolution must be positive" in r.output
+
+
+def test_visibility_command_and_resume(client, tmp_path):
+    out = tmp_path / "run"
+    sched = ["--scheduler", client.scheduler.address]
+    r = CliRunner().invoke(main, ["preprocess", scene_path("three-rectangles"), "--out", str(out),
+                                  "--resolution", "12"] + sched)
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["visibility", str(out), "--task-unit", "stripe"] + sched)
+    assert r.exit_code == 0, r.output
+    assert "rays cast" in r.output and "stripe" in r.output
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["visibility"]["task_unit"] == "stripe" and "preprocess" in rep
+    r = CliRunner().invoke(main, ["visibility", str(out), "--task-unit", "stripe", "--resume"] + sched)
+    assert r.exit_code == 0 and "0 computed" in r.output
+
+
+def test_visibility_on_a_directory_that_is_not_a_run(tmp_path):
+    r = CliRunner().invoke(main, ["visibility", str(tmp_path / "nothing")])
+    assert r.exit_code == 2 and "is not a run directory" in r.output

@@ -135,7 +135,7 @@ def test_interrupted_run_resumes_with_only_the_missing_tasks(client, tmp_path):
 
 def test_corrupted_chunk_is_detected_and_recomputed(client, tmp_path):
     out, full = _run(client, tmp_path, "cornell-box", 12, unit="block")
-    rs = RunStore(out, "a")
+    rs = RunStore(out, "r+")
     ref = dense_visibility(rs)
     vs = VisibilityStore(rs)
     plan = vs.plan()

@@ -168,6 +168,13 @@ def write_bits(store_path: str, start: int, buf: np.ndarray) -> None:
     arr[start:start + len(buf)] = buf
 
 
+def read_bits(store_path: str, start: int, nbytes: int) -> np.ndarray:
+    """Bytes [start, start + nbytes) of the packed visibility bits: called on the workers."""
+    zarr = _zarr()
+    arr = zarr.open_array(bits_path(store_path), mode="r")
+    return arr[start:start + nbytes]
+
+
 class VisibilityStore:
     """The visibility group of a run store: plan arrays, packed bits and the task manifest."""
 

@@ -29,3 +29,41 @@ def visibility(part, elements) -> np.ndarray:
     V = ~occ & f & f.T
     np.fill_diagonal(V, False)
     return V
+
+
+def form_factor_matrix(part, elements, V, kernel: str = "point") -> np.ndarray:
+    """Dense F over (side, sub-element) unknowns, (2m, 2m): row s*m + a, column t*m + b.
+
+    F[(sa, a), (sb, b)] = F_ab where sa / sb are the sides of a / b that face each other."""
+    m = len(part)
+    c, n, A = part.center, part.normal, part.area
+    F = np.zeros((2 * m, 2 * m))
+    a, b = np.nonzero(V)
+    d = c[b] - c[a]
+    r2 = np.einsum("ij,ij->i", d, d)
+    ca = np.einsum("ij,ij->i", n[a], d)
+    cb = -np.einsum("ij,ij->i", n[b], d)
+    g = np.abs(ca * cb)
+    if kernel == "point":
+        f = A[b] * g / (np.pi * r2 * r2)
+    else:
+        f = A[b] * g / r2 / (np.pi * r2 + A[b])
+    sa = (ca <= 0).astype(int)
+    sb = (cb <= 0).astype(int)
+    F[sa * m + a, sb * m + b] = f
+    return F
+
+
+def dense_solution(part, elements, V, kernel: str = "point") -> np.ndarray:
+    """Direct solve of (I - rho F) L = Le per channel with numpy.linalg.solve: (m, 2, 3)."""
+    m = len(part)
+    F = form_factor_matrix(part, elements, V, kernel)
+    Le = elements.emission[part.orig]       # (m, 2, 3)
+    rho = elements.reflectance[part.orig]
+    out = np.zeros((m, 2, 3))
+    for ch in range(3):
+        r = np.concatenate([rho[:, 0, ch], rho[:, 1, ch]])
+        e = np.concatenate([Le[:, 0, ch], Le[:, 1, ch]])
+        x = np.linalg.solve(np.eye(2 * m) - r[:, None] * F, e)
+        out[:, 0, ch], out[:, 1, ch] = x[:m], x[m:]
+    return out

@@ -1,0 +1,421 @@
+"""Solvers of the radiosity equation L = Le + rho (F L) (SPEC §2, §6), matrix-free.
+
+F is never stored: each pass streams the visibility tiles and recomputes F on the fly
+(kernels.py). A pass is a set of Dask tasks over groups of the visibility plan's tasks (row
+blocks of the store), each pinned to a worker that keeps the tiles it read (bounded cache), so
+the solve scales with workers like the visibility stage.
+
+Vectors are (2, 3, m) float64: [side (0 front, 1 back), channel, sub-element]. All solvers
+treat the three channels in the same pass over the matrix, share one signature
+
+    solver(op, Le, rho, area, tol, max_iter, callback) -> SolveResult
+
+and stop on a relative residual ||Le + rho F L - L||_A / ||Le||_A <= tol (area-weighted 2-norm);
+progressive refinement and Gauss-Seidel stop on their cheaper bounds (unshot radiance, last
+update) and every run ends with one true-residual pass for the report.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import config
+from .errors import RadiosityError
+from .kernels import KERNELS, gs_sweep, kernel_id, tiles_apply
+from .plan import END, FIRST, I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART
+
+
+@dataclass
+class SolveResult:
+    radiance: np.ndarray           # (2, 3, m) float64
+    iterations: int
+    residuals: list = field(default_factory=list)   # relative residual (or bound) per pass
+    converged: bool = False
+    pair_terms: int = 0
+    ambient: np.ndarray | None = None   # (3,) progressive refinement's ambient term (last pass)
+
+
+def anorm(x: np.ndarray, area: np.ndarray) -> float:
+    """Area-weighted 2-norm of a (2, 3, m) vector."""
+    return float(np.sqrt(np.sum(area * x * x)))
+
+
+# ----------------------------------------------------------------------------- solvers
+
+def jacobi(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
+    """The seed's iteration of eq. 4: L <- Le + rho F L."""
+    L = Le.copy()
+    nb = anorm(Le, area) or 1.0
+    res = []
+    for k in range(1, max_iter + 1):
+        y = op.apply(L)
+        new = Le + rho * y
+        res.append(anorm(new - L, area) / nb)  # the residual of the previous iterate
+        L = new
+        if callback:
+            callback(k, res[-1], L)
+        if res[-1] <= tol:
+            return SolveResult(L, k, res, True)
+    return SolveResult(L, max_iter, res, False)
+
+
+def gauss_seidel(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
+    """Block Gauss-Seidel by original element (rows in order, latest values), one Dask task per
+    sweep. Stops on the size of the last update, a bound on the residual's decrease."""
+    L = Le.copy()
+    nb = anorm(Le, area) or 1.0
+    res = []
+    for k in range(1, max_iter + 1):
+        new = op.gs_sweep(L, Le, rho)
+        res.append(anorm(new - L, area) / nb)
+        L = new
+        if callback:
+            callback(k, res[-1], L)
+        if res[-1] <= tol:
+            return SolveResult(L, k, res, True)
+    return SolveResult(L, max_iter, res, False)
+
+
+def progressive(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
+    """Progressive refinement (2nd seed; Cohen et al. 1988): shoot the unshot radiance of the
+    sub-elements with the largest unshot power A dL (all within `shoot-fraction` of the largest
+    shoot together, one pass). The ambient term (unshot power spread uniformly and reflected
+    with the mean reflectance) makes early previews plausible; it is not added to the answer.
+    Stops when the unshot radiance ||dL||_A <= tol ||Le||_A."""
+    frac = float(config.get("solve.shoot-fraction"))
+    L = Le.copy()
+    dL = Le.copy()
+    nb = anorm(Le, area) or 1.0
+    total_area = area.sum()
+    rho_mean = np.array([(area * rho[0, c]).sum() / total_area for c in range(3)])
+    res = []
+    ambient = np.zeros(3)
+    for k in range(1, max_iter + 1):
+        power = area * np.abs(dL).sum(axis=(0, 1))
+        top = power.max(initial=0.0)
+        if top <= 0:
+            return SolveResult(L, k - 1, res, True, ambient=ambient)
+        shoot = power >= frac * top
+        x = np.where(shoot, dL, 0.0)
+        y = op.apply(x, live=shoot)
+        recv = rho * y
+        L += recv
+        dL = np.where(shoot, 0.0, dL) + recv
+        res.append(anorm(dL, area) / nb)
+        unshot = np.array([(area * dL[:, c]).sum() for c in range(3)]) / total_area
+        ambient = unshot / np.maximum(1.0 - rho_mean, 1e-12)
+        if callback:
+            callback(k, res[-1], L + rho * ambient[None, :, None])
+        if res[-1] <= tol:
+            return SolveResult(L, k, res, True, ambient=ambient)
+    return SolveResult(L, max_iter, res, False, ambient=ambient)
+
+
+def cg(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
+    """Conjugate gradients on the symmetric form (SPEC §6): with D = diag(A / rho),
+    D (I - rho F) = D - diag(A) F is symmetric by reciprocity (A_a F_ab = A_b F_ba), and positive
+    definite when rho < 1 and row sums <= 1. Entries with rho = 0 are known (L = Le) and move to
+    the right-hand side. One product per iteration; the three channels are three systems solved
+    in the same passes."""
+    if not KERNELS[op.kernel][2]:
+        raise RadiosityError(f"the cg solver needs a reciprocal kernel (A_a F_ab = A_b F_ba); "
+                             f"'{op.kernel}' is not: use --kernel point, or --solver jacobi, "
+                             "gauss-seidel or progressive")
+    U = rho > 0
+    D = np.where(U, area / np.where(U, rho, 1.0), 0.0)
+    known = np.where(U, 0.0, Le)
+    b = np.where(U, D * Le + area * op.apply(known), 0.0)
+
+    def M(x):
+        return np.where(U, D * x - area * op.apply(x), 0.0)
+
+    x = np.where(U, Le, 0.0)
+    r = b - M(x)
+    p = r.copy()
+    rr = (r * r).sum(axis=(0, 2))  # per channel
+    nb = anorm(Le, area) or 1.0
+    scale = np.where(U, rho / area, 0.0)  # true residual = (rho / A) r on U, 0 elsewhere
+    res = []
+    for k in range(1, max_iter + 1):
+        Mp = M(p)
+        pMp = (p * Mp).sum(axis=(0, 2))
+        alpha = np.where(pMp > 0, rr / np.where(pMp > 0, pMp, 1.0), 0.0)
+        x = x + alpha[None, :, None] * p
+        r = r - alpha[None, :, None] * Mp
+        res.append(anorm(scale * r, area) / nb)
+        L = x + known
+        if callback:
+            callback(k, res[-1], L)
+        if res[-1] <= tol:
+            return SolveResult(L, k, res, True)
+        rr_new = (r * r).sum(axis=(0, 2))
+        beta = np.where(rr > 0, rr_new / np.where(rr > 0, rr, 1.0), 0.0)
+        p = r + beta[None, :, None] * p
+        rr = rr_new
+    return SolveResult(x + known, max_iter, res, False)
+
+
+SOLVERS = {"jacobi": jacobi, "gauss-seidel": gauss_seidel, "progressive": progressive, "cg": cg}
+
+
+def get_solver(name: str):
+    try:
+        return SOLVERS[name]
+    except KeyError:
+        raise RadiosityError(f"unknown solver {name!r}: use one of {', '.join(SOLVERS)}") from None
+
+
+# ----------------------------------------------------------------------------- worker side
+
+class SolveInputs:
+    """Read-only arrays the product tasks need (scattered once per solve).
+
+    cx, cy, cz, nx, ny, nz, area (m,) float64; sided (m,) bool; offsets (n + 1,) int64;
+    tiles, tasks: the visibility plan; crc: (k, 2) int64 [crc32, nbytes] per plan task.
+    """
+
+    def __init__(self, part, elements, plan, crc, store_path, token):
+        c, n = part.center, part.normal
+        self.cx, self.cy, self.cz = (np.ascontiguousarray(c[:, k]) for k in range(3))
+        self.nx, self.ny, self.nz = (np.ascontiguousarray(n[:, k]) for k in range(3))
+        self.area = part.area
+        self.sided = elements.two_sided[part.orig]
+        self.offsets = part.offsets
+        self.tiles = plan.tiles
+        self.tasks = plan.tasks
+        self.crc = crc
+        self.store_path = store_path
+        self.token = token
+
+
+_TILES: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
+_TILES_BYTES = [0]
+
+
+def _task_bytes(inp: SolveInputs, task: int) -> np.ndarray:
+    """The verified bytes of one visibility task, from this worker's bounded cache or the store."""
+    key = (inp.store_path, inp.token, task)
+    data = _TILES.get(key)
+    if data is not None:
+        _TILES.move_to_end(key)
+        return data
+    from .store import read_bits
+
+    t = inp.tasks[task]
+    data = read_bits(inp.store_path, int(t[TSTART]), int(inp.crc[task, 1]))
+    if zlib.crc32(data.tobytes()) != int(inp.crc[task, 0]):
+        raise RadiosityError(f"visibility task {task} in {inp.store_path} is corrupted (checksum): "
+                             "run radiosity visibility RUN_DIR --resume")
+    cap = int(config.get("solve.cache-bytes"))
+    if data.nbytes <= cap:
+        _TILES[key] = data
+        _TILES_BYTES[0] += data.nbytes
+        while _TILES_BYTES[0] > cap:
+            _, old = _TILES.popitem(last=False)
+            _TILES_BYTES[0] -= old.nbytes
+    return data
+
+
+def _geometry(inp):
+    return inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, inp.area, inp.sided
+
+
+def task_apply(inp: SolveInputs, task_ids: np.ndarray, L: np.ndarray, kid: int, live):
+    """y = F L restricted to the tiles of these visibility tasks. live: (n,) bool or None, the
+    originals whose L is non-zero (tiles with no live source are skipped)."""
+    from .kernels import BOTH
+
+    y = np.zeros_like(L)
+    terms = 0
+    lv = np.zeros(0, np.bool_) if live is None else np.asarray(live, np.bool_)
+    for task in task_ids:
+        t = inp.tasks[task]
+        tiles = inp.tiles[t[FIRST]:t[END]]
+        if live is not None and not (lv[tiles[:, I]].any() or lv[tiles[:, J]].any()):
+            continue
+        data = _task_bytes(inp, int(task))
+        terms += tiles_apply(kid, data, int(t[TSTART]), tiles, inp.offsets, *_geometry(inp), L, y,
+                             BOTH, lv)
+    return y, terms
+
+
+def task_gs_sweep(inp: SolveInputs, L: np.ndarray, Le: np.ndarray, rho: np.ndarray, kid: int):
+    """One block Gauss-Seidel sweep over the originals in order, with the latest values.
+
+    Needs every tile, so the worker running it holds the whole packed matrix (bits, not floats)."""
+    L = L.copy()
+    n = len(inp.offsets) - 1
+    total = int(inp.tasks[-1, TSTART] + inp.tasks[-1, TBYTES]) if len(inp.tasks) else 0
+    data = np.zeros(max(total, 1), np.uint8)
+    for task in range(len(inp.tasks)):
+        b = _task_bytes(inp, task)
+        s = int(inp.tasks[task, TSTART])
+        data[s:s + len(b)] = b
+    rows = inp.tiles[:, I]
+    cols = inp.tiles[:, J]
+    row_idx = np.argsort(rows, kind="stable")
+    col_idx = np.argsort(cols, kind="stable")
+    row_ptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])
+    col_ptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=n))])
+    y = np.zeros_like(L)
+    terms = gs_sweep(kid, data, inp.tiles, row_ptr, row_idx, col_ptr, col_idx, inp.offsets,
+                     *_geometry(inp), L, Le, rho, y)
+    return L, terms
+
+
+# ----------------------------------------------------------------------------- the operator
+
+class DaskOperator:
+    """F applied to (2, 3, m) vectors by Dask tasks over groups of visibility tasks.
+
+    Each group is pinned to one worker (its tile cache stays warm across passes); a group that
+    fails is resubmitted anywhere."""
+
+    def __init__(self, client, inp_future, inp: SolveInputs, kernel: str, groups: int | None = None):
+        self.client = client
+        self.inp_f = inp_future
+        self.kernel = kernel
+        self.kid = kernel_id(kernel)
+        self.terms = 0
+        self.passes = 0
+        workers = sorted(client.scheduler_info()["workers"])
+        ngroups = groups or max(1, 2 * (sum(client.nthreads().values()) or 1))
+        bits = (inp.tiles[:, R1] - inp.tiles[:, R0]) * inp.tiles[:, NCOLS]
+        cum = np.concatenate([[0], np.cumsum(bits)])
+        tbits = cum[inp.tasks[:, END]] - cum[inp.tasks[:, FIRST]]
+        order = np.argsort(-tbits, kind="stable")
+        load = np.zeros(ngroups)
+        members = [[] for _ in range(ngroups)]
+        for t in order:  # longest first onto the least loaded group
+            g = int(np.argmin(load))
+            members[g].append(int(t))
+            load[g] += tbits[t]
+        self.groups = [np.array(sorted(m), np.int64) for m in members if m]
+        self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
+        self.retries = int(config.get("visibility.retries"))
+        self._offsets = inp.offsets
+
+    def _gather(self, futs):
+        out = []
+        for f in futs:
+            out.append(f.result())
+        return out
+
+    def apply(self, L: np.ndarray, live: np.ndarray | None = None) -> np.ndarray:
+        """F L; `live` (m,) bool marks the sub-elements whose L may be non-zero."""
+        live_orig = None
+        if live is not None:  # per original: does any of its sub-elements have a source?
+            live_orig = np.add.reduceat(live.astype(np.int64), self._offsets[:-1]) > 0
+        [Lf] = self.client.scatter([L], broadcast=False)
+        futs = [self.client.submit(task_apply, self.inp_f, g, Lf, self.kid, live_orig, pure=False,
+                                   workers=[w] if w else None, allow_other_workers=True,
+                                   retries=self.retries)
+                for g, w in zip(self.groups, self.workers or [None] * len(self.groups))]
+        y = np.zeros_like(L)
+        for yp, terms in self._gather(futs):
+            y += yp
+            self.terms += terms
+        self.passes += 1
+        return y
+
+    def gs_sweep(self, L, Le, rho) -> np.ndarray:
+        w = self.workers[0] if self.workers else None
+        f = self.client.submit(task_gs_sweep, self.inp_f, L, Le, rho, self.kid, pure=False,
+                               workers=[w] if w else None, allow_other_workers=True,
+                               retries=self.retries)
+        new, terms = f.result()
+        self.terms += terms
+        self.passes += 1
+        return new
+
+
+# ----------------------------------------------------------------------------- the stage
+
+def side_vectors(part, elements):
+    """Le, rho (2, 3, m) float64 and area (m,) of the sub-elements, per side."""
+    Le = np.ascontiguousarray(np.transpose(elements.emission[part.orig], (1, 2, 0)))
+    rho = np.ascontiguousarray(np.transpose(elements.reflectance[part.orig], (1, 2, 0)))
+    return Le, rho, part.area
+
+
+def open_operator(rs, client, kernel: str):
+    """Scatter the solve inputs of run store `rs` and return a DaskOperator over them."""
+    from .store import VisibilityStore
+
+    vs = VisibilityStore(rs)
+    token = vs.token()
+    if token is None:
+        raise RadiosityError(f"{rs.run_dir} has no visibility matrix: run radiosity visibility {rs.run_dir}")
+    plan = vs.plan()
+    done = vs.finished(token)
+    missing = [t for t in range(len(plan.tasks)) if t not in done]
+    if missing:
+        raise RadiosityError(f"the visibility matrix of {rs.run_dir} is incomplete ({len(missing)} "
+                             f"of {len(plan.tasks)} tasks missing): run radiosity visibility "
+                             f"{rs.run_dir} --resume")
+    crc = np.array([[done[t]["crc"], done[t]["nbytes"]] for t in range(len(plan.tasks))],
+                   np.int64).reshape(-1, 2)
+    part = rs.load_partition()
+    el = rs.load_elements()
+    inp = SolveInputs(part, el, plan, crc, rs.path, token)
+    [inp_f] = client.scatter([inp], broadcast=True)
+    return DaskOperator(client, inp_f, inp, kernel), part, el
+
+
+def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | None = None,
+              tol: float | None = None, max_iter: int | None = None, progress: bool = True,
+              callback=None) -> dict:
+    """Solve the run's radiosity system; write solution/radiance (m, 2, 3) and report figures."""
+    from tqdm.auto import tqdm
+
+    from .store import RunStore, update_report
+
+    solver = config.get("solve.solver", solver)
+    kernel = config.get("solve.kernel", kernel)
+    tol = float(config.get("solve.tol", tol))
+    max_iter = int(config.get("solve.max-iterations", max_iter))
+    fn = get_solver(solver)
+    kernel_id(kernel)
+    t0 = time.perf_counter()
+    rs = RunStore(run_dir, "r+")
+    op, part, el = open_operator(rs, client, kernel)
+    Le, rho, area = side_vectors(part, el)
+    bar = tqdm(total=None, desc=f"solve ({solver})", unit="pass", disable=not progress, leave=False)
+
+    def cb(k, r, L):
+        bar.update()
+        bar.set_postfix(residual=f"{r:.2e}")
+        if callback:
+            callback(k, r, L)
+
+    res = fn(op, Le, rho, area, tol, max_iter, cb)
+    bar.close()
+    t_solve = time.perf_counter() - t0
+    # one true-residual pass, the same measure for every solver
+    y = op.apply(res.radiance)
+    final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
+    radiance = np.ascontiguousarray(np.transpose(res.radiance, (2, 0, 1)))  # (m, 2, 3)
+    figures = {
+        "solver": solver, "kernel": kernel, "tol": tol, "iterations": res.iterations,
+        "converged": bool(res.converged), "residuals": [float(r) for r in res.residuals],
+        "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
+        "pair_terms_per_s": op.terms / max(t_solve, 1e-9), "time_s": round(t_solve, 4),
+        "sub_elements": len(part),
+    }
+    if res.ambient is not None:
+        figures["ambient"] = res.ambient.tolist()
+    rs.drop_after("visibility")
+    rs.write_arrays("solution", {"radiance": radiance},
+                    {k: v for k, v in figures.items() if k != "residuals"})
+    update_report(run_dir, "solve", figures)
+    if not res.converged:
+        import warnings
+
+        warnings.warn(f"{solver} did not reach tol={tol:g} in {max_iter} passes (residual "
+                      f"{res.residuals[-1] if res.residuals else float('nan'):.3g})", stacklevel=2)
+    return figures

@@ -1,0 +1,198 @@
+"""Solvers and form-factor kernels: exact answers, reciprocity, energy balance, agreement."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import naive
+from app.errors import RadiosityError
+from app.kernels import pair_form_factors
+from app.pipeline import preprocess
+from app.scene import load_scene
+from app.solve import SOLVERS, open_operator, run_solve, side_vectors
+from app.store import RunStore
+from app.visibility import compute_visibility, dense_visibility
+from conftest import scene_path, write_scene
+
+ALL = list(SOLVERS)
+
+
+def _prepared(client, tmp_path, scene, res, name="run", **kw):
+    out = str(tmp_path / name)
+    sc = load_scene(scene, resolution=res)
+    preprocess(sc, out, client, progress=False, **kw)
+    compute_visibility(out, client, progress=False)
+    return out
+
+
+def _radiance(out):
+    return RunStore(out).read_arrays("solution")["radiance"]
+
+
+def test_sphere_interior_reaches_the_exact_answer(client, tmp_path):
+    """On a true sphere the point kernel is exact: F_ij = A_j / S. Put the sub-elements' centres
+    on the sphere with radial normals and give every original element the area S / n. A planar
+    original does not see itself, so each row sums to 1 - 1/n and L = Le / (1 - rho (1 - 1/n))
+    exactly, for every solver."""
+    out = _prepared(client, tmp_path, scene_path("furnace-sphere"), 8)
+    rs = RunStore(out, "r+")
+    part = rs.load_partition()
+    arr = part.arrays()
+    u = part.center / np.linalg.norm(part.center, axis=1, keepdims=True)
+    arr["center"], arr["normal"] = u * 1.0, -u
+    S = 4 * np.pi
+    n = len(part.offsets) - 1
+    orig_area = np.bincount(part.orig, part.area)
+    arr["area"] = part.area / orig_area[part.orig] * (S / n)
+    rs.write_arrays("partition", arr)
+    V = dense_visibility(rs)
+    other = part.orig[:, None] != part.orig[None, :]
+    assert np.array_equal(V, other)  # a convex enclosure: all but coplanar pairs see each other
+    el = rs.load_elements()
+    rho, Le = el.reflectance[0, 0, 0], el.emission[0, 0, 0]
+    exact = Le / (1 - rho * (1 - 1 / n))
+    for solver in ALL:
+        fig = run_solve(out, client, solver=solver, tol=1e-10, progress=False)
+        L = _radiance(out)[:, 0, 0]
+        assert fig["converged"], solver
+        np.testing.assert_allclose(L, exact, rtol=1e-8, err_msg=solver)
+
+
+@pytest.mark.parametrize("kernel, bound", [("point", 0.30), ("disc", 0.10)])
+def test_furnace_cube_converges_and_states_its_error(client, tmp_path, kernel, bound):
+    """Closed cube, uniform Le = 1, rho = 0.5: exact L = 2. The centre-to-centre kernels are
+    biased near the cube's concave edges (issue 'accuracy' corrects the near field); measured
+    area-weighted mean error at 16^2: point +14 %, disc -3.6 %."""
+    out = _prepared(client, tmp_path, scene_path("furnace-cube"), 16)
+    fig = run_solve(out, client, solver="cg" if kernel == "point" else "jacobi", kernel=kernel,
+                    tol=1e-9, progress=False)
+    assert fig["converged"] and fig["final_residual"] < 1e-8
+    L = _radiance(out)[:, 0, 0]
+    A = RunStore(out).load_partition().area
+    mean = (A * L).sum() / A.sum()
+    err = mean / 2.0 - 1.0
+    print(f"furnace cube, {kernel} kernel: area-weighted mean {mean:.5f}, error {err:+.2%}, "
+          f"range {L.min():.4f}..{L.max():.4f}")
+    assert abs(err) < bound
+    assert np.all(np.isfinite(L)) and L.min() > 1.0
+
+
+def test_point_kernel_is_reciprocal_and_disc_is_not(client, tmp_path, rng):
+    out = _prepared(client, tmp_path, scene_path("cornell-box"), 10)
+    rs = RunStore(out)
+    for kernel, sym in (("point", True), ("disc", False)):
+        op, part, el = open_operator(rs, client, kernel)
+        m = len(part)
+        x = np.zeros((2, 3, m))
+        z = np.zeros((2, 3, m))
+        x[0] = rng.random((3, m))
+        z[0] = rng.random((3, m))
+        A = part.area
+        lhs = np.sum(x * A * op.apply(z))
+        rhs = np.sum(z * A * op.apply(x))
+        if sym:
+            assert lhs == pytest.approx(rhs, rel=1e-12)
+        else:
+            assert abs(lhs / rhs - 1) > 1e-6
+    # and pair by pair, with the numpy form of the kernels
+    ca, cb = rng.random((50, 3)), rng.random((50, 3)) + 2
+    na = np.tile([0, 0, 1.0], (50, 1))
+    nb = np.tile([0, 0, -1.0], (50, 1))
+    aa, ab = rng.random(50), rng.random(50)
+    fab, fba = pair_form_factors("point", ca, na, aa, cb, nb, ab)
+    np.testing.assert_allclose(aa * fab, ab * fba, rtol=1e-14)
+
+
+def test_energy_balance_in_an_open_scene(client, tmp_path):
+    """three-rectangles is open: emitted power = absorbed + escaped, for the discrete system."""
+    out = _prepared(client, tmp_path, scene_path("three-rectangles"), 16)
+    run_solve(out, client, solver="gauss-seidel", tol=1e-12, progress=False)
+    rs = RunStore(out)
+    op, part, el = open_operator(rs, client, "point")
+    Le, rho, A = side_vectors(part, el)
+    L = np.transpose(_radiance(out), (1, 2, 0))
+    H = op.apply(L)                         # gathered radiance (irradiance / pi)
+    rowsum = op.apply(np.ones_like(L))      # sum_b F_ab per side
+    emitted = np.pi * np.sum(A * Le)
+    absorbed = np.pi * np.sum(A * (1 - rho) * H)
+    escaped = np.pi * np.sum(A * L * (1 - rowsum) * (rowsum > 0))
+    # sides that see nothing (rowsum 0) send everything away
+    escaped += np.pi * np.sum(A * L * (rowsum == 0))
+    assert emitted > 0 and escaped > 0.01 * emitted
+    assert absorbed + escaped == pytest.approx(emitted, rel=1e-9)
+
+
+@pytest.mark.parametrize("scene, res", [("cornell-box", 8), ("construction-in-wood", 8)])
+def test_solvers_agree_with_each_other_and_with_a_dense_direct_solve(client, tmp_path, scene, res):
+    out = _prepared(client, tmp_path, scene_path(scene), res)
+    rs = RunStore(out)
+    part, el = rs.load_partition(), rs.load_elements()
+    V = naive.visibility(part, el)
+    for kernel in ("point", "disc"):
+        ref = naive.dense_solution(part, el, V, kernel)
+        scale = np.abs(ref).max()
+        for solver in ALL:
+            if solver == "cg" and kernel == "disc":
+                continue
+            run_solve(out, client, solver=solver, kernel=kernel, tol=1e-10, progress=False)
+            L = _radiance(out)
+            err = np.abs(L - ref).max() / scale
+            assert err < 1e-6, f"{solver}/{kernel}: {err:.2e}"
+
+
+def test_two_sided_panel_lit_from_one_side_is_dark_on_the_other(client, tmp_path):
+    obj = """
+    v -1 0 -1
+    v 1 0 -1
+    v 1 0 1
+    v -1 0 1
+    v -0.3 1 -0.3
+    v 0.3 1 -0.3
+    v 0.3 1 0.3
+    v -0.3 1 0.3
+    usemtl panel
+    f 1 4 3 2
+    usemtl lamp
+    f 5 6 7 8
+    """
+    extra = """
+    [material.panel]
+    reflectance = [0.6, 0.6, 0.6]
+    two_sided = true
+    back_reflectance = [0.9, 0.2, 0.2]
+    [material.lamp]
+    emission = [5.0, 5.0, 5.0]
+    """
+    cam = """
+    [camera]
+    position = [0.2, 3.0, -3.0]
+    look_at = [0.0, 0.0, 0.0]
+    up = [0.0, 1.0, 0.0]
+    fov_y = 50.0
+    resolution = [16, 16]
+    """
+    path = write_scene(tmp_path, obj, extra, camera=cam)
+    out = _prepared(client, tmp_path, path, 16)
+    run_solve(out, client, solver="jacobi", tol=1e-10, progress=False)
+    rs = RunStore(out)
+    part, el = rs.load_partition(), rs.load_elements()
+    L = _radiance(out)
+    panel = el.two_sided[part.orig]
+    assert panel.any()
+    # lamp faces down (-y)? it is wound counter-clockwise from above, so it faces up: fix below
+    front, back = L[panel, 0], L[panel, 1]
+    lit_side = 0 if front.max() > back.max() else 1
+    dark = L[panel, 1 - lit_side]
+    assert L[panel, lit_side].min() > 0
+    assert np.all(dark == 0)
+
+
+def test_registry_errors_list_the_valid_names(client, tmp_path):
+    out = _prepared(client, tmp_path, scene_path("three-rectangles"), 8)
+    with pytest.raises(RadiosityError, match="unknown solver 'sor': use one of jacobi, gauss-seidel, progressive, cg"):
+        run_solve(out, client, solver="sor", progress=False)
+    with pytest.raises(RadiosityError, match="unknown kernel 'exactish': use one of point, disc"):
+        run_solve(out, client, kernel="exactish", progress=False)
+    with pytest.raises(RadiosityError, match="cg solver needs a reciprocal kernel"):
+        run_solve(out, client, solver="cg", kernel="disc", progress=False)

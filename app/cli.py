@@ -64,8 +64,9 @@ def main():
 @click.option("--out", "-o", required=True, type=click.Path(), help="Run directory to create.")
 @click.option("--resolution", default=None, metavar="N|WxH", help="Override the camera resolution.")
 @click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
-@click.option("--variant", type=click.Choice(["exact", "seed"]), default=None,
-              help="exact: equals the sequential partition; seed: each subscene renders alone (seed §4.2).")
+@click.option("--variant", type=click.Choice(["exact", "seed", "none"]), default=None,
+              help="exact: equals the sequential partition; seed: each subscene renders alone "
+                   "(seed §4.2); none: no subdivision (the seed's image without preprocessing).")
 @click.option("--subscenes", type=int, default=None, help="Number of subscene tasks.")
 @cluster_options
 @_friendly
@@ -121,6 +122,108 @@ def _visibility_summary(fig: dict) -> str:
             ("idle fraction", "-" if fig["idle_fraction"] is None else f"{fig['idle_fraction']:.1%}"),
             ("time", f"{fig['time_s']:.2f} s")]
     return _table(rows)
+
+
+def solve_options(fn):
+    """--solver / --kernel / --tol / --max-iterations."""
+    from .kernels import KERNELS
+    from .solve import SOLVERS
+
+    fn = click.option("--max-iterations", type=int, default=None, help="Pass limit.")(fn)
+    fn = click.option("--tol", type=float, default=None, help="Relative residual to stop at.")(fn)
+    fn = click.option("--kernel", type=click.Choice(list(KERNELS)), default=None,
+                      help="Form-factor kernel (default: radiosity.solve.kernel).")(fn)
+    fn = click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
+                      help="Solver (default: radiosity.solve.solver).")(fn)
+    return fn
+
+
+def image_options(fn):
+    fn = click.option("--exposure", default=None, help="Exposure for PNG/mesh colours, or 'auto'.")(fn)
+    fn = click.option("--sigma", type=float, default=None, help="Gaussian sigma in fine pixels.")(fn)
+    fn = click.option("--filter", "filter_", type=click.Choice(["box", "gaussian"]), default=None,
+                      help="Sub-pixel reconstruction filter.")(fn)
+    return fn
+
+
+def _solve_summary(fig: dict) -> str:
+    return _table([("solver", f"{fig['solver']} ({fig['kernel']} kernel)"),
+                   ("passes", f"{fig['iterations']} ({'converged' if fig['converged'] else 'NOT converged'})"),
+                   ("final residual", f"{fig['final_residual']:.3g}"),
+                   ("pair terms/s", f"{fig['pair_terms_per_s'] / 1e6:.1f} M"),
+                   ("time", f"{fig['time_s']:.2f} s")])
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path())
+@solve_options
+@cluster_options
+@_friendly
+def solve(run_dir, solver, kernel, tol, max_iterations, workers, scheduler, cluster_kind):
+    """Solve the radiosity system of RUN_DIR (after visibility): form factors on the fly."""
+    from .cluster import open_client
+    from .solve import run_solve
+    from .store import RunStore
+
+    RunStore(run_dir).load_partition()
+    with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+        fig = run_solve(run_dir, client, solver=solver, kernel=kernel, tol=tol, max_iter=max_iterations)
+    click.echo(_solve_summary(fig))
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path())
+@image_options
+@_friendly
+def image(run_dir, filter_, sigma, exposure):
+    """Write image.exr, image.png, mesh.glb, mesh.ply and viewer.html of a solved RUN_DIR."""
+    from .render import render_outputs
+
+    fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure)
+    click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html "
+               f"({fig['width']}x{fig['height']}, exposure {fig['exposure']:.3g})")
+
+
+@main.command()
+@click.argument("scene", type=click.Path())
+@click.option("--out", "-o", required=True, type=click.Path(), help="Run directory.")
+@click.option("--resolution", default=None, metavar="N|WxH", help="Override the camera resolution.")
+@click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
+@click.option("--task-unit", type=click.Choice(["block", "stripe", "auto"]), default=None)
+@click.option("--resume", is_flag=True, help="Reuse the partition and finished visibility tasks in OUT.")
+@click.option("--no-preview", is_flag=True, help="Skip preview.png (the original elements only).")
+@solve_options
+@image_options
+@cluster_options
+@_friendly
+def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, solver, kernel, tol,
+           max_iterations, filter_, sigma, exposure, workers, scheduler, cluster_kind):
+    """Preprocess, visibility, solve and image of SCENE into the run directory OUT."""
+    from .cluster import open_client
+    from .pipeline import render_scene
+    from .scene import load_scene
+
+    sc = load_scene(scene, resolution=resolution)
+    click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
+               f"{sc.camera.width}x{sc.camera.height}")
+    if max_iterations is not None:
+        import dask.config
+        dask.config.set({"radiosity.solve.max-iterations": max_iterations})
+    with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+        rep = render_scene(sc, out, client, subpixel=subpixel, unit=task_unit, solver=solver,
+                           kernel=kernel, tol=tol, filter=filter_, sigma=sigma, exposure=exposure,
+                           resume=resume, preview=not no_preview, echo=click.echo)
+    pre, vis, sol = rep["preprocess"], rep["visibility"], rep["solve"]
+    st = rep["render"]["stages"]
+    click.echo(_table([
+        ("sub-elements", f"{pre['sub_elements']} (from {pre['original_elements']} originals)"),
+        ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)"),
+        ("solve", f"{sol['solver']}/{sol['kernel']}: {sol['iterations']} passes, residual {sol['final_residual']:.2g}"),
+        ("times", f"preprocess {st['preprocess_s']:.1f} s, visibility {st['visibility_s']:.1f} s, "
+                  f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, total {st['total_s']:.1f} s"),
+    ]))
+    click.echo(f"wrote {out}/image.exr, image.png, preview.png, mesh.glb, mesh.ply, viewer.html, report.json"
+               if not no_preview else f"wrote {out}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, report.json")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -36,7 +36,7 @@ def kernel_id(name: str) -> int:
         raise RadiosityError(f"unknown kernel {name!r}: use one of {', '.join(KERNELS)}") from None
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _f(kid, g, r2, area):
     """Form factor towards an element of `area`, from g = |ca cb| (unnormalised cosines)."""
     if kid == 0:
@@ -44,41 +44,37 @@ def _f(kid, g, r2, area):
     return area * g / r2 / (np.pi * r2 + area)
 
 
-@numba.njit(cache=True, fastmath=True)
-def _row_fast(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, L, y, mode):
-    """One row of a tile where neither element is two-sided: every visible pair is front-front,
-    so the loop is branch-free over the columns and vectorises."""
-    ax, ay, az = cx[a], cy[a], cz[a]
-    anx, any_, anz = nx[a], ny[a], nz[a]
-    aa = area[a]
-    la0, la1, la2 = L[0, 0, a], L[0, 1, a], L[0, 2, a]
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
+def _row_fast(kid, mask, ax, ay, az, anx, any_, anz, aa, la0, la1, la2, C, cx, cy, cz, nx, ny, nz,
+              area, L0, L1, L2, y0, y1, y2, mode):
+    """One row of a tile where neither element is two-sided: every visible pair is front-front
+    (ca > 0 and cb > 0), so the loop is branch-free over the columns and vectorises. Column
+    arrays are slices starting at the tile's first column (no negative-index checks) and
+    error_model="numpy" drops the division-by-zero check: both are needed for SIMD.
+    Returns the row's sums (F_ab L_b over the columns)."""
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0
     for c in range(C):
-        b = b0 + c
-        dx = cx[b] - ax
-        dy = cy[b] - ay
-        dz = cz[b] - az
-        r2 = dx * dx + dy * dy + dz * dz
-        g = mask[c] * abs((anx * dx + any_ * dy + anz * dz) * (nx[b] * dx + ny[b] * dy + nz[b] * dz))
-        r2 = max(r2, 1e-300)
+        dx = cx[c] - ax
+        dy = cy[c] - ay
+        dz = cz[c] - az
+        r2 = dx * dx + dy * dy + dz * dz + 1e-300
+        g = -mask[c] * (anx * dx + any_ * dy + anz * dz) * (nx[c] * dx + ny[c] * dy + nz[c] * dz)
         if mode != COLS:
-            fab = _f(kid, g, r2, area[b])
-            s0 += fab * L[0, 0, b]
-            s1 += fab * L[0, 1, b]
-            s2 += fab * L[0, 2, b]
+            fab = _f(kid, g, r2, area[c])
+            s0 += fab * L0[c]
+            s1 += fab * L1[c]
+            s2 += fab * L2[c]
         if mode != ROWS:
             fba = _f(kid, g, r2, aa)
-            y[0, 0, b] += fba * la0
-            y[0, 1, b] += fba * la1
-            y[0, 2, b] += fba * la2
-    y[0, 0, a] += s0
-    y[0, 1, a] += s1
-    y[0, 2, a] += s2
+            y0[c] += fba * la0
+            y1[c] += fba * la1
+            y2[c] += fba * la2
+    return s0, s1, s2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, L, y, mode):
     """One row of a tile with a two-sided element: each pair picks the sides that face."""
     for c in range(C):
@@ -113,6 +109,7 @@ def tile_apply(kid, packed, R, C, a0, b0, cx, cy, cz, nx, ny, nz, area, sided, L
     whose source is all zero (progressive shooting). Returns the number of pair terms.
     """
     mask = np.zeros(C, np.float64)
+    b1 = b0 + C
     any_sided_cols = False
     for c in range(C):
         if sided[b0 + c]:
@@ -143,7 +140,14 @@ def tile_apply(kid, packed, R, C, a0, b0, cx, cy, cz, nx, ny, nz, area, sided, L
         if sided[a] or any_sided_cols:
             _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, L, y, m)
         else:
-            _row_fast(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, L, y, m)
+            s0, s1, s2 = _row_fast(kid, mask, cx[a], cy[a], cz[a], nx[a], ny[a], nz[a], area[a],
+                                   L[0, 0, a], L[0, 1, a], L[0, 2, a], C, cx[b0:b1], cy[b0:b1],
+                                   cz[b0:b1], nx[b0:b1], ny[b0:b1], nz[b0:b1], area[b0:b1],
+                                   L[0, 0, b0:b1], L[0, 1, b0:b1], L[0, 2, b0:b1], y[0, 0, b0:b1],
+                                   y[0, 1, b0:b1], y[0, 2, b0:b1], m)
+            y[0, 0, a] += s0
+            y[0, 1, a] += s1
+            y[0, 2, a] += s2
     return terms
 
 

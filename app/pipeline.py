@@ -106,8 +106,8 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     max_depth = int(config.get("subdivide.max-depth"))
     if subpixel < 1:
         raise SceneError(f"--subpixel must be 1 or more, got {subpixel}")
-    if variant not in ("exact", "seed"):
-        raise SceneError(f"unknown subdivision variant {variant!r}: use exact or seed")
+    if variant not in ("exact", "seed", "none"):
+        raise SceneError(f"unknown subdivision variant {variant!r}: use exact, seed or none")
     el, cam = scene.elements, scene.camera
     threads = sum(client.nthreads().values()) or 1
     ntasks = int(config.get("subdivide.subscenes", subscenes) or 2 * threads)
@@ -140,7 +140,11 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
 
     # 2. subdivision, one task per subscene (contiguous ranges of original ids)
     t1 = time.perf_counter()
-    if variant == "exact":
+    if variant == "none":  # no preprocessing: every original is one element (seed §6, image 1)
+        ranges = [(0, len(el))]
+        futs = {client.submit(task_subdivide, el.verts, el.nverts, el.normal, np.zeros((0, 3)),
+                              np.zeros(0, np.int64), max_depth, np.arange(len(el)), pure=False): 0}
+    elif variant == "exact":
         counts = np.bincount(elem[hit], minlength=len(el))
         ranges = subscene_ranges(counts + 1.0, ntasks)
         order = np.argsort(elem[hit], kind="stable")
@@ -177,6 +181,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         "max_depth": int(part.depth.max(initial=0)), "levels": max(f["levels"] for _, f in pieces),
         "unseen_unsplit": int((~seen).sum()), "pixels_hit": int(hit.sum()),
         "max_pixels_per_sub_element": int(per_sub.max(initial=0)), "depth_guarded": guarded,
+        "sub_elements_per_pixel": len(part) / max(1, int(hit.sum())),
         "subscene_tasks": len(ranges), "raster_tasks": len(bands),
         "time_raster_s": round(t_raster, 4), "time_subdivide_s": round(t_sub, 4),
     }
@@ -193,3 +198,82 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     figures["peak_rss_mb"] = peak_rss_mb(client)
     update_report(out, "preprocess", figures)
     return figures
+
+
+# ----------------------------------------------------------------------------- the whole run
+
+def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None, unit=None,
+                 solver=None, kernel=None, tol=None, filter=None, sigma=None, exposure=None,
+                 resume=False, preview=True, progress=True, echo=print) -> dict:
+    """preprocess -> visibility -> solve -> image (+ the preview from the original elements).
+
+    With `resume`, a run directory whose preprocessing matches (same scene file, camera and
+    subpixel) keeps its partition and the finished visibility tasks."""
+    import os
+
+    from .render import render_outputs
+    from .solve import run_solve
+    from .store import RunStore
+    from .visibility import compute_visibility
+
+    t0 = time.perf_counter()
+    stages = {}
+    reuse = False
+    if resume and os.path.exists(os.path.join(out, "store.zarr")):
+        try:
+            at = RunStore(out).attrs
+            reuse = (at.get("scene") == scene.path and at.get("camera") == scene.camera.to_dict()
+                     and at.get("subpixel") == int(config.get("subdivide.subpixel", subpixel))
+                     and RunStore(out).has("raster"))
+        except Exception:
+            reuse = False
+    t = time.perf_counter()
+    if reuse:
+        echo("preprocess: reusing the partition in the run directory")
+    else:
+        preprocess(scene, out, client, subpixel=subpixel, variant=variant, progress=progress)
+    stages["preprocess_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    compute_visibility(out, client, unit=unit, resume=resume and reuse, progress=progress)
+    stages["visibility_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    run_solve(out, client, solver=solver, kernel=kernel, tol=tol, progress=progress)
+    stages["solve_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    fig = render_outputs(out, filter=filter, sigma=sigma, exposure=exposure)
+    stages["image_s"] = time.perf_counter() - t
+    if preview:
+        t = time.perf_counter()
+        stages["preview"] = render_preview(scene, out, client, tol=tol, exposure=fig.get("exposure"))
+        stages["preview_s"] = time.perf_counter() - t
+    stages["total_s"] = time.perf_counter() - t0
+    stages["peak_rss_mb"] = peak_rss_mb(client)
+    from .store import update_report
+
+    return update_report(out, "render", {"stages": stages})
+
+
+def render_preview(scene: Scene, out: str, client, tol=None,
+                   exposure=None) -> str:
+    """The same scene solved on its original elements only (no preprocessing), as the seed's
+    first image: writes OUT/preview.png (and keeps its run in OUT/preview/). Large originals
+    close together make the point kernel's rows sum past 1, so the preview uses the bounded
+    disc kernel and at most 200 passes."""
+    import os
+    import shutil
+    import warnings as _w
+
+    from .render import render_outputs
+    from .solve import run_solve
+    from .visibility import compute_visibility
+
+    sub = os.path.join(out, "preview")
+    with _w.catch_warnings():
+        _w.simplefilter("ignore")
+        preprocess(scene, sub, client, subpixel=1, variant="none", progress=False)
+        compute_visibility(sub, client, progress=False)
+        run_solve(sub, client, solver="jacobi", kernel="disc", tol=tol, max_iter=200, progress=False)
+        render_outputs(sub, exposure=exposure)
+    dst = os.path.join(out, "preview.png")
+    shutil.copyfile(os.path.join(sub, "image.png"), dst)
+    return dst

@@ -119,44 +119,50 @@ def progressive(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
 def cg(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
     """Conjugate gradients on the symmetric form (SPEC §6): with D = diag(A / rho),
     D (I - rho F) = D - diag(A) F is symmetric by reciprocity (A_a F_ab = A_b F_ba), and positive
-    definite when rho < 1 and row sums <= 1. Entries with rho = 0 are known (L = Le) and move to
-    the right-hand side. One product per iteration; the three channels are three systems solved
-    in the same passes."""
+    definite when rho < 1 and row sums <= 1. D itself is the preconditioner (it is the diagonal,
+    F_aa = 0), which removes the spread of element areas from the conditioning. Entries with
+    rho = 0 are known (L = Le) and move to the right-hand side. One product per iteration; the
+    three channels are three systems solved in the same passes."""
     if not KERNELS[op.kernel][2]:
         raise RadiosityError(f"the cg solver needs a reciprocal kernel (A_a F_ab = A_b F_ba); "
                              f"'{op.kernel}' is not: use --kernel point, or --solver jacobi, "
                              "gauss-seidel or progressive")
     U = rho > 0
     D = np.where(U, area / np.where(U, rho, 1.0), 0.0)
+    Dinv = np.where(U, rho / area, 0.0)
     known = np.where(U, 0.0, Le)
     b = np.where(U, D * Le + area * op.apply(known), 0.0)
 
     def M(x):
         return np.where(U, D * x - area * op.apply(x), 0.0)
 
+    def dot(u, v):  # per channel
+        return (u * v).sum(axis=(0, 2))
+
     x = np.where(U, Le, 0.0)
     r = b - M(x)
-    p = r.copy()
-    rr = (r * r).sum(axis=(0, 2))  # per channel
+    z = Dinv * r
+    p = z.copy()
+    rz = dot(r, z)
     nb = anorm(Le, area) or 1.0
-    scale = np.where(U, rho / area, 0.0)  # true residual = (rho / A) r on U, 0 elsewhere
     res = []
     for k in range(1, max_iter + 1):
         Mp = M(p)
-        pMp = (p * Mp).sum(axis=(0, 2))
-        alpha = np.where(pMp > 0, rr / np.where(pMp > 0, pMp, 1.0), 0.0)
+        pMp = dot(p, Mp)
+        alpha = np.where(pMp > 0, rz / np.where(pMp > 0, pMp, 1.0), 0.0)
         x = x + alpha[None, :, None] * p
         r = r - alpha[None, :, None] * Mp
-        res.append(anorm(scale * r, area) / nb)
+        z = Dinv * r  # also the true residual Le + rho F L - L on U
+        res.append(anorm(z, area) / nb)
         L = x + known
         if callback:
             callback(k, res[-1], L)
         if res[-1] <= tol:
             return SolveResult(L, k, res, True)
-        rr_new = (r * r).sum(axis=(0, 2))
-        beta = np.where(rr > 0, rr_new / np.where(rr > 0, rr, 1.0), 0.0)
-        p = r + beta[None, :, None] * p
-        rr = rr_new
+        rz_new = dot(r, z)
+        beta = np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
+        p = z + beta[None, :, None] * p
+        rz = rz_new
     return SolveResult(x + known, max_iter, res, False)
 
 
@@ -388,6 +394,12 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     bar = tqdm(total=None, desc=f"solve ({solver})", unit="pass", disable=not progress, leave=False)
 
     def cb(k, r, L):
+        if not np.isfinite(r) or r > 1e8:
+            bar.close()
+            raise RadiosityError(
+                f"{solver} diverged after {k} passes (residual {r:.3g}): some rows of F sum to more "
+                f"than 1/rho with the {kernel} kernel (large elements close together); use "
+                "--kernel disc or subdivide more (--resolution, --subpixel)")
         bar.update()
         bar.set_postfix(residual=f"{r:.2e}")
         if callback:

@@ -45,8 +45,8 @@ def _f(kid, g, r2, area):
 
 
 @numba.njit(cache=True, fastmath=True, error_model="numpy")
-def _row_fast(kid, mask, ax, ay, az, anx, any_, anz, aa, la0, la1, la2, C, cx, cy, cz, nx, ny, nz,
-              area, L0, L1, L2, y0, y1, y2, mode):
+def _row_fast(kid, mask, ax, ay, az, anx, any_, anz, aa, capa, la0, la1, la2, C, cx, cy, cz, nx,
+              ny, nz, area, cap, L0, L1, L2, y0, y1, y2, mode):
     """One row of a tile where neither element is two-sided: every visible pair is front-front
     (ca > 0 and cb > 0), so the loop is branch-free over the columns and vectorises. Column
     arrays are slices starting at the tile's first column (no negative-index checks) and
@@ -61,6 +61,7 @@ def _row_fast(kid, mask, ax, ay, az, anx, any_, anz, aa, la0, la1, la2, C, cx, c
         dz = cz[c] - az
         r2 = dx * dx + dy * dy + dz * dz + 1e-300
         g = -mask[c] * (anx * dx + any_ * dy + anz * dz) * (nx[c] * dx + ny[c] * dy + nz[c] * dz)
+        g *= min(capa, cap[c])
         if mode != COLS:
             fab = _f(kid, g, r2, area[c])
             s0 += fab * L0[c]
@@ -75,7 +76,7 @@ def _row_fast(kid, mask, ax, ay, az, anx, any_, anz, aa, la0, la1, la2, C, cx, c
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, L, y, mode):
+def _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, cap, L, y, mode):
     """One row of a tile with a two-sided element: each pair picks the sides that face."""
     for c in range(C):
         if mask[c] == 0.0:
@@ -89,7 +90,7 @@ def _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, L, y, mode):
         cb = -(nx[b] * dx + ny[b] * dy + nz[b] * dz)
         sa = 0 if ca > 0 else 1
         sb = 0 if cb > 0 else 1
-        g = abs(ca * cb)
+        g = abs(ca * cb) * min(cap[a], cap[b])
         if mode != COLS:
             fab = _f(kid, g, r2, area[b])
             for k in range(3):
@@ -101,12 +102,14 @@ def _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, L, y, mode):
 
 
 @numba.njit(cache=True)
-def tile_apply(kid, packed, R, C, a0, b0, cx, cy, cz, nx, ny, nz, area, sided, L, y, mode,
+def tile_apply(kid, packed, R, C, a0, b0, cx, cy, cz, nx, ny, nz, area, cap, sided, L, y, mode,
                row_live, col_live):
     """y += F L over one tile: rows a0..a0+R against columns b0..b0+C, bits packed row-major,
     little-endian (see plan.py). mode BOTH applies F_ab (into rows) and F_ba (into columns);
     ROWS or COLS only one direction (Gauss-Seidel). row_live / col_live: skip the direction
-    whose source is all zero (progressive shooting). Returns the number of pair terms.
+    whose source is all zero (progressive shooting). cap (m,): a pair's form factors are scaled
+    by min(cap_a, cap_b) (row normalisation that keeps reciprocity; 1 = none). Returns the
+    number of pair terms.
     """
     mask = np.zeros(C, np.float64)
     b1 = b0 + C
@@ -138,12 +141,12 @@ def tile_apply(kid, packed, R, C, a0, b0, cx, cy, cz, nx, ny, nz, area, sided, L
         terms += cnt * (2 if m == BOTH else 1)
         a = a0 + r
         if sided[a] or any_sided_cols:
-            _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, L, y, m)
+            _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, cap, L, y, m)
         else:
             s0, s1, s2 = _row_fast(kid, mask, cx[a], cy[a], cz[a], nx[a], ny[a], nz[a], area[a],
-                                   L[0, 0, a], L[0, 1, a], L[0, 2, a], C, cx[b0:b1], cy[b0:b1],
-                                   cz[b0:b1], nx[b0:b1], ny[b0:b1], nz[b0:b1], area[b0:b1],
-                                   L[0, 0, b0:b1], L[0, 1, b0:b1], L[0, 2, b0:b1], y[0, 0, b0:b1],
+                                   cap[a], L[0, 0, a], L[0, 1, a], L[0, 2, a], C, cx[b0:b1],
+                                   cy[b0:b1], cz[b0:b1], nx[b0:b1], ny[b0:b1], nz[b0:b1],
+                                   area[b0:b1], cap[b0:b1], L[0, 0, b0:b1], L[0, 1, b0:b1], L[0, 2, b0:b1], y[0, 0, b0:b1],
                                    y[0, 1, b0:b1], y[0, 2, b0:b1], m)
             y[0, 0, a] += s0
             y[0, 1, a] += s1
@@ -163,8 +166,8 @@ def pair_form_factors(kernel: str, ca_pts, na, aa, cb_pts, nb, ab):
 
 
 @numba.njit(cache=True)
-def tiles_apply(kid, data, base, tiles, offsets, cx, cy, cz, nx, ny, nz, area, sided, L, y, mode,
-                live):
+def tiles_apply(kid, data, base, tiles, offsets, cx, cy, cz, nx, ny, nz, area, cap, sided, L, y,
+                mode, live):
     """tile_apply over many tiles whose bytes lie in `data` starting at byte `base`.
 
     tiles (t, 7) int64 as in plan.py; live (n,) bool (empty: everything live). Returns terms."""
@@ -178,13 +181,13 @@ def tiles_apply(kid, data, base, tiles, offsets, cx, cy, cz, nx, ny, nz, area, s
         row_live = live[j] if use_live else True
         col_live = live[i] if use_live else True
         terms += tile_apply(kid, packed, r1 - r0, ncols, offsets[i] + r0, offsets[j], cx, cy, cz,
-                            nx, ny, nz, area, sided, L, y, mode, row_live, col_live)
+                            nx, ny, nz, area, cap, sided, L, y, mode, row_live, col_live)
     return terms
 
 
 @numba.njit(cache=True)
 def gs_sweep(kid, data, tiles, row_ptr, row_idx, col_ptr, col_idx, offsets, cx, cy, cz, nx, ny,
-             nz, area, sided, L, Le, rho, y):
+             nz, area, cap, sided, L, Le, rho, y):
     """One block Gauss-Seidel sweep (in place on L): for each original e in order, gather
     y_e = sum_J F_eJ L_J from its row tiles (e, J) and the transposed column tiles (J, e) with
     the latest L, then L_e = Le_e + rho_e y_e. `data` holds every tile's bytes at tiles[:, 5];
@@ -198,11 +201,11 @@ def gs_sweep(kid, data, tiles, row_ptr, row_idx, col_ptr, col_idx, offsets, cx, 
         for q in range(row_ptr[e], row_ptr[e + 1]):
             k = row_idx[q]
             terms += tiles_apply(kid, data, 0, tiles[k:k + 1], offsets, cx, cy, cz, nx, ny, nz,
-                                 area, sided, L, y, ROWS, none)
+                                 area, cap, sided, L, y, ROWS, none)
         for q in range(col_ptr[e], col_ptr[e + 1]):
             k = col_idx[q]
             terms += tiles_apply(kid, data, 0, tiles[k:k + 1], offsets, cx, cy, cz, nx, ny, nz,
-                                 area, sided, L, y, COLS, none)
+                                 area, cap, sided, L, y, COLS, none)
         for s in range(2):
             for c in range(3):
                 for a in range(a0, a1):

@@ -190,6 +190,7 @@ class SolveInputs:
         self.cx, self.cy, self.cz = (np.ascontiguousarray(c[:, k]) for k in range(3))
         self.nx, self.ny, self.nz = (np.ascontiguousarray(n[:, k]) for k in range(3))
         self.area = part.area
+        self.cap = np.ones(len(part.area))  # row normalisation (see normalise_rows)
         self.sided = elements.two_sided[part.orig]
         self.offsets = part.offsets
         self.tiles = plan.tiles
@@ -228,7 +229,7 @@ def _task_bytes(inp: SolveInputs, task: int) -> np.ndarray:
 
 
 def _geometry(inp):
-    return inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, inp.area, inp.sided
+    return inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, inp.area, inp.cap, inp.sided
 
 
 def task_apply(inp: SolveInputs, task_ids: np.ndarray, L: np.ndarray, kid: int, live):
@@ -285,6 +286,7 @@ class DaskOperator:
     def __init__(self, client, inp_future, inp: SolveInputs, kernel: str, groups: int | None = None):
         self.client = client
         self.inp_f = inp_future
+        self.inp = inp
         self.kernel = kernel
         self.kid = kernel_id(kernel)
         self.terms = 0
@@ -329,6 +331,16 @@ class DaskOperator:
         self.passes += 1
         return y
 
+    def row_sums(self) -> np.ndarray:
+        """sum_b F_ab for every sub-element and side, (2, m) (one pass)."""
+        m = len(self.inp.area)
+        return self.apply(np.ones((2, 3, m)))[:, 0, :]
+
+    def set_cap(self, cap: np.ndarray) -> None:
+        """Use the row normalisation `cap` (m,) from now on (re-scatters the inputs)."""
+        self.inp.cap = cap
+        [self.inp_f] = self.client.scatter([self.inp], broadcast=True)
+
     def gs_sweep(self, L, Le, rho) -> np.ndarray:
         w = self.workers[0] if self.workers else None
         f = self.client.submit(task_gs_sweep, self.inp_f, L, Le, rho, self.kid, pure=False,
@@ -341,6 +353,20 @@ class DaskOperator:
 
 
 # ----------------------------------------------------------------------------- the stage
+
+def normalise_rows(op, enabled: bool = True) -> dict:
+    """Detect rows of F that sum to more than 1 (the point kernel near large elements close
+    together, where 1/r^2 blows up) and, if enabled, scale each pair by min(cap_a, cap_b) with
+    cap = 1 / row sum on those rows: rows then sum to at most 1 and reciprocity still holds
+    (A_a F'_ab = A_b F'_ba), so every solver converges for rho < 1. Returns what was found/done."""
+    rs = op.row_sums().max(axis=0)
+    over = rs > 1.0 + 1e-12
+    out = {"rows_over_1": int(over.sum()), "max_row_sum": float(rs.max(initial=0.0)),
+           "normalised": bool(enabled and over.any())}
+    if out["normalised"]:
+        op.set_cap(np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0))
+    return out
+
 
 def side_vectors(part, elements):
     """Le, rho (2, 3, m) float64 and area (m,) of the sub-elements, per side."""
@@ -375,7 +401,7 @@ def open_operator(rs, client, kernel: str):
 
 def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | None = None,
               tol: float | None = None, max_iter: int | None = None, progress: bool = True,
-              callback=None) -> dict:
+              callback=None, normalise: bool | None = None) -> dict:
     """Solve the run's radiosity system; write solution/radiance (m, 2, 3) and report figures."""
     from tqdm.auto import tqdm
 
@@ -391,15 +417,16 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     rs = RunStore(run_dir, "r+")
     op, part, el = open_operator(rs, client, kernel)
     Le, rho, area = side_vectors(part, el)
+    rows = normalise_rows(op, bool(config.get("solve.normalise-rows", normalise)))
     bar = tqdm(total=None, desc=f"solve ({solver})", unit="pass", disable=not progress, leave=False)
 
     def cb(k, r, L):
         if not np.isfinite(r) or r > 1e8:
             bar.close()
             raise RadiosityError(
-                f"{solver} diverged after {k} passes (residual {r:.3g}): some rows of F sum to more "
-                f"than 1/rho with the {kernel} kernel (large elements close together); use "
-                "--kernel disc or subdivide more (--resolution, --subpixel)")
+                f"{solver} diverged after {k} passes (residual {r:.3g}): rows of F sum to more "
+                f"than 1/rho with the {kernel} kernel (large elements close together); keep "
+                "radiosity.solve.normalise-rows on, use --kernel disc, or subdivide more")
         bar.update()
         bar.set_postfix(residual=f"{r:.2e}")
         if callback:
@@ -417,7 +444,7 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
         "converged": bool(res.converged), "residuals": [float(r) for r in res.residuals],
         "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
         "pair_terms_per_s": op.terms / max(t_solve, 1e-9), "time_s": round(t_solve, 4),
-        "sub_elements": len(part),
+        "sub_elements": len(part), "row_sums": rows,
     }
     if res.ambient is not None:
         figures["ambient"] = res.ambient.tolist()

@@ -54,10 +54,20 @@ def form_factor_matrix(part, elements, V, kernel: str = "point") -> np.ndarray:
     return F
 
 
-def dense_solution(part, elements, V, kernel: str = "point") -> np.ndarray:
+def normalised(F: np.ndarray, m: int) -> np.ndarray:
+    """Rows summing past 1 scaled pairwise by min(cap_a, cap_b), cap = 1 / row sum (max over sides)."""
+    rs = F.sum(axis=1).reshape(2, m).max(axis=0)
+    cap = np.where(rs > 1 + 1e-12, 1 / rs, 1.0)
+    c2 = np.concatenate([cap, cap])
+    return F * np.minimum(c2[:, None], c2[None, :])
+
+
+def dense_solution(part, elements, V, kernel: str = "point", normalise: bool = True) -> np.ndarray:
     """Direct solve of (I - rho F) L = Le per channel with numpy.linalg.solve: (m, 2, 3)."""
     m = len(part)
     F = form_factor_matrix(part, elements, V, kernel)
+    if normalise:
+        F = normalised(F, m)
     Le = elements.emission[part.orig]       # (m, 2, 3)
     rho = elements.reflectance[part.orig]
     out = np.zeros((m, 2, 3))

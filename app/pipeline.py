@@ -118,7 +118,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     store.save_elements(el)
     store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(), subpixel=subpixel)
     key = tokenize(el.verts, el.nverts)
-    [el_f] = client.scatter([el], broadcast=True)
+    [el_f] = client.scatter([el], broadcast=True, hash=False)
 
     # 1. the ID raster of the original scene (row bands), needed by both variants for the image
     bands = [(r0, min(h, r0 + rows_per_task)) for r0 in range(0, h, rows_per_task)]

@@ -71,10 +71,13 @@ def facing_blocks(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, cen
 
 
 def make_plan(offsets: np.ndarray, facing: np.ndarray, unit: str = "block",
-              max_task_bits: int = 1 << 26, chunk: int | None = None) -> VisibilityPlan:
+              max_task_bits: int = 1 << 26, chunk: int | None = None,
+              min_task_bits: int = 0) -> VisibilityPlan:
     """Tiles and tasks for the blocks I < J that face each other both ways.
 
     offsets : (n + 1,) sub-element offsets of the originals; facing : (n, n) bool (facing_blocks).
+    In stripe mode, consecutive stripes share a task until it holds `min_task_bits` (many small
+    originals would otherwise cost more in scheduling than in work).
     """
     if unit not in ("block", "stripe"):
         raise ValueError(f"task unit must be block or stripe, got {unit!r}")
@@ -84,6 +87,8 @@ def make_plan(offsets: np.ndarray, facing: np.ndarray, unit: str = "block",
     both = facing[iu, ju] & facing[ju, iu]
     culled = np.stack([iu[~both], ju[~both]], 1).astype(np.int64)
     bi, bj = iu[both], ju[both]
+    # never fewer than ~64 tasks because of the merging: the master needs work to balance
+    min_task_bits = min(min_task_bits, int((size[bi] * size[bj]).sum()) // 64)
     tiles = []  # [I, J, r0, r1]
     task_of = []  # task id of each tile
     task = -1
@@ -96,12 +101,14 @@ def make_plan(offsets: np.ndarray, facing: np.ndarray, unit: str = "block",
         for r0 in range(0, ni, rows):
             r1 = min(ni, r0 + rows)
             bits = (r1 - r0) * nj
-            if key != cur_key or cur_bits + bits > max_task_bits or r0 > 0 and unit == "block":
+            new_key = key != cur_key and (unit == "block" or cur_bits >= min_task_bits)
+            if task < 0 or new_key or cur_bits + bits > max_task_bits or r0 > 0 and unit == "block":
                 task += 1
                 cur_bits = 0
                 cur_key = key
             tiles.append((a, b, r0, r1))
             task_of.append(task)
+            cur_key = key
             cur_bits += bits
     t = np.array(tiles, np.int64).reshape(-1, 4)
     task_of = np.array(task_of, np.int64)

@@ -319,7 +319,7 @@ class DaskOperator:
         live_orig = None
         if live is not None:  # per original: does any of its sub-elements have a source?
             live_orig = np.add.reduceat(live.astype(np.int64), self._offsets[:-1]) > 0
-        [Lf] = self.client.scatter([L], broadcast=False)
+        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
         futs = [self.client.submit(task_apply, self.inp_f, g, Lf, self.kid, live_orig, pure=False,
                                    workers=[w] if w else None, allow_other_workers=True,
                                    retries=self.retries)
@@ -339,7 +339,7 @@ class DaskOperator:
     def set_cap(self, cap: np.ndarray) -> None:
         """Use the row normalisation `cap` (m,) from now on (re-scatters the inputs)."""
         self.inp.cap = cap
-        [self.inp_f] = self.client.scatter([self.inp], broadcast=True)
+        [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
 
     def gs_sweep(self, L, Le, rho) -> np.ndarray:
         w = self.workers[0] if self.workers else None
@@ -395,7 +395,7 @@ def open_operator(rs, client, kernel: str):
     part = rs.load_partition()
     el = rs.load_elements()
     inp = SolveInputs(part, el, plan, crc, rs.path, token)
-    [inp_f] = client.scatter([inp], broadcast=True)
+    [inp_f] = client.scatter([inp], broadcast=True, hash=False)
     return DaskOperator(client, inp_f, inp, kernel), part, el
 
 

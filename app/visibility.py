@@ -29,6 +29,7 @@ from .plan import END, FIRST, I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART
 COS_TOL = 1e-9   # |cos| below this (relative) counts as coplanar: exactly zero, not noise
 BOX_PAD = 1e-6   # occluder boxes grow by this fraction of the scene size (conservative)
 LEAF = 64        # range pairs with at most this many pairs are tested pair by pair
+SMALL_TILE_FACTOR = 8  # tiles with pairs * this < number of elements skip the shaft search
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -238,6 +239,45 @@ def block_candidates(A, B, olo, ohi, on, od, pad, skip_a, skip_b):
     return out[:k]
 
 
+@numba.njit(cache=True)
+def small_tile_pairs(tiles, offsets, center, normal, two_sided, base):
+    """Facing pairs of many small tiles at once (no shaft search: for a handful of pairs a ray is
+    cheaper than looking for occluders among all elements). Returns ia, ib (sub-elements) and the
+    bit index of each pair in the task's buffer (tiles' byte starts relative to `base`)."""
+    total = 0
+    for t in range(tiles.shape[0]):
+        total += (tiles[t, 3] - tiles[t, 2]) * tiles[t, 4]
+    ia = np.empty(total, np.int64)
+    ib = np.empty(total, np.int64)
+    bit = np.empty(total, np.int64)
+    k = 0
+    for t in range(tiles.shape[0]):
+        i, j, r0, r1, nj = tiles[t, 0], tiles[t, 1], tiles[t, 2], tiles[t, 3], tiles[t, 4]
+        first = (tiles[t, 5] - base) * 8
+        for r in range(r1 - r0):
+            a = offsets[i] + r0 + r
+            for c in range(nj):
+                b = offsets[j] + c
+                dx = center[b, 0] - center[a, 0]
+                dy = center[b, 1] - center[a, 1]
+                dz = center[b, 2] - center[a, 2]
+                length = np.sqrt(dx * dx + dy * dy + dz * dz)
+                if _faces(normal[a], two_sided[a], dx, dy, dz, length) and \
+                        _faces(normal[b], two_sided[b], -dx, -dy, -dz, length):
+                    ia[k] = a
+                    ib[k] = b
+                    bit[k] = first + r * nj + c
+                    k += 1
+    return ia[:k], ib[:k], bit[:k]
+
+
+@numba.njit(cache=True)
+def set_bits(buf, bits):
+    """Set bit positions `bits` in the uint8 buffer (little-endian within bytes)."""
+    for k in range(bits.shape[0]):
+        buf[bits[k] >> 3] |= np.uint8(1 << (bits[k] & 7))
+
+
 # ----------------------------------------------------------------------------- inputs
 
 class VisInputs:
@@ -317,13 +357,21 @@ def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: 
     caster = caster_for(inp.key, inp.verts, inp.nverts)
     buf = np.zeros(tbytes, np.uint8)
     counts = np.zeros(len(COUNTERS), np.int64)
-    used = 0
-    for t in tiles:
+    used = int((tiles[:, START] + tiles[:, NBYTES]).max() - tstart) if len(tiles) else 0
+    # small tiles: one batched pass, every facing pair gets a ray
+    pairs = (tiles[:, R1] - tiles[:, R0]) * tiles[:, NCOLS]
+    small = pairs * SMALL_TILE_FACTOR < len(inp.elo)
+    if small.any():
+        ia, ib, bit = small_tile_pairs(tiles[small], inp.offsets, inp.center, inp.normal,
+                                       inp.two_sided, tstart)
+        vis = ~caster.occluded_pairs(inp.center, ia, ib, inp.orig)
+        set_bits(buf, bit[vis])
+        counts += np.array([int(pairs[small].sum()), len(ia), 0, len(ia), int(vis.sum()), 0])
+    for t in tiles[~small]:
         bits, c = tile_bits(inp, caster, int(t[I]), int(t[J]), int(t[R0]), int(t[R1]))
         packed = np.packbits(bits, bitorder="little")
         off = int(t[START]) - tstart
         buf[off:off + int(t[NBYTES])] = packed
-        used = max(used, off + int(t[NBYTES]))
         counts += c
     write_bits(store_path, tstart, buf)
     return {"crc": zlib.crc32(buf[:used].tobytes()), "nbytes": used, "counts": counts,
@@ -339,7 +387,8 @@ def _plan_for(part, elements, unit: str | None):
                        int(config.get("visibility.stripe-threshold")))
     facing = facing_blocks(elements.verts, elements.nverts, elements.normal, elements.center,
                            elements.two_sided)
-    return make_plan(part.offsets, facing, unit, int(config.get("visibility.max-task-bits")))
+    return make_plan(part.offsets, facing, unit, int(config.get("visibility.max-task-bits")),
+                     min_task_bits=int(config.get("visibility.min-task-bits")))
 
 
 def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bool = False,
@@ -395,7 +444,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
     computed = 0
     t_loop = time.perf_counter()
     if order:
-        [inp_f] = client.scatter([inp], broadcast=True)
+        [inp_f] = client.scatter([inp], broadcast=True, hash=False)
         pending = iter(order)
         ac = as_completed()
         futs = {}

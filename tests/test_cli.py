@@ -59,3 +59,38 @@ def test_visibility_command_and_resume(client, tmp_path):
 def test_visibility_on_a_directory_that_is_not_a_run(tmp_path):
     r = CliRunner().invoke(main, ["visibility", str(tmp_path / "nothing")])
     assert r.exit_code == 2 and "is not a run directory" in r.output
+
+
+@pytest.mark.parametrize("name", BUILTIN)
+def test_render_end_to_end_on_every_builtin_scene(client, tmp_path, name):
+    out = tmp_path / "run"
+    r = CliRunner().invoke(main, ["render", scene_path(name), "--out", str(out), "--resolution", "16",
+                                  "--scheduler", client.scheduler.address])
+    assert r.exit_code == 0, r.output
+    for f in ("image.exr", "image.png", "preview.png", "mesh.glb", "mesh.ply", "viewer.html", "report.json"):
+        assert (out / f).stat().st_size > 0, f
+    rep = json.loads((out / "report.json").read_text())
+    for section in ("preprocess", "visibility", "solve", "render"):
+        assert section in rep
+    assert rep["solve"]["converged"]
+    st = rep["render"]["stages"]
+    assert st["total_s"] >= st["preprocess_s"] + st["visibility_s"] + st["solve_s"]
+    assert "workers" in st["peak_rss_mb"]
+
+
+def test_solve_and_image_commands_and_resume(client, tmp_path):
+    out = tmp_path / "run"
+    sched = ["--scheduler", client.scheduler.address]
+    r = CliRunner().invoke(main, ["render", scene_path("three-rectangles"), "--out", str(out),
+                                  "--resolution", "12", "--no-preview"] + sched)
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["render", scene_path("three-rectangles"), "--out", str(out),
+                                  "--resolution", "12", "--no-preview", "--resume"] + sched)
+    assert r.exit_code == 0 and "reusing the partition" in r.output
+    assert json.loads((out / "report.json").read_text())["visibility"]["tasks_computed"] == 0
+    r = CliRunner().invoke(main, ["solve", str(out), "--solver", "cg", "--tol", "1e-9"] + sched)
+    assert r.exit_code == 0 and "cg (point kernel)" in r.output and "converged" in r.output
+    r = CliRunner().invoke(main, ["image", str(out), "--filter", "gaussian", "--exposure", "2"])
+    assert r.exit_code == 0 and "exposure 2" in r.output
+    r = CliRunner().invoke(main, ["solve", str(out), "--solver", "cg", "--kernel", "disc"] + sched)
+    assert r.exit_code == 2 and "needs a reciprocal kernel" in r.output

@@ -62,13 +62,18 @@ def _row_fast(kid, mask, ax, ay, az, anx, any_, anz, aa, capa, la0, la1, la2, C,
         r2 = dx * dx + dy * dy + dz * dz + 1e-300
         g = -mask[c] * (anx * dx + any_ * dy + anz * dz) * (nx[c] * dx + ny[c] * dy + nz[c] * dz)
         g *= min(capa, cap[c])
-        if mode != COLS:
+        if kid == 0:  # point: one division serves both directions
+            w = g / (np.pi * r2 * r2)
+            fab = w * area[c]
+            fba = w * aa
+        else:
             fab = _f(kid, g, r2, area[c])
+            fba = _f(kid, g, r2, aa)
+        if mode != COLS:
             s0 += fab * L0[c]
             s1 += fab * L1[c]
             s2 += fab * L2[c]
         if mode != ROWS:
-            fba = _f(kid, g, r2, aa)
             y0[c] += fba * la0
             y1[c] += fba * la1
             y2[c] += fba * la2

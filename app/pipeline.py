@@ -114,6 +114,9 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     h, w = cam.height * subpixel, cam.width * subpixel
     rows_per_task = max(1, int(config.get("subdivide.rays-per-task")) // w)
 
+    from .monitor import Monitor
+
+    Monitor(client).stage("preprocess", out, scene.name)
     store = RunStore(out, "w")
     store.save_elements(el)
     store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(), subpixel=subpixel)

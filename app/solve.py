@@ -399,6 +399,24 @@ def open_operator(rs, client, kernel: str):
     return DaskOperator(client, inp_f, inp, kernel), part, el
 
 
+def _previewer(rs, part, el):
+    """A function (2, 3, m) radiance -> small sRGB image of the camera view (for the dashboard)."""
+    from .render import downsample, pixel_radiance, tonemap
+
+    if not rs.has("raster"):
+        return lambda L: np.zeros((1, 1, 3), np.uint8)
+    sub = rs.read_arrays("raster")["sub"]
+    camera = rs.load_camera()
+    K = int(rs.attrs.get("subpixel", 1))
+
+    def make(L):
+        rad = np.ascontiguousarray(np.transpose(L, (2, 0, 1)))
+        img = downsample(pixel_radiance(part, el, camera, sub, rad), K, "box")
+        return tonemap(img)
+
+    return make
+
+
 def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | None = None,
               tol: float | None = None, max_iter: int | None = None, progress: bool = True,
               callback=None, normalise: bool | None = None) -> dict:
@@ -418,6 +436,12 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     op, part, el = open_operator(rs, client, kernel)
     Le, rho, area = side_vectors(part, el)
     rows = normalise_rows(op, bool(config.get("solve.normalise-rows", normalise)))
+    from .monitor import Monitor
+
+    mon = Monitor(client)
+    mon.stage("solve", run_dir)
+    history = []
+    make_image = _previewer(rs, part, el)
     bar = tqdm(total=None, desc=f"solve ({solver})", unit="pass", disable=not progress, leave=False)
 
     def cb(k, r, L):
@@ -429,11 +453,16 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
                 "radiosity.solve.normalise-rows on, use --kernel disc, or subdivide more")
         bar.update()
         bar.set_postfix(residual=f"{r:.2e}")
+        history.append(r)
+        mon.solve(solver, kernel, history)
+        mon.preview(lambda: make_image(L))
         if callback:
             callback(k, r, L)
 
     res = fn(op, Le, rho, area, tol, max_iter, cb)
     bar.close()
+    mon.solve(solver, kernel, history, force=True)
+    mon.preview(lambda: make_image(res.radiance), force=True)
     t_solve = time.perf_counter() - t0
     # one true-residual pass, the same measure for every solver
     y = op.apply(res.radiance)

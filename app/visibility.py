@@ -443,6 +443,11 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
     attempts = {}
     computed = 0
     t_loop = time.perf_counter()
+    from .monitor import Monitor
+
+    mon = Monitor(client)
+    mon.stage("visibility", run_dir)
+    mon.visibility(plan, done, len(el), force=True)
     if order:
         [inp_f] = client.scatter([inp], broadcast=True, hash=False)
         pending = iter(order)
@@ -484,12 +489,14 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
             counts += res["counts"]
             busy[res["pid"]] = busy.get(res["pid"], 0.0) + (res["stop"] - res["start"])
             bar.update()
+            mon.visibility(plan, done, len(el))
             if on_done is not None:
                 on_done(computed)
             nxt = next(pending, None)
             if nxt is not None:
                 submit(nxt)
         bar.close()
+    mon.visibility(plan, done, len(el), force=True)
     wall = time.perf_counter() - t_loop
     c = dict(zip(COUNTERS, counts.tolist()))
     m = len(part)

@@ -1,0 +1,100 @@
+"""Live progress of a run, published to the Dask scheduler for the engine's dashboard page.
+
+The master calls these as it goes; each writes one key under `radiosity` with
+`client.set_metadata`, which the page (dashboard.py) reads on the scheduler:
+
+    ["radiosity", "run"]        {"run_dir", "scene", "stage", "time"}
+    ["radiosity", "visibility"] {"n", "bins", "done": bins x bins fractions (rows I, cols J),
+                                 "tasks_done", "tasks"}
+    ["radiosity", "solve"]      {"solver", "kernel", "residuals": [...]}
+    ["radiosity", "preview"]    {"width", "height", "png": base64 PNG of the current image}
+
+Publishing is throttled (at most every `interval` seconds per key, always on the last call)
+and never fails a run: a lost scheduler connection only loses the picture.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import time
+
+import numpy as np
+
+BINS = 64
+
+
+def heat_map(tiles_ij: np.ndarray, task_of_tile: np.ndarray, done: np.ndarray, n: int,
+             bins: int = BINS) -> np.ndarray:
+    """Fraction of visibility tiles done per bin of original-element pairs, (b, b) float64.
+
+    tiles_ij (t, 2) [I, J]; task_of_tile (t,) int; done (k,) bool per task."""
+    b = max(1, min(bins, n))
+    if len(tiles_ij) == 0:
+        return np.ones((b, b))
+    bi = tiles_ij[:, 0] * b // n
+    bj = tiles_ij[:, 1] * b // n
+    tot = np.zeros((b, b))
+    fin = np.zeros((b, b))
+    np.add.at(tot, (bi, bj), 1.0)
+    np.add.at(fin, (bi, bj), done[task_of_tile].astype(float))
+    return np.where(tot > 0, fin / np.maximum(tot, 1), np.nan)
+
+
+def png_base64(img8: np.ndarray) -> str:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(img8, np.uint8)).save(buf, format="PNG")
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+class Monitor:
+    """Publishes a run's progress to the scheduler; safe to call from the master's loops."""
+
+    def __init__(self, client, interval: float = 0.5):
+        self.client = client
+        self.interval = interval
+        self._last: dict = {}
+
+    def _due(self, key: str, force: bool) -> bool:
+        now = time.monotonic()
+        if force or now - self._last.get(key, -1e9) >= self.interval:
+            self._last[key] = now
+            return True
+        return False
+
+    def _set(self, key: str, value) -> None:
+        try:
+            self.client.set_metadata(["radiosity", key], value)
+        except Exception:  # monitoring never fails a run
+            pass
+
+    def stage(self, stage: str, run_dir: str = "", scene: str = "") -> None:
+        self._set("run", {"stage": stage, "run_dir": run_dir, "scene": scene, "time": time.time()})
+
+    def visibility(self, plan, done_tasks, n: int, force: bool = False) -> None:
+        if not self._due("visibility", force):
+            return
+        done = np.zeros(len(plan.tasks), bool)
+        done[list(done_tasks)] = True
+        task_of = np.repeat(np.arange(len(plan.tasks)), plan.tasks[:, 1] - plan.tasks[:, 0])
+        hm = heat_map(plan.tiles[:, :2], task_of, done, n)
+        self._set("visibility", {"n": int(n), "bins": int(hm.shape[0]),
+                                 "done": np.where(np.isnan(hm), -1.0, hm).round(3).tolist(),
+                                 "tasks_done": int(done.sum()), "tasks": int(len(done))})
+
+    def solve(self, solver: str, kernel: str, residuals: list, force: bool = False) -> None:
+        if self._due("solve", force):
+            self._set("solve", {"solver": solver, "kernel": kernel,
+                                "residuals": [float(r) for r in residuals]})
+
+    def preview(self, make_image, force: bool = False) -> None:
+        """make_image() -> (h, w, 3) uint8, called only when a preview is due."""
+        if self._due("preview", force):
+            try:
+                img = make_image()
+            except Exception:
+                return
+            self._set("preview", {"width": int(img.shape[1]), "height": int(img.shape[0]),
+                                  "png": png_base64(img)})

@@ -186,18 +186,38 @@ def image(run_dir, filter_, sigma, exposure):
 
 @main.command()
 @click.argument("scene", type=click.Path())
+@click.option("--resolution", default=None, metavar="N|WxH", help="Override the camera resolution.")
+@click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
+@click.option("--tol", type=float, default=None, help="Solver tolerance (for the pass estimate).")
+@_friendly
+def plan(scene, resolution, subpixel, tol):
+    """Print which effects SCENE calls for, which are skipped and why, before any heavy work."""
+    from .pipeline import scene_plan
+    from .planner import describe
+    from .scene import load_scene
+
+    sc = load_scene(scene, resolution=resolution)
+    p, est = scene_plan(sc, subpixel, tol)
+    click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
+               f"{sc.camera.width}x{sc.camera.height}")
+    click.echo(describe(p, est["unseen_unsplit"], est["sub_elements_estimate"]))
+
+
+@main.command()
+@click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Run directory.")
 @click.option("--resolution", default=None, metavar="N|WxH", help="Override the camera resolution.")
 @click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--task-unit", type=click.Choice(["block", "stripe", "auto"]), default=None)
 @click.option("--resume", is_flag=True, help="Reuse the partition and finished visibility tasks in OUT.")
 @click.option("--no-preview", is_flag=True, help="Skip preview.png (the original elements only).")
+@click.option("--full", is_flag=True, help="Simulate every effect, whatever the plan says.")
 @solve_options
 @image_options
 @cluster_options
 @_friendly
-def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, solver, kernel, tol,
-           max_iterations, filter_, sigma, exposure, workers, scheduler, cluster_kind):
+def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full, solver, kernel,
+           tol, max_iterations, filter_, sigma, exposure, workers, scheduler, cluster_kind):
     """Preprocess, visibility, solve and image of SCENE into the run directory OUT."""
     from .cluster import open_client
     from .pipeline import render_scene
@@ -212,13 +232,14 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, solv
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         rep = render_scene(sc, out, client, subpixel=subpixel, unit=task_unit, solver=solver,
                            kernel=kernel, tol=tol, filter=filter_, sigma=sigma, exposure=exposure,
-                           resume=resume, preview=not no_preview, echo=click.echo)
+                           resume=resume, preview=not no_preview, echo=click.echo, full=full)
     pre, vis, sol = rep["preprocess"], rep["visibility"], rep["solve"]
     st = rep["render"]["stages"]
     click.echo(_table([
         ("sub-elements", f"{pre['sub_elements']} (from {pre['original_elements']} originals)"),
         ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)"),
-        ("solve", f"{sol['solver']}/{sol['kernel']}: {sol['iterations']} passes, residual {sol['final_residual']:.2g}"),
+        ("solve", f"{sol['solver']}/{sol['kernel']}: {sol['iterations']} passes, residual "
+                  f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"),
         ("times", f"preprocess {st['preprocess_s']:.1f} s, visibility {st['visibility_s']:.1f} s, "
                   f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, total {st['total_s']:.1f} s"),
     ]))

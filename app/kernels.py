@@ -80,6 +80,25 @@ def _row_fast(kid, mask, ax, ay, az, anx, any_, anz, aa, capa, la0, la1, la2, C,
     return s0, s1, s2
 
 
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
+def _row_fast1(kid, mask, ax, ay, az, anx, any_, anz, aa, capa, la0, C, cx, cy, cz, nx, ny, nz,
+               area, cap, L0, y0, mode):
+    """_row_fast for one channel (grey scenes, planner.py)."""
+    s0 = 0.0
+    for c in range(C):
+        dx = cx[c] - ax
+        dy = cy[c] - ay
+        dz = cz[c] - az
+        r2 = dx * dx + dy * dy + dz * dz + 1e-300
+        g = -mask[c] * (anx * dx + any_ * dy + anz * dz) * (nx[c] * dx + ny[c] * dy + nz[c] * dz)
+        g *= min(capa, cap[c])
+        if mode != COLS:
+            s0 += _f(kid, g, r2, area[c]) * L0[c]
+        if mode != ROWS:
+            y0[c] += _f(kid, g, r2, aa) * la0
+    return s0
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, cap, L, y, mode):
     """One row of a tile with a two-sided element: each pair picks the sides that face."""
@@ -98,11 +117,11 @@ def _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, cap, L, y, mod
         g = abs(ca * cb) * min(cap[a], cap[b])
         if mode != COLS:
             fab = _f(kid, g, r2, area[b])
-            for k in range(3):
+            for k in range(L.shape[1]):
                 y[sa, k, a] += fab * L[sb, k, b]
         if mode != ROWS:
             fba = _f(kid, g, r2, area[a])
-            for k in range(3):
+            for k in range(L.shape[1]):
                 y[sb, k, b] += fba * L[sa, k, a]
 
 
@@ -147,6 +166,11 @@ def tile_apply(kid, packed, R, C, a0, b0, cx, cy, cz, nx, ny, nz, area, cap, sid
         a = a0 + r
         if sided[a] or any_sided_cols:
             _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, cap, L, y, m)
+        elif L.shape[1] == 1:
+            y[0, 0, a] += _row_fast1(kid, mask, cx[a], cy[a], cz[a], nx[a], ny[a], nz[a], area[a],
+                                     cap[a], L[0, 0, a], C, cx[b0:b1], cy[b0:b1], cz[b0:b1],
+                                     nx[b0:b1], ny[b0:b1], nz[b0:b1], area[b0:b1], cap[b0:b1],
+                                     L[0, 0, b0:b1], y[0, 0, b0:b1], m)
         else:
             s0, s1, s2 = _row_fast(kid, mask, cx[a], cy[a], cz[a], nx[a], ny[a], nz[a], area[a],
                                    cap[a], L[0, 0, a], L[0, 1, a], L[0, 2, a], C, cx[b0:b1],
@@ -172,19 +196,23 @@ def pair_form_factors(kernel: str, ca_pts, na, aa, cb_pts, nb, ab):
 
 @numba.njit(cache=True)
 def tiles_apply(kid, data, base, tiles, offsets, cx, cy, cz, nx, ny, nz, area, cap, sided, L, y,
-                mode, live):
+                mode, live, need):
     """tile_apply over many tiles whose bytes lie in `data` starting at byte `base`.
 
-    tiles (t, 7) int64 as in plan.py; live (n,) bool (empty: everything live). Returns terms."""
+    tiles (t, 7) int64 as in plan.py; live (n,) bool: originals whose L may be non-zero; need
+    (n,) bool: originals that gather (dead rows drop out, planner.py); empty = all. Returns
+    the number of pair terms."""
     terms = 0
     use_live = live.shape[0] > 0
+    use_need = need.shape[0] > 0
     for k in range(tiles.shape[0]):
         i, j = tiles[k, 0], tiles[k, 1]
         r0, r1, ncols = tiles[k, 2], tiles[k, 3], tiles[k, 4]
         s = tiles[k, 5] - base
         packed = data[s:s + tiles[k, 6]]
-        row_live = live[j] if use_live else True
-        col_live = live[i] if use_live else True
+        # the rows gather from the columns' sources and the columns from the rows'
+        row_live = (live[j] if use_live else True) and (need[i] if use_need else True)
+        col_live = (live[i] if use_live else True) and (need[j] if use_need else True)
         terms += tile_apply(kid, packed, r1 - r0, ncols, offsets[i] + r0, offsets[j], cx, cy, cz,
                             nx, ny, nz, area, cap, sided, L, y, mode, row_live, col_live)
     return terms
@@ -192,7 +220,7 @@ def tiles_apply(kid, data, base, tiles, offsets, cx, cy, cz, nx, ny, nz, area, c
 
 @numba.njit(cache=True)
 def gs_sweep(kid, data, tiles, row_ptr, row_idx, col_ptr, col_idx, offsets, cx, cy, cz, nx, ny,
-             nz, area, cap, sided, L, Le, rho, y):
+             nz, area, cap, sided, L, Le, rho, y, need):
     """One block Gauss-Seidel sweep (in place on L): for each original e in order, gather
     y_e = sum_J F_eJ L_J from its row tiles (e, J) and the transposed column tiles (J, e) with
     the latest L, then L_e = Le_e + rho_e y_e. `data` holds every tile's bytes at tiles[:, 5];
@@ -201,18 +229,20 @@ def gs_sweep(kid, data, tiles, row_ptr, row_idx, col_ptr, col_idx, offsets, cx, 
     none = np.zeros(0, np.bool_)
     terms = 0
     for e in range(n):
+        if need.shape[0] > 0 and not need[e]:
+            continue  # a dead row keeps L = Le
         a0, a1 = offsets[e], offsets[e + 1]
         y[:, :, a0:a1] = 0.0
         for q in range(row_ptr[e], row_ptr[e + 1]):
             k = row_idx[q]
             terms += tiles_apply(kid, data, 0, tiles[k:k + 1], offsets, cx, cy, cz, nx, ny, nz,
-                                 area, cap, sided, L, y, ROWS, none)
+                                 area, cap, sided, L, y, ROWS, none, none)
         for q in range(col_ptr[e], col_ptr[e + 1]):
             k = col_idx[q]
             terms += tiles_apply(kid, data, 0, tiles[k:k + 1], offsets, cx, cy, cz, nx, ny, nz,
-                                 area, cap, sided, L, y, COLS, none)
+                                 area, cap, sided, L, y, COLS, none, none)
         for s in range(2):
-            for c in range(3):
+            for c in range(L.shape[1]):
                 for a in range(a0, a1):
                     L[s, c, a] = Le[s, c, a] + rho[s, c, a] * y[s, c, a]
     return terms

@@ -92,9 +92,10 @@ def progressive(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
     dL = Le.copy()
     nb = anorm(Le, area) or 1.0
     total_area = area.sum()
-    rho_mean = np.array([(area * rho[0, c]).sum() / total_area for c in range(3)])
+    nch = Le.shape[1]
+    rho_mean = np.array([(area * rho[0, c]).sum() / total_area for c in range(nch)])
     res = []
-    ambient = np.zeros(3)
+    ambient = np.zeros(nch)
     for k in range(1, max_iter + 1):
         power = area * np.abs(dL).sum(axis=(0, 1))
         top = power.max(initial=0.0)
@@ -107,7 +108,7 @@ def progressive(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
         L += recv
         dL = np.where(shoot, 0.0, dL) + recv
         res.append(anorm(dL, area) / nb)
-        unshot = np.array([(area * dL[:, c]).sum() for c in range(3)]) / total_area
+        unshot = np.array([(area * dL[:, c]).sum() for c in range(nch)]) / total_area
         ambient = unshot / np.maximum(1.0 - rho_mean, 1e-12)
         if callback:
             callback(k, res[-1], L + rho * ambient[None, :, None])
@@ -192,6 +193,7 @@ class SolveInputs:
         self.area = part.area
         self.cap = np.ones(len(part.area))  # row normalisation (see normalise_rows)
         self.sided = elements.two_sided[part.orig]
+        self.need = np.zeros(0, np.bool_)  # originals that gather; empty = all (planner.py)
         self.offsets = part.offsets
         self.tiles = plan.tiles
         self.tasks = plan.tasks
@@ -232,9 +234,11 @@ def _geometry(inp):
     return inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, inp.area, inp.cap, inp.sided
 
 
-def task_apply(inp: SolveInputs, task_ids: np.ndarray, L: np.ndarray, kid: int, live):
+def task_apply(inp: SolveInputs, task_ids: np.ndarray, L: np.ndarray, kid: int, live,
+               use_need: bool = True):
     """y = F L restricted to the tiles of these visibility tasks. live: (n,) bool or None, the
-    originals whose L is non-zero (tiles with no live source are skipped)."""
+    originals whose L is non-zero (tiles with no live source are skipped); with use_need, rows
+    of originals that do not gather (inp.need) are skipped."""
     from .kernels import BOTH
 
     y = np.zeros_like(L)
@@ -247,7 +251,7 @@ def task_apply(inp: SolveInputs, task_ids: np.ndarray, L: np.ndarray, kid: int, 
             continue
         data = _task_bytes(inp, int(task))
         terms += tiles_apply(kid, data, int(t[TSTART]), tiles, inp.offsets, *_geometry(inp), L, y,
-                             BOTH, lv)
+                             BOTH, lv, inp.need if use_need else np.zeros(0, np.bool_))
     return y, terms
 
 
@@ -271,7 +275,7 @@ def task_gs_sweep(inp: SolveInputs, L: np.ndarray, Le: np.ndarray, rho: np.ndarr
     col_ptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=n))])
     y = np.zeros_like(L)
     terms = gs_sweep(kid, data, inp.tiles, row_ptr, row_idx, col_ptr, col_idx, inp.offsets,
-                     *_geometry(inp), L, Le, rho, y)
+                     *_geometry(inp), L, Le, rho, y, inp.need)
     return L, terms
 
 
@@ -314,13 +318,15 @@ class DaskOperator:
             out.append(f.result())
         return out
 
-    def apply(self, L: np.ndarray, live: np.ndarray | None = None) -> np.ndarray:
-        """F L; `live` (m,) bool marks the sub-elements whose L may be non-zero."""
+    def apply(self, L: np.ndarray, live: np.ndarray | None = None, use_need: bool = True) -> np.ndarray:
+        """F L; `live` (m,) bool marks the sub-elements whose L may be non-zero; with use_need,
+        the rows of originals that do not gather stay 0."""
         live_orig = None
         if live is not None:  # per original: does any of its sub-elements have a source?
             live_orig = np.add.reduceat(live.astype(np.int64), self._offsets[:-1]) > 0
         [Lf] = self.client.scatter([L], broadcast=False, hash=False)
-        futs = [self.client.submit(task_apply, self.inp_f, g, Lf, self.kid, live_orig, pure=False,
+        futs = [self.client.submit(task_apply, self.inp_f, g, Lf, self.kid, live_orig, use_need,
+                                   pure=False,
                                    workers=[w] if w else None, allow_other_workers=True,
                                    retries=self.retries)
                 for g, w in zip(self.groups, self.workers or [None] * len(self.groups))]
@@ -334,11 +340,12 @@ class DaskOperator:
     def row_sums(self) -> np.ndarray:
         """sum_b F_ab for every sub-element and side, (2, m) (one pass)."""
         m = len(self.inp.area)
-        return self.apply(np.ones((2, 3, m)))[:, 0, :]
+        return self.apply(np.ones((2, 1, m)), use_need=False)[:, 0, :]
 
-    def set_cap(self, cap: np.ndarray) -> None:
-        """Use the row normalisation `cap` (m,) from now on (re-scatters the inputs)."""
-        self.inp.cap = cap
+    def configure(self, **arrays) -> None:
+        """Replace input arrays (cap, sided, need) and re-scatter the inputs to the workers."""
+        for k, v in arrays.items():
+            setattr(self.inp, k, v)
         [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
 
     def gs_sweep(self, L, Le, rho) -> np.ndarray:
@@ -364,7 +371,7 @@ def normalise_rows(op, enabled: bool = True) -> dict:
     out = {"rows_over_1": int(over.sum()), "max_row_sum": float(rs.max(initial=0.0)),
            "normalised": bool(enabled and over.any())}
     if out["normalised"]:
-        op.set_cap(np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0))
+        op.configure(cap=np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0))
     return out
 
 
@@ -410,6 +417,7 @@ def _previewer(rs, part, el):
     K = int(rs.attrs.get("subpixel", 1))
 
     def make(L):
+        L = np.broadcast_to(L, (2, 3, L.shape[2]))
         rad = np.ascontiguousarray(np.transpose(L, (2, 0, 1)))
         img = downsample(pixel_radiance(part, el, camera, sub, rad), K, "box")
         return tonemap(img)
@@ -417,10 +425,28 @@ def _previewer(rs, part, el):
     return make
 
 
+def write_direct_solution(run_dir: str) -> dict:
+    """No interreflection (reflectance 0 everywhere, planner.py): L = Le, without a pass."""
+    from .store import RunStore, update_report
+
+    rs = RunStore(run_dir, "r+")
+    part, el = rs.load_partition(), rs.load_elements()
+    rs.drop_after("visibility")
+    rs.write_arrays("solution", {"radiance": el.emission[part.orig]}, {"solver": "direct"})
+    fig = {"solver": "direct (L = Le)", "kernel": "-", "iterations": 0, "converged": True,
+           "residuals": [], "final_residual": 0.0, "passes": 0, "pair_terms": 0,
+           "pair_terms_per_s": 0.0, "time_s": 0.0, "sub_elements": len(part), "channels": 0}
+    update_report(run_dir, "solve", fig)
+    return fig
+
+
 def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | None = None,
               tol: float | None = None, max_iter: int | None = None, progress: bool = True,
-              callback=None, normalise: bool | None = None) -> dict:
-    """Solve the run's radiosity system; write solution/radiance (m, 2, 3) and report figures."""
+              callback=None, normalise: bool | None = None, effects=None) -> dict:
+    """Solve the run's radiosity system; write solution/radiance (m, 2, 3) and report figures.
+
+    effects: a planner.EffectsPlan (grey scenes solve one channel, dead rows skip gathering,
+    two-sided elements reached from one side are solved one-sided)."""
     from tqdm.auto import tqdm
 
     from .store import RunStore, update_report
@@ -436,6 +462,14 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     op, part, el = open_operator(rs, client, kernel)
     Le, rho, area = side_vectors(part, el)
     rows = normalise_rows(op, bool(config.get("solve.normalise-rows", normalise)))
+    channels = 3
+    if effects is not None:
+        sided = effects.two_sided[part.orig]
+        need = effects.gather if not effects.gather.all() else np.zeros(0, np.bool_)
+        op.configure(sided=sided, need=need)
+        if not effects.colour:  # grey: one channel, broadcast at the end
+            channels = 1
+            Le, rho = Le[:, :1].copy(), rho[:, :1].copy()
     from .monitor import Monitor
 
     mon = Monitor(client)
@@ -467,13 +501,17 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     # one true-residual pass, the same measure for every solver
     y = op.apply(res.radiance)
     final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
-    radiance = np.ascontiguousarray(np.transpose(res.radiance, (2, 0, 1)))  # (m, 2, 3)
+    L3 = np.broadcast_to(res.radiance, (2, 3, len(area))) if channels == 1 else res.radiance
+    radiance = np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))  # (m, 2, 3)
     figures = {
         "solver": solver, "kernel": kernel, "tol": tol, "iterations": res.iterations,
         "converged": bool(res.converged), "residuals": [float(r) for r in res.residuals],
         "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
         "pair_terms_per_s": op.terms / max(t_solve, 1e-9), "time_s": round(t_solve, 4),
-        "sub_elements": len(part), "row_sums": rows,
+        "sub_elements": len(part), "row_sums": rows, "channels": channels,
+        "two_sided_sub_elements": int(op.inp.sided.sum()),
+        "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(part.offsets) - 1,
+        "channel_terms": int(op.terms) * channels,
     }
     if res.ambient is not None:
         figures["ambient"] = res.ambient.tolist()

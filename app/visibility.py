@@ -288,7 +288,7 @@ class VisInputs:
     verts (n, 4, 3), nverts (n,) for the Embree scene; key: the Embree cache key.
     """
 
-    def __init__(self, part, elements, key: str):
+    def __init__(self, part, elements, key: str, occlusion: bool = True):
         self.center = part.center
         self.normal = part.normal
         self.two_sided = elements.two_sided[part.orig]
@@ -312,10 +312,13 @@ class VisInputs:
         self.verts = elements.verts
         self.nverts = elements.nverts
         self.key = key
+        self.occlusion = occlusion
 
 
 def tile_bits(inp: VisInputs, caster, i: int, j: int, r0: int, r1: int):
-    """The bits of rows r0:r1 of block (i, j): (r1 - r0) * nJ bool, row-major, and counters."""
+    """The bits of rows r0:r1 of block (i, j): (r1 - r0) * nJ bool, row-major, and counters.
+
+    Without occlusion (planner.py: nothing can block), facing pairs are visible: no shafts, no rays."""
     a0, b0, b1 = inp.offsets[i] + r0, inp.offsets[j], inp.offsets[j + 1]
     a1 = inp.offsets[i] + r1
     A = np.empty((2, 3))
@@ -323,7 +326,10 @@ def tile_bits(inp: VisInputs, caster, i: int, j: int, r0: int, r1: int):
     A[0], A[1] = inp.lo[a0:a1].min(0), inp.hi[a0:a1].max(0)
     B[0], B[1] = inp.lo[b0:b1].min(0), inp.hi[b0:b1].max(0)
     pad = inp.pad + float(inp.eoffset_pad.max(initial=0.0))
-    cand = block_candidates(A, B, inp.elo, inp.ehi, inp.enormal, inp.eoffset, pad, i, j)
+    if inp.occlusion:
+        cand = block_candidates(A, B, inp.elo, inp.ehi, inp.enormal, inp.eoffset, pad, i, j)
+    else:
+        cand = np.zeros(0, np.int64)
     code, tests = classify(inp.center[a0:a1], inp.normal[a0:a1], inp.two_sided[a0:a1],
                            inp.lo[a0:a1], inp.hi[a0:a1], inp.center[b0:b1], inp.normal[b0:b1],
                            inp.two_sided[b0:b1], inp.lo[b0:b1], inp.hi[b0:b1], inp.elo, inp.ehi,
@@ -364,9 +370,13 @@ def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: 
     if small.any():
         ia, ib, bit = small_tile_pairs(tiles[small], inp.offsets, inp.center, inp.normal,
                                        inp.two_sided, tstart)
-        vis = ~caster.occluded_pairs(inp.center, ia, ib, inp.orig)
+        if inp.occlusion:
+            vis = ~caster.occluded_pairs(inp.center, ia, ib, inp.orig)
+            rays = len(ia)
+        else:
+            vis, rays = np.ones(len(ia), bool), 0
         set_bits(buf, bit[vis])
-        counts += np.array([int(pairs[small].sum()), len(ia), 0, len(ia), int(vis.sum()), 0])
+        counts += np.array([int(pairs[small].sum()), len(ia), len(ia) - rays, rays, int(vis.sum()), 0])
     for t in tiles[~small]:
         bits, c = tile_bits(inp, caster, int(t[I]), int(t[J]), int(t[R0]), int(t[R1]))
         packed = np.packbits(bits, bitorder="little")
@@ -392,11 +402,12 @@ def _plan_for(part, elements, unit: str | None):
 
 
 def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bool = False,
-                       progress: bool = True, on_done=None) -> dict:
+                       progress: bool = True, on_done=None, occlusion: bool = True) -> dict:
     """The dynamic master (seed §4.3): a bounded window of tasks in flight per worker thread,
     the next task submitted as each one completes, most expensive first; failed tasks are
     resubmitted; every finished task is recorded with its checksum, so `resume` recomputes only
     what is missing or corrupted. `on_done(n_finished)` is called after each task (for tests).
+    occlusion=False (planner.py: nothing can block) makes the bits orientation alone.
     """
     from dask.base import tokenize
     from distributed import as_completed
@@ -411,7 +422,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
     el = rs.load_elements()
     plan = _plan_for(part, el, unit)
     token = tokenize(plan.tiles, plan.tasks, plan.chunk, part.center, part.normal, el.verts,
-                     config.get("rays.epsilon"))
+                     config.get("rays.epsilon"), occlusion)
     vs = VisibilityStore(rs)
     todo = np.arange(len(plan.tasks))
     done = {}
@@ -432,7 +443,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
         vs.create(plan, token, {"rays_epsilon": config.get("rays.epsilon")})
     order = [t for t in plan.cost_order().tolist() if t not in done]
     key = tokenize(el.verts, el.nverts)
-    inp = VisInputs(part, el, key)
+    inp = VisInputs(part, el, key, occlusion)
     threads = sum(client.nthreads().values()) or 1
     window = max(1, int(config.get("visibility.window-per-worker")) * threads)
     retries = int(config.get("visibility.retries"))
@@ -514,7 +525,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
         "time_s": round(time.perf_counter() - t_start, 4), "time_tasks_s": round(wall, 4),
         "busy_s_per_worker": {str(k): round(v, 4) for k, v in busy.items()},
         "idle_fraction": (1.0 - sum(busy.values()) / (nworkers * wall)) if wall > 0 and busy else None,
-        "workers": nworkers,
+        "workers": nworkers, "occlusion": occlusion,
     }
     from .pipeline import peak_rss_mb
     figures["peak_rss_mb"] = peak_rss_mb(client)

@@ -247,5 +247,44 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
                if not no_preview else f"wrote {out}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, report.json")
 
 
+@main.group()
+def study():
+    """Studies: what accuracy costs in time."""
+
+
+def _floats(s: str, kind=float):
+    return [kind(x) for x in s.split(",") if x.strip()]
+
+
+@study.command("accuracy")
+@click.argument("scene", type=click.Path())
+@click.option("--out", "-o", required=True, type=click.Path(), help="Directory for results.")
+@click.option("--resolutions", default="8,16,32", show_default=True, help="Camera resolutions.")
+@click.option("--subpixels", default="1", show_default=True, help="Sub-pixel factors.")
+@click.option("--kernels", default="point,disc", show_default=True, help="Form-factor kernels.")
+@click.option("--tols", default="1e-6", show_default=True, help="Solver tolerances.")
+@click.option("--reference", type=click.Path(exists=True), default=None,
+              help="A reference image (EXR) to measure the error against.")
+@click.option("--solver", default=None, help="Solver (default: radiosity.solve.solver).")
+@cluster_options
+@_friendly
+def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, solver, workers,
+                   scheduler, cluster_kind):
+    """Sweep resolution x sub-pixel x kernel x tolerance on SCENE; time every stage, measure the
+    error; write results.csv, results.md and accuracy.png (error against time, Pareto front)."""
+    from .cluster import open_client
+    from .kernels import kernel_id
+    from .study import accuracy
+
+    ks = [k for k in kernels.split(",") if k]
+    for k in ks:
+        kernel_id(k)
+    with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+        rows = accuracy(scene, out, client, _floats(resolutions, int), _floats(subpixels, int), ks,
+                        _floats(tols), reference=reference, solver=solver, echo=click.echo)
+    best = [r for r in rows if r["pareto"]]
+    click.echo(f"wrote {out}/results.csv, results.md, accuracy.png; {len(best)} settings on the Pareto front")
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

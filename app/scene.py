@@ -30,7 +30,8 @@ _MESH_KEYS = {"path", "material", "two_sided"}
 _MATERIAL_KEYS = {"reflectance", "emission", "two_sided", "back_reflectance", "back_emission"}
 _LOOKAT_KEYS = {"position", "look_at", "up", "fov_y", "resolution"}
 _SEED_KEYS = {"center", "x", "y", "z", "focal_distance", "resolution"}
-_TOP_KEYS = {"name", "description", "mesh", "material", "camera"}
+_TOP_KEYS = {"name", "description", "mesh", "material", "camera", "validation"}
+_VALIDATION_KEYS = {"form_factor", "from", "to", "radiance"}
 
 
 class SceneWarning(UserWarning):
@@ -520,4 +521,14 @@ def load_scene(path: str, resolution=None) -> Scene:
                         sources=tuple(sources))
     camera = parse_camera(doc.get("camera"), path, resolution)
     name = doc.get("name", os.path.basename(base))
-    return Scene(name=str(name), path=path, elements=elements, camera=camera)
+    validation = doc.get("validation", {})
+    unknown = set(validation) - _VALIDATION_KEYS
+    if unknown:
+        raise SceneError(f"{path}: [validation] has unknown key(s) {sorted(unknown)}; allowed: "
+                         f"{sorted(_VALIDATION_KEYS)}")
+    for k in ("from", "to"):
+        if k in validation and validation[k] not in names:
+            raise SceneError(f"{path}: [validation] {k} = {validation[k]!r} is not a material of "
+                             f"the scene ({names})")
+    return Scene(name=str(name), path=path, elements=elements, camera=camera,
+                 validation=dict(validation))

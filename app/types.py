@@ -7,7 +7,7 @@ counter-clockwise seen from the front; the front normal is `(v1 - v0) x (v2 - v0
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -104,6 +104,7 @@ class Scene:
     path: str
     elements: Elements
     camera: Camera
+    validation: dict = field(default_factory=dict)  # exact answers of validation scenes
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,204 @@
+"""What accuracy costs in time: `radiosity study accuracy` sweeps the settings and times them.
+
+For each camera resolution x sub-pixel factor x kernel x solver tolerance, the stages are run
+and timed and the error is measured against a reference:
+
+- validation scenes (a `[validation]` table in the scene TOML): `form_factor` is the exact form
+  factor between two materials (Howell's catalogue), compared with the one the run's operator
+  gives (sum of A_a F_ab over the pairs, divided by the area of `from`); `radiance` is the exact
+  radiance everywhere (furnace scenes: Le / (1 - rho));
+- otherwise the image of the finest setting, or a reference image the user gives (EXR): the
+  relative RMS difference, the finer image box-filtered to the coarser grid.
+
+Outputs in OUT: results.csv, results.md (Markdown table) and accuracy.png (log-log error against
+time, the Pareto front marked: the settings no other setting beats in both).
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import os
+import time
+import warnings
+
+import numpy as np
+
+COLUMNS = ["resolution", "subpixel", "kernel", "tol", "sub_elements", "passes", "time_preprocess_s",
+           "time_visibility_s", "time_solve_s", "time_image_s", "time_total_s", "error", "pareto"]
+
+
+def pareto(times, errors) -> np.ndarray:
+    """(k,) bool: not dominated (no other point is at least as fast and as accurate, and better
+    in one)."""
+    t, e = np.asarray(times, float), np.asarray(errors, float)
+    out = np.ones(len(t), bool)
+    for i in range(len(t)):
+        better = (t <= t[i]) & (e <= e[i]) & ((t < t[i]) | (e < e[i]))
+        out[i] = not better.any()
+    return out
+
+
+def resample(img: np.ndarray, h: int, w: int) -> np.ndarray:
+    """Box-filter (integer factor) or nearest-sample an (H, W, 3) image to (h, w, 3)."""
+    H, W = img.shape[:2]
+    if H % h == 0 and W % w == 0:
+        return img.reshape(h, H // h, w, W // w, -1).mean(axis=(1, 3))
+    rows = ((np.arange(h) + 0.5) * H / h).astype(int)
+    cols = ((np.arange(w) + 0.5) * W / w).astype(int)
+    return img[rows][:, cols]
+
+
+def image_error(img: np.ndarray, ref: np.ndarray) -> float:
+    """Relative RMS difference, both on the coarser of the two grids."""
+    h, w = min(img.shape[0], ref.shape[0]), min(img.shape[1], ref.shape[1])
+    a, b = resample(img, h, w), resample(ref, h, w)
+    return float(np.sqrt(np.mean((a - b) ** 2)) / max(np.sqrt(np.mean(b ** 2)), 1e-300))
+
+
+def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> float:
+    """F from material `frm` to material `to` as the run's operator computes it (front sides)."""
+    from .solve import normalise_rows, open_operator
+    from .store import RunStore
+
+    rs = RunStore(run_dir)
+    op, part, el = open_operator(rs, client, kernel)
+    normalise_rows(op)
+    names = np.array(el.material_names)[el.material[part.orig]]
+    x = np.zeros((2, 1, len(part)))
+    x[0, 0, names == to] = 1.0
+    y = op.apply(x, use_need=False)
+    a = names == frm
+    return float((part.area[a] * y[0, 0, a]).sum() / part.area[a].sum())
+
+
+def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels, tols,
+             reference: str | None = None, solver: str | None = None, echo=print) -> list[dict]:
+    """Run the sweep; write results.csv, results.md and accuracy.png into `out`."""
+    from .pipeline import preprocess
+    from .render import read_exr, render_outputs
+    from .scene import load_scene
+    from .solve import run_solve
+    from .store import RunStore
+    from .visibility import compute_visibility
+
+    os.makedirs(out, exist_ok=True)
+    base = load_scene(scene_path)
+    val = base.validation
+    rows = []
+    images = {}
+    settings = sorted(itertools.product(resolutions, subpixels))
+    # warm-up (numba kernels load from cache, Embree and workers start): not timed
+    warm = os.path.join(out, "runs", "warm-up")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        preprocess(load_scene(scene_path, resolution=min(resolutions)), warm, client, progress=False)
+    compute_visibility(warm, client, progress=False)
+    for res, k in settings:
+        sc = load_scene(scene_path, resolution=res)
+        run = os.path.join(out, "runs", f"r{res}-k{k}")
+        t = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            pre = preprocess(sc, run, client, subpixel=k, progress=False)
+        t_pre = time.perf_counter() - t
+        t = time.perf_counter()
+        compute_visibility(run, client, progress=False)
+        t_vis = time.perf_counter() - t
+        for kernel, tol in itertools.product(kernels, tols):
+            t = time.perf_counter()
+            passes = 0
+            if "form_factor" in val:
+                f = form_factor_of_run(run, client, kernel, val["from"], val["to"])
+                err = abs(f / val["form_factor"] - 1.0)
+                t_solve, t_img = time.perf_counter() - t, 0.0
+            else:
+                fig = run_solve(run, client, solver=solver, kernel=kernel, tol=tol, progress=False)
+                passes = fig["iterations"]
+                t_solve = time.perf_counter() - t
+                t = time.perf_counter()
+                render_outputs(run, exposure="auto")
+                t_img = time.perf_counter() - t
+                rs = RunStore(run)
+                if "radiance" in val:
+                    part = rs.load_partition()
+                    L = rs.read_arrays("solution")["radiance"][:, 0, :]
+                    err = float((part.area[:, None] * np.abs(L / val["radiance"] - 1)).sum()
+                                / (3 * part.area.sum()))
+                else:
+                    images[(res, k, kernel, tol)] = read_exr(os.path.join(run, "image.exr"))
+                    err = np.nan
+            rows.append({"resolution": res, "subpixel": k, "kernel": kernel, "tol": tol,
+                         "sub_elements": pre["sub_elements"], "passes": passes,
+                         "time_preprocess_s": t_pre, "time_visibility_s": t_vis,
+                         "time_solve_s": t_solve, "time_image_s": t_img,
+                         "time_total_s": t_pre + t_vis + t_solve + t_img, "error": err})
+            echo(f"  {res}x{res} K={k} {kernel} tol={tol:g}: error {err:.3g}, "
+                 f"{rows[-1]['time_total_s']:.2f} s")
+    if images:  # against the user's EXR or the finest setting
+        if reference:
+            ref = read_exr(reference)
+        else:
+            key = max(images, key=lambda q: (q[0] * q[1], -q[3], q[2] == "point"))
+            ref = images[key]
+            echo(f"  reference: the finest setting {key[0]}x{key[0]} K={key[1]} {key[2]} tol={key[3]:g}")
+        for r in rows:
+            r["error"] = image_error(images[(r["resolution"], r["subpixel"], r["kernel"], r["tol"])], ref)
+    ok = np.array([r["error"] > 0 for r in rows])
+    front = np.zeros(len(rows), bool)
+    if ok.any():
+        idx = np.nonzero(ok)[0]
+        front[idx] = pareto([rows[i]["time_total_s"] for i in idx], [rows[i]["error"] for i in idx])
+    for r, p in zip(rows, front):
+        r["pareto"] = bool(p)
+    write_results(out, rows, os.path.basename(os.path.dirname(os.path.abspath(scene_path))))
+    return rows
+
+
+def write_results(out: str, rows: list[dict], title: str) -> None:
+    with open(os.path.join(out, "results.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=COLUMNS)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r[k] for k in COLUMNS})
+    with open(os.path.join(out, "results.md"), "w") as f:
+        f.write(f"| resolution | K | kernel | tol | sub-elements | passes | total s | error | Pareto |\n")
+        f.write("|---:|---:|---|---:|---:|---:|---:|---:|:---:|\n")
+        for r in rows:
+            f.write(f"| {r['resolution']} | {r['subpixel']} | {r['kernel']} | {r['tol']:g} | "
+                    f"{r['sub_elements']} | {r['passes']} | {r['time_total_s']:.2f} | "
+                    f"{r['error']:.3g} | {'*' if r['pareto'] else ''} |\n")
+    plot(os.path.join(out, "accuracy.png"), rows, title)
+
+
+def plot(path: str, rows: list[dict], title: str) -> None:
+    """Log-log error against total time, one marker per kernel, the Pareto front as a line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=110)
+    markers = itertools.cycle("osD^v<>")
+    for kernel in sorted({r["kernel"] for r in rows}):
+        rr = [r for r in rows if r["kernel"] == kernel and r["error"] > 0]
+        ax.scatter([r["time_total_s"] for r in rr], [r["error"] for r in rr], marker=next(markers),
+                   label=kernel, zorder=3)
+        for r in rr:
+            ax.annotate(f"{r['resolution']}" + (f"·{r['subpixel']}" if r["subpixel"] > 1 else ""),
+                        (r["time_total_s"], r["error"]), fontsize=7, xytext=(3, 3),
+                        textcoords="offset points")
+    front = sorted([r for r in rows if r.get("pareto")], key=lambda r: r["time_total_s"])
+    if front:
+        ax.step([r["time_total_s"] for r in front], [r["error"] for r in front], where="post",
+                color="k", lw=1, alpha=0.6, label="Pareto front", zorder=2)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("time, all stages (s)")
+    ax.set_ylabel("relative error")
+    ax.set_title(f"{title}: what accuracy costs (labels: resolution·K)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

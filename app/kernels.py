@@ -19,10 +19,13 @@ import numpy as np
 
 from .errors import RadiosityError
 
-# name -> (id used by the numba loop, one line for --help, reciprocal: A_a F_ab == A_b F_ba)
+# name -> (id used by the numba loop, one line for --help, reciprocal: A_a F_ab == A_b F_ba,
+#          near field: pairs closer than a few element sizes get the exact form factor)
 KERNELS = {
-    "point": (0, "one ray between centres, F = A cos cos / (pi r^2) (seed eq. 6)", True),
-    "disc": (1, "the receiver as a disc of its area, F = A cos cos / (pi r^2 + A) (2nd seed)", False),
+    "point": (0, "one ray between centres, F = A cos cos / (pi r^2) (seed eq. 6)", True, False),
+    "disc": (1, "the receiver as a disc of its area, F = A cos cos / (pi r^2 + A) (2nd seed)", False, False),
+    "point-nf": (0, "point, with exact polygon form factors in the near field (nearfield.py)", True, True),
+    "disc-nf": (1, "disc, with exact polygon form factors in the near field", False, True),
 }
 
 BOTH, ROWS, COLS = 0, 1, 2  # which directions of a tile a pass applies
@@ -181,6 +184,12 @@ def tile_apply(kid, packed, R, C, a0, b0, cx, cy, cz, nx, ny, nz, area, cap, sid
             y[0, 1, a] += s1
             y[0, 2, a] += s2
     return terms
+
+
+def base_kernel(name: str) -> str:
+    """The centre-to-centre kernel under a near-field variant ("point-nf" -> "point")."""
+    kernel_id(name)
+    return name[:-3] if name.endswith("-nf") else name
 
 
 def pair_form_factors(kernel: str, ca_pts, na, aa, cb_pts, nb, ab):

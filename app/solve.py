@@ -192,6 +192,7 @@ class SolveInputs:
         self.nx, self.ny, self.nz = (np.ascontiguousarray(n[:, k]) for k in range(3))
         self.area = part.area
         self.cap = np.ones(len(part.area))  # row normalisation (see normalise_rows)
+        self.orig = part.orig
         self.sided = elements.two_sided[part.orig]
         self.need = np.zeros(0, np.bool_)  # originals that gather; empty = all (planner.py)
         self.offsets = part.offsets
@@ -311,6 +312,7 @@ class DaskOperator:
         self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
         self.retries = int(config.get("visibility.retries"))
         self._offsets = inp.offsets
+        self.near = None  # sparse near-field corrections (nearfield.py), if the kernel has them
 
     def _gather(self, futs):
         out = []
@@ -334,6 +336,12 @@ class DaskOperator:
         for yp, terms in self._gather(futs):
             y += yp
             self.terms += terms
+        if self.near is not None:
+            from . import nearfield
+
+            need = self.inp.need
+            need_sub = need[self.inp.orig] if (use_need and len(need)) else None
+            self.terms += nearfield.apply(self.near, L, y, self.inp.cap, need_sub)
         self.passes += 1
         return y
 
@@ -403,7 +411,14 @@ def open_operator(rs, client, kernel: str):
     el = rs.load_elements()
     inp = SolveInputs(part, el, plan, crc, rs.path, token)
     [inp_f] = client.scatter([inp], broadcast=True, hash=False)
-    return DaskOperator(client, inp_f, inp, kernel), part, el
+    op = DaskOperator(client, inp_f, inp, kernel)
+    if KERNELS[kernel][3]:
+        from . import nearfield
+        from .kernels import base_kernel
+
+        op.near = nearfield.corrections(rs, base_kernel(kernel),
+                                        float(config.get("solve.near-field-factor")))
+    return op, part, el
 
 
 def _previewer(rs, part, el):
@@ -509,6 +524,7 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
         "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
         "pair_terms_per_s": op.terms / max(t_solve, 1e-9), "time_s": round(t_solve, 4),
         "sub_elements": len(part), "row_sums": rows, "channels": channels,
+        "near_field": op.near["figures"] if op.near is not None else None,
         "two_sided_sub_elements": int(op.inp.sided.sum()),
         "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(part.offsets) - 1,
         "channel_terms": int(op.terms) * channels,

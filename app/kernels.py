@@ -64,7 +64,7 @@ def _row_fast(kid, mask, ax, ay, az, anx, any_, anz, aa, capa, la0, la1, la2, C,
         dz = cz[c] - az
         r2 = dx * dx + dy * dy + dz * dz + 1e-300
         g = -mask[c] * (anx * dx + any_ * dy + anz * dz) * (nx[c] * dx + ny[c] * dy + nz[c] * dz)
-        g *= min(capa, cap[c])
+        g *= min(capa, cap[c]) if capa > 0 else capa * cap[c]
         if kid == 0:  # point: one division serves both directions
             w = g / (np.pi * r2 * r2)
             fab = w * area[c]
@@ -94,7 +94,7 @@ def _row_fast1(kid, mask, ax, ay, az, anx, any_, anz, aa, capa, la0, C, cx, cy, 
         dz = cz[c] - az
         r2 = dx * dx + dy * dy + dz * dz + 1e-300
         g = -mask[c] * (anx * dx + any_ * dy + anz * dz) * (nx[c] * dx + ny[c] * dy + nz[c] * dz)
-        g *= min(capa, cap[c])
+        g *= min(capa, cap[c]) if capa > 0 else capa * cap[c]
         if mode != COLS:
             s0 += _f(kid, g, r2, area[c]) * L0[c]
         if mode != ROWS:
@@ -117,7 +117,7 @@ def _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, cap, L, y, mod
         cb = -(nx[b] * dx + ny[b] * dy + nz[b] * dz)
         sa = 0 if ca > 0 else 1
         sb = 0 if cb > 0 else 1
-        g = abs(ca * cb) * min(cap[a], cap[b])
+        g = abs(ca * cb) * (min(cap[a], cap[b]) if cap[a] > 0 else cap[a] * cap[b])
         if mode != COLS:
             fab = _f(kid, g, r2, area[b])
             for k in range(L.shape[1]):
@@ -135,8 +135,9 @@ def tile_apply(kid, packed, R, C, a0, b0, cx, cy, cz, nx, ny, nz, area, cap, sid
     little-endian (see plan.py). mode BOTH applies F_ab (into rows) and F_ba (into columns);
     ROWS or COLS only one direction (Gauss-Seidel). row_live / col_live: skip the direction
     whose source is all zero (progressive shooting). cap (m,): a pair's form factors are scaled
-    by min(cap_a, cap_b) (row normalisation that keeps reciprocity; 1 = none). Returns the
-    number of pair terms.
+    by min(cap_a, cap_b) (row normalisation that keeps reciprocity; 1 = none); negative caps
+    (all of them: the "closed" normalisation) scale by the product cap_a cap_b instead. Returns
+    the number of pair terms.
     """
     mask = np.zeros(C, np.float64)
     b1 = b0 + C

@@ -107,7 +107,12 @@ def corrections(rs, kernel: str, factor: float) -> dict:
            "dab": fe - fk_ab, "dba": fe_ba - fk_ba}
     figures = {"pairs": int(len(ia)), "factor": factor, "time_s": round(time.perf_counter() - t0, 4),
                "max_kernel_over_exact": float((fk_ab / np.maximum(fe, 1e-300)).max(initial=0.0))}
-    rs.write_arrays("nearfield", arr, {"token": token, "figures": figures})
+    from .store import RunStore
+
+    try:  # keep them for the next solve of this run (the caller may hold a read-only handle)
+        RunStore(rs.run_dir, "r+").write_arrays("nearfield", arr, {"token": token, "figures": figures})
+    except Exception:
+        pass
     return {**arr, "figures": figures}
 
 
@@ -117,7 +122,7 @@ def apply(near: dict, L: np.ndarray, y: np.ndarray, cap: np.ndarray, need_sub=No
     ia, ib, sa, sb = near["ia"], near["ib"], near["sa"], near["sb"]
     if len(ia) == 0:
         return 0
-    w = np.minimum(cap[ia], cap[ib])
+    w = np.minimum(cap[ia], cap[ib]) if cap[0] > 0 else cap[ia] * cap[ib]
     ra = (w * near["dab"])[None, :] * L[sb, :, ib].T     # (C, k)
     rb = (w * near["dba"])[None, :] * L[sa, :, ia].T
     ga = np.ones(len(ia), bool) if need_sub is None else need_sub[ia]

@@ -369,17 +369,44 @@ class DaskOperator:
 
 # ----------------------------------------------------------------------------- the stage
 
-def normalise_rows(op, enabled: bool = True) -> dict:
+def normalise_rows(op, mode="cap") -> dict:
     """Detect rows of F that sum to more than 1 (the point kernel near large elements close
-    together, where 1/r^2 blows up) and, if enabled, scale each pair by min(cap_a, cap_b) with
-    cap = 1 / row sum on those rows: rows then sum to at most 1 and reciprocity still holds
-    (A_a F'_ab = A_b F'_ba), so every solver converges for rho < 1. Returns what was found/done."""
-    rs = op.row_sums().max(axis=0)
+    together, where 1/r^2 blows up) and handle them. Returns what was found and done.
+
+    cap (default): scale each pair by min(cap_a, cap_b), cap = 1 / row sum on the rows above 1:
+        rows then sum to at most 1 and reciprocity still holds (A_a F'_ab = A_b F'_ba), so every
+        solver converges for rho < 1.
+    closed: for closed scenes, where every row must sum to exactly 1: scale pairs by d_a d_b
+        with d from the symmetric balancing iteration d <- sqrt(d / (F d)) (reciprocity kept);
+        what is left of the kernel's error no longer decides the answer when rho -> 1.
+    off (or False): only report.
+    """
+    mode = {True: "cap", False: "off", None: "cap"}.get(mode, mode)
+    if mode not in ("cap", "closed", "off"):
+        raise RadiosityError(f"radiosity.solve.normalise-rows must be cap, closed or off, got {mode!r}")
+    sums = op.row_sums()
+    rs = sums.max(axis=0)
     over = rs > 1.0 + 1e-12
     out = {"rows_over_1": int(over.sum()), "max_row_sum": float(rs.max(initial=0.0)),
-           "normalised": bool(enabled and over.any())}
+           "min_row_sum": float(sums.sum(axis=0).min(initial=0.0)), "mode": mode,
+           "normalised": bool(mode == "cap" and over.any())}
     if out["normalised"]:
         op.configure(cap=np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0))
+    elif mode == "closed":
+        total = sums.sum(axis=0)
+        if np.any(total <= 0):
+            raise RadiosityError("normalise-rows=closed needs a closed scene: some element sees "
+                                 "nothing")
+        d = 1.0 / np.sqrt(total)
+        m = len(d)
+        for it in range(100):
+            Fd = op.apply(np.broadcast_to(d, (2, 1, m)).copy(), use_need=False)[:, 0, :].sum(axis=0)
+            err = np.abs(d * Fd - 1.0).max()
+            if err < 1e-12:
+                break
+            d = np.sqrt(d / Fd)
+        op.configure(cap=-d)  # negative: the kernels scale pairs by the product d_a d_b
+        out.update({"normalised": True, "balancing_passes": it + 1, "balancing_error": float(err)})
     return out
 
 
@@ -476,7 +503,7 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     rs = RunStore(run_dir, "r+")
     op, part, el = open_operator(rs, client, kernel)
     Le, rho, area = side_vectors(part, el)
-    rows = normalise_rows(op, bool(config.get("solve.normalise-rows", normalise)))
+    rows = normalise_rows(op, config.get("solve.normalise-rows", normalise))
     channels = 3
     if effects is not None:
         sided = effects.two_sided[part.orig]

@@ -286,5 +286,24 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
     click.echo(f"wrote {out}/results.csv, results.md, accuracy.png; {len(best)} settings on the Pareto front")
 
 
+@study.command("seed")
+@click.argument("scene", type=click.Path())
+@click.option("--out", "-o", required=True, type=click.Path(), help="Directory for plots and tables.")
+@click.option("--resolutions", default="32,64,128,256", show_default=True)
+@click.option("--speedup-resolution", type=int, default=96, show_default=True)
+@click.option("--max-workers", type=int, default=None, help="Largest LocalCluster for the speedup.")
+@_friendly
+def study_seed(scene, out, resolutions, speedup_resolution, max_workers):
+    """Reproduce the seed's experiments on SCENE: Fig. 3, Fig. 4, the speedup table and the image
+    series; writes PNG plots and seed.md into OUT."""
+    from .cluster import default_workers, open_client
+    from .study import seed
+
+    n = max_workers or default_workers()
+    res = seed(scene, out, lambda w: open_client(w, quiet=True), _floats(resolutions, int),
+               list(range(1, n + 1)), speedup_resolution, echo=click.echo)
+    click.echo(f"wrote {out}/seed.md and its plots; visibility time ~ m^{res['order']:.2f}")
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -268,3 +268,20 @@ def test_study_accuracy_writes_csv_table_and_plot(client, tmp_path):
 def test_pareto_front():
     front = pareto([1, 2, 3, 4], [0.5, 0.6, 0.1, 0.1])
     assert front.tolist() == [True, False, True, False]
+
+
+def test_study_seed_writes_its_plots(client, tmp_path):
+    import contextlib
+
+    from app.study import seed
+
+    @contextlib.contextmanager
+    def same(n):
+        yield client
+
+    res = seed(scene_path("three-rectangles"), str(tmp_path / "seed"), same, resolutions=[12, 16, 24],
+               workers=[1, 2], speedup_res=16, echo=lambda *a: None)
+    for f in ("seed-fig3.png", "seed-fig4.png", "seed-speedup.png", "seed-images.png", "seed.md"):
+        assert (tmp_path / "seed" / f).stat().st_size > 0, f
+    assert [r["resolution"] for r in res["rows"]] == [12, 16, 24]
+    assert res["rows"][-1]["sub_elements"] > res["rows"][0]["sub_elements"]

@@ -313,6 +313,7 @@ class DaskOperator:
         self.retries = int(config.get("visibility.retries"))
         self._offsets = inp.offsets
         self.near = None  # sparse near-field corrections (nearfield.py), if the kernel has them
+        self._gs_fixed = None  # (Le, [futures of Le, rho]) scattered once for Gauss-Seidel
 
     def _gather(self, futs):
         out = []
@@ -358,7 +359,11 @@ class DaskOperator:
 
     def gs_sweep(self, L, Le, rho) -> np.ndarray:
         w = self.workers[0] if self.workers else None
-        f = self.client.submit(task_gs_sweep, self.inp_f, L, Le, rho, self.kid, pure=False,
+        if self._gs_fixed is None or self._gs_fixed[0] is not Le:
+            self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
+        Lf = self.client.scatter([L], hash=False)[0]
+        Lef, rhof = self._gs_fixed[1]
+        f = self.client.submit(task_gs_sweep, self.inp_f, Lf, Lef, rhof, self.kid, pure=False,
                                workers=[w] if w else None, allow_other_workers=True,
                                retries=self.retries)
         new, terms = f.result()

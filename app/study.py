@@ -7,8 +7,11 @@ and timed and the error is measured against a reference:
   factor between two materials (Howell's catalogue), compared with the one the run's operator
   gives (sum of A_a F_ab over the pairs, divided by the area of `from`); `radiance` is the exact
   radiance everywhere (furnace scenes: Le / (1 - rho));
-- otherwise the image of the finest setting, or a reference image the user gives (EXR): the
-  relative RMS difference, the finer image box-filtered to the coarser grid.
+- otherwise the finest setting: every run's radiance is sampled where the finest setting's
+  camera rays hit (the two-level lookup into each run's own partition), so runs of different
+  resolutions are compared at the same points, without aliasing; the relative RMS difference;
+- or a reference image the user gives (EXR): the relative RMS difference of the images, the
+  finer one box-filtered to the coarser grid.
 
 Outputs in OUT: results.csv, results.md (Markdown table) and accuracy.png (log-log error against
 time, the Pareto front marked: the settings no other setting beats in both).
@@ -57,6 +60,20 @@ def image_error(img: np.ndarray, ref: np.ndarray) -> float:
     h, w = min(img.shape[0], ref.shape[0]), min(img.shape[1], ref.shape[1])
     a, b = resample(img, h, w), resample(ref, h, w)
     return float(np.sqrt(np.mean((a - b) ** 2)) / max(np.sqrt(np.mean(b ** 2)), 1e-300))
+
+
+def sampled_radiance(part, L: np.ndarray, orig: np.ndarray, points: np.ndarray, camera) -> np.ndarray:
+    """Radiance L (m, 2, 3) of partition `part` at hit points (k, 3) on the originals `orig` (k,),
+    on the side facing the camera: (k, 3)."""
+    from .subdivide import lookup
+
+    sub = lookup(part, points, orig)
+    out = np.zeros((len(orig), 3))
+    ok = sub >= 0
+    s = sub[ok]
+    side = (np.einsum("ij,ij->i", part.normal[s], camera.center - part.center[s]) <= 0).astype(int)
+    out[ok] = L[s, side]
+    return out
 
 
 def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> float:
@@ -132,8 +149,9 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                     L = rs.read_arrays("solution")["radiance"][:, 0, :]
                     err = float((part.area[:, None] * np.abs(L / val["radiance"] - 1)).sum()
                                 / (3 * part.area.sum()))
-                else:
-                    images[(res, k, kernel, tol)] = read_exr(os.path.join(run, "image.exr"))
+                else:  # keep the image (user's reference) or the solution (finest setting)
+                    images[(res, k, kernel, tol)] = (read_exr(os.path.join(run, "image.exr")) if reference
+                                                     else (run, rs.read_arrays("solution")["radiance"]))
                     err = np.nan
             rows.append({"resolution": res, "subpixel": k, "kernel": kernel,
                          "solver": solve_with if "form_factor" not in val else "-", "tol": tol,
@@ -143,15 +161,32 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                          "time_total_s": t_pre + t_vis + t_solve + t_img, "error": err})
             echo(f"  {res}x{res} K={k} {kernel} tol={tol:g}: error {err:.3g}, "
                  f"{rows[-1]['time_total_s']:.2f} s")
-    if images:  # against the user's EXR or the finest setting
-        if reference:
-            ref = read_exr(reference)
-        else:
-            key = max(images, key=lambda q: (q[0] * q[1], -q[3], q[2] == "point-nf", q[2] == "point"))
-            ref = images[key]
-            echo(f"  reference: the finest setting {key[0]}x{key[0]} K={key[1]} {key[2]} tol={key[3]:g}")
+    if images and reference:  # against the user's EXR
+        ref = read_exr(reference)
         for r in rows:
             r["error"] = image_error(images[(r["resolution"], r["subpixel"], r["kernel"], r["tol"])], ref)
+    elif images:  # against the finest setting, at its camera rays' hit points
+        from .rays import RayCaster
+        from .subdivide import raster_band
+
+        key = max(images, key=lambda q: (q[0] * q[1], -q[3], q[2] == "point-nf", q[2] == "point"))
+        echo(f"  reference: the finest setting {key[0]}x{key[0]} K={key[1]} {key[2]} tol={key[3]:g}")
+        fine = load_scene(scene_path, resolution=key[0])
+        rc = RayCaster(fine.elements.verts, fine.elements.nverts)
+        h = fine.camera.height * key[1]
+        orig, pts = raster_band(rc, fine.elements, fine.camera, key[1], slice(0, h))
+        hit = orig >= 0
+        orig, pts = orig[hit], pts[hit]
+
+        def sample(q):
+            run, L = images[q]
+            return sampled_radiance(RunStore(run).load_partition(), L, orig, pts, fine.camera)
+
+        ref = sample(key)
+        norm = max(float(np.sqrt(np.mean(ref ** 2))), 1e-300)
+        for r in rows:
+            q = (r["resolution"], r["subpixel"], r["kernel"], r["tol"])
+            r["error"] = float(np.sqrt(np.mean((sample(q) - ref) ** 2)) / norm)
     ok = np.array([r["error"] > 0 for r in rows])
     front = np.zeros(len(rows), bool)
     if ok.any():

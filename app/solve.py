@@ -47,31 +47,13 @@ def anorm(x: np.ndarray, area: np.ndarray) -> float:
 
 # ----------------------------------------------------------------------------- solvers
 
-def jacobi(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
-    """The seed's iteration of eq. 4: L <- Le + rho F L."""
+def _fixed_point(step, Le, area, tol, max_iter, callback) -> SolveResult:
+    """Iterate L <- step(L) from L = Le until the update is at most tol ||Le||_A."""
     L = Le.copy()
     nb = anorm(Le, area) or 1.0
     res = []
     for k in range(1, max_iter + 1):
-        y = op.apply(L)
-        new = Le + rho * y
-        res.append(anorm(new - L, area) / nb)  # the residual of the previous iterate
-        L = new
-        if callback:
-            callback(k, res[-1], L)
-        if res[-1] <= tol:
-            return SolveResult(L, k, res, True)
-    return SolveResult(L, max_iter, res, False)
-
-
-def gauss_seidel(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
-    """Block Gauss-Seidel by original element (rows in order, latest values), one Dask task per
-    sweep. Stops on the size of the last update, a bound on the residual's decrease."""
-    L = Le.copy()
-    nb = anorm(Le, area) or 1.0
-    res = []
-    for k in range(1, max_iter + 1):
-        new = op.gs_sweep(L, Le, rho)
+        new = step(L)
         res.append(anorm(new - L, area) / nb)
         L = new
         if callback:
@@ -79,6 +61,18 @@ def gauss_seidel(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult
         if res[-1] <= tol:
             return SolveResult(L, k, res, True)
     return SolveResult(L, max_iter, res, False)
+
+
+def jacobi(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
+    """The seed's iteration of eq. 4: L <- Le + rho F L. Its update is the residual of the
+    previous iterate, Le + rho F L - L."""
+    return _fixed_point(lambda L: Le + rho * op.apply(L), Le, area, tol, max_iter, callback)
+
+
+def gauss_seidel(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
+    """Block Gauss-Seidel by original element (rows in order, latest values), one Dask task per
+    sweep. Stops on the size of the last update, a bound on the residual's decrease."""
+    return _fixed_point(lambda L: op.gs_sweep(L, Le, rho), Le, area, tol, max_iter, callback)
 
 
 def progressive(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
@@ -426,12 +420,7 @@ def open_operator(rs, client, kernel: str):
     """Scatter the solve inputs of run store `rs` and return a DaskOperator over them."""
     from .store import VisibilityStore
 
-    vs = VisibilityStore(rs)
-    token = vs.token()
-    if token is None:
-        raise RadiosityError(f"{rs.run_dir} has no visibility matrix: run radiosity visibility {rs.run_dir}")
-    plan = vs.plan()
-    done = vs.finished(token)
+    token, plan, done = VisibilityStore(rs).require()
     missing = [t for t in range(len(plan.tasks)) if t not in done]
     if missing:
         raise RadiosityError(f"the visibility matrix of {rs.run_dir} is incomplete ({len(missing)} "

@@ -198,6 +198,15 @@ class VisibilityStore:
         with open(self.manifest, "w") as f:
             f.write(json.dumps({"plan": token}) + "\n")
 
+    def require(self):
+        """(token, plan, finished entries) of the visibility matrix, or a StoreError saying what
+        to run when there is none."""
+        token = self.token()
+        if token is None:
+            raise StoreError(f"{self.rs.run_dir} has no visibility matrix yet: run radiosity "
+                             f"visibility {self.rs.run_dir}")
+        return token, self.plan(), self.finished(token)
+
     def token(self) -> str | None:
         if "visibility" not in self.rs.root:
             return None

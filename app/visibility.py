@@ -545,11 +545,7 @@ def iter_tiles(rs, verify: bool = True):
     from .store import VisibilityStore
 
     vs = VisibilityStore(rs)
-    token = vs.token()
-    if token is None:
-        raise StoreError(f"{rs.run_dir} has no visibility matrix yet: run radiosity visibility {rs.run_dir}")
-    plan = vs.plan()
-    done = vs.finished(token)
+    token, plan, done = vs.require()
     for task in range(len(plan.tasks)):
         entry = done.get(task)
         if entry is None:

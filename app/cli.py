@@ -37,8 +37,49 @@ def _friendly(fn):
     return wrapper
 
 
+def _set_config(key_fn):
+    """A click callback that writes a flag's value into dask.config (None leaves it alone)."""
+
+    def cb(ctx, param, value):
+        import dask.config
+
+        if value is not None and value is not False:
+            dask.config.set(key_fn(value))
+        return value
+
+    return cb
+
+
+_JQ = ("slurm", "pbs", "sge", "lsf")
+
+
+def _jobqueue(key):
+    def keys(v):
+        out = {}
+        for kind in _JQ:
+            k = "project" if key == "account" and kind in ("sge", "lsf") else key
+            out[f"jobqueue.{kind}.{k}"] = v
+        return out
+    return keys
+
+
 def cluster_options(fn):
-    """--workers / --scheduler / --cluster, shared by every heavy command."""
+    """--workers / --scheduler / --cluster and the batch-job and security flags, shared by every
+    heavy command; the flags write dask.config (radiosity.cluster.*, jobqueue.<kind>.*)."""
+    for name, key, kind, help_ in (
+            ("--account", "account", str, "Batch jobs: account (project on SGE/LSF)."),
+            ("--queue", "queue", str, "Batch jobs: queue / partition."),
+            ("--walltime", "walltime", str, "Batch jobs: walltime, e.g. 02:00:00."),
+            ("--memory", "memory", str, "Batch jobs: memory per job, e.g. 16GB."),
+            ("--cores", "cores", int, "Batch jobs: cores per job.")):
+        fn = click.option(name, type=kind, default=None, expose_value=False, help=help_,
+                          callback=_set_config(_jobqueue(key)))(fn)
+    fn = click.option("--tls", is_flag=True, default=False, expose_value=False,
+                      help="TLS with temporary certificates (multi-host runs).",
+                      callback=_set_config(lambda v: {"radiosity.cluster.tls": "temporary"}))(fn)
+    fn = click.option("--adaptive", default=None, metavar="MIN:MAX", expose_value=False,
+                      help="Scale the cluster adaptively between MIN and MAX workers.",
+                      callback=_set_config(lambda v: {"radiosity.cluster.adaptive": v}))(fn)
     fn = click.option("--cluster", "cluster_kind", type=click.Choice(["local", "slurm", "pbs", "sge", "lsf"]),
                       default=None, help="Where workers run (default: radiosity.cluster.kind, local).")(fn)
     fn = click.option("--scheduler", default=None, metavar="ADDRESS",

@@ -94,3 +94,23 @@ def test_solve_and_image_commands_and_resume(client, tmp_path):
     assert r.exit_code == 0 and "exposure 2" in r.output
     r = CliRunner().invoke(main, ["solve", str(out), "--solver", "cg", "--kernel", "disc"] + sched)
     assert r.exit_code == 2 and "needs a reciprocal kernel" in r.output
+
+
+def test_cluster_flags_reach_the_config(tmp_path):
+    """--tls and the batch-job flags write dask.config; a local TLS run works end to end."""
+    import copy
+
+    import dask.config
+
+    saved = copy.deepcopy(dask.config.config)  # the flags set the process's config: restore it
+    try:
+        r = CliRunner().invoke(main, ["preprocess", scene_path("three-rectangles"), "--out", str(tmp_path / "r"),
+                                      "--resolution", "8", "--workers", "1", "--tls", "--cores", "4",
+                                      "--account", "proj1"])
+        assert r.exit_code == 0, r.output
+        assert dask.config.get("radiosity.cluster.tls") == "temporary"
+        assert dask.config.get("jobqueue.slurm.cores") == 4
+        assert dask.config.get("jobqueue.sge.project") == "proj1"
+    finally:
+        dask.config.config.clear()
+        dask.config.config.update(saved)

@@ -1,0 +1,235 @@
+"""Where the work runs (app/cluster.py): loopback-only local clusters, TLS, adaptive scaling, the
+jobqueue configuration of deploy/jobqueue.yaml, and a render through a real Slurm whose workers
+are Slurm jobs (skipped, saying why, when no Slurm runs here: .ci/run starts one with
+deploy/slurm-up.sh)."""
+
+from __future__ import annotations
+
+import copy
+import os
+import subprocess
+import sys
+import time
+
+import dask.config
+import numpy as np
+import pytest
+import yaml
+
+from app.cluster import (adaptive_bounds, jobqueue_cluster, jobqueue_kwargs, open_client,
+                         slurm_unavailable, tls_mode)
+from app.errors import RadiosityError
+
+from conftest import ROOT, scene_path
+
+LOOPBACK_SCHEDULER = {"host": "127.0.0.1", "dashboard_address": "127.0.0.1:0"}
+
+
+def _host(address: str) -> str:
+    return address.split("://", 1)[-1].rsplit(":", 1)[0]
+
+
+# ----------------------------------------------------------------------------- local clusters
+
+def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback():
+    lines = []
+    with dask.config.set({"radiosity.cluster.tls": False}), open_client(1, kind="local", echo=lines.append) as c:
+        assert c.scheduler.address.startswith("tcp://127.0.0.1:")
+        assert c.dashboard_link.startswith("http://127.0.0.1:")
+        workers = c.scheduler_info()["workers"]
+        assert workers and all(_host(w) == "127.0.0.1" for w in workers)
+        assert c.submit(sum, [1, 2]).result() == 3
+    assert any(line.startswith("dashboard: http://127.0.0.1:") for line in lines)
+
+
+def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene, tmp_path, client):
+    from app.pipeline import preprocess
+    from app.scene import load_scene
+    from app.visibility import compute_visibility
+
+    sc = load_scene(small_scene)
+    with dask.config.set({"radiosity.cluster.tls": "temporary"}), open_client(1, kind="local", quiet=True) as c:
+        assert c.scheduler.address.startswith("tls://127.0.0.1:")
+        assert all(w.startswith("tls://127.0.0.1:") for w in c.scheduler_info()["workers"])
+        assert c.security.require_encryption
+        preprocess(sc, str(tmp_path / "tls"), c, progress=False)
+        fig = compute_visibility(str(tmp_path / "tls"), c, progress=False)
+    assert fig["tasks_computed"] == fig["tasks"] > 0
+    # the same stages over plain TCP (the session's cluster) give the same answer
+    preprocess(sc, str(tmp_path / "tcp"), client, progress=False)
+    ref = compute_visibility(str(tmp_path / "tcp"), client, progress=False)
+    for k in ("sub_elements", "pairs_facing", "pairs_visible", "rays"):
+        assert fig[k] == ref[k], k
+
+
+def test_adaptive_local_cluster_keeps_the_minimum_and_works():
+    with open_client(2, kind="local", quiet=True, adaptive=(1, 2), timeout=60) as c:
+        assert len(c.scheduler_info()["workers"]) >= 1
+        assert c.submit(lambda: 41 + 1).result() == 42
+
+
+def test_tls_and_adaptive_settings_parse():
+    assert tls_mode(False) is None and tls_mode("false") is None and tls_mode(None) is None
+    assert tls_mode("temporary") == "temporary" and tls_mode(True) == "temporary"
+    with dask.config.set({"radiosity.cluster.tls": "temporary"}):
+        assert tls_mode() == "temporary"
+    with pytest.raises(RadiosityError, match="false or temporary"):
+        tls_mode("mutual")
+    assert adaptive_bounds(False, 4) is None
+    assert adaptive_bounds(True, 4) == (1, 4)
+    assert adaptive_bounds((0, 8), 4) == (1, 8)  # at least one worker
+    assert adaptive_bounds("2:6", 4) == (2, 6)
+    assert adaptive_bounds({"minimum": 2}, 5) == (2, 5)
+    with pytest.raises(RadiosityError, match="maximum"):
+        adaptive_bounds((5, 2), 4)
+
+
+def test_batch_kind_without_its_submit_command_fails_clearly(tmp_path, monkeypatch):
+    monkeypatch.setenv("PATH", str(tmp_path))  # no qsub here
+    with pytest.raises(RadiosityError, match="qsub.*not on PATH"):
+        with open_client(1, kind="pbs", quiet=True):
+            pass
+    with pytest.raises(RadiosityError, match="unknown cluster kind"):
+        with open_client(1, kind="kubernetes", quiet=True):
+            pass
+    with dask.config.set({"radiosity.cluster.tls": "temporary"}), \
+            pytest.raises(RadiosityError, match="running scheduler over TLS"):
+        with open_client(scheduler="tcp://127.0.0.1:1", quiet=True):
+            pass
+
+
+# ----------------------------------------------------------------------------- jobqueue config
+
+@pytest.fixture
+def deploy_jobqueue_config():
+    import dask_jobqueue  # noqa: F401  registers its defaults first: set() below must not own the key
+
+    with open(os.path.join(ROOT, "deploy", "jobqueue.yaml")) as f:
+        cfg = yaml.safe_load(f)
+    # as DASK_CONFIG would: merged over dask-jobqueue's defaults (which have keys the file omits)
+    merged = dask.config.update(copy.deepcopy(dask.config.get("jobqueue")), cfg["jobqueue"])
+    with dask.config.set({"jobqueue": merged}):
+        yield cfg
+
+
+def test_job_scripts_from_deploy_jobqueue_yaml(deploy_jobqueue_config, tmp_path):
+    worker = f"{sys.executable} -m distributed.cli.dask_worker"
+    with jobqueue_cluster("slurm", scheduler_options=LOOPBACK_SCHEDULER) as cl:
+        s = cl.job_script()
+    for want in ("#SBATCH -J radiosity-worker", "#SBATCH --cpus-per-task=8", "#SBATCH --mem=15G",
+                 "#SBATCH -t 02:00:00", worker, "--nthreads 4", "--nworkers 2", "--memory-limit 7.45GiB",
+                 "--lifetime=115m", "OMP_NUM_THREADS=1"):
+        assert want in s, (want, s)
+    assert "#SBATCH -p" not in s and "#SBATCH -A" not in s  # queue/account null in the YAML
+
+    # keyword overrides win over the YAML
+    with jobqueue_cluster("slurm", scheduler_options=LOOPBACK_SCHEDULER, cores=4, memory="8GB",
+                          processes=1, walltime="00:30:00", queue="compute", account="proj42") as cl:
+        s = cl.job_script()
+    for want in ("#SBATCH --cpus-per-task=4", "#SBATCH --mem=8G", "#SBATCH -t 00:30:00",
+                 "#SBATCH -p compute", "#SBATCH -A proj42", "--nthreads 4", worker):
+        assert want in s, (want, s)
+    assert "--nworkers" not in s
+
+    with jobqueue_cluster("pbs", scheduler_options=LOOPBACK_SCHEDULER, account="proj42") as cl:
+        s = cl.job_script()
+    for want in ("#PBS -N radiosity-worker", "#PBS -l select=1:ncpus=8:mem=15GB",
+                 "#PBS -l walltime=02:00:00", "#PBS -A proj42", worker, "--nworkers 2"):
+        assert want in s, (want, s)
+
+    # TLS: the workers get the temporary certificate through the shared directory
+    from distributed.security import Security
+
+    with jobqueue_cluster("slurm", scheduler_options=LOOPBACK_SCHEDULER, security=Security.temporary(),
+                          shared_temp_directory=str(tmp_path)) as cl:
+        s = cl.job_script()
+        assert cl.scheduler_address.startswith("tls://127.0.0.1:")
+    assert "--tls-ca-file" in s and str(tmp_path) in s
+
+
+def test_jobqueue_kwargs_python_threads_and_account_mapping():
+    kw = jobqueue_kwargs("slurm", cores=8, memory="16GB", queue=None)
+    assert kw["python"] == sys.executable and "queue" not in kw
+    assert jobqueue_kwargs("slurm", threads_per_worker=2, cores=8)["processes"] == 4
+    assert jobqueue_kwargs("slurm", threads_per_worker=2, cores=8, processes=1)["processes"] == 1
+    assert jobqueue_kwargs("sge", account="p1")["project"] == "p1"
+    assert jobqueue_kwargs("lsf", account="p1")["project"] == "p1"
+    with dask.config.set({"jobqueue.slurm.python": "/opt/env/bin/python"}):
+        assert "python" not in jobqueue_kwargs("slurm")  # configured: left to dask-jobqueue
+
+
+# ----------------------------------------------------------------------------- a real Slurm
+
+@pytest.fixture(scope="module")
+def slurm_state():
+    """Checked once: `sinfo` needs ~9 s to give up when no controller runs."""
+    return slurm_unavailable()
+
+
+@pytest.fixture
+def slurm(slurm_state):
+    why = slurm_state
+    if why:
+        pytest.skip(f"slurm is not running here: start it with bash deploy/slurm-up.sh ({why})")
+
+
+def _squeue() -> list[str]:
+    return subprocess.run(["squeue", "-h", "-o", "%i"], capture_output=True, text=True, timeout=15).stdout.split()
+
+
+def _wait_queue_empty(timeout=30.0) -> list[str]:
+    t = time.perf_counter()
+    left = _squeue()
+    while left and time.perf_counter() - t < timeout:
+        time.sleep(0.2)
+        left = _squeue()
+    return left
+
+
+def test_render_through_slurm_jobs_equals_local_render(slurm, client, tmp_path):
+    from app.pipeline import render_scene
+    from app.scene import load_scene
+    from app.store import RunStore
+
+    sc = load_scene(scene_path("three-rectangles"), resolution=12)
+    logs = tmp_path / "slurm-logs"
+    logs.mkdir()
+    lines = []
+    t0 = time.perf_counter()
+    with dask.config.set({"radiosity.cluster.tls": False}), \
+            open_client(2, kind="slurm", echo=lines.append, cores=1, processes=1, memory="1GB",
+                        walltime="00:10:00", timeout=120, job_name=f"radiosity-test-{os.getpid()}",
+                        log_directory=str(logs), scheduler_options=LOOPBACK_SCHEDULER,
+                        worker_extra_args=["--host", "127.0.0.1"]) as c:
+        t_up = time.perf_counter() - t0
+        assert c.scheduler.address.startswith("tcp://127.0.0.1:")
+        assert len(_squeue()) == 2  # the two workers are Slurm jobs
+        assert len(c.scheduler_info()["workers"]) == 2
+        render_scene(sc, str(tmp_path / "slurm"), c, preview=False, progress=False)
+    t_render = time.perf_counter() - t0 - t_up
+    left = _wait_queue_empty()
+    assert not left, f"jobs left in the queue: {left}"
+    assert any("worker(s) connected" in line for line in lines)
+
+    render_scene(sc, str(tmp_path / "local"), client, preview=False, progress=False)
+    a = RunStore(str(tmp_path / "slurm")).read_arrays("solution")["radiance"]
+    b = RunStore(str(tmp_path / "local")).read_arrays("solution")["radiance"]
+    assert a.shape == b.shape and len(a) > 3
+    np.testing.assert_allclose(a, b, rtol=1e-9, atol=0)
+    print(f"slurm: workers up {t_up:.1f} s, render {t_render:.1f} s")
+
+
+def test_unsatisfiable_slurm_jobs_fail_with_what_to_check(slurm, tmp_path):
+    with pytest.raises(RadiosityError) as e:
+        with open_client(1, kind="slurm", quiet=True, cores=1, processes=1, memory="1GB",
+                         walltime="00:05:00", timeout=4, log_directory=str(tmp_path),
+                         job_name=f"radiosity-test-{os.getpid()}",
+                         job_extra_directives=["--begin=now+1hour"],  # pending for an hour
+                         scheduler_options=LOOPBACK_SCHEDULER, worker_extra_args=["--host", "127.0.0.1"]):
+            pass
+    msg = str(e.value)
+    assert "0 of 1 Dask workers connected within 4 s" in msg
+    assert "squeue" in msg and str(tmp_path) in msg and "scheduler at tcp://127.0.0.1:" in msg
+    assert "PENDING" in msg and "BeginTime" in msg  # the job's state, from squeue
+    left = _wait_queue_empty()
+    assert not left, f"jobs left in the queue: {left}"

@@ -11,7 +11,6 @@ import warnings
 
 import click
 
-from . import config
 from .errors import RadiosityError
 
 

@@ -39,12 +39,3 @@ def diameter(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
     """Largest vertex-to-vertex distance of each polygon, (n,)."""
     d = np.linalg.norm(verts[:, :, None, :] - verts[:, None, :, :], axis=-1)
     return d.reshape(len(verts), -1).max(axis=1)
-
-
-def circumradius(verts: np.ndarray) -> np.ndarray:
-    """Radius of the smallest ball around the centroid of the vertices holding them all, (n,).
-
-    Used for the seed's termination bound (seed §3.3); an upper bound of the true circumradius.
-    """
-    c = verts.mean(axis=1)
-    return np.linalg.norm(verts - c[:, None, :], axis=-1).max(axis=1)

@@ -27,7 +27,7 @@ import numpy as np
 from . import config
 from .errors import RadiosityError
 from .kernels import KERNELS, gs_sweep, kernel_id, tiles_apply
-from .plan import END, FIRST, I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART
+from .plan import END, FIRST, I, J, NCOLS, R0, R1, TBYTES, TSTART
 
 
 @dataclass
@@ -467,7 +467,7 @@ def write_direct_solution(run_dir: str) -> dict:
 
     rs = RunStore(run_dir, "r+")
     part, el = rs.load_partition(), rs.load_elements()
-    rs.drop_after("visibility")
+    rs.drop_after("nearfield")
     rs.write_arrays("solution", {"radiance": el.emission[part.orig]}, {"solver": "direct"})
     fig = {"solver": "direct (L = Le)", "kernel": "-", "iterations": 0, "converged": True,
            "residuals": [], "final_residual": 0.0, "passes": 0, "pair_terms": 0,
@@ -552,7 +552,7 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     }
     if res.ambient is not None:
         figures["ambient"] = res.ambient.tolist()
-    rs.drop_after("visibility")
+    rs.drop_after("nearfield")
     rs.write_arrays("solution", {"radiance": radiance},
                     {k: v for k, v in figures.items() if k != "residuals"})
     update_report(run_dir, "solve", figures)

@@ -12,6 +12,8 @@ Layout of `RUN_DIR/store.zarr` (every array named with its shape and dtype in th
     visibility/tiles, tasks, culled: the plan (plan.VisibilityPlan)
     RUN_DIR/visibility.manifest.jsonl: one line per finished task (crc32, counts); the first
                      line names the plan it belongs to
+    nearfield/       sparse near-field corrections (nearfield.py): ia, ib, sa, sb, dab, dba
+    solution/radiance (m, 2, 3) float64: radiance per sub-element, side and channel
 
 Later stages add their own groups (visibility/, solution/); a stage that is re-run deletes the
 groups of the stages after it, so a store never mixes results of different inputs.
@@ -32,7 +34,7 @@ from .types import Camera, Elements, Partition
 FORMAT = "radiosity-run/1"
 STORE = "store.zarr"
 REPORT = "report.json"
-STAGES = ("elements", "partition", "raster", "visibility", "solution")
+STAGES = ("elements", "partition", "raster", "visibility", "nearfield", "solution")
 
 
 def _zarr():

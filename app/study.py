@@ -205,7 +205,7 @@ def write_results(out: str, rows: list[dict], title: str) -> None:
         for r in rows:
             w.writerow({k: r[k] for k in COLUMNS})
     with open(os.path.join(out, "results.md"), "w") as f:
-        f.write(f"| resolution | K | kernel | solver | tol | sub-elements | passes | total s | error | Pareto |\n")
+        f.write("| resolution | K | kernel | solver | tol | sub-elements | passes | total s | error | Pareto |\n")
         f.write("|---:|---:|---|---|---:|---:|---:|---:|---:|:---:|\n")
         for r in rows:
             f.write(f"| {r['resolution']} | {r['subpixel']} | {r['kernel']} | {r['solver']} | {r['tol']:g} | "

@@ -424,7 +424,6 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
     token = tokenize(plan.tiles, plan.tasks, plan.chunk, part.center, part.normal, el.verts,
                      config.get("rays.epsilon"), occlusion)
     vs = VisibilityStore(rs)
-    todo = np.arange(len(plan.tasks))
     done = {}
     corrupted = 0
     if resume and vs.token() == token:

@@ -11,13 +11,12 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import naive
-from app import config
 from app.errors import StoreError
 from app.pipeline import preprocess
 from app.plan import END, FIRST, NBYTES, START, TBYTES, TSTART, choose_chunk, make_plan
 from app.scene import load_scene
 from app.store import RunStore, VisibilityStore
-from app.visibility import _shaft_excludes, compute_visibility, dense_visibility, iter_tiles
+from app.visibility import _shaft_excludes, compute_visibility, dense_visibility
 from conftest import scene_path
 
 

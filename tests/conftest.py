@@ -18,11 +18,12 @@ def scene_path(name: str) -> str:
 
 @pytest.fixture(scope="session")
 def client():
-    """Two worker processes on 127.0.0.1, no dashboard: the real thing, shared by the session."""
+    """Two worker processes on 127.0.0.1 (dashboard on a free loopback port): the real thing,
+    shared by the session."""
     from distributed import Client, LocalCluster
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=40) as cluster, Client(cluster) as c:
+                      dashboard_address="127.0.0.1:0", silence_logs=40) as cluster, Client(cluster) as c:
         yield c
 
 

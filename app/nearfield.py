@@ -37,38 +37,37 @@ def near_pairs(center: np.ndarray, area: np.ndarray, orig: np.ndarray, factor: f
     return key // len(center), key % len(center)
 
 
-def pair_bits(rs, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
-    """The stored visibility bit of each pair (a, b) (any order), (k,) bool."""
+def pair_bits(rs, orig: np.ndarray, offsets: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+    """The stored visibility bit of each pair (a, b) (any order), (k,) bool; reads each
+    visibility task that holds one of the pairs once (plan.py gives the bit order)."""
     from .store import VisibilityStore
 
     vs = VisibilityStore(rs)
-    plan = vs.plan()
-    part_off = rs.read_arrays("partition")["offsets"]
-    orig = np.searchsorted(part_off, np.arange(part_off[-1]), side="right") - 1
+    _, plan, _ = vs.require()
     a = np.where(orig[ia] < orig[ib], ia, ib)
     b = np.where(orig[ia] < orig[ib], ib, ia)
     I, J = orig[a], orig[b]
-    out = np.zeros(len(a), bool)
+    r = a - offsets[I]
     tiles = plan.tiles
-    tile_task = np.repeat(np.arange(len(plan.tasks)), plan.tasks[:, END] - plan.tasks[:, FIRST])
-    order = np.lexsort((tiles[:, 2], tiles[:, 1], tiles[:, 0]))
-    keys = tiles[order, 0] * (len(part_off)) + tiles[order, 1]
-    cache = {}
-    r = a - part_off[I]
-    for k in range(len(a)):
-        blk = I[k] * len(part_off) + J[k]
-        lo = np.searchsorted(keys, blk, side="left")
-        hi = np.searchsorted(keys, blk, side="right")
-        for t in order[lo:hi]:
-            if tiles[t, R0] <= r[k] < tiles[t, R1]:
-                task = int(tile_task[t])
-                data = cache.get(task)
-                if data is None:
-                    data = cache[task] = vs.read_task(plan, task)
-                bit = (r[k] - tiles[t, R0]) * tiles[t, NCOLS] + (b[k] - part_off[J[k]])
-                off = int(tiles[t, START] - plan.tasks[task, TSTART])
-                out[k] = bool((data[off + (bit >> 3)] >> (bit & 7)) & 1)
-                break
+    # the tile of each pair: the last tile of block (I, J) whose first row is <= r
+    n = len(offsets)
+    stride = int(offsets[-1]) + 1
+    tkey = (tiles[:, 0] * n + tiles[:, 1]) * stride + tiles[:, R0]
+    order = np.argsort(tkey, kind="stable")
+    t = order[np.maximum(np.searchsorted(tkey[order], (I * n + J) * stride + r, side="right") - 1, 0)]
+    # pairs of a block that was culled whole have no tile: their bit is 0
+    found = (tiles[t, 0] == I) & (tiles[t, 1] == J) & (tiles[t, R0] <= r) & (r < tiles[t, R1])
+    a, b, I, J, r, t = a[found], b[found], I[found], J[found], r[found], t[found]
+    bit = (r - tiles[t, R0]) * tiles[t, NCOLS] + (b - offsets[J])
+    pos = tiles[t, START] + (bit >> 3)  # byte in the whole bits array
+    task_of = np.repeat(np.arange(len(plan.tasks)), plan.tasks[:, END] - plan.tasks[:, FIRST])
+    got = np.zeros(len(a), bool)
+    for task in np.unique(task_of[t]):
+        k = task_of[t] == task
+        data = vs.read_task(plan, int(task))
+        got[k] = ((data[pos[k] - plan.tasks[task, TSTART]] >> (bit[k] & 7)) & 1).astype(bool)
+    out = np.zeros(len(found), bool)
+    out[found] = got
     return out
 
 
@@ -97,7 +96,7 @@ def corrections(rs, kernel: str, factor: float) -> dict:
     t = COS_TOL * length
     face = ((ca > t) | (ts[ia] & (ca < -t))) & ((cb > t) | (ts[ib] & (cb < -t)))
     ia, ib, ca, cb = ia[face], ib[face], ca[face], cb[face]
-    vis = pair_bits(rs, ia, ib) if len(ia) else np.zeros(0, bool)
+    vis = pair_bits(rs, part.orig, part.offsets, ia, ib) if len(ia) else np.zeros(0, bool)
     ia, ib, ca, cb = ia[vis], ib[vis], ca[vis], cb[vis]
     fe = pair_form_factors_exact(part.verts[ia], part.nverts[ia], part.verts[ib], part.nverts[ib])
     fe_ba = fe * part.area[ia] / part.area[ib]

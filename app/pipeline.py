@@ -1,7 +1,8 @@
 """The stages as Dask work: what each stage submits, gathers and stores.
 
 Tasks are module-level functions that take arrays and return arrays; big read-only inputs are
-scattered once. Only this module and visibility.py talk to a Client.
+scattered once. The stage masters (this module, visibility.py, solve.py) are the only code that
+talks to a Client; planning (plan.py, planner.py) and kernels never do.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def peak_rss_mb(client) -> dict:
 def task_raster(elements, camera, subpixel, r0, r1, key):
     """Camera rays of fine-raster rows r0:r1 against the whole scene -> (orig, points)."""
     rc = caster_for(key, elements.verts, elements.nverts)
-    return raster_band(rc, elements, camera, subpixel, slice(r0, r1))
+    return raster_band(rc, elements.normal, elements.center, camera, subpixel, slice(r0, r1))
 
 
 def task_subdivide(verts, nverts, normal, points, point_elem, max_depth, ids):
@@ -63,7 +64,7 @@ def task_seed_subscene(elements, camera, subpixel, start, stop, max_depth, rows_
     h = camera.height * subpixel
     e_all, p_all = [], []
     for r0 in range(0, h, rows_per_batch):
-        elem, pts = raster_band(rc, _Slice(elements, sl), camera, subpixel,
+        elem, pts = raster_band(rc, elements.normal[sl], elements.center[sl], camera, subpixel,
                                 slice(r0, min(h, r0 + rows_per_batch)))
         hit = elem >= 0
         e_all.append(elem[hit])
@@ -71,14 +72,6 @@ def task_seed_subscene(elements, camera, subpixel, start, stop, max_depth, rows_
     return subdivide(elements.verts[sl], elements.nverts[sl], elements.normal[sl],
                      np.concatenate(p_all), np.concatenate(e_all), max_depth,
                      element_ids=np.arange(start, stop))
-
-
-class _Slice:
-    """The normal/center view of a range of elements that raster_band needs."""
-
-    def __init__(self, el, sl):
-        self.normal = el.normal[sl]
-        self.center = el.center[sl]
 
 
 # ----------------------------------------------------------------------------- planning (pure)
@@ -206,23 +199,32 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
 # ----------------------------------------------------------------------------- the whole run
 
 def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = None,
-               full: bool = False):
-    """The effects plan of a scene (planner.py), with estimates from one camera raster.
+               full: bool = False, run_dir: str | None = None):
+    """The effects plan of a scene (planner.py) and figures for its estimates.
 
-    Returns (plan, figures): figures has the camera's unseen elements and an estimate of the
-    sub-elements (about 1.4 per pixel hit, seen on the built-in scenes)."""
+    With a preprocessed `run_dir`, the estimates use its partition (sub-elements per original)
+    and raster; otherwise one camera raster estimates them (about 1.4 sub-elements per pixel
+    hit, seen on the built-in scenes). Returns (plan, figures)."""
     from .planner import plan_effects
 
-    subpixel = int(config.get("subdivide.subpixel", subpixel))
     tol = float(config.get("solve.tol", tol))
-    el, cam = scene.elements, scene.camera
-    rc = RayCaster(el.verts, el.nverts)
-    h = cam.height * subpixel
-    elem, _ = raster_band(rc, el, cam, subpixel, slice(0, h))
-    pix = np.bincount(elem[elem >= 0], minlength=len(el))
-    sizes = np.maximum(1.0, 1.4 * pix)
+    el = scene.elements
+    if run_dir is not None:
+        rs = RunStore(run_dir)
+        sizes = np.diff(rs.load_partition().offsets).astype(float)
+        elem = rs.read_arrays("raster")["orig"].ravel()
+        pix = np.bincount(elem[elem >= 0], minlength=len(el))
+        key = "sub_elements"
+    else:
+        subpixel = int(config.get("subdivide.subpixel", subpixel))
+        cam = scene.camera
+        rc = RayCaster(el.verts, el.nverts)
+        elem, _ = raster_band(rc, el.normal, el.center, cam, subpixel, slice(0, cam.height * subpixel))
+        pix = np.bincount(elem[elem >= 0], minlength=len(el))
+        sizes = np.maximum(1.0, 1.4 * pix)
+        key = "sub_elements_estimate"
     plan = plan_effects(el, tol=tol, full=full, sizes=sizes)
-    return plan, {"unseen_unsplit": int((pix == 0).sum()), "sub_elements_estimate": int(sizes.sum())}
+    return plan, {"unseen_unsplit": int((pix == 0).sum()), key: int(sizes.sum())}
 
 
 def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None, unit=None,
@@ -237,19 +239,18 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
 
     from .render import render_outputs
     from .solve import run_solve
-    from .store import RunStore
     from .visibility import compute_visibility
 
     t0 = time.perf_counter()
     stages = {}
-    effects, est = scene_plan(scene, subpixel, tol, full)
     reuse = False
     if resume and os.path.exists(os.path.join(out, "store.zarr")):
         try:
-            at = RunStore(out).attrs
+            rs = RunStore(out)
+            at = rs.attrs
             reuse = (at.get("scene") == scene.path and at.get("camera") == scene.camera.to_dict()
                      and at.get("subpixel") == int(config.get("subdivide.subpixel", subpixel))
-                     and RunStore(out).has("raster"))
+                     and rs.has("raster"))
         except Exception:
             reuse = False
     t = time.perf_counter()
@@ -258,8 +259,8 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     else:
         preprocess(scene, out, client, subpixel=subpixel, variant=variant, progress=progress)
     stages["preprocess_s"] = time.perf_counter() - t
-    from .store import update_report
-
+    # decide the effects before the heavy stages, from the partition just made
+    effects, est = scene_plan(scene, subpixel, tol, full, run_dir=out)
     update_report(out, "plan", {**effects.to_dict(), **est})
     t = time.perf_counter()
     if effects.interreflection:
@@ -297,15 +298,14 @@ def render_preview(scene: Scene, out: str, client, tol=None,
     disc kernel and at most 200 passes."""
     import os
     import shutil
-    import warnings as _w
 
     from .render import render_outputs
     from .solve import run_solve
     from .visibility import compute_visibility
 
     sub = os.path.join(out, "preview")
-    with _w.catch_warnings():
-        _w.simplefilter("ignore")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
         preprocess(scene, sub, client, subpixel=1, variant="none", progress=False)
         compute_visibility(sub, client, progress=False)
         run_solve(sub, client, solver="jacobi", kernel="disc", tol=tol, max_iter=200, progress=False)

@@ -36,7 +36,6 @@ class SolveResult:
     iterations: int
     residuals: list = field(default_factory=list)   # relative residual (or bound) per pass
     converged: bool = False
-    pair_terms: int = 0
     ambient: np.ndarray | None = None   # (3,) progressive refinement's ambient term (last pass)
 
 
@@ -305,22 +304,15 @@ class DaskOperator:
         self.groups = [np.array(sorted(m), np.int64) for m in members if m]
         self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
         self.retries = int(config.get("visibility.retries"))
-        self._offsets = inp.offsets
         self.near = None  # sparse near-field corrections (nearfield.py), if the kernel has them
         self._gs_fixed = None  # (Le, [futures of Le, rho]) scattered once for Gauss-Seidel
-
-    def _gather(self, futs):
-        out = []
-        for f in futs:
-            out.append(f.result())
-        return out
 
     def apply(self, L: np.ndarray, live: np.ndarray | None = None, use_need: bool = True) -> np.ndarray:
         """F L; `live` (m,) bool marks the sub-elements whose L may be non-zero; with use_need,
         the rows of originals that do not gather stay 0."""
         live_orig = None
         if live is not None:  # per original: does any of its sub-elements have a source?
-            live_orig = np.add.reduceat(live.astype(np.int64), self._offsets[:-1]) > 0
+            live_orig = np.add.reduceat(live.astype(np.int64), self.inp.offsets[:-1]) > 0
         [Lf] = self.client.scatter([L], broadcast=False, hash=False)
         futs = [self.client.submit(task_apply, self.inp_f, g, Lf, self.kid, live_orig, use_need,
                                    pure=False,
@@ -328,7 +320,7 @@ class DaskOperator:
                                    retries=self.retries)
                 for g, w in zip(self.groups, self.workers or [None] * len(self.groups))]
         y = np.zeros_like(L)
-        for yp, terms in self._gather(futs):
+        for yp, terms in self.client.gather(futs):
             y += yp
             self.terms += terms
         if self.near is not None:
@@ -368,9 +360,10 @@ class DaskOperator:
 
 # ----------------------------------------------------------------------------- the stage
 
-def normalise_rows(op, mode="cap") -> dict:
+def normalise_rows(op, mode="cap"):
     """Detect rows of F that sum to more than 1 (the point kernel near large elements close
-    together, where 1/r^2 blows up) and handle them. Returns what was found and done.
+    together, where 1/r^2 blows up) and decide how to handle them. Returns (figures, cap):
+    what was found and done, and the `cap` (m,) to configure the operator with (None: none).
 
     cap (default): scale each pair by min(cap_a, cap_b), cap = 1 / row sum on the rows above 1:
         rows then sum to at most 1 and reciprocity still holds (A_a F'_ab = A_b F'_ba), so every
@@ -389,8 +382,9 @@ def normalise_rows(op, mode="cap") -> dict:
     out = {"rows_over_1": int(over.sum()), "max_row_sum": float(rs.max(initial=0.0)),
            "min_row_sum": float(sums.sum(axis=0).min(initial=0.0)), "mode": mode,
            "normalised": bool(mode == "cap" and over.any())}
+    cap = None
     if out["normalised"]:
-        op.configure(cap=np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0))
+        cap = np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0)
     elif mode == "closed":
         total = sums.sum(axis=0)
         if np.any(total <= 0):
@@ -404,9 +398,9 @@ def normalise_rows(op, mode="cap") -> dict:
             if err < 1e-12:
                 break
             d = np.sqrt(d / Fd)
-        op.configure(cap=-d)  # negative: the kernels scale pairs by the product d_a d_b
+        cap = -d  # negative: the kernels scale pairs by the product d_a d_b
         out.update({"normalised": True, "balancing_passes": it + 1, "balancing_error": float(err)})
-    return out
+    return out, cap
 
 
 def side_vectors(part, elements):
@@ -497,12 +491,15 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     rs = RunStore(run_dir, "r+")
     op, part, el = open_operator(rs, client, kernel)
     Le, rho, area = side_vectors(part, el)
-    rows = normalise_rows(op, config.get("solve.normalise-rows", normalise))
+    rows, cap = normalise_rows(op, config.get("solve.normalise-rows", normalise))
+    changes = {} if cap is None else {"cap": cap}
     channels = 3
     if effects is not None:
-        sided = effects.two_sided[part.orig]
-        need = effects.gather if not effects.gather.all() else np.zeros(0, np.bool_)
-        op.configure(sided=sided, need=need)
+        changes["sided"] = effects.two_sided[part.orig]
+        changes["need"] = effects.gather if not effects.gather.all() else np.zeros(0, np.bool_)
+    if changes:
+        op.configure(**changes)  # one scatter of the inputs
+    if effects is not None:
         if not effects.colour:  # grey: one channel, broadcast at the end
             channels = 1
             Le, rho = Le[:, :1].copy(), rho[:, :1].copy()

@@ -83,7 +83,9 @@ def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> 
 
     rs = RunStore(run_dir)
     op, part, el = open_operator(rs, client, kernel)
-    normalise_rows(op)
+    _, cap = normalise_rows(op)
+    if cap is not None:
+        op.configure(cap=cap)
     names = np.array(el.material_names)[el.material[part.orig]]
     x = np.zeros((2, 1, len(part)))
     x[0, 0, names == to] = 1.0
@@ -174,7 +176,8 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         fine = load_scene(scene_path, resolution=key[0])
         rc = RayCaster(fine.elements.verts, fine.elements.nverts)
         h = fine.camera.height * key[1]
-        orig, pts = raster_band(rc, fine.elements, fine.camera, key[1], slice(0, h))
+        orig, pts = raster_band(rc, fine.elements.normal, fine.elements.center, fine.camera, key[1],
+                                slice(0, h))
         hit = orig >= 0
         orig, pts = orig[hit], pts[hit]
 

@@ -272,8 +272,9 @@ def merge_partitions(pieces: list, element_ranges: list, n_elements: int) -> Par
 
 # ----------------------------------------------------------------------------- the raster
 
-def raster_band(caster, elements, camera, subpixel: int, rows: slice):
-    """First hits of the camera rays through the fine-raster rows `rows`.
+def raster_band(caster, normal, center, camera, subpixel: int, rows: slice):
+    """First hits of the camera rays through the fine-raster rows `rows`, against the elements
+    the caster was built from (normal, center (n, 3): their planes, for the exact hit points).
 
     Returns orig (p,) int32 (-1 where nothing is hit) and points (p, 3) float64.
     """
@@ -281,7 +282,7 @@ def raster_band(caster, elements, camera, subpixel: int, rows: slice):
 
     dirs = ray_directions32(camera, subpixel, rows.start, rows.stop)
     elem = caster.first_hit(camera.center, dirs, unit=True)
-    return elem, hit_points(camera, subpixel, rows.start, elem, elements.normal, elements.center)
+    return elem, hit_points(camera, subpixel, rows.start, elem, normal, center)
 
 
 def subdivide_scene(elements, camera, subpixel: int = 1, max_depth: int = 48, caster=None):
@@ -293,7 +294,7 @@ def subdivide_scene(elements, camera, subpixel: int = 1, max_depth: int = 48, ca
 
     rc = caster or RayCaster(elements.verts, elements.nverts)
     h = camera.height * subpixel
-    elem, pts = raster_band(rc, elements, camera, subpixel, slice(0, h))
+    elem, pts = raster_band(rc, elements.normal, elements.center, camera, subpixel, slice(0, h))
     hit = elem >= 0
     part, fig = subdivide(elements.verts, elements.nverts, elements.normal, pts[hit], elem[hit],
                           max_depth)

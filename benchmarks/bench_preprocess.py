@@ -52,8 +52,8 @@ def main():
         o32 = np.ascontiguousarray(np.broadcast_to((cam.center - origin) / scale, d32.shape), np.float32)
         t_raw = best_of(lambda: raw.run(o32, d32), 5)
         t_ours = best_of(lambda: rc.first_hit(cam.center, d32, unit=True), 5)
-        t_band = best_of(lambda: raster_band(rc, el, cam, 1, slice(0, res)), 5)
-        elem, pts = raster_band(rc, el, cam, 1, slice(0, res))
+        t_band = best_of(lambda: raster_band(rc, el.normal, el.center, cam, 1, slice(0, res)), 5)
+        elem, pts = raster_band(rc, el.normal, el.center, cam, 1, slice(0, res))
         hit = elem >= 0
         t_sub = best_of(lambda: subdivide(el.verts, el.nverts, el.normal, pts[hit], elem[hit]), 2)
         part, fig = subdivide(el.verts, el.nverts, el.normal, pts[hit], elem[hit])

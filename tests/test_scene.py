@@ -114,7 +114,6 @@ def test_gltf_materials_emissive_strength_and_double_sided(tmp_path):
         doubleSided=True))
     s = trimesh.Scene()
     s.add_geometry(box, node_name="n", transform=trimesh.transformations.translation_matrix([0, 0, 5]))
-    glb = tmp_path / "box.gltf"
     files = s.export(file_type="gltf")
     for name, data in files.items():
         (tmp_path / name).write_bytes(data)
@@ -131,7 +130,6 @@ def test_gltf_materials_emissive_strength_and_double_sided(tmp_path):
     np.testing.assert_allclose(el.emission[:, 0], [[4.0, 2.0, 1.0]] * 6)
     assert el.two_sided.all()
     np.testing.assert_allclose(el.center.mean(0), [0, 0, 5], atol=1e-12)  # node transform applied
-    assert not glb.exists()
 
 
 def test_ply_with_mesh_material(tmp_path):

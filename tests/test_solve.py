@@ -183,7 +183,7 @@ def test_two_sided_panel_lit_from_one_side_is_dark_on_the_other(client, tmp_path
     L = _radiance(out)
     panel = el.two_sided[part.orig]
     assert panel.any()
-    # lamp faces down (-y)? it is wound counter-clockwise from above, so it faces up: fix below
+    # which side faces the lamp follows from the winding; find it rather than assume it
     front, back = L[panel, 0], L[panel, 1]
     lit_side = 0 if front.max() > back.max() else 1
     dark = L[panel, 1 - lit_side]

@@ -59,7 +59,6 @@ def test_three_rectangles_shadow_is_where_the_geometry_puts_it(client, tmp_path)
     rs = RunStore(out)
     part, el = rs.load_partition(), rs.load_elements()
     V = dense_visibility(rs)
-    names = [el.material_names[m] for m in el.material]
     light = [i for i, e in enumerate(el.emission[:, 0].max(1)) if e > 0][0]
     screen = int(np.argmin(el.center[:, 1]))
     L = np.arange(part.offsets[light], part.offsets[light + 1])
@@ -75,7 +74,6 @@ def test_three_rectangles_shadow_is_where_the_geometry_puts_it(client, tmp_path)
     umbra = (np.abs(part.center[S, 0]) < 0.29) & (np.abs(part.center[S, 2]) < 0.29)
     assert umbra.any() and not got[umbra].any()
     assert got[~umbra].any()
-    assert "screen" in " ".join(names) or True
 
 
 def test_worker_killed_mid_run_gives_the_same_matrix(tmp_path):

@@ -305,3 +305,14 @@ def test_study_seed_writes_its_plots(client, tmp_path):
         assert (tmp_path / "seed" / f).stat().st_size > 0, f
     assert [r["resolution"] for r in res["rows"]] == [12, 16, 24]
     assert res["rows"][-1]["sub_elements"] > res["rows"][0]["sub_elements"]
+
+
+def test_coaxial_discs_validation_value_is_the_64_gon_contour_integral():
+    from app.exact import coaxial_discs, polygon_form_factor
+
+    n = 64
+    ring = np.array([[np.cos(2 * np.pi * k / n), np.sin(2 * np.pi * k / n), 0.0] for k in range(n)])
+    top = (ring + [0, 0, 1.0])[::-1]
+    f = polygon_form_factor(ring, top)
+    assert load_scene(scene_path("coaxial-discs")).validation["form_factor"] == pytest.approx(f, rel=1e-12)
+    assert f == pytest.approx(coaxial_discs(1, 1, 1), rel=1e-3)

@@ -127,7 +127,7 @@ def make_security(tls=None):
 
     try:
         return Security.temporary()
-    except ImportError as e:  # pragma: no cover - cryptography comes with distributed's deps
+    except ImportError as e:  # pragma: no cover - cryptography is a declared dependency
         raise RadiosityError(f"radiosity.cluster.tls: temporary needs the cryptography package: {e}") from None
 
 

@@ -101,6 +101,8 @@ def test_cluster_flags_reach_the_config(tmp_path):
     import copy
 
     import dask.config
+    import dask_jobqueue  # noqa: F401  both register their defaults on import: snapshot after them
+    import distributed  # noqa: F401
 
     saved = copy.deepcopy(dask.config.config)  # the flags set the process's config: restore it
     try:

@@ -62,6 +62,19 @@ def _jobqueue(key):
     return keys
 
 
+def kernel_options(fn, help_="Form-factor kernel (default: radiosity.solve.kernel)."):
+    """--kernel and the sampled kernels' --nxm-points / --mc-samples / --mc-seed."""
+    from .kernels import KERNELS
+
+    for name, key, help2 in (
+            ("--mc-seed", "mc-seed", "mc kernel: seed of the random sample points."),
+            ("--mc-samples", "mc-samples", "mc kernel: random sample pairs (rays) per pair."),
+            ("--nxm-points", "nxm-points", "nxm kernel: sample points per element (a square).")):
+        fn = click.option(name, type=int, default=None, expose_value=False, help=help2,
+                          callback=_set_config(lambda v, k=key: {f"radiosity.solve.{k}": v}))(fn)
+    return click.option("--kernel", type=click.Choice(list(KERNELS)), default=None, help=help_)(fn)
+
+
 def cluster_options(fn):
     """--workers / --scheduler / --cluster and the batch-job and security flags, shared by every
     heavy command; the flags write dask.config (radiosity.cluster.*, jobqueue.<kind>.*)."""
@@ -135,17 +148,22 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, workers, sc
 @click.option("--task-unit", type=click.Choice(["block", "stripe", "auto"]), default=None,
               help="One task per pair of originals (block), per original (stripe), or auto.")
 @click.option("--resume", is_flag=True, help="Keep the finished tasks of an interrupted run.")
+@lambda fn: kernel_options(fn, "The kernel the matrix is for: nxm and mc cast one ray per "
+                                "sample pair (default: radiosity.solve.kernel).")
 @cluster_options
 @_friendly
-def visibility(run_dir, task_unit, resume, workers, scheduler, cluster_kind):
+def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_kind):
     """The visibility matrix of a preprocessed RUN_DIR (seed §4.3), bit-packed in its store."""
+    from . import config
     from .cluster import open_client
+    from .kernels import sampling_of
     from .store import RunStore
     from .visibility import compute_visibility
 
     RunStore(run_dir).load_partition()  # fail before starting a cluster
+    sampling_of(config.get("solve.kernel", kernel))  # a bad nxm-points / mc-samples fails here
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
-        fig = compute_visibility(run_dir, client, unit=task_unit, resume=resume)
+        fig = compute_visibility(run_dir, client, unit=task_unit, resume=resume, kernel=kernel)
     click.echo(_visibility_summary(fig))
 
 
@@ -155,7 +173,8 @@ def _visibility_summary(fig: dict) -> str:
             ("pairs", fig["pairs_total"]),
             ("culled by orientation", f"{fig['pairs_culled_by_orientation']} ({fig['pairs_culled_by_orientation'] / pt:.1%})"),
             ("proven visible by shafts", f"{fig['pairs_shaft_visible']} ({fig['pairs_shaft_visible'] / pt:.1%})"),
-            ("rays cast", f"{fig['rays']} ({fig['rays'] / pt:.1%})"),
+            ("rays cast", f"{fig['rays']} ({fig['rays'] / pt:.1%} of pairs, "
+                          f"{fig.get('rays_per_pair', 1)} per pair)"),
             ("visible pairs", fig["pairs_visible"]),
             ("tasks", f"{fig['tasks']} {fig['task_unit']} ({fig['tasks_computed']} computed, "
                       f"{fig['tasks_reused']} reused)"),
@@ -165,14 +184,12 @@ def _visibility_summary(fig: dict) -> str:
 
 
 def solve_options(fn):
-    """--solver / --kernel / --tol / --max-iterations."""
-    from .kernels import KERNELS
+    """--solver / --kernel (and its sampling) / --tol / --max-iterations."""
     from .solve import SOLVERS
 
     fn = click.option("--max-iterations", type=int, default=None, help="Pass limit.")(fn)
     fn = click.option("--tol", type=float, default=None, help="Relative residual to stop at.")(fn)
-    fn = click.option("--kernel", type=click.Choice(list(KERNELS)), default=None,
-                      help="Form-factor kernel (default: radiosity.solve.kernel).")(fn)
+    fn = kernel_options(fn)
     fn = click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
                       help="Solver (default: radiosity.solve.solver).")(fn)
     return fn

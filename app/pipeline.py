@@ -265,7 +265,7 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     t = time.perf_counter()
     if effects.interreflection:
         compute_visibility(out, client, unit=unit, resume=resume and reuse, progress=progress,
-                           occlusion=effects.occlusion)
+                           occlusion=effects.occlusion, kernel=kernel)
     else:
         echo("visibility: skipped (no interreflection: reflectance is 0 everywhere)")
         update_report(out, "visibility", {"skipped": True, "rays": 0, "pairs_total": 0})

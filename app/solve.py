@@ -176,10 +176,14 @@ class SolveInputs:
     """Read-only arrays the product tasks need (scattered once per solve).
 
     cx, cy, cz, nx, ny, nz, area (m,) float64; sided (m,) bool; offsets (n + 1,) int64;
-    tiles, tasks: the visibility plan; crc: (k, 2) int64 [crc32, nbytes] per plan task.
+    tiles, tasks: the visibility plan; crc: (k, 2) int64 [crc32, nbytes] per plan task;
+    pts, w: sample points and weights of the sampled kernels (kernels.sample_points);
+    sparse: the sparse pair corrections grouped for Gauss-Seidel (kernels.sparse_by_target).
     """
 
-    def __init__(self, part, elements, plan, crc, store_path, token):
+    def __init__(self, part, elements, plan, crc, store_path, token, sampling=None):
+        from .kernels import sample_points, sparse_by_target
+
         c, n = part.center, part.normal
         self.cx, self.cy, self.cz = (np.ascontiguousarray(c[:, k]) for k in range(3))
         self.nx, self.ny, self.nz = (np.ascontiguousarray(n[:, k]) for k in range(3))
@@ -194,6 +198,8 @@ class SolveInputs:
         self.crc = crc
         self.store_path = store_path
         self.token = token
+        self.pts, self.w = sample_points(part.verts, part.nverts, sampling)
+        self.sparse = sparse_by_target(None, part.orig, len(part.offsets) - 1)
 
 
 _TILES: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
@@ -225,7 +231,8 @@ def _task_bytes(inp: SolveInputs, task: int) -> np.ndarray:
 
 
 def _geometry(inp):
-    return inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, inp.area, inp.cap, inp.sided
+    return (inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, inp.area, inp.cap, inp.sided, inp.pts,
+            inp.w)
 
 
 def task_apply(inp: SolveInputs, task_ids: np.ndarray, L: np.ndarray, kid: int, live,
@@ -269,7 +276,7 @@ def task_gs_sweep(inp: SolveInputs, L: np.ndarray, Le: np.ndarray, rho: np.ndarr
     col_ptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=n))])
     y = np.zeros_like(L)
     terms = gs_sweep(kid, data, inp.tiles, row_ptr, row_idx, col_ptr, col_idx, inp.offsets,
-                     *_geometry(inp), L, Le, rho, y, inp.need)
+                     *_geometry(inp), L, Le, rho, y, inp.need, *inp.sparse)
     return L, terms
 
 
@@ -304,7 +311,7 @@ class DaskOperator:
         self.groups = [np.array(sorted(m), np.int64) for m in members if m]
         self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
         self.retries = int(config.get("visibility.retries"))
-        self.near = None  # sparse near-field corrections (nearfield.py), if the kernel has them
+        self.sparse = None  # sparse pair corrections (near field, partial visibility), if any
         self._gs_fixed = None  # (Le, [futures of Le, rho]) scattered once for Gauss-Seidel
 
     def apply(self, L: np.ndarray, live: np.ndarray | None = None, use_need: bool = True) -> np.ndarray:
@@ -323,12 +330,12 @@ class DaskOperator:
         for yp, terms in self.client.gather(futs):
             y += yp
             self.terms += terms
-        if self.near is not None:
+        if self.sparse is not None:
             from . import nearfield
 
             need = self.inp.need
             need_sub = need[self.inp.orig] if (use_need and len(need)) else None
-            self.terms += nearfield.apply(self.near, L, y, self.inp.cap, need_sub)
+            self.terms += nearfield.apply(self.sparse, L, y, self.inp.cap, need_sub)
         self.passes += 1
         return y
 
@@ -411,29 +418,63 @@ def side_vectors(part, elements):
 
 
 def open_operator(rs, client, kernel: str):
-    """Scatter the solve inputs of run store `rs` and return a DaskOperator over them."""
+    """Scatter the solve inputs of run store `rs` and return a DaskOperator over them, with the
+    kernel's sparse corrections (near field, or the partly visible pairs of sampled kernels)."""
+    from .kernels import base_kernel, sampling_of, sparse_by_target
     from .store import VisibilityStore
 
-    token, plan, done = VisibilityStore(rs).require()
+    vs = VisibilityStore(rs)
+    token, plan, done = vs.require()
     missing = [t for t in range(len(plan.tasks)) if t not in done]
     if missing:
         raise RadiosityError(f"the visibility matrix of {rs.run_dir} is incomplete ({len(missing)} "
                              f"of {len(plan.tasks)} tasks missing): run radiosity visibility "
                              f"{rs.run_dir} --resume")
+    sampling = sampling_of(kernel)
+    stored = vs.sampling()
+    if stored != sampling:
+        have = stored.describe() if stored else "one ray between centres"
+        need = sampling.describe() if sampling else "one ray between centres"
+        raise RadiosityError(f"the visibility of {rs.run_dir} was computed with {have}; the "
+                             f"{kernel} kernel needs {need}: run radiosity visibility "
+                             f"{rs.run_dir} --kernel {kernel}")
     crc = np.array([[done[t]["crc"], done[t]["nbytes"]] for t in range(len(plan.tasks))],
                    np.int64).reshape(-1, 2)
     part = rs.load_partition()
     el = rs.load_elements()
-    inp = SolveInputs(part, el, plan, crc, rs.path, token)
-    [inp_f] = client.scatter([inp], broadcast=True, hash=False)
-    op = DaskOperator(client, inp_f, inp, kernel)
+    inp = SolveInputs(part, el, plan, crc, rs.path, token, sampling)
+    sparse = None
     if KERNELS[kernel][3]:
         from . import nearfield
-        from .kernels import base_kernel
 
-        op.near = nearfield.corrections(rs, base_kernel(kernel),
-                                        float(config.get("solve.near-field-factor")))
+        sparse = nearfield.corrections(rs, base_kernel(kernel),
+                                       float(config.get("solve.near-field-factor")))
+        sparse["kind"] = "near-field"
+    elif sampling is not None:
+        sparse = partial_corrections(vs, plan, done, inp, kernel_id(kernel))
+    if sparse is not None:
+        inp.sparse = sparse_by_target(sparse, part.orig, len(part.offsets) - 1)
+    [inp_f] = client.scatter([inp], broadcast=True, hash=False)
+    op = DaskOperator(client, inp_f, inp, kernel)
+    op.sparse = sparse
     return op, part, el
+
+
+def partial_corrections(vs, plan, done, inp: SolveInputs, kid: int) -> dict:
+    """The pairs a sampled kernel sees only partly (visibility fraction phi < 1, read back from the
+    store) as sparse corrections F_ab (phi - 1) on top of the unoccluded kernel of the pass."""
+    from .kernels import sampled_pairs
+
+    ia, ib, count, phi = vs.read_partial(plan, done)
+    acc = sampled_pairs(kid, inp.pts, inp.w, inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, ia, ib)
+    d = np.stack([inp.cx[ib] - inp.cx[ia], inp.cy[ib] - inp.cy[ia], inp.cz[ib] - inp.cz[ia]], 1)
+    ca = inp.nx[ia] * d[:, 0] + inp.ny[ia] * d[:, 1] + inp.nz[ia] * d[:, 2]
+    cb = -(inp.nx[ib] * d[:, 0] + inp.ny[ib] * d[:, 1] + inp.nz[ib] * d[:, 2])
+    figures = {"pairs": int(len(ia)), "rays_per_pair": int(inp.pts.shape[1] ** 2 if kid == 2 else inp.pts.shape[1]),
+               "mean_fraction": float(phi.mean()) if len(phi) else None}
+    return {"ia": ia, "ib": ib, "sa": (ca <= 0).astype(np.int8), "sb": (cb <= 0).astype(np.int8),
+            "dab": (phi - 1.0) * acc * inp.area[ib], "dba": (phi - 1.0) * acc * inp.area[ia],
+            "figures": figures, "kind": "partial"}
 
 
 def _previewer(rs, part, el):
@@ -542,7 +583,8 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
         "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
         "pair_terms_per_s": op.terms / max(t_solve, 1e-9), "time_s": round(t_solve, 4),
         "sub_elements": len(part), "row_sums": rows, "channels": channels,
-        "near_field": op.near["figures"] if op.near is not None else None,
+        "near_field": op.sparse["figures"] if op.sparse is not None and op.sparse.get("kind") == "near-field" else None,
+        "partial_visibility": op.sparse["figures"] if op.sparse is not None and op.sparse.get("kind") == "partial" else None,
         "two_sided_sub_elements": int(op.inp.sided.sum()),
         "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(part.offsets) - 1,
         "channel_terms": int(op.terms) * channels,

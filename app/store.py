@@ -10,6 +10,9 @@ Layout of `RUN_DIR/store.zarr` (every array named with its shape and dtype in th
     raster/sub       (H*K, W*K) int32: sub-element seen through each fine pixel (-1: none)
     visibility/bits  (total,) uint8, chunked: bit-packed tiles (layout in plan.py)
     visibility/tiles, tasks, culled: the plan (plan.VisibilityPlan)
+    visibility/partial/<task>-pairs (k, 3) int64 [a, b, visible rays], <task>-phi (k,) float64:
+                     sampled kernels only: the task's partly visible pairs and their
+                     kernel-weighted visible fraction (visibility.py)
     RUN_DIR/visibility.manifest.jsonl: one line per finished task (crc32, counts); the first
                      line names the plan it belongs to
     nearfield/       sparse near-field corrections (nearfield.py): ia, ib, sa, sb, dab, dba
@@ -122,6 +125,15 @@ class RunStore:
         return Camera.from_dict(self.attrs["camera"])
 
 
+def _entry(task: int, e: dict) -> dict:
+    """A manifest line: task, crc32 and length of its bytes, counters, its partial pairs' checksum."""
+    line = {"task": int(task), "crc": int(e["crc"]), "nbytes": int(e["nbytes"]),
+            "counts": [int(c) for c in e["counts"]]}
+    if "partial" in e:
+        line["partial"] = {"crc": int(e["partial"]["crc"]), "n": int(e["partial"]["n"])}
+    return line
+
+
 def _chunks(a: np.ndarray) -> tuple:
     """About 4 MiB per chunk along the first axis, whole along the others."""
     if a.ndim == 0 or a.size == 0:
@@ -170,6 +182,28 @@ def write_bits(store_path: str, start: int, buf: np.ndarray) -> None:
     arr[start:start + len(buf)] = buf
 
 
+def partial_path(store_path: str) -> str:
+    return os.path.join(store_path, "visibility", "partial")
+
+
+def _partial_crc(pairs: np.ndarray, phi: np.ndarray) -> int:
+    return zlib.crc32(np.ascontiguousarray(phi, np.float64).tobytes(),
+                      zlib.crc32(np.ascontiguousarray(pairs, np.int64).tobytes()))
+
+
+def write_partial(store_path: str, task: int, a, b, count, phi) -> dict:
+    """Write a task's partly visible pairs (called on the workers); returns {crc, n} for the
+    manifest. Nothing is written for none."""
+    pairs = np.stack([a, b, count], axis=1).astype(np.int64).reshape(-1, 3)
+    phi = np.asarray(phi, np.float64)
+    if len(pairs):
+        zarr = _zarr()
+        g = zarr.open_group(partial_path(store_path), mode="r+")
+        g.create_array(f"{task}-pairs", data=pairs, chunks=_chunks(pairs), overwrite=True)
+        g.create_array(f"{task}-phi", data=phi, chunks=_chunks(phi), overwrite=True)
+    return {"crc": _partial_crc(pairs, phi), "n": int(len(pairs))}
+
+
 def read_bits(store_path: str, start: int, nbytes: int) -> np.ndarray:
     """Bytes [start, start + nbytes) of the packed visibility bits: called on the workers."""
     zarr = _zarr()
@@ -195,6 +229,7 @@ class VisibilityStore:
         for name in ("tiles", "tasks", "culled"):
             a = getattr(plan, name)
             g.create_array(name, data=np.ascontiguousarray(a), chunks=_chunks(a))
+        g.create_group("partial")
         g.attrs.update({"token": token, "chunk": plan.chunk, "total": plan.total,
                         "unit": plan.unit, **attrs})
         with open(self.manifest, "w") as f:
@@ -228,14 +263,12 @@ class VisibilityStore:
         with open(tmp, "w") as f:
             f.write(json.dumps({"plan": token}) + "\n")
             for task, e in sorted(entries.items()):
-                f.write(json.dumps({"task": int(task), "crc": int(e["crc"]), "nbytes": int(e["nbytes"]),
-                                    "counts": [int(c) for c in e["counts"]]}) + "\n")
+                f.write(json.dumps(_entry(task, e)) + "\n")
         os.replace(tmp, self.manifest)
 
     def record(self, task: int, result: dict) -> None:
         """Append one finished task to the manifest (the master is its only writer)."""
-        line = {"task": int(task), "crc": int(result["crc"]), "nbytes": int(result["nbytes"]),
-                "counts": [int(c) for c in result["counts"]]}
+        line = _entry(task, result)
         with open(self.manifest, "a") as f:
             f.write(json.dumps(line) + "\n")
             f.flush()
@@ -274,9 +307,40 @@ class VisibilityStore:
         return arr[s:s + n]
 
     def verify(self, plan, task: int, entry: dict) -> bool:
-        """Do the stored bytes of `task` match the checksum recorded when it finished?"""
+        """Do the stored bytes of `task` (and its partly visible pairs) match the checksums
+        recorded when it finished?"""
         try:
             data = self.read_task(plan, task, entry["nbytes"])
-        except Exception:  # an unreadable (corrupted) chunk
+            if "partial" in entry:
+                self._partial(task, entry["partial"])
+        except Exception:  # an unreadable (corrupted) chunk, a missing or altered partial list
             return False
         return zlib.crc32(data.tobytes()) == entry["crc"]
+
+    def sampling(self):
+        """The kernels.Sampling the matrix was computed with (None: one ray between centres)."""
+        from .kernels import Sampling
+
+        d = self.rs.root["visibility"].attrs.get("sampling") if "visibility" in self.rs.root else None
+        return None if d is None else Sampling(**d)
+
+    def _partial(self, task: int, entry: dict):
+        """The verified partly visible pairs of one task: pairs (k, 3) int64, phi (k,)."""
+        if entry["n"] == 0:
+            pairs, phi = np.zeros((0, 3), np.int64), np.zeros(0)
+        else:
+            g = self.rs.root["visibility"]["partial"]
+            pairs, phi = g[f"{task}-pairs"][...], g[f"{task}-phi"][...]
+        if len(pairs) != entry["n"] or _partial_crc(pairs, phi) != entry["crc"]:
+            raise StoreError(f"the partly visible pairs of visibility task {task} of "
+                             f"{self.rs.run_dir} are corrupted (checksum): run radiosity "
+                             f"visibility {self.rs.run_dir} --resume to recompute them")
+        return pairs, phi
+
+    def read_partial(self, plan, done: dict):
+        """Every task's partly visible pairs, verified: a, b, visible rays (k,) int64, phi (k,)."""
+        got = [self._partial(t, done[t]["partial"]) for t in range(len(plan.tasks))
+               if "partial" in done.get(t, {})]
+        pairs = np.concatenate([p for p, _ in got]) if got else np.zeros((0, 3), np.int64)
+        phi = np.concatenate([f for _, f in got]) if got else np.zeros(0)
+        return pairs[:, 0], pairs[:, 1], pairs[:, 2], phi

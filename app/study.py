@@ -28,7 +28,7 @@ import warnings
 import numpy as np
 
 from . import config
-from .kernels import KERNELS
+from .kernels import KERNELS, sampling_of
 
 COLUMNS = ["resolution", "subpixel", "kernel", "solver", "tol", "sub_elements", "passes", "time_preprocess_s",
            "time_visibility_s", "time_solve_s", "time_image_s", "time_total_s", "error", "pareto"]
@@ -124,10 +124,16 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
             warnings.simplefilter("ignore")
             pre = preprocess(sc, run, client, subpixel=k, progress=False)
         t_pre = time.perf_counter() - t
-        t = time.perf_counter()
-        compute_visibility(run, client, progress=False)
-        t_vis = time.perf_counter() - t
-        for kernel, tol in itertools.product(kernels, tols):
+        t_vis = {}  # per sampling: one-ray kernels share one matrix, nxm / mc cast their own
+        current = "none yet"
+        for kernel, tol in itertools.product(sorted(kernels, key=lambda q: sampling_of(q) is not None), tols):
+            smp = sampling_of(kernel)
+            key = str(None if smp is None else smp.to_dict())
+            if key != current:
+                t = time.perf_counter()
+                compute_visibility(run, client, progress=False, kernel=kernel)
+                t_vis[key] = time.perf_counter() - t
+                current = key
             t = time.perf_counter()
             passes = 0
             # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
@@ -158,9 +164,9 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
             rows.append({"resolution": res, "subpixel": k, "kernel": kernel,
                          "solver": solve_with if "form_factor" not in val else "-", "tol": tol,
                          "sub_elements": pre["sub_elements"], "passes": passes,
-                         "time_preprocess_s": t_pre, "time_visibility_s": t_vis,
+                         "time_preprocess_s": t_pre, "time_visibility_s": t_vis[key],
                          "time_solve_s": t_solve, "time_image_s": t_img,
-                         "time_total_s": t_pre + t_vis + t_solve + t_img, "error": err})
+                         "time_total_s": t_pre + t_vis[key] + t_solve + t_img, "error": err})
             echo(f"  {res}x{res} K={k} {kernel} tol={tol:g}: error {err:.3g}, "
                  f"{rows[-1]['time_total_s']:.2f} s")
     if images and reference:  # against the user's EXR

@@ -12,6 +12,12 @@ any ray is cast:
    a range pair with no occluder left is all visible without rays;
 3. at the leaves, a pair whose segment misses every remaining occluder box is visible; only the
    others get an Embree ray.
+
+Sampled kernels (kernels.py: nxm, mc) cast one ray per sample pair instead: at the leaves a pair
+is visible without rays only when no occluder enters the shaft between the two sub-elements'
+boxes (then every sample pair sees); the others get all their sample rays. The bit is "some
+sample pair sees"; pairs that only partly see are kept sparsely per task (pairs a < b, the
+number of visible sample rays and the kernel-weighted visible fraction phi, store.py).
 """
 
 from __future__ import annotations
@@ -146,13 +152,15 @@ def _shaft_excludes(A, B, clo, chi):
 
 
 @numba.njit(cache=True)
-def classify(ca, na, tsa, la, ha, cb, nb, tsb, lb, hb, olo, ohi, on, od, pad, cand):
+def classify(ca, na, tsa, la, ha, cb, nb, tsb, lb, hb, olo, ohi, on, od, pad, cand, sampled):
     """Classify every pair of a tile without rays.
 
     Rows: centres ca (ra, 3), normals na, two-sided flags tsa (ra,), boxes la/ha (ra, 3);
     columns likewise (rb); occluder boxes olo/ohi (k, 3), planes on (k, 3) / od (k,), the plane
-    tolerance pad, and the ids `cand` of those that may block this block. Returns code (ra * rb,) uint8: 0 facing away (V = 0), 1 visible without a
-    ray, 2 needs a ray; and the number of shaft tests made.
+    tolerance pad, and the ids `cand` of those that may block this block. sampled: the leaf
+    test is the shaft between the pair's boxes (every point pair), not the centres' segment.
+    Returns code (ra * rb,) uint8: 0 facing away (V = 0), 1 visible without a ray, 2 needs
+    rays; and the number of shaft tests made.
     """
     ra, rb = ca.shape[0], cb.shape[0]
     code = np.zeros(ra * rb, np.uint8)
@@ -198,8 +206,18 @@ def classify(ca, na, tsa, la, ha, cb, nb, tsb, lb, hb, olo, ohi, on, od, pad, ca
                             and _faces(nb[b], tsb[b], -dx, -dy, -dz, length)):
                         continue
                     hit = False
+                    if sampled:
+                        _range_box(la, ha, a, a + 1, A)
+                        _range_box(lb, hb, b, b + 1, B)
                     for c in range(n0, n1):
                         o = pool[c]
+                        if sampled:
+                            tests += 1
+                            if not (_same_side(A, B, on[o], od[o], pad)
+                                    or _shaft_excludes(A, B, olo[o], ohi[o])):
+                                hit = True
+                                break
+                            continue
                         sp_ = (on[o, 0] * ca[a, 0] + on[o, 1] * ca[a, 1] + on[o, 2] * ca[a, 2]) - od[o]
                         sq_ = (on[o, 0] * cb[b, 0] + on[o, 1] * cb[b, 1] + on[o, 2] * cb[b, 2]) - od[o]
                         if (sp_ > pad and sq_ > pad) or (sp_ < -pad and sq_ < -pad):
@@ -285,10 +303,13 @@ class VisInputs:
 
     center, normal (m, 3) float64; two_sided (m,) bool; lo, hi (m, 3) float64 sub-element boxes;
     offsets (n + 1,) int64; elo, ehi (n, 3) padded boxes of the originals (the occluders);
-    verts (n, 4, 3), nverts (n,) for the Embree scene; key: the Embree cache key.
+    verts (n, 4, 3), nverts (n,) for the Embree scene; key: the Embree cache key; sampling
+    (kernels.Sampling or None): the sample points (m, S, 3) and weights of a sampled kernel.
     """
 
-    def __init__(self, part, elements, key: str, occlusion: bool = True):
+    def __init__(self, part, elements, key: str, occlusion: bool = True, sampling=None):
+        from .kernels import NXM, MC, sample_points
+
         self.center = part.center
         self.normal = part.normal
         self.two_sided = elements.two_sided[part.orig]
@@ -313,6 +334,11 @@ class VisInputs:
         self.nverts = elements.nverts
         self.key = key
         self.occlusion = occlusion
+        self.sampling = sampling
+        self.kid = 0 if sampling is None else (NXM if sampling.kind == "nxm" else MC)
+        self.pts, self.w = sample_points(part.verts, part.nverts, sampling)
+        self.pts_flat = self.pts.reshape(-1, 3)
+        self.pts_orig = np.repeat(part.orig, self.pts.shape[1])
 
 
 def tile_bits(inp: VisInputs, caster, i: int, j: int, r0: int, r1: int):
@@ -333,36 +359,71 @@ def tile_bits(inp: VisInputs, caster, i: int, j: int, r0: int, r1: int):
     code, tests = classify(inp.center[a0:a1], inp.normal[a0:a1], inp.two_sided[a0:a1],
                            inp.lo[a0:a1], inp.hi[a0:a1], inp.center[b0:b1], inp.normal[b0:b1],
                            inp.two_sided[b0:b1], inp.lo[b0:b1], inp.hi[b0:b1], inp.elo, inp.ehi,
-                           inp.enormal, inp.eoffset, pad, cand)
+                           inp.enormal, inp.eoffset, pad, cand, inp.sampling is not None)
     bits = code == 1
     need = np.nonzero(code == 2)[0]
     nb = b1 - b0
-    if len(need):
+    partial = _NO_PARTIAL
+    rays = len(need)
+    if len(need) and inp.sampling is None:
         occ = caster.occluded_pairs(inp.center, a0 + need // nb, b0 + need % nb, inp.orig)
         bits[need] = ~occ
+    elif len(need):
+        bits[need], partial, rays = sampled_visibility(inp, caster, a0 + need // nb, b0 + need % nb)
     counts = np.array([len(code), int(np.count_nonzero(code)), int(np.count_nonzero(code == 1)),
-                       len(need), int(bits.sum()), tests], np.int64)
-    return bits, counts
+                       rays, int(bits.sum()), tests, len(partial[0])], np.int64)
+    return bits, counts, partial
 
 
 COUNTERS = ("pairs_in_blocks", "pairs_facing", "pairs_shaft_visible", "rays", "pairs_visible",
-            "shaft_tests")
+            "shaft_tests", "pairs_partial")
+_NO_PARTIAL = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+SAMPLED_BATCH = 1 << 16  # pairs per batch of sample rays (bounds the per-ray arrays)
+
+
+def sampled_visibility(inp: VisInputs, caster, ia: np.ndarray, ib: np.ndarray):
+    """One ray per sample pair of each pair (ia, ib) (kernels.sample_rays). Returns whether
+    some sample pair sees (k,) bool, the partly visible pairs (a, b, visible rays, phi) with
+    phi the kernel-weighted visible fraction, and the number of rays cast."""
+    from .kernels import sample_rays
+
+    seen = np.zeros(len(ia), bool)
+    parts = []
+    P = inp.sampling.rays_per_pair
+    for s in range(0, len(ia), SAMPLED_BATCH):
+        a, b = ia[s:s + SAMPLED_BATCH], ib[s:s + SAMPLED_BATCH]
+        ra, rb, term = sample_rays(inp.kid, inp.pts, inp.w, inp.center, inp.normal, a, b)
+        V = ~caster.occluded_pairs(inp.pts_flat, ra, rb, inp.pts_orig).reshape(len(a), P)
+        count = V.sum(axis=1)
+        seen[s:s + len(a)] = count > 0
+        part = (count > 0) & (count < P)
+        tot = term[part].sum(axis=1)
+        vis = (term[part] * V[part]).sum(axis=1)
+        phi = np.where(tot > 0, vis / np.where(tot > 0, tot, 1.0), count[part] / P)
+        parts.append((a[part], b[part], count[part], phi))
+    if not parts:
+        return seen, _NO_PARTIAL, 0
+    return seen, tuple(np.concatenate(x) for x in zip(*parts)), len(ia) * P
 
 
 # ----------------------------------------------------------------------------- the task
 
-def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: int, tbytes: int):
-    """Compute the tiles of one task, write their packed bits as whole chunks, return a summary.
+def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: int, tbytes: int,
+                    task: int = 0):
+    """Compute the tiles of one task, write their packed bits as whole chunks (and, for sampled
+    kernels, the task's partly visible pairs), return a summary.
 
-    Returns dict: crc (crc32 of the unpadded bytes), counts (len(COUNTERS),), worker, start, stop.
+    Returns dict: crc (crc32 of the unpadded bytes), counts (len(COUNTERS),), partial (crc32
+    and length of the partial pairs), worker, start, stop.
     """
     from .rays import caster_for
-    from .store import write_bits
+    from .store import write_bits, write_partial
 
     t0 = time.time()
     caster = caster_for(inp.key, inp.verts, inp.nverts)
     buf = np.zeros(tbytes, np.uint8)
     counts = np.zeros(len(COUNTERS), np.int64)
+    partials = []
     used = int((tiles[:, START] + tiles[:, NBYTES]).max() - tstart) if len(tiles) else 0
     # small tiles: one batched pass, every facing pair gets a ray
     pairs = (tiles[:, R1] - tiles[:, R0]) * tiles[:, NCOLS]
@@ -370,22 +431,33 @@ def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: 
     if small.any():
         ia, ib, bit = small_tile_pairs(tiles[small], inp.offsets, inp.center, inp.normal,
                                        inp.two_sided, tstart)
-        if inp.occlusion:
+        rays, npart = 0, 0
+        if not inp.occlusion:
+            vis = np.ones(len(ia), bool)
+        elif inp.sampling is None:
             vis = ~caster.occluded_pairs(inp.center, ia, ib, inp.orig)
             rays = len(ia)
         else:
-            vis, rays = np.ones(len(ia), bool), 0
+            vis, part, rays = sampled_visibility(inp, caster, ia, ib)
+            partials.append(part)
+            npart = len(part[0])
         set_bits(buf, bit[vis])
-        counts += np.array([int(pairs[small].sum()), len(ia), len(ia) - rays, rays, int(vis.sum()), 0])
+        counts += np.array([int(pairs[small].sum()), len(ia), len(ia) if rays == 0 else 0, rays,
+                            int(vis.sum()), 0, npart])
     for t in tiles[~small]:
-        bits, c = tile_bits(inp, caster, int(t[I]), int(t[J]), int(t[R0]), int(t[R1]))
+        bits, c, part = tile_bits(inp, caster, int(t[I]), int(t[J]), int(t[R0]), int(t[R1]))
         packed = np.packbits(bits, bitorder="little")
         off = int(t[START]) - tstart
         buf[off:off + int(t[NBYTES])] = packed
         counts += c
+        partials.append(part)
     write_bits(store_path, tstart, buf)
-    return {"crc": zlib.crc32(buf[:used].tobytes()), "nbytes": used, "counts": counts,
-            "start": t0, "stop": time.time(), "pid": os.getpid()}
+    out = {"crc": zlib.crc32(buf[:used].tobytes()), "nbytes": used, "counts": counts,
+           "start": t0, "stop": time.time(), "pid": os.getpid()}
+    if inp.sampling is not None:
+        part = tuple(np.concatenate(x) for x in zip(*partials)) if partials else _NO_PARTIAL
+        out["partial"] = write_partial(store_path, task, *part)
+    return out
 
 
 # ----------------------------------------------------------------------------- the master
@@ -402,19 +474,25 @@ def _plan_for(part, elements, unit: str | None):
 
 
 def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bool = False,
-                       progress: bool = True, on_done=None, occlusion: bool = True) -> dict:
+                       progress: bool = True, on_done=None, occlusion: bool = True,
+                       kernel: str | None = None) -> dict:
     """The dynamic master (seed §4.3): a bounded window of tasks in flight per worker thread,
     the next task submitted as each one completes, most expensive first; failed tasks are
     resubmitted; every finished task is recorded with its checksum, so `resume` recomputes only
     what is missing or corrupted. `on_done(n_finished)` is called after each task (for tests).
     occlusion=False (planner.py: nothing can block) makes the bits orientation alone.
+    kernel: the form-factor kernel the matrix is for (default radiosity.solve.kernel): the
+    sampled ones (nxm, mc) cast one ray per sample pair (kernels.sampling_of).
     """
     from dask.base import tokenize
     from distributed import as_completed
     from tqdm.auto import tqdm
 
     from .errors import RadiosityError
+    from .kernels import sampling_of
     from .store import RunStore, VisibilityStore, update_report
+
+    sampling = sampling_of(config.get("solve.kernel", kernel))
 
     t_start = time.perf_counter()
     rs = RunStore(run_dir, "r+")
@@ -422,7 +500,8 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
     el = rs.load_elements()
     plan = _plan_for(part, el, unit)
     token = tokenize(plan.tiles, plan.tasks, plan.chunk, part.center, part.normal, el.verts,
-                     config.get("rays.epsilon"), occlusion)
+                     config.get("rays.epsilon"), occlusion,
+                     None if sampling is None else sampling.to_dict())
     vs = VisibilityStore(rs)
     done = {}
     corrupted = 0
@@ -439,10 +518,11 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
             vs.rewrite_manifest(token, done)  # corrupted entries are never trusted again
     else:
         rs.drop_after("raster")
-        vs.create(plan, token, {"rays_epsilon": config.get("rays.epsilon")})
+        vs.create(plan, token, {"rays_epsilon": config.get("rays.epsilon"),
+                                "sampling": None if sampling is None else sampling.to_dict()})
     order = [t for t in plan.cost_order().tolist() if t not in done]
     key = tokenize(el.verts, el.nverts)
-    inp = VisInputs(part, el, key, occlusion)
+    inp = VisInputs(part, el, key, occlusion, sampling)
     threads = sum(client.nthreads().values()) or 1
     window = max(1, int(config.get("visibility.window-per-worker")) * threads)
     retries = int(config.get("visibility.retries"))
@@ -469,7 +549,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
             t = plan.tasks[task]
             tiles = plan.tiles[t[FIRST]:t[END]]
             f = client.submit(task_visibility, inp_f, tiles, rs.path, int(t[TSTART]), int(t[TBYTES]),
-                              key=f"visibility-{token[:12]}-{task}-{a}", retries=0)
+                              task, key=f"visibility-{token[:12]}-{task}-{a}", retries=0)
             futs[f.key] = task
             ac.add(f)
 
@@ -525,6 +605,8 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
         "busy_s_per_worker": {str(k): round(v, 4) for k, v in busy.items()},
         "idle_fraction": (1.0 - sum(busy.values()) / (nworkers * wall)) if wall > 0 and busy else None,
         "workers": nworkers, "occlusion": occlusion,
+        "sampling": None if sampling is None else sampling.describe(),
+        "rays_per_pair": 1 if sampling is None else sampling.rays_per_pair,
     }
     from .pipeline import peak_rss_mb
     figures["peak_rss_mb"] = peak_rss_mb(client)

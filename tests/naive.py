@@ -77,3 +77,34 @@ def dense_solution(part, elements, V, kernel: str = "point", normalise: bool = T
         x = np.linalg.solve(np.eye(2 * m) - r[:, None] * F, e)
         out[:, 0, ch], out[:, 1, ch] = x[:m], x[m:]
     return out
+
+
+def sampled_form_factor_matrix(part, elements, kernel: str, pts, w) -> np.ndarray:
+    """Dense F (2m, 2m) of a sampled kernel by brute force: for every ordered pair facing by
+    centres, one ray per sample pair, F_ab = A_b / pi * sum w c_a c_b V / r^4 (nxm: every
+    (k, l); mc: (s, s), weights 1/S); no culling, no symmetry, no fractions."""
+    rc = RayCaster(elements.verts, elements.nverts)
+    m, S = pts.shape[:2]
+    two = elements.two_sided[part.orig]
+    f = facing(part, two)
+    F = np.zeros((2 * m, 2 * m))
+    if kernel == "nxm":
+        kk, ll = np.meshgrid(np.arange(S), np.arange(S), indexing="ij")
+        kk, ll = kk.ravel(), ll.ravel()
+    else:
+        kk = ll = np.arange(S)
+    for a, b in zip(*np.nonzero(f & f.T)):
+        if a == b:
+            continue
+        d0 = part.center[b] - part.center[a]
+        sga = 1.0 if part.normal[a] @ d0 > 0 else -1.0
+        sgb = 1.0 if -part.normal[b] @ d0 > 0 else -1.0
+        p, q = pts[a, kk], pts[b, ll]
+        d = q - p
+        r2 = np.einsum("ij,ij->i", d, d)
+        ca = np.maximum(sga * d @ part.normal[a], 0)
+        cb = np.maximum(-sgb * d @ part.normal[b], 0)
+        wt = w[a, kk] * w[b, ll] if kernel == "nxm" else np.full(len(kk), 1.0 / S)
+        vis = ~rc.occluded(p, q, np.full(len(p), part.orig[a]), np.full(len(q), part.orig[b]))
+        F[(sga < 0) * m + a, (sgb < 0) * m + b] = part.area[b] * np.sum(wt * ca * cb * vis / r2 ** 2) / np.pi
+    return F

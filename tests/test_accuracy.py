@@ -228,7 +228,7 @@ def test_pass_accumulates_1e5_elements_in_float64(rng):
     cx, cy, cz = (np.ascontiguousarray(c[:, k]) for k in range(3))
     nx, ny, nz = (np.ascontiguousarray(n[:, k]) for k in range(3))
     tile_apply(0, packed, 1, C, 0, 1, cx, cy, cz, nx, ny, nz, area, np.ones(m), np.zeros(m, bool),
-               L, y, BOTH, True, True)
+               np.zeros((m, 0, 3)), np.zeros((m, 0)), L, y, BOTH, True, True)
     fab, _ = pair_form_factors("point", np.repeat(c[:1], C, 0), np.repeat(n[:1], C, 0),
                                np.repeat(area[:1], C), c[1:], n[1:], area[1:])
     terms = fab.astype(np.longdouble) * L[0, 0, 1:].astype(np.longdouble)

@@ -67,7 +67,7 @@ class Sampling:
 
     def describe(self) -> str:
         if self.kind == "nxm":
-            return f"{self.n} x {self.n} points ({self.rays_per_pair} rays per pair)"
+            return f"{self.n} points per element ({self.rays_per_pair} rays per pair)"
         return f"{self.n} random sample pairs (seed {self.seed})"
 
 

@@ -64,10 +64,13 @@ def normalised(F: np.ndarray, m: int) -> np.ndarray:
 
 def dense_solution(part, elements, V, kernel: str = "point", normalise: bool = True) -> np.ndarray:
     """Direct solve of (I - rho F) L = Le per channel with numpy.linalg.solve: (m, 2, 3)."""
-    m = len(part)
     F = form_factor_matrix(part, elements, V, kernel)
-    if normalise:
-        F = normalised(F, m)
+    return dense_solution_of(normalised(F, len(part)) if normalise else F, elements, part)
+
+
+def dense_solution_of(F: np.ndarray, elements, part) -> np.ndarray:
+    """Direct solve of (I - rho F) L = Le for a dense F (2m, 2m): (m, 2, 3)."""
+    m = len(part)
     Le = elements.emission[part.orig]       # (m, 2, 3)
     rho = elements.reflectance[part.orig]
     out = np.zeros((m, 2, 3))

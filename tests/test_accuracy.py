@@ -248,21 +248,30 @@ def test_validation_scenes_and_convergence_order(client, tmp_path, name, exact):
     parallel squares: point 2.7e-2 / 1.3e-2 / 2.9e-3 (order 1.8), disc 6.0e-3 / 1.3e-3 / 1.1e-3
     (1.3), point-nf = point once no pair is near (1.1); perpendicular squares (the concave
     edge): point 1.7e-1 / 3.8e-2 / 2.0e-2 (1.7), disc 4.1e-2 / 5.2e-2 / 4.2e-2 (0: it stalls),
-    point-nf 3.9e-3 / 5.2e-3 / 3.9e-3 (already at the level the far field leaves)."""
+    point-nf 3.9e-3 / 5.2e-3 / 3.9e-3 (already at the level the far field leaves).
+    Sampled kernels (their own visibility, a ray per sample pair): nxm with 4 points per element
+    parallel 6.5e-3 / 3.0e-3 / 7.3e-4 (order 1.7, a quarter of point's error at every level; 16
+    points: 1.6e-3 / 7.6e-4 / 1.8e-4), perpendicular 8.6e-2 / 2.0e-2 / 1.0e-2 (1.7); mc with 16
+    sample pairs parallel 1.2e-2 / 5.1e-3 / 1.9e-3 (1.4), perpendicular 3.5e-2 / 8.0e-3 /
+    7.7e-3 (1.2: the sampling noise, not the element size, is what is left)."""
     sc = load_scene(scene_path(name))
     assert sc.validation["form_factor"] == pytest.approx(exact, rel=1e-12)
-    errs = {k: [] for k in ("point", "disc", "point-nf")}
+    errs = {k: [] for k in ("point", "disc", "point-nf", "nxm", "mc")}
     sizes = []
     for res in (8, 16, 32):
         out = _run(client, tmp_path, scene_path(name), res, name=f"r{res}")
         part = RunStore(out).load_partition()
         sizes.append(np.sqrt(part.area.mean()))
         for k in errs:
+            if k in ("nxm", "mc"):  # one ray per sample pair: their own visibility matrix
+                compute_visibility(out, client, progress=False, kernel=k)
             f = form_factor_of_run(out, client, k, "emitter", "receiver")
             errs[k].append(abs(f / exact - 1))
     orders = {k: float(np.polyfit(np.log(sizes), np.log(np.maximum(v, 1e-16)), 1)[0]) for k, v in errs.items()}
     print(f"{name}: errors {errs}; orders {orders}")
     assert errs["point-nf"][-1] <= errs["point"][-1]
+    assert all(n < 0.6 * p for n, p in zip(errs["nxm"], errs["point"]))  # more points: less error
+    assert orders["nxm"] > 1.0 and errs["mc"][-1] < 0.02
     if name == "parallel-squares":
         assert orders["point"] > 1.0 and errs["point"][-1] < 0.01
     else:  # the right-angle edge: the near field is what makes it accurate early

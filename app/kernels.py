@@ -324,6 +324,30 @@ def sampled_pairs(kid, pts, w, cx, cy, cz, nx, ny, nz, ia, ib):
     return out
 
 
+@numba.njit(cache=True)
+def partial_apply(kid, pairs, phi, pts, w, cx, cy, cz, nx, ny, nz, area, cap, L, y, orig, need):
+    """y += (phi - 1) F L over the partly visible pairs of one visibility task (pairs (k, 3)
+    [a, b, visible rays], phi (k,)): the pass counted them whole, the kernel with a visibility
+    term per sample pair is phi times that. Rows whose original does not gather (need False;
+    empty = all) are left alone. Returns the number of pair terms."""
+    use_need = need.shape[0] > 0
+    for q in range(pairs.shape[0]):
+        a, b = pairs[q, 0], pairs[q, 1]
+        sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
+        acc = _sampled(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
+                       sb * nx[b], sb * ny[b], sb * nz[b])
+        acc *= (phi[q] - 1.0) * (min(cap[a], cap[b]) if cap[a] > 0 else cap[a] * cap[b])
+        ia = 0 if sa > 0 else 1
+        ib = 0 if sb > 0 else 1
+        if not use_need or need[orig[a]]:
+            for k in range(L.shape[1]):
+                y[ia, k, a] += acc * area[b] * L[ib, k, b]
+        if not use_need or need[orig[b]]:
+            for k in range(L.shape[1]):
+                y[ib, k, b] += acc * area[a] * L[ia, k, a]
+    return 2 * pairs.shape[0]
+
+
 @numba.njit(cache=True, error_model="numpy")
 def sample_rays(kid, pts, w, center, normal, ia, ib):
     """The sample pairs of pairs (ia, ib), in the order the kernel sums them: the flat sample

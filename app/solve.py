@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import config
-from .errors import RadiosityError
-from .kernels import KERNELS, gs_sweep, kernel_id, tiles_apply
+from .errors import RadiosityError, StoreError
+from .kernels import KERNELS, gs_sweep, kernel_id, sampling_of, tiles_apply
 from .plan import END, FIRST, I, J, NCOLS, R0, R1, TBYTES, TSTART
 
 
@@ -177,11 +177,12 @@ class SolveInputs:
 
     cx, cy, cz, nx, ny, nz, area (m,) float64; sided (m,) bool; offsets (n + 1,) int64;
     tiles, tasks: the visibility plan; crc: (k, 2) int64 [crc32, nbytes] per plan task;
-    pts, w: sample points and weights of the sampled kernels (kernels.sample_points);
-    sparse: the sparse pair corrections grouped for Gauss-Seidel (kernels.sparse_by_target).
+    pts, w: sample points and weights of the sampled kernels (kernels.sample_points); pcrc:
+    (k, 2) int64 [crc32, length] of each task's partly visible pairs (sampled kernels; else
+    (0, 2)); sparse: near-field corrections grouped for Gauss-Seidel (kernels.sparse_by_target).
     """
 
-    def __init__(self, part, elements, plan, crc, store_path, token, sampling=None):
+    def __init__(self, part, elements, plan, crc, store_path, token, sampling=None, pcrc=None):
         from .kernels import sample_points, sparse_by_target
 
         c, n = part.center, part.normal
@@ -199,35 +200,74 @@ class SolveInputs:
         self.store_path = store_path
         self.token = token
         self.pts, self.w = sample_points(part.verts, part.nverts, sampling)
+        self.pcrc = np.zeros((0, 2), np.int64) if pcrc is None else pcrc
         self.sparse = sparse_by_target(None, part.orig, len(part.offsets) - 1)
 
 
-_TILES: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
+_TILES: "OrderedDict[tuple, tuple]" = OrderedDict()  # key -> (value, bytes)
 _TILES_BYTES = [0]
 
 
-def _task_bytes(inp: SolveInputs, task: int) -> np.ndarray:
-    """The verified bytes of one visibility task, from this worker's bounded cache or the store."""
-    key = (inp.store_path, inp.token, task)
-    data = _TILES.get(key)
-    if data is not None:
+def _cached(key: tuple, load, nbytes):
+    """This worker's bounded cache (solve.cache-bytes) of what passes read from the store."""
+    got = _TILES.get(key)
+    if got is not None:
         _TILES.move_to_end(key)
-        return data
-    from .store import read_bits
-
-    t = inp.tasks[task]
-    data = read_bits(inp.store_path, int(t[TSTART]), int(inp.crc[task, 1]))
-    if zlib.crc32(data.tobytes()) != int(inp.crc[task, 0]):
-        raise RadiosityError(f"visibility task {task} in {inp.store_path} is corrupted (checksum): "
-                             "run radiosity visibility RUN_DIR --resume")
+        return got[0]
+    value = load()
+    size = nbytes(value)
     cap = int(config.get("solve.cache-bytes"))
-    if data.nbytes <= cap:
-        _TILES[key] = data
-        _TILES_BYTES[0] += data.nbytes
+    if size <= cap:
+        _TILES[key] = (value, size)
+        _TILES_BYTES[0] += size
         while _TILES_BYTES[0] > cap:
-            _, old = _TILES.popitem(last=False)
-            _TILES_BYTES[0] -= old.nbytes
-    return data
+            _, (_, old) = _TILES.popitem(last=False)
+            _TILES_BYTES[0] -= old
+    return value
+
+
+def _task_bytes(inp: SolveInputs, task: int) -> np.ndarray:
+    """The verified bytes of one visibility task, from this worker's cache or the store."""
+
+    def load():
+        from .store import read_bits
+
+        t = inp.tasks[task]
+        data = read_bits(inp.store_path, int(t[TSTART]), int(inp.crc[task, 1]))
+        if zlib.crc32(data.tobytes()) != int(inp.crc[task, 0]):
+            raise StoreError(f"visibility task {task} in {inp.store_path} is corrupted (checksum): "
+                             "run radiosity visibility RUN_DIR --resume")
+        return data
+
+    return _cached((inp.store_path, inp.token, task), load, lambda d: d.nbytes)
+
+
+def _task_partial(inp: SolveInputs, task: int):
+    """The verified partly visible pairs of one visibility task (sampled kernels), cached with
+    the tiles: pairs (k, 3) int64 [a, b, visible rays], phi (k,)."""
+    from .store import read_partial
+
+    entry = {"crc": int(inp.pcrc[task, 0]), "n": int(inp.pcrc[task, 1])}
+    return _cached((inp.store_path, inp.token, task, "partial"),
+                   lambda: read_partial(inp.store_path, task, entry),
+                   lambda g: g[0].nbytes + g[1].nbytes)
+
+
+def partial_corrections(inp: SolveInputs, kid: int) -> dict:
+    """Every partly visible pair of a sampled kernel as sparse corrections F_ab (phi - 1) on top
+    of the unoccluded kernel (for Gauss-Seidel, which holds the whole matrix on one worker)."""
+    from .kernels import sampled_pairs
+
+    got = [_task_partial(inp, t) for t in range(len(inp.pcrc)) if inp.pcrc[t, 1] > 0]
+    pairs = np.concatenate([g[0] for g in got]) if got else np.zeros((0, 3), np.int64)
+    phi = np.concatenate([g[1] for g in got]) if got else np.zeros(0)
+    ia, ib = pairs[:, 0].copy(), pairs[:, 1].copy()
+    acc = sampled_pairs(kid, inp.pts, inp.w, inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, ia, ib)
+    d = np.stack([inp.cx[ib] - inp.cx[ia], inp.cy[ib] - inp.cy[ia], inp.cz[ib] - inp.cz[ia]], 1)
+    ca = inp.nx[ia] * d[:, 0] + inp.ny[ia] * d[:, 1] + inp.nz[ia] * d[:, 2]
+    cb = -(inp.nx[ib] * d[:, 0] + inp.ny[ib] * d[:, 1] + inp.nz[ib] * d[:, 2])
+    return {"ia": ia, "ib": ib, "sa": (ca <= 0).astype(np.int8), "sb": (cb <= 0).astype(np.int8),
+            "dab": (phi - 1.0) * acc * inp.area[ib], "dba": (phi - 1.0) * acc * inp.area[ia]}
 
 
 def _geometry(inp):
@@ -240,11 +280,12 @@ def task_apply(inp: SolveInputs, task_ids: np.ndarray, L: np.ndarray, kid: int, 
     """y = F L restricted to the tiles of these visibility tasks. live: (n,) bool or None, the
     originals whose L is non-zero (tiles with no live source are skipped); with use_need, rows
     of originals that do not gather (inp.need) are skipped."""
-    from .kernels import BOTH
+    from .kernels import BOTH, partial_apply
 
     y = np.zeros_like(L)
     terms = 0
     lv = np.zeros(0, np.bool_) if live is None else np.asarray(live, np.bool_)
+    need = inp.need if use_need else np.zeros(0, np.bool_)
     for task in task_ids:
         t = inp.tasks[task]
         tiles = inp.tiles[t[FIRST]:t[END]]
@@ -252,7 +293,11 @@ def task_apply(inp: SolveInputs, task_ids: np.ndarray, L: np.ndarray, kid: int, 
             continue
         data = _task_bytes(inp, int(task))
         terms += tiles_apply(kid, data, int(t[TSTART]), tiles, inp.offsets, *_geometry(inp), L, y,
-                             BOTH, lv, inp.need if use_need else np.zeros(0, np.bool_))
+                             BOTH, lv, need)
+        if len(inp.pcrc) and inp.pcrc[task, 1] > 0:  # sampled kernels: the partly visible pairs
+            pairs, phi = _task_partial(inp, int(task))
+            terms += partial_apply(kid, pairs, phi, inp.pts, inp.w, inp.cx, inp.cy, inp.cz, inp.nx,
+                                   inp.ny, inp.nz, inp.area, inp.cap, L, y, inp.orig, need)
     return y, terms
 
 
@@ -275,8 +320,13 @@ def task_gs_sweep(inp: SolveInputs, L: np.ndarray, Le: np.ndarray, rho: np.ndarr
     row_ptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])
     col_ptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=n))])
     y = np.zeros_like(L)
+    sparse = inp.sparse
+    if len(inp.pcrc):  # sampled kernels: the partly visible pairs, as sparse corrections
+        from .kernels import sparse_by_target
+
+        sparse = sparse_by_target(partial_corrections(inp, kid), inp.orig, n)
     terms = gs_sweep(kid, data, inp.tiles, row_ptr, row_idx, col_ptr, col_idx, inp.offsets,
-                     *_geometry(inp), L, Le, rho, y, inp.need, *inp.sparse)
+                     *_geometry(inp), L, Le, rho, y, inp.need, *sparse)
     return L, terms
 
 
@@ -419,8 +469,9 @@ def side_vectors(part, elements):
 
 def open_operator(rs, client, kernel: str):
     """Scatter the solve inputs of run store `rs` and return a DaskOperator over them, with the
-    kernel's sparse corrections (near field, or the partly visible pairs of sampled kernels)."""
-    from .kernels import base_kernel, sampling_of, sparse_by_target
+    kernel's near-field corrections (the partly visible pairs of the sampled kernels are read
+    and applied on the workers, task by task, like the bits)."""
+    from .kernels import base_kernel, sparse_by_target
     from .store import VisibilityStore
 
     vs = VisibilityStore(rs)
@@ -440,41 +491,24 @@ def open_operator(rs, client, kernel: str):
                              f"{rs.run_dir} --kernel {kernel}")
     crc = np.array([[done[t]["crc"], done[t]["nbytes"]] for t in range(len(plan.tasks))],
                    np.int64).reshape(-1, 2)
+    pcrc = None
+    if sampling is not None:
+        pcrc = np.array([[done[t]["partial"]["crc"], done[t]["partial"]["n"]]
+                         for t in range(len(plan.tasks))], np.int64).reshape(-1, 2)
     part = rs.load_partition()
     el = rs.load_elements()
-    inp = SolveInputs(part, el, plan, crc, rs.path, token, sampling)
+    inp = SolveInputs(part, el, plan, crc, rs.path, token, sampling, pcrc)
     sparse = None
     if KERNELS[kernel][3]:
         from . import nearfield
 
         sparse = nearfield.corrections(rs, base_kernel(kernel),
                                        float(config.get("solve.near-field-factor")))
-        sparse["kind"] = "near-field"
-    elif sampling is not None:
-        sparse = partial_corrections(vs, plan, done, inp, kernel_id(kernel))
-    if sparse is not None:
         inp.sparse = sparse_by_target(sparse, part.orig, len(part.offsets) - 1)
     [inp_f] = client.scatter([inp], broadcast=True, hash=False)
     op = DaskOperator(client, inp_f, inp, kernel)
     op.sparse = sparse
     return op, part, el
-
-
-def partial_corrections(vs, plan, done, inp: SolveInputs, kid: int) -> dict:
-    """The pairs a sampled kernel sees only partly (visibility fraction phi < 1, read back from the
-    store) as sparse corrections F_ab (phi - 1) on top of the unoccluded kernel of the pass."""
-    from .kernels import sampled_pairs
-
-    ia, ib, count, phi = vs.read_partial(plan, done)
-    acc = sampled_pairs(kid, inp.pts, inp.w, inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, ia, ib)
-    d = np.stack([inp.cx[ib] - inp.cx[ia], inp.cy[ib] - inp.cy[ia], inp.cz[ib] - inp.cz[ia]], 1)
-    ca = inp.nx[ia] * d[:, 0] + inp.ny[ia] * d[:, 1] + inp.nz[ia] * d[:, 2]
-    cb = -(inp.nx[ib] * d[:, 0] + inp.ny[ib] * d[:, 1] + inp.nz[ib] * d[:, 2])
-    figures = {"pairs": int(len(ia)), "rays_per_pair": int(inp.pts.shape[1] ** 2 if kid == 2 else inp.pts.shape[1]),
-               "mean_fraction": float(phi.mean()) if len(phi) else None}
-    return {"ia": ia, "ib": ib, "sa": (ca <= 0).astype(np.int8), "sb": (cb <= 0).astype(np.int8),
-            "dab": (phi - 1.0) * acc * inp.area[ib], "dba": (phi - 1.0) * acc * inp.area[ia],
-            "figures": figures, "kind": "partial"}
 
 
 def _previewer(rs, part, el):
@@ -583,8 +617,10 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
         "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
         "pair_terms_per_s": op.terms / max(t_solve, 1e-9), "time_s": round(t_solve, 4),
         "sub_elements": len(part), "row_sums": rows, "channels": channels,
-        "near_field": op.sparse["figures"] if op.sparse is not None and op.sparse.get("kind") == "near-field" else None,
-        "partial_visibility": op.sparse["figures"] if op.sparse is not None and op.sparse.get("kind") == "partial" else None,
+        "near_field": op.sparse["figures"] if op.sparse is not None else None,
+        "partial_visibility": ({"pairs": int(op.inp.pcrc[:, 1].sum()),
+                                "rays_per_pair": sampling_of(kernel).rays_per_pair}
+                               if len(op.inp.pcrc) else None),
         "two_sided_sub_elements": int(op.inp.sided.sum()),
         "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(part.offsets) - 1,
         "channel_terms": int(op.terms) * channels,

@@ -204,6 +204,26 @@ def write_partial(store_path: str, task: int, a, b, count, phi) -> dict:
     return {"crc": _partial_crc(pairs, phi), "n": int(len(pairs))}
 
 
+def read_partial(store_path: str, task: int, entry: dict):
+    """The partly visible pairs of one task, checked against its manifest entry {crc, n}:
+    pairs (k, 3) int64 [a, b, visible rays], phi (k,). Called on the workers."""
+    if entry["n"] == 0:
+        pairs, phi = np.zeros((0, 3), np.int64), np.zeros(0)
+    else:
+        zarr = _zarr()
+        try:
+            g = zarr.open_group(partial_path(store_path), mode="r")
+            pairs, phi = g[f"{task}-pairs"][...], g[f"{task}-phi"][...]
+        except Exception:  # missing or unreadable
+            pairs, phi = np.zeros((0, 3), np.int64), np.zeros(0)
+    if len(pairs) != entry["n"] or _partial_crc(pairs, phi) != entry["crc"]:
+        run_dir = os.path.dirname(store_path)
+        raise StoreError(f"the partly visible pairs of visibility task {task} of {run_dir} are "
+                         f"corrupted (checksum): run radiosity visibility {run_dir} --resume "
+                         "to recompute them")
+    return pairs, phi
+
+
 def read_bits(store_path: str, start: int, nbytes: int) -> np.ndarray:
     """Bytes [start, start + nbytes) of the packed visibility bits: called on the workers."""
     zarr = _zarr()
@@ -312,7 +332,7 @@ class VisibilityStore:
         try:
             data = self.read_task(plan, task, entry["nbytes"])
             if "partial" in entry:
-                self._partial(task, entry["partial"])
+                read_partial(self.rs.path, task, entry["partial"])
         except Exception:  # an unreadable (corrupted) chunk, a missing or altered partial list
             return False
         return zlib.crc32(data.tobytes()) == entry["crc"]
@@ -324,22 +344,9 @@ class VisibilityStore:
         d = self.rs.root["visibility"].attrs.get("sampling") if "visibility" in self.rs.root else None
         return None if d is None else Sampling(**d)
 
-    def _partial(self, task: int, entry: dict):
-        """The verified partly visible pairs of one task: pairs (k, 3) int64, phi (k,)."""
-        if entry["n"] == 0:
-            pairs, phi = np.zeros((0, 3), np.int64), np.zeros(0)
-        else:
-            g = self.rs.root["visibility"]["partial"]
-            pairs, phi = g[f"{task}-pairs"][...], g[f"{task}-phi"][...]
-        if len(pairs) != entry["n"] or _partial_crc(pairs, phi) != entry["crc"]:
-            raise StoreError(f"the partly visible pairs of visibility task {task} of "
-                             f"{self.rs.run_dir} are corrupted (checksum): run radiosity "
-                             f"visibility {self.rs.run_dir} --resume to recompute them")
-        return pairs, phi
-
     def read_partial(self, plan, done: dict):
         """Every task's partly visible pairs, verified: a, b, visible rays (k,) int64, phi (k,)."""
-        got = [self._partial(t, done[t]["partial"]) for t in range(len(plan.tasks))
+        got = [read_partial(self.rs.path, t, done[t]["partial"]) for t in range(len(plan.tasks))
                if "partial" in done.get(t, {})]
         pairs = np.concatenate([p for p, _ in got]) if got else np.zeros((0, 3), np.int64)
         phi = np.concatenate([f for _, f in got]) if got else np.zeros(0)

@@ -318,7 +318,8 @@ def _floats(s: str, kind=float):
 @click.option("--out", "-o", required=True, type=click.Path(), help="Directory for results.")
 @click.option("--resolutions", default="8,16,32", show_default=True, help="Camera resolutions.")
 @click.option("--subpixels", default="1", show_default=True, help="Sub-pixel factors.")
-@click.option("--kernels", default="point,disc", show_default=True, help="Form-factor kernels.")
+@click.option("--kernels", default="point,disc", show_default=True,
+              help="Form-factor kernels; the sampled ones may name their sample count: nxm:16, mc:64.")
 @click.option("--tols", default="1e-6", show_default=True, help="Solver tolerances.")
 @click.option("--reference", type=click.Path(exists=True), default=None,
               help="A reference image (EXR) to measure the error against.")
@@ -330,12 +331,11 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
     """Sweep resolution x sub-pixel x kernel x tolerance on SCENE; time every stage, measure the
     error; write results.csv, results.md and accuracy.png (error against time, Pareto front)."""
     from .cluster import open_client
-    from .kernels import kernel_id
-    from .study import accuracy
+    from .study import accuracy, kernel_setting
 
     ks = [k for k in kernels.split(",") if k]
     for k in ks:
-        kernel_id(k)
+        kernel_setting(k)  # a bad name or count fails before the cluster starts
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         rows = accuracy(scene, out, client, _floats(resolutions, int), _floats(subpixels, int), ks,
                         _floats(tols), reference=reference, solver=solver, echo=click.echo)

@@ -25,10 +25,12 @@ import os
 import time
 import warnings
 
+import dask.config
 import numpy as np
 
 from . import config
-from .kernels import KERNELS, sampling_of
+from .errors import RadiosityError
+from .kernels import KERNELS, MC, NXM, kernel_id, sampling_of
 
 COLUMNS = ["resolution", "subpixel", "kernel", "solver", "tol", "sub_elements", "passes", "time_preprocess_s",
            "time_visibility_s", "time_solve_s", "time_image_s", "time_total_s", "error", "pareto"]
@@ -74,6 +76,26 @@ def sampled_radiance(part, L: np.ndarray, orig: np.ndarray, points: np.ndarray, 
     side = (np.einsum("ij,ij->i", part.normal[s], camera.center - part.center[s]) <= 0).astype(int)
     out[ok] = L[s, side]
     return out
+
+
+def kernel_setting(spec: str):
+    """A kernel of a sweep: "point", or a sampled kernel with its sample count, "nxm:16"
+    (points per element) or "mc:64" (sample pairs). Returns (kernel, dask.config overrides)."""
+    name, _, n = spec.partition(":")
+    kid = kernel_id(name)
+    if not n:
+        return name, {}
+    if kid not in (NXM, MC) or not n.isdigit():
+        raise RadiosityError(f"kernel {spec!r}: only nxm:N and mc:k take a sample count (an integer)")
+    return name, {"radiosity.solve." + ("nxm-points" if kid == NXM else "mc-samples"): int(n)}
+
+
+def _visibility_key(spec: str) -> str:
+    """Which visibility matrix kernel `spec` needs ("" for one ray between centres)."""
+    kernel, settings = kernel_setting(spec)
+    with dask.config.set(settings):
+        smp = sampling_of(kernel)
+    return "" if smp is None else str(smp.to_dict())
 
 
 def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> float:
@@ -126,48 +148,51 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         t_pre = time.perf_counter() - t
         t_vis = {}  # per sampling: one-ray kernels share one matrix, nxm / mc cast their own
         current = "none yet"
-        for kernel, tol in itertools.product(sorted(kernels, key=lambda q: sampling_of(q) is not None), tols):
-            smp = sampling_of(kernel)
-            key = str(None if smp is None else smp.to_dict())
-            if key != current:
+        specs = sorted(kernels, key=_visibility_key)  # one matrix per sampling, each made once
+        for label, tol in itertools.product(specs, tols):
+            kernel, settings = kernel_setting(label)
+            with dask.config.set(settings):  # the sample count of nxm:N / mc:k, for this row
+                smp = sampling_of(kernel)
+                key = str(None if smp is None else smp.to_dict())
+                if key != current:
+                    t = time.perf_counter()
+                    compute_visibility(run, client, progress=False, kernel=kernel)
+                    t_vis[key] = time.perf_counter() - t
+                    current = key
                 t = time.perf_counter()
-                compute_visibility(run, client, progress=False, kernel=kernel)
-                t_vis[key] = time.perf_counter() - t
-                current = key
-            t = time.perf_counter()
-            passes = 0
-            # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
-            solve_with = config.get("solve.solver", solver)
-            if solve_with == "cg" and not KERNELS[kernel][2]:
-                solve_with = "gauss-seidel"
-            if "form_factor" in val:
-                f = form_factor_of_run(run, client, kernel, val["from"], val["to"])
-                err = abs(f / val["form_factor"] - 1.0)
-                t_solve, t_img = time.perf_counter() - t, 0.0
-            else:
-                fig = run_solve(run, client, solver=solve_with, kernel=kernel, tol=tol, progress=False)
-                passes = fig["iterations"]
-                t_solve = time.perf_counter() - t
-                t = time.perf_counter()
-                render_outputs(run, exposure="auto")
-                t_img = time.perf_counter() - t
-                rs = RunStore(run)
-                if "radiance" in val:
-                    part = rs.load_partition()
-                    L = rs.read_arrays("solution")["radiance"][:, 0, :]
-                    err = float((part.area[:, None] * np.abs(L / val["radiance"] - 1)).sum()
-                                / (3 * part.area.sum()))
-                else:  # keep the image (user's reference) or the solution (finest setting)
-                    images[(res, k, kernel, tol)] = (read_exr(os.path.join(run, "image.exr")) if reference
-                                                     else (run, rs.read_arrays("solution")["radiance"]))
-                    err = np.nan
-            rows.append({"resolution": res, "subpixel": k, "kernel": kernel,
+                passes = 0
+                # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
+                solve_with = config.get("solve.solver", solver)
+                if solve_with == "cg" and not KERNELS[kernel][2]:
+                    solve_with = "gauss-seidel"
+                if "form_factor" in val:
+                    f = form_factor_of_run(run, client, kernel, val["from"], val["to"])
+                    err = abs(f / val["form_factor"] - 1.0)
+                    t_solve, t_img = time.perf_counter() - t, 0.0
+                else:
+                    fig = run_solve(run, client, solver=solve_with, kernel=kernel, tol=tol, progress=False)
+                    passes = fig["iterations"]
+                    t_solve = time.perf_counter() - t
+                    t = time.perf_counter()
+                    render_outputs(run, exposure="auto")
+                    t_img = time.perf_counter() - t
+                    rs = RunStore(run)
+                    if "radiance" in val:
+                        part = rs.load_partition()
+                        L = rs.read_arrays("solution")["radiance"][:, 0, :]
+                        err = float((part.area[:, None] * np.abs(L / val["radiance"] - 1)).sum()
+                                    / (3 * part.area.sum()))
+                    else:  # keep the image (user's reference) or the solution (finest setting)
+                        images[(res, k, label, tol)] = (read_exr(os.path.join(run, "image.exr")) if reference
+                                                        else (run, rs.read_arrays("solution")["radiance"]))
+                        err = np.nan
+            rows.append({"resolution": res, "subpixel": k, "kernel": label,
                          "solver": solve_with if "form_factor" not in val else "-", "tol": tol,
                          "sub_elements": pre["sub_elements"], "passes": passes,
                          "time_preprocess_s": t_pre, "time_visibility_s": t_vis[key],
                          "time_solve_s": t_solve, "time_image_s": t_img,
                          "time_total_s": t_pre + t_vis[key] + t_solve + t_img, "error": err})
-            echo(f"  {res}x{res} K={k} {kernel} tol={tol:g}: error {err:.3g}, "
+            echo(f"  {res}x{res} K={k} {label} tol={tol:g}: error {err:.3g}, "
                  f"{rows[-1]['time_total_s']:.2f} s")
     if images and reference:  # against the user's EXR
         ref = read_exr(reference)

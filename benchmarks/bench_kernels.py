@@ -3,7 +3,7 @@ and solve (passes, pair terms/s) per kernel on the Cornell box, times as ratios 
 kernel in the same run; and the form-factor error each kernel reaches on the two validation
 scenes with exact answers (parallel and perpendicular unit squares), with its time.
 
-    python benchmarks/bench_kernels.py [--res 32,64] [--kernels point,disc,point-nf,nxm,mc]
+    python benchmarks/bench_kernels.py [--res 32,64] [--kernels point,disc,point-nf,nxm:4,mc:16]
 """
 
 from __future__ import annotations
@@ -23,26 +23,16 @@ from app.pipeline import preprocess
 from app.scene import load_scene
 from app.solve import run_solve
 from app.store import RunStore
-from app.study import form_factor_of_run
+from app.study import form_factor_of_run, kernel_setting
 from app.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 VALIDATION = ("parallel-squares", "perpendicular-squares")
 
 
-def _settings(kernels):
-    """(label, kernel, dask.config overrides): the sampled kernels at two sample counts."""
-    out = []
-    for k in kernels:
-        if k == "nxm":
-            out += [("nxm N=4", "nxm", {"radiosity.solve.nxm-points": 4}),
-                    ("nxm N=16", "nxm", {"radiosity.solve.nxm-points": 16})]
-        elif k == "mc":
-            out += [("mc k=16", "mc", {"radiosity.solve.mc-samples": 16}),
-                    ("mc k=64", "mc", {"radiosity.solve.mc-samples": 64})]
-        else:
-            out.append((k, k, {}))
-    return out
+def _settings(specs):
+    """(label, kernel, dask.config overrides) of each kernel spec ("nxm:16": 16 points)."""
+    return [(spec, *kernel_setting(spec)) for spec in specs]
 
 
 def cost(client, res, settings, max_rays_per_pair):
@@ -102,7 +92,7 @@ def errors(client, resolutions, settings):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--res", default="32,64", help="Cornell box resolutions for the cost table.")
-    ap.add_argument("--kernels", default="point,disc,point-nf,nxm,mc")
+    ap.add_argument("--kernels", default="point,disc,point-nf,nxm:4,nxm:16,mc:16,mc:64")
     ap.add_argument("--max-rays-per-pair", type=int, default=64,
                     help="Skip sampled settings above this on the Cornell box.")
     ap.add_argument("--validation-res", default="8,16,32")

@@ -361,7 +361,7 @@ class DaskOperator:
         self.groups = [np.array(sorted(m), np.int64) for m in members if m]
         self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
         self.retries = int(config.get("visibility.retries"))
-        self.sparse = None  # sparse pair corrections (near field, partial visibility), if any
+        self.sparse = None  # near-field corrections (nearfield.py), applied here on the driver
         self._gs_fixed = None  # (Le, [futures of Le, rho]) scattered once for Gauss-Seidel
 
     def apply(self, L: np.ndarray, live: np.ndarray | None = None, use_need: bool = True) -> np.ndarray:

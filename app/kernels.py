@@ -15,8 +15,8 @@ The two sampled kernels (nxm, mc) put S points with weights w on every sub-eleme
     F_ab = A_b / pi * sum_(k, l) w_k w_l c_a c_b / r_kl^4     (nxm: every k, l; N*N rays)
     F_ab = A_b / pi * 1/S sum_s c_a c_b / r_ss^4               (mc: p_s with q_s; S rays)
 
-with c_a = max(0, +-n_a . d_kl) on the side the centres face (a sample behind the plane of the
-other element adds 0). The weights are the area fractions of the sample cells, 1/N for the
+with c_a = max(0, +-n_a . d_kl) on the side the centres face (a sample pair whose segment
+leaves either element's plane on the wrong side adds 0). The weights are the area fractions of the sample cells, 1/N for the
 equal cells of triangles and parallelograms: the 1/(N M) the seed's printed formula lacks.
 Both are reciprocal (A_a F_ab = A_b F_ba). Their visibility is one ray per sample pair; the bit
 says "some sample pair sees", and pairs that are only partly visible keep, sparsely, the

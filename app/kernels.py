@@ -150,6 +150,18 @@ def sample_points(verts: np.ndarray, nverts: np.ndarray, sampling: Sampling | No
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+def _term(p, q, nax, nay, naz, nbx, nby, nbz):
+    """c_a c_b / r^4 of the sample pair p -> q (points (3,)), 0 where either cosine is not > 0."""
+    dx = q[0] - p[0]
+    dy = q[1] - p[1]
+    dz = q[2] - p[2]
+    r2 = dx * dx + dy * dy + dz * dz + 1e-300
+    ca = max(nax * dx + nay * dy + naz * dz, 0.0)
+    cb = max(-(nbx * dx + nby * dy + nbz * dz), 0.0)
+    return ca * cb / (r2 * r2)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
 def _sampled(kid, pa, wa, pb, wb, nax, nay, naz, nbx, nby, nbz):
     """sum over the sample pairs of w c_a c_b / r^4 / pi (unoccluded), the normals already
     turned to the sides that face (see the module docstring)."""
@@ -158,22 +170,10 @@ def _sampled(kid, pa, wa, pb, wb, nax, nay, naz, nbx, nby, nbz):
     if kid == NXM:
         for k in range(S):
             for l in range(S):
-                dx = pb[l, 0] - pa[k, 0]
-                dy = pb[l, 1] - pa[k, 1]
-                dz = pb[l, 2] - pa[k, 2]
-                r2 = dx * dx + dy * dy + dz * dz + 1e-300
-                ca = max(nax * dx + nay * dy + naz * dz, 0.0)
-                cb = max(-(nbx * dx + nby * dy + nbz * dz), 0.0)
-                acc += wa[k] * wb[l] * ca * cb / (r2 * r2)
+                acc += wa[k] * wb[l] * _term(pa[k], pb[l], nax, nay, naz, nbx, nby, nbz)
     else:
         for s in range(S):
-            dx = pb[s, 0] - pa[s, 0]
-            dy = pb[s, 1] - pa[s, 1]
-            dz = pb[s, 2] - pa[s, 2]
-            r2 = dx * dx + dy * dy + dz * dz + 1e-300
-            ca = max(nax * dx + nay * dy + naz * dz, 0.0)
-            cb = max(-(nbx * dx + nby * dy + nbz * dz), 0.0)
-            acc += ca * cb / (r2 * r2)
+            acc += _term(pa[s], pb[s], nax, nay, naz, nbx, nby, nbz)
         acc /= S
     return acc / np.pi
 
@@ -369,14 +369,10 @@ def sample_rays(kid, pts, w, center, normal, ia, ib):
             kb = p % S if kid == NXM else p
             ra[q * P + p] = a * S + ka
             rb[q * P + p] = b * S + kb
-            dx = pts[b, kb, 0] - pts[a, ka, 0]
-            dy = pts[b, kb, 1] - pts[a, ka, 1]
-            dz = pts[b, kb, 2] - pts[a, ka, 2]
-            r2 = dx * dx + dy * dy + dz * dz + 1e-300
-            ca = max(sa * (normal[a, 0] * dx + normal[a, 1] * dy + normal[a, 2] * dz), 0.0)
-            cb = max(-sb * (normal[b, 0] * dx + normal[b, 1] * dy + normal[b, 2] * dz), 0.0)
             wt = w[a, ka] * w[b, kb] if kid == NXM else 1.0
-            term[q, p] = wt * ca * cb / (r2 * r2)
+            term[q, p] = wt * _term(pts[a, ka], pts[b, kb], sa * normal[a, 0], sa * normal[a, 1],
+                                    sa * normal[a, 2], sb * normal[b, 0], sb * normal[b, 1],
+                                    sb * normal[b, 2])
     return ra, rb, term
 
 

@@ -288,40 +288,48 @@ def _row_sided(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, cap, L, y, mod
                 y[sb, k, b] += fba * L[sa, k, a]
 
 
+@numba.njit(cache=True, inline="always")
+def _pair_sampled(kid, a, b, cx, cy, cz, nx, ny, nz, pts, w):
+    """The unoccluded sampled kernel of pair (a, b) without the area (F_ab = A_b acc, F_ba =
+    A_a acc) and the sides (0 front, 1 back) the centres face."""
+    sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
+    acc = _sampled(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
+                   sb * nx[b], sb * ny[b], sb * nz[b])
+    return acc, 0 if sa > 0 else 1, 0 if sb > 0 else 1
+
+
+@numba.njit(cache=True, inline="always")
+def _add_pair_sampled(kid, a, b, f, to_a, to_b, cx, cy, cz, nx, ny, nz, area, cap, pts, w, L, y):
+    """y += f F L for pair (a, b) of a sampled kernel: into a (if to_a) and into b (if to_b)."""
+    acc, ia, ib = _pair_sampled(kid, a, b, cx, cy, cz, nx, ny, nz, pts, w)
+    acc *= f * (min(cap[a], cap[b]) if cap[a] > 0 else cap[a] * cap[b])
+    if to_a:
+        for k in range(L.shape[1]):
+            y[ia, k, a] += acc * area[b] * L[ib, k, b]
+    if to_b:
+        for k in range(L.shape[1]):
+            y[ib, k, b] += acc * area[a] * L[ia, k, a]
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _row_sampled(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, cap, pts, w, L, y, mode):
     """One row of a tile for the sampled kernels (nxm, mc): S or S^2 point kernels per pair."""
     for c in range(C):
-        if mask[c] == 0.0:
-            continue
-        b = b0 + c
-        sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
-        acc = _sampled(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
-                       sb * nx[b], sb * ny[b], sb * nz[b])
-        acc *= min(cap[a], cap[b]) if cap[a] > 0 else cap[a] * cap[b]
-        ia = 0 if sa > 0 else 1
-        ib = 0 if sb > 0 else 1
-        if mode != COLS:
-            fab = acc * area[b]
-            for k in range(L.shape[1]):
-                y[ia, k, a] += fab * L[ib, k, b]
-        if mode != ROWS:
-            fba = acc * area[a]
-            for k in range(L.shape[1]):
-                y[ib, k, b] += fba * L[ia, k, a]
+        if mask[c] != 0.0:
+            _add_pair_sampled(kid, a, b0 + c, 1.0, mode != COLS, mode != ROWS, cx, cy, cz, nx, ny,
+                              nz, area, cap, pts, w, L, y)
 
 
 @numba.njit(cache=True)
 def sampled_pairs(kid, pts, w, cx, cy, cz, nx, ny, nz, ia, ib):
-    """The unoccluded sampled kernel of pairs (ia, ib) without the area: F_ab = A_b out[k]
-    (and F_ba = A_a out[k]); the sides are the ones the centres face."""
-    out = np.empty(ia.shape[0])
+    """The unoccluded sampled kernel of pairs (ia, ib) without the area: F_ab = A_b acc[k]
+    (and F_ba = A_a acc[k]), and the sides sa, sb (k,) int8 the centres face."""
+    acc = np.empty(ia.shape[0])
+    sa = np.empty(ia.shape[0], np.int8)
+    sb = np.empty(ia.shape[0], np.int8)
     for k in range(ia.shape[0]):
-        a, b = ia[k], ib[k]
-        sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
-        out[k] = _sampled(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
-                          sb * nx[b], sb * ny[b], sb * nz[b])
-    return out
+        acc[k], sa[k], sb[k] = _pair_sampled(kid, ia[k], ib[k], cx, cy, cz, nx, ny, nz, pts, w)
+    return acc, sa, sb
 
 
 @numba.njit(cache=True)
@@ -333,18 +341,9 @@ def partial_apply(kid, pairs, phi, pts, w, cx, cy, cz, nx, ny, nz, area, cap, L,
     use_need = need.shape[0] > 0
     for q in range(pairs.shape[0]):
         a, b = pairs[q, 0], pairs[q, 1]
-        sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
-        acc = _sampled(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
-                       sb * nx[b], sb * ny[b], sb * nz[b])
-        acc *= (phi[q] - 1.0) * (min(cap[a], cap[b]) if cap[a] > 0 else cap[a] * cap[b])
-        ia = 0 if sa > 0 else 1
-        ib = 0 if sb > 0 else 1
-        if not use_need or need[orig[a]]:
-            for k in range(L.shape[1]):
-                y[ia, k, a] += acc * area[b] * L[ib, k, b]
-        if not use_need or need[orig[b]]:
-            for k in range(L.shape[1]):
-                y[ib, k, b] += acc * area[a] * L[ia, k, a]
+        _add_pair_sampled(kid, a, b, phi[q] - 1.0, not use_need or need[orig[a]],
+                          not use_need or need[orig[b]], cx, cy, cz, nx, ny, nz, area, cap, pts, w,
+                          L, y)
     return 2 * pairs.shape[0]
 
 
@@ -359,20 +358,19 @@ def sample_rays(kid, pts, w, center, normal, ia, ib):
     ra = np.empty(k * P, np.int64)
     rb = np.empty(k * P, np.int64)
     term = np.empty((k, P))
+    cx, cy, cz = center[:, 0], center[:, 1], center[:, 2]
+    nx, ny, nz = normal[:, 0], normal[:, 1], normal[:, 2]
     for q in range(k):
         a, b = ia[q], ib[q]
-        d = center[b] - center[a]
-        sa = 1.0 if normal[a, 0] * d[0] + normal[a, 1] * d[1] + normal[a, 2] * d[2] > 0 else -1.0
-        sb = 1.0 if -(normal[b, 0] * d[0] + normal[b, 1] * d[1] + normal[b, 2] * d[2]) > 0 else -1.0
+        sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
         for p in range(P):
             ka = p // S if kid == NXM else p
             kb = p % S if kid == NXM else p
             ra[q * P + p] = a * S + ka
             rb[q * P + p] = b * S + kb
             wt = w[a, ka] * w[b, kb] if kid == NXM else 1.0
-            term[q, p] = wt * _term(pts[a, ka], pts[b, kb], sa * normal[a, 0], sa * normal[a, 1],
-                                    sa * normal[a, 2], sb * normal[b, 0], sb * normal[b, 1],
-                                    sb * normal[b, 2])
+            term[q, p] = wt * _term(pts[a, ka], pts[b, kb], sa * nx[a], sa * ny[a], sa * nz[a],
+                                    sb * nx[b], sb * ny[b], sb * nz[b])
     return ra, rb, term
 
 

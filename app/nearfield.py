@@ -17,8 +17,7 @@ import time
 import numpy as np
 
 from .plan import END, FIRST, NCOLS, R0, R1, START, TSTART
-
-COS_TOL = 1e-9
+from .visibility import COS_TOL  # facing means what it means to the visibility stage
 
 
 def near_pairs(center: np.ndarray, area: np.ndarray, orig: np.ndarray, factor: float):

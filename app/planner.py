@@ -78,7 +78,6 @@ def _behind(elements: Elements) -> np.ndarray:
 def _reachable(facing: np.ndarray, emitter: np.ndarray, reflects: np.ndarray) -> np.ndarray:
     """Elements light can reach: BFS from the emitters over pairs that face each other; light
     travels on from an element only if it reflects."""
-    n = len(emitter)
     both = facing & facing.T
     np.fill_diagonal(both, False)
     seen = emitter.copy()
@@ -87,7 +86,7 @@ def _reachable(facing: np.ndarray, emitter: np.ndarray, reflects: np.ndarray) ->
         nxt = both[frontier].any(axis=0) & ~seen
         seen |= nxt
         frontier = nxt & reflects
-    return seen if n else seen
+    return seen
 
 
 def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,

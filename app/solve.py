@@ -253,21 +253,26 @@ def _task_partial(inp: SolveInputs, task: int):
                    lambda g: g[0].nbytes + g[1].nbytes)
 
 
-def partial_corrections(inp: SolveInputs, kid: int) -> dict:
+def partial_corrections(inp: SolveInputs, kid: int):
     """Every partly visible pair of a sampled kernel as sparse corrections F_ab (phi - 1) on top
-    of the unoccluded kernel (for Gauss-Seidel, which holds the whole matrix on one worker)."""
-    from .kernels import sampled_pairs
+    of the unoccluded kernel, grouped for Gauss-Seidel (which holds the whole matrix on one
+    worker); made once per worker and kept in its cache."""
+    from .kernels import sampled_pairs, sparse_by_target
 
-    got = [_task_partial(inp, t) for t in range(len(inp.pcrc)) if inp.pcrc[t, 1] > 0]
-    pairs = np.concatenate([g[0] for g in got]) if got else np.zeros((0, 3), np.int64)
-    phi = np.concatenate([g[1] for g in got]) if got else np.zeros(0)
-    ia, ib = pairs[:, 0].copy(), pairs[:, 1].copy()
-    acc = sampled_pairs(kid, inp.pts, inp.w, inp.cx, inp.cy, inp.cz, inp.nx, inp.ny, inp.nz, ia, ib)
-    d = np.stack([inp.cx[ib] - inp.cx[ia], inp.cy[ib] - inp.cy[ia], inp.cz[ib] - inp.cz[ia]], 1)
-    ca = inp.nx[ia] * d[:, 0] + inp.ny[ia] * d[:, 1] + inp.nz[ia] * d[:, 2]
-    cb = -(inp.nx[ib] * d[:, 0] + inp.ny[ib] * d[:, 1] + inp.nz[ib] * d[:, 2])
-    return {"ia": ia, "ib": ib, "sa": (ca <= 0).astype(np.int8), "sb": (cb <= 0).astype(np.int8),
-            "dab": (phi - 1.0) * acc * inp.area[ib], "dba": (phi - 1.0) * acc * inp.area[ia]}
+    def load():
+        got = [_task_partial(inp, t) for t in range(len(inp.pcrc)) if inp.pcrc[t, 1] > 0]
+        pairs = np.concatenate([g[0] for g in got]) if got else np.zeros((0, 3), np.int64)
+        phi = np.concatenate([g[1] for g in got]) if got else np.zeros(0)
+        ia, ib = pairs[:, 0].copy(), pairs[:, 1].copy()
+        acc, sa, sb = sampled_pairs(kid, inp.pts, inp.w, inp.cx, inp.cy, inp.cz, inp.nx, inp.ny,
+                                    inp.nz, ia, ib)
+        return sparse_by_target({"ia": ia, "ib": ib, "sa": sa, "sb": sb,
+                                 "dab": (phi - 1.0) * acc * inp.area[ib],
+                                 "dba": (phi - 1.0) * acc * inp.area[ia]},
+                                inp.orig, len(inp.offsets) - 1)
+
+    return _cached((inp.store_path, inp.token, kid, "gauss-seidel"), load,
+                   lambda g: sum(a.nbytes for a in g))
 
 
 def _geometry(inp):
@@ -320,11 +325,8 @@ def task_gs_sweep(inp: SolveInputs, L: np.ndarray, Le: np.ndarray, rho: np.ndarr
     row_ptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])
     col_ptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=n))])
     y = np.zeros_like(L)
-    sparse = inp.sparse
-    if len(inp.pcrc):  # sampled kernels: the partly visible pairs, as sparse corrections
-        from .kernels import sparse_by_target
-
-        sparse = sparse_by_target(partial_corrections(inp, kid), inp.orig, n)
+    # sampled kernels: the partly visible pairs, as sparse corrections (else the near field)
+    sparse = partial_corrections(inp, kid) if len(inp.pcrc) else inp.sparse
     terms = gs_sweep(kid, data, inp.tiles, row_ptr, row_idx, col_ptr, col_idx, inp.offsets,
                      *_geometry(inp), L, Le, rho, y, inp.need, *sparse)
     return L, terms

@@ -343,11 +343,3 @@ class VisibilityStore:
 
         d = self.rs.root["visibility"].attrs.get("sampling") if "visibility" in self.rs.root else None
         return None if d is None else Sampling(**d)
-
-    def read_partial(self, plan, done: dict):
-        """Every task's partly visible pairs, verified: a, b, visible rays (k,) int64, phi (k,)."""
-        got = [read_partial(self.rs.path, t, done[t]["partial"]) for t in range(len(plan.tasks))
-               if "partial" in done.get(t, {})]
-        pairs = np.concatenate([p for p, _ in got]) if got else np.zeros((0, 3), np.int64)
-        phi = np.concatenate([f for _, f in got]) if got else np.zeros(0)
-        return pairs[:, 0], pairs[:, 1], pairs[:, 2], phi

@@ -296,7 +296,6 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
     import matplotlib.pyplot as plt
 
     from .pipeline import preprocess, render_preview, render_scene
-    from .render import read_exr, tonemap  # noqa: F401
     from .scene import load_scene
     from .visibility import compute_visibility
 

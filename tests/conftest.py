@@ -1,4 +1,5 @@
-"""Shared fixtures: a real LocalCluster (dashboard off), seeded rng, tiny scenes on disk."""
+"""Shared fixtures: a real LocalCluster (dashboard on a free loopback port), seeded rng, tiny
+scenes on disk, and a preprocessed run."""
 
 from __future__ import annotations
 
@@ -30,6 +31,28 @@ def client():
 @pytest.fixture
 def rng():
     return np.random.default_rng(20261122)
+
+
+def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibility: bool = True,
+             **kw) -> str:
+    """A run directory of `scene` (a TOML path) preprocessed at `res` (kw: preprocess options),
+    with its one-ray visibility matrix unless `visibility` is False."""
+    from app.pipeline import preprocess
+    from app.scene import load_scene
+    from app.visibility import compute_visibility
+
+    out = str(tmp_path / name)
+    preprocess(load_scene(scene, resolution=res), out, client, progress=False, **kw)
+    if visibility:
+        compute_visibility(out, client, progress=False)
+    return out
+
+
+def radiance(out: str) -> np.ndarray:
+    """The solved radiance (m, 2, 3) of a run directory."""
+    from app.store import RunStore
+
+    return RunStore(out).read_arrays("solution")["radiance"]
 
 
 def write_scene(tmp_path, obj: str, toml_extra: str = "", camera: str | None = None,

@@ -57,7 +57,8 @@ def form_factor_matrix(part, elements, V, kernel: str = "point") -> np.ndarray:
 def normalised(F: np.ndarray, m: int) -> np.ndarray:
     """Rows summing past 1 scaled pairwise by min(cap_a, cap_b), cap = 1 / row sum (max over sides)."""
     rs = F.sum(axis=1).reshape(2, m).max(axis=0)
-    cap = np.where(rs > 1 + 1e-12, 1 / rs, 1.0)
+    cap = 1.0 / np.maximum(rs, 1.0)
+    cap[rs <= 1 + 1e-12] = 1.0
     c2 = np.concatenate([cap, cap])
     return F * np.minimum(c2[:, None], c2[None, :])
 

@@ -129,10 +129,9 @@ def test_reciprocity_random_pairs(rng):
         Q = _random_polygon(rng, int(rng.integers(3, 6)))
         gp = polygon_area(P) * polygon_form_factor(P, Q)
         gq = polygon_area(Q) * polygon_form_factor(Q, P)
-        assert gp >= 0 and abs(gp - gq) <= 1e-15  # absolute: clipped slivers have tiny F
-        if gp > 1e-4:
-            assert gp == pytest.approx(gq, rel=1e-10)
-            n_checked += 1
+        # absolute where clipped slivers have tiny F, relative where F is not small
+        assert gp >= 0 and abs(gp - gq) <= 1e-15 + 1e-10 * gp
+        n_checked += gp > 1e-4
     assert n_checked > 30
 
 

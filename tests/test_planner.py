@@ -144,7 +144,7 @@ def test_dead_rows_drop_out_of_the_iteration(client, tmp_path):
     assert plan_rep["solve"]["gathering_elements"] == 2
 
 
-def test_plan_command_prints_the_plan_before_heavy_work(tmp_path):
+def test_plan_command_prints_the_plan_before_heavy_work():
     r = CliRunner().invoke(main, ["plan", scene_path("furnace-cube")])
     assert r.exit_code == 0, r.output
     assert "occlusion          OFF" in r.output and "colour             OFF" in r.output

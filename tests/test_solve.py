@@ -8,26 +8,12 @@ import pytest
 import naive
 from app.errors import RadiosityError
 from app.kernels import pair_form_factors
-from app.pipeline import preprocess
-from app.scene import load_scene
 from app.solve import SOLVERS, open_operator, run_solve, side_vectors
 from app.store import RunStore
-from app.visibility import compute_visibility, dense_visibility
-from conftest import scene_path, write_scene
+from app.visibility import dense_visibility
+from conftest import prepared, radiance, scene_path, write_scene
 
 ALL = list(SOLVERS)
-
-
-def _prepared(client, tmp_path, scene, res, name="run", **kw):
-    out = str(tmp_path / name)
-    sc = load_scene(scene, resolution=res)
-    preprocess(sc, out, client, progress=False, **kw)
-    compute_visibility(out, client, progress=False)
-    return out
-
-
-def _radiance(out):
-    return RunStore(out).read_arrays("solution")["radiance"]
 
 
 def test_sphere_interior_reaches_the_exact_answer(client, tmp_path):
@@ -35,7 +21,7 @@ def test_sphere_interior_reaches_the_exact_answer(client, tmp_path):
     on the sphere with radial normals and give every original element the area S / n. A planar
     original does not see itself, so each row sums to 1 - 1/n and L = Le / (1 - rho (1 - 1/n))
     exactly, for every solver."""
-    out = _prepared(client, tmp_path, scene_path("furnace-sphere"), 8)
+    out = prepared(client, tmp_path, scene_path("furnace-sphere"), 8)
     rs = RunStore(out, "r+")
     part = rs.load_partition()
     arr = part.arrays()
@@ -54,7 +40,7 @@ def test_sphere_interior_reaches_the_exact_answer(client, tmp_path):
     exact = Le / (1 - rho * (1 - 1 / n))
     for solver in ALL:
         fig = run_solve(out, client, solver=solver, tol=1e-10, progress=False)
-        L = _radiance(out)[:, 0, 0]
+        L = radiance(out)[:, 0, 0]
         assert fig["converged"], solver
         np.testing.assert_allclose(L, exact, rtol=1e-8, err_msg=solver)
 
@@ -65,13 +51,13 @@ def test_furnace_cube_converges_and_states_its_error(client, tmp_path, kernel, n
     """Closed cube, uniform Le = 1, rho = 0.5: exact L = 2. The centre-to-centre kernels are
     biased near the cube's concave edges (the accuracy issue corrects the near field). Measured
     area-weighted mean error at 16^2: point +21 % raw, -3.3 % with rows normalised; disc -4.2 %."""
-    out = _prepared(client, tmp_path, scene_path("furnace-cube"), 16)
+    out = prepared(client, tmp_path, scene_path("furnace-cube"), 16)
     fig = run_solve(out, client, solver="cg" if kernel == "point" else "jacobi", kernel=kernel,
                     tol=1e-9, progress=False, normalise=normalise)
     assert fig["row_sums"]["rows_over_1"] > 0 or kernel == "disc"
     assert fig["row_sums"]["normalised"] == (normalise and fig["row_sums"]["rows_over_1"] > 0)
     assert fig["converged"] and fig["final_residual"] < 1e-8
-    L = _radiance(out)[:, 0, 0]
+    L = radiance(out)[:, 0, 0]
     A = RunStore(out).load_partition().area
     mean = (A * L).sum() / A.sum()
     err = mean / 2.0 - 1.0
@@ -82,7 +68,7 @@ def test_furnace_cube_converges_and_states_its_error(client, tmp_path, kernel, n
 
 
 def test_point_kernel_is_reciprocal_and_disc_is_not(client, tmp_path, rng):
-    out = _prepared(client, tmp_path, scene_path("cornell-box"), 10)
+    out = prepared(client, tmp_path, scene_path("cornell-box"), 10)
     rs = RunStore(out)
     for kernel, sym in (("point", True), ("disc", False)):
         op, part, el = open_operator(rs, client, kernel)
@@ -109,12 +95,12 @@ def test_point_kernel_is_reciprocal_and_disc_is_not(client, tmp_path, rng):
 
 def test_energy_balance_in_an_open_scene(client, tmp_path):
     """three-rectangles is open: emitted power = absorbed + escaped, for the discrete system."""
-    out = _prepared(client, tmp_path, scene_path("three-rectangles"), 16)
+    out = prepared(client, tmp_path, scene_path("three-rectangles"), 16)
     run_solve(out, client, solver="gauss-seidel", tol=1e-12, progress=False)
     rs = RunStore(out)
     op, part, el = open_operator(rs, client, "point")
     Le, rho, A = side_vectors(part, el)
-    L = np.transpose(_radiance(out), (1, 2, 0))
+    L = np.transpose(radiance(out), (1, 2, 0))
     H = op.apply(L)                         # gathered radiance (irradiance / pi)
     rowsum = op.apply(np.ones_like(L))      # sum_b F_ab per side
     emitted = np.pi * np.sum(A * Le)
@@ -128,7 +114,7 @@ def test_energy_balance_in_an_open_scene(client, tmp_path):
 
 @pytest.mark.parametrize("scene, res", [("cornell-box", 8), ("construction-in-wood", 8)])
 def test_solvers_agree_with_each_other_and_with_a_dense_direct_solve(client, tmp_path, scene, res):
-    out = _prepared(client, tmp_path, scene_path(scene), res)
+    out = prepared(client, tmp_path, scene_path(scene), res)
     rs = RunStore(out)
     part, el = rs.load_partition(), rs.load_elements()
     V = naive.visibility(part, el)
@@ -139,7 +125,7 @@ def test_solvers_agree_with_each_other_and_with_a_dense_direct_solve(client, tmp
             if solver == "cg" and kernel == "disc":
                 continue
             run_solve(out, client, solver=solver, kernel=kernel, tol=1e-10, progress=False)
-            L = _radiance(out)
+            L = radiance(out)
             err = np.abs(L - ref).max() / scale
             assert err < 1e-6, f"{solver}/{kernel}: {err:.2e}"
 
@@ -176,11 +162,11 @@ def test_two_sided_panel_lit_from_one_side_is_dark_on_the_other(client, tmp_path
     resolution = [16, 16]
     """
     path = write_scene(tmp_path, obj, extra, camera=cam)
-    out = _prepared(client, tmp_path, path, 16)
+    out = prepared(client, tmp_path, path, 16)
     run_solve(out, client, solver="jacobi", tol=1e-10, progress=False)
     rs = RunStore(out)
     part, el = rs.load_partition(), rs.load_elements()
-    L = _radiance(out)
+    L = radiance(out)
     panel = el.two_sided[part.orig]
     assert panel.any()
     # which side faces the lamp follows from the winding; find it rather than assume it
@@ -192,7 +178,7 @@ def test_two_sided_panel_lit_from_one_side_is_dark_on_the_other(client, tmp_path
 
 
 def test_registry_errors_list_the_valid_names(client, tmp_path):
-    out = _prepared(client, tmp_path, scene_path("three-rectangles"), 8)
+    out = prepared(client, tmp_path, scene_path("three-rectangles"), 8)
     with pytest.raises(RadiosityError, match="unknown solver 'sor': use one of jacobi, gauss-seidel, progressive, cg"):
         run_solve(out, client, solver="sor", progress=False)
     with pytest.raises(RadiosityError, match="unknown kernel 'exactish': use one of point, disc"):

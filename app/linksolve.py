@@ -1,0 +1,549 @@
+"""The hierarchical operator (SPEC §8): gather over links plus push-pull, on the leaves.
+
+With L on the M leaves of the union tree (hierarchy.NodeTable), one application is
+
+    pull    Lbar_q = sum_{leaves l of q} A_l L_l / A_q            (area-weighted mean, bottom-up)
+    gather  G_p    = sum_{links p <- q} F_pq v_pq Lbar_q          (both directions of every link)
+    push    H_l    = sum_{ancestors a of l, l included} G_a       (top-down)
+
+K = Push Gather Pull is linear, so every solver of solve.py applies to L = Le + rho K L. With
+A_p F_pq = A_q F_qp (A: the sum of the leaf areas below a node), x . diag(A) K y =
+sum_links A_p F_pq v (xbar_p ybar_q + xbar_q ybar_p) is symmetric: CG works.
+
+Vectors are (2, C, M) float64 [side, channel, leaf], as in solve.py. Links are read from the
+store task by task on the workers and kept in the worker's bounded cache (solve._cached); a
+pass is one Dask task per group of link tasks, each pinned to a worker. `LocalLinkOperator` runs
+the same task functions in-process (tests).
+
+Row normalisation (solve.normalise_rows) works through `configure(cap=...)`: positive caps scale
+a link by min(cap over the leaves of p, cap over the leaves of q) (the pairs' min(cap_a, cap_b)
+at leaf links); negative caps (closed-scene balancing) scale by d_a d_b, i.e. K -> D K D.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numba
+import numpy as np
+
+from . import config
+from .errors import RadiosityError, StoreError
+
+LINK_CACHE_KEY = "links"
+
+
+# ----------------------------------------------------------------------------- kernels
+
+@numba.njit(cache=True)
+def pull(L, leaf_node, leaf_area, parent, node_area, d):
+    """Area-weighted means of L (2, C, M) over every node's leaves, (2, C, N): leaves' A L summed
+    up the tree (children follow their parents in the table), divided by the node's leaf area.
+    d (M,): leaf scaling (closed-scene balancing), empty for none."""
+    N = parent.shape[0]
+    S = np.zeros((L.shape[0], L.shape[1], N))
+    use_d = d.shape[0] > 0
+    for l in range(leaf_node.shape[0]):
+        w = leaf_area[l] * (d[l] if use_d else 1.0)
+        for s in range(L.shape[0]):
+            for c in range(L.shape[1]):
+                S[s, c, leaf_node[l]] = w * L[s, c, l]
+    for i in range(N - 1, 0, -1):
+        p = parent[i]
+        if p >= 0:
+            for s in range(L.shape[0]):
+                for c in range(L.shape[1]):
+                    S[s, c, p] += S[s, c, i]
+    for i in range(N):
+        inv = 1.0 / node_area[i] if node_area[i] > 0 else 0.0
+        for s in range(L.shape[0]):
+            for c in range(L.shape[1]):
+                S[s, c, i] *= inv
+    return S
+
+
+@numba.njit(cache=True)
+def gather(Lbar, p, q, wpq, wqp, sp, sq, G, ncap, mode):
+    """G += the transfer over links (p, q): G[sp, :, p] += w_pq Lbar[sq, :, q] and the reverse.
+    mode 1: each link scaled by min(ncap[p], ncap[q]). Returns the number of link terms."""
+    for k in range(p.shape[0]):
+        a, b = p[k], q[k]
+        f = min(ncap[a], ncap[b]) if mode == 1 else 1.0
+        x, y = sp[k], sq[k]
+        for c in range(G.shape[1]):
+            G[x, c, a] += f * wpq[k] * Lbar[y, c, b]
+            G[y, c, b] += f * wqp[k] * Lbar[x, c, a]
+    return 2 * p.shape[0]
+
+
+@numba.njit(cache=True)
+def push(G, parent, leaf_node, d, y):
+    """y[:, :, l] += sum of G over the ancestors of leaf l (itself included), times d[l] (closed
+    balancing; empty: none). Top-down: H_i = G_i + H_parent."""
+    N = parent.shape[0]
+    for i in range(N):
+        pa = parent[i]
+        if pa >= 0:
+            for s in range(G.shape[0]):
+                for c in range(G.shape[1]):
+                    G[s, c, i] += G[s, c, pa]
+    use_d = d.shape[0] > 0
+    for l in range(leaf_node.shape[0]):
+        f = d[l] if use_d else 1.0
+        for s in range(G.shape[0]):
+            for c in range(G.shape[1]):
+                y[s, c, l] += f * G[s, c, leaf_node[l]]
+
+
+@numba.njit(cache=True)
+def gs_sweep(L, Le, rho, S, tp, ts, sn, ss, w, ptr, noff, parent, node_area, leaf_node,
+             leaf_area, node_leaf, lo, hi, d, need):
+    """One block Gauss-Seidel sweep over the originals in order, in place on L (2, C, M): for
+    original e, gather into its nodes from the directed link ends ptr[e]:ptr[e + 1] (target
+    node tp / side ts, source node sn / side ss, weight w) with the latest node sums S (A L
+    summed up the tree, (2, C, N)), push down e's tree, L = Le + rho H on e's leaves, and
+    refresh S on e's nodes. need (n,): originals that gather (empty: all)."""
+    C = L.shape[1]
+    n = noff.shape[0] - 1
+    use_d = d.shape[0] > 0
+    terms = 0
+    for e in range(n):
+        if need.shape[0] > 0 and not need[e]:
+            continue
+        n0, n1 = noff[e], noff[e + 1]
+        if n1 <= n0:
+            continue
+        H = np.zeros((2, C, n1 - n0))
+        for k in range(ptr[e], ptr[e + 1]):
+            t, s = tp[k], sn[k]
+            inv = 1.0 / node_area[s] if node_area[s] > 0 else 0.0
+            for c in range(C):
+                H[ts[k], c, t - n0] += w[k] * S[ss[k], c, s] * inv
+        terms += ptr[e + 1] - ptr[e]
+        for i in range(n0, n1):  # push: parents precede children
+            pa = parent[i]
+            if pa >= n0:
+                for s_ in range(2):
+                    for c in range(C):
+                        H[s_, c, i - n0] += H[s_, c, pa - n0]
+        for i in range(n0, n1):
+            l = node_leaf[i]
+            if l < 0:
+                continue
+            f = d[l] if use_d else 1.0
+            for s_ in range(2):
+                for c in range(C):
+                    L[s_, c, l] = Le[s_, c, l] + rho[s_, c, l] * f * H[s_, c, i - n0]
+        # refresh the node sums of e (bottom-up)
+        for i in range(n1 - 1, n0 - 1, -1):
+            l = node_leaf[i]
+            if l >= 0:
+                wl = leaf_area[l] * (d[l] if use_d else 1.0)
+                for s_ in range(2):
+                    for c in range(C):
+                        S[s_, c, i] = wl * L[s_, c, l]
+            else:
+                for s_ in range(2):
+                    for c in range(C):
+                        S[s_, c, i] = 0.0
+        for i in range(n1 - 1, n0, -1):
+            pa = parent[i]
+            if pa >= n0:
+                for s_ in range(2):
+                    for c in range(C):
+                        S[s_, c, pa] += S[s_, c, i]
+    return terms
+
+
+@numba.njit(cache=True)
+def node_min(leaf_value, lo, hi):
+    """Minimum of leaf_value over each node's leaves lo:hi, (N,)."""
+    out = np.empty(lo.shape[0])
+    for i in range(lo.shape[0]):
+        m = np.inf
+        for l in range(lo[i], hi[i]):
+            m = min(m, leaf_value[l])
+        out[i] = m
+    return out
+
+
+# ----------------------------------------------------------------------------- worker side
+
+class LinkSolveInputs:
+    """Read-only arrays the pass tasks need (scattered once per solve).
+
+    Node table (N nodes): orig, parent (N,) int64, lo, hi (N,) leaf ranges, path (N,) uint64,
+    depth (N,) int32, noff (n + 1,), node_area (N,) the sum of the leaf areas below, node_leaf
+    (N,) leaf index or -1; leaves: leaf_node (M,), leaf_area (M,), leaf_orig (M,). Link tasks:
+    entries (k, 3) int64 [crc, n, nx] of the manifest, store_path, token. Settings: cap (M,)
+    (ones: none; see the module docstring), need (n,) bool originals that gather (empty: all),
+    sided (M,) two-sided leaves (kept for the operator protocol: link sides are fixed by the
+    refinement)."""
+
+    def __init__(self, table: dict, entries: np.ndarray, store_path: str, token: str):
+        self.orig = table["orig"].astype(np.int64)
+        self.parent = table["parent"].astype(np.int64)
+        self.lo = table["lo"].astype(np.int64)
+        self.hi = table["hi"].astype(np.int64)
+        self.path = table["path"]
+        self.depth = table["depth"].astype(np.int64)
+        self.noff = table["noff"].astype(np.int64)
+        self.leaf_node = table["leaf_node"].astype(np.int64)
+        self.leaf_area = table["leaf_area"]
+        self.leaf_orig = self.orig[self.leaf_node]
+        # node areas as sums of their leaves' (what pull divides by), summed bottom-up
+        self.node_area = _node_sums(self.leaf_area, self.leaf_node, self.parent)
+        self.node_leaf = np.full(len(self.orig), -1, np.int64)
+        self.node_leaf[self.leaf_node] = np.arange(len(self.leaf_node))
+        self.entries = entries
+        self.store_path = store_path
+        self.token = token
+        self.cap = np.ones(len(self.leaf_node))
+        self.need = np.zeros(0, np.bool_)
+        self.sided = np.zeros(len(self.leaf_node), np.bool_)
+        self._ncap = None
+
+    def cap_args(self):
+        """(mode, node caps (N,), leaf scaling d (M,) or empty) of the current cap."""
+        cap = self.cap
+        if len(cap) and cap[0] < 0:  # closed balancing: K -> D K D
+            return 2, np.ones(1), -cap
+        if np.all(cap == 1.0):
+            return 0, np.ones(1), np.zeros(0)
+        return 1, node_min(cap, self.lo, self.hi), np.zeros(0)
+
+
+def _node_sums(leaf_value, leaf_node, parent):
+    """Sum of leaf_value (M,) over each node's leaves, (N,)."""
+    s = np.zeros(len(parent))
+    s[leaf_node] = leaf_value
+    return _sum_up(s, parent)
+
+
+@numba.njit(cache=True)
+def _sum_up(s, parent):
+    for i in range(parent.shape[0] - 1, 0, -1):
+        if parent[i] >= 0:
+            s[parent[i]] += s[i]
+    return s
+
+
+def task_link_arrays(inp: LinkSolveInputs, task: int):
+    """The links of one link task as node indices and weights, verified, from this worker's
+    cache or the store: p, q (k,) int64; wpq = F_pq v, wqp = F_qp v (k,); sp, sq (k,) int64."""
+    from .solve import _cached
+
+    def load():
+        from .hierarchy import find_codes
+        from .store import read_links
+
+        e = inp.entries[task]
+        links, _ = read_links(inp.store_path, task, {"crc": int(e[0]), "n": int(e[1]),
+                                                     "nx": int(e[2])})
+        p = find_codes(inp.orig, inp.path, inp.depth, inp.noff, links["po"].astype(np.int64),
+                       links["pc"])
+        q = find_codes(inp.orig, inp.path, inp.depth, inp.noff, links["qo"].astype(np.int64),
+                       links["qc"])
+        if np.any(p < 0) or np.any(q < 0):
+            raise StoreError(f"link task {task} of {inp.store_path} names nodes that are not in "
+                             "the node table: run the link stage again")
+        v = links["v"].astype(np.float64)
+        return (p, q, links["fpq"] * v, links["fqp"] * v, links["sp"].astype(np.int64),
+                links["sq"].astype(np.int64))
+
+    return _cached((inp.store_path, inp.token, LINK_CACHE_KEY, task), load,
+                   lambda a: sum(x.nbytes for x in a))
+
+
+def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = True):
+    """y = K L over the links of these link tasks (pull, gather, push), (2, C, M); rows of
+    originals that do not gather (inp.need, with use_need) stay 0. Returns (y, link terms)."""
+    mode, ncap, d = inp.cap_args()
+    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d)
+    G = np.zeros_like(Lbar)
+    terms = 0
+    for t in task_ids:
+        p, q, wpq, wqp, sp, sq = task_link_arrays(inp, int(t))
+        terms += gather(Lbar, p, q, wpq, wqp, sp, sq, G, ncap, mode)
+    y = np.zeros_like(L)
+    push(G, inp.parent, inp.leaf_node, d, y)
+    if use_need and len(inp.need):
+        y[:, :, ~inp.need[inp.leaf_orig]] = 0.0
+    return y, terms
+
+
+def _directed(inp: LinkSolveInputs):
+    """Every link end as a directed entry grouped by the original of its target (for
+    Gauss-Seidel), from all link tasks; cached on the worker."""
+    from .solve import _cached
+
+    def load():
+        got = [task_link_arrays(inp, t) for t in range(len(inp.entries))]
+        p, q, wpq, wqp, sp, sq = (np.concatenate([g[k] for g in got]) if got else
+                                  np.zeros(0, np.int64 if k in (0, 1, 4, 5) else np.float64)
+                                  for k in range(6))
+        tp = np.concatenate([p, q])
+        sn = np.concatenate([q, p])
+        ts = np.concatenate([sp, sq])
+        ss = np.concatenate([sq, sp])
+        w = np.concatenate([wpq, wqp])
+        to = inp.orig[tp]
+        order = np.argsort(to, kind="stable")
+        n = len(inp.noff) - 1
+        ptr = np.concatenate([[0], np.cumsum(np.bincount(to, minlength=n))]).astype(np.int64)
+        return tp[order], ts[order], sn[order], ss[order], w[order], ptr, p, q
+
+    return _cached((inp.store_path, inp.token, LINK_CACHE_KEY, "directed"), load,
+                   lambda a: sum(x.nbytes for x in a))
+
+
+def task_gs_sweep(inp: LinkSolveInputs, L, Le, rho):
+    """One block Gauss-Seidel sweep (all links on this worker). Returns (L, link terms)."""
+    tp, ts, sn, ss, w, ptr, p, q = _directed(inp)
+    mode, ncap, d = inp.cap_args()
+    if mode == 1:
+        w = w * np.minimum(ncap[tp], ncap[sn])
+    L = L.copy()
+    S = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d)
+    S *= inp.node_area  # pull returns means; the sweep keeps sums
+    terms = gs_sweep(L, Le, rho, S, tp, ts, sn, ss, w, ptr, inp.noff, inp.parent, inp.node_area,
+                     inp.leaf_node, inp.leaf_area, inp.node_leaf, inp.lo, inp.hi, d, inp.need)
+    return L, terms
+
+
+# ----------------------------------------------------------------------------- operators
+
+class _Base:
+    """What the two operators share: the kernel name (solvers check reciprocity by it), the
+    pass and term counters, row_sums and the groups of link tasks."""
+
+    def __init__(self, inp: LinkSolveInputs, kernel: str, ngroups: int):
+        self.inp = inp
+        self.kernel = kernel
+        self.terms = 0
+        self.passes = 0
+        self.sparse = None  # the pairs' near-field corrections: none here (links carry them)
+        n = np.asarray(inp.entries[:, 1], np.int64) if len(inp.entries) else np.zeros(0, np.int64)
+        order = np.argsort(-n, kind="stable")
+        load = np.zeros(max(1, ngroups))
+        members = [[] for _ in range(len(load))]
+        for t in order:  # the largest first onto the least loaded group
+            g = int(np.argmin(load))
+            members[g].append(int(t))
+            load[g] += n[t] + 1
+        self.groups = [np.array(sorted(m), np.int64) for m in members if m]
+
+    def row_sums(self) -> np.ndarray:
+        """sum over the links of F v for every leaf and side, pushed down, (2, M) (one pass)."""
+        M = len(self.inp.leaf_area)
+        return self.apply(np.ones((2, 1, M)), use_need=False)[:, 0, :]
+
+
+class LocalLinkOperator(_Base):
+    """K in this process (the same task functions, no cluster): for tests and small runs."""
+
+    def __init__(self, inp: LinkSolveInputs, kernel: str, groups: int = 2):
+        super().__init__(inp, kernel, groups)
+
+    def apply(self, L, live=None, use_need: bool = True):
+        y = np.zeros_like(L)
+        for g in self.groups:
+            yp, t = task_apply(self.inp, g, L, use_need)
+            y += yp
+            self.terms += t
+        self.passes += 1
+        return y
+
+    def configure(self, **arrays) -> None:
+        for k, v in arrays.items():
+            setattr(self.inp, k, v)
+
+    def gs_sweep(self, L, Le, rho):
+        new, t = task_gs_sweep(self.inp, L, Le, rho)
+        self.terms += t
+        self.passes += 1
+        return new
+
+
+class LinkOperator(_Base):
+    """K by Dask tasks over groups of link tasks, each group pinned to one worker (its link
+    cache stays warm across passes); a failed group is resubmitted anywhere."""
+
+    def __init__(self, client, inp_future, inp: LinkSolveInputs, kernel: str,
+                 groups: int | None = None):
+        ngroups = groups or max(1, 2 * (sum(client.nthreads().values()) or 1))
+        super().__init__(inp, kernel, ngroups)
+        self.client = client
+        self.inp_f = inp_future
+        workers = sorted(client.scheduler_info()["workers"])
+        self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
+        self.retries = int(config.get("visibility.retries"))
+        self._gs_fixed = None
+
+    def apply(self, L, live=None, use_need: bool = True):
+        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
+        futs = [self.client.submit(task_apply, self.inp_f, g, Lf, use_need, pure=False,
+                                   workers=[w] if w else None, allow_other_workers=True,
+                                   retries=self.retries)
+                for g, w in zip(self.groups, self.workers or [None] * len(self.groups))]
+        y = np.zeros_like(L)
+        for yp, t in self.client.gather(futs):
+            y += yp
+            self.terms += t
+        self.passes += 1
+        return y
+
+    def configure(self, **arrays) -> None:
+        for k, v in arrays.items():
+            setattr(self.inp, k, v)
+        [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
+
+    def gs_sweep(self, L, Le, rho):
+        w = self.workers[0] if self.workers else None
+        if self._gs_fixed is None or self._gs_fixed[0] is not Le:
+            self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
+        Lf = self.client.scatter([L], hash=False)[0]
+        Lef, rhof = self._gs_fixed[1]
+        f = self.client.submit(task_gs_sweep, self.inp_f, Lf, Lef, rhof, pure=False,
+                               workers=[w] if w else None, allow_other_workers=True,
+                               retries=self.retries)
+        new, t = f.result()
+        self.terms += t
+        self.passes += 1
+        return new
+
+
+# ----------------------------------------------------------------------------- the stage
+
+def solve_inputs(rs) -> tuple:
+    """(LinkSolveInputs, node table dict, kernel) of a run whose link stage finished."""
+    from .store import LinkStore
+
+    ls = LinkStore(rs)
+    token, (pairs, first), done = ls.require()
+    ntasks = len(first) - 1
+    missing = [t for t in range(ntasks) if t not in done]
+    if missing:
+        raise RadiosityError(f"the links of {rs.run_dir} are incomplete ({len(missing)} of "
+                             f"{ntasks} tasks missing): run radiosity visibility {rs.run_dir} "
+                             "--method hierarchical --resume")
+    if not rs.has("hierarchy") or rs.group_attrs("hierarchy").get("token") != token:
+        raise StoreError(f"{rs.run_dir} has links but no node table for them: run radiosity "
+                         f"visibility {rs.run_dir} --method hierarchical --resume")
+    table = ls.read_nodes()
+    entries = np.array([[done[t]["crc"], done[t]["n"], done[t]["nx"]] for t in range(ntasks)],
+                       np.int64).reshape(-1, 3)
+    return LinkSolveInputs(table, entries, rs.path, token), table, ls.attrs().get("kernel")
+
+
+def leaf_vectors(table: dict, elements):
+    """Le, rho (2, 3, M) and area (M,) of the leaves, per side."""
+    o = table["orig"][table["leaf_node"]]
+    Le = np.ascontiguousarray(np.transpose(elements.emission[o], (1, 2, 0)))
+    rho = np.ascontiguousarray(np.transpose(elements.reflectance[o], (1, 2, 0)))
+    return Le, rho, table["leaf_area"]
+
+
+def to_sub_elements(L: np.ndarray, table: dict, m: int) -> np.ndarray:
+    """Leaf radiance (2, C, M) -> sub-element radiance (m, 2, C): identical for seen originals,
+    the area-weighted mean of the split-off leaves for an unseen original's one sub-element."""
+    sub = table["leaf_sub"]
+    A = table["leaf_area"]
+    out = np.zeros((m, L.shape[0], L.shape[1]))
+    wsum = np.bincount(sub, A, minlength=m)
+    for s in range(L.shape[0]):
+        for c in range(L.shape[1]):
+            out[:, s, c] = np.bincount(sub, A * L[s, c], minlength=m) / np.where(wsum > 0, wsum, 1)
+    return out
+
+
+def open_link_operator(rs, client=None):
+    """The operator of a run's links: a LinkOperator over `client`, or in-process (None).
+    Returns (op, table, elements, partition)."""
+    inp, table, kernel = solve_inputs(rs)
+    if client is None:
+        op = LocalLinkOperator(inp, kernel)
+    else:
+        [inp_f] = client.scatter([inp], broadcast=True, hash=False)
+        op = LinkOperator(client, inp_f, inp, kernel)
+    return op, table, rs.load_elements(), rs.load_partition()
+
+
+def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float | None = None,
+                    max_iter: int | None = None, progress: bool = True, callback=None,
+                    normalise=None, effects=None) -> dict:
+    """Solve a hierarchical run (after the link stage) on its leaves; write solution/radiance
+    (m, 2, 3) per sub-element (to_sub_elements) and solution/leaf_radiance (M, 2, 3), and the
+    report's "solve" section. client None: in-process."""
+    from tqdm.auto import tqdm
+
+    from .solve import anorm, get_solver, normalise_rows
+    from .store import RunStore, update_report
+
+    solver = config.get("solve.solver", solver)
+    tol = float(config.get("solve.tol", tol))
+    max_iter = int(config.get("solve.max-iterations", max_iter))
+    fn = get_solver(solver)
+    t0 = time.perf_counter()
+    rs = RunStore(run_dir, "r+")
+    op, table, el, part = open_link_operator(rs, client)
+    Le, rho, area = leaf_vectors(table, el)
+    rows, cap = normalise_rows(op, config.get("solve.normalise-rows", normalise))
+    changes = {} if cap is None else {"cap": cap}
+    channels = 3
+    if effects is not None:
+        changes["sided"] = effects.two_sided[table["orig"][table["leaf_node"]]]
+        changes["need"] = effects.gather if not effects.gather.all() else np.zeros(0, np.bool_)
+        if not effects.colour:
+            channels = 1
+            Le, rho = Le[:, :1].copy(), rho[:, :1].copy()
+    if changes:
+        op.configure(**changes)
+    bar = tqdm(total=None, desc=f"solve ({solver}, links)", unit="pass", disable=not progress,
+               leave=False)
+    history = []
+
+    def cb(k, r, L):
+        if not np.isfinite(r) or r > 1e8:
+            bar.close()
+            raise RadiosityError(f"{solver} diverged after {k} passes (residual {r:.3g}) on the "
+                                 "links: keep radiosity.solve.normalise-rows on")
+        bar.update()
+        history.append(r)
+        if callback:
+            callback(k, r, L)
+
+    t_iter, terms0 = time.perf_counter(), op.terms
+    res = fn(op, Le, rho, area, tol, max_iter, cb)
+    t_iter, iter_terms = time.perf_counter() - t_iter, op.terms - terms0
+    bar.close()
+    t_solve = time.perf_counter() - t0
+    y = op.apply(res.radiance)
+    final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
+    M = len(area)
+    L3 = np.broadcast_to(res.radiance, (2, 3, M)) if channels == 1 else res.radiance
+    radiance = to_sub_elements(L3, table, len(part))
+    figures = {
+        "method": "hierarchical", "solver": solver, "kernel": op.kernel, "tol": tol,
+        "iterations": res.iterations, "converged": bool(res.converged),
+        "residuals": [float(r) for r in res.residuals], "final_residual": final,
+        "passes": op.passes, "pair_terms": int(op.terms), "link_terms": int(op.terms),
+        "pair_terms_per_s": iter_terms / max(t_iter, 1e-9), "time_s": round(t_solve, 4),
+        "sub_elements": len(part), "leaves": M, "row_sums": rows, "channels": channels,
+        "near_field": None, "partial_visibility": None,
+        "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(el),
+        "channel_terms": int(op.terms) * channels,
+    }
+    if res.ambient is not None:
+        figures["ambient"] = res.ambient.tolist()
+    rs.drop_after("nearfield")
+    rs.write_arrays("solution", {"radiance": radiance,
+                                 "leaf_radiance": np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))},
+                    {k: v for k, v in figures.items() if k != "residuals"})
+    update_report(run_dir, "solve", figures)
+    if not res.converged:
+        import warnings
+
+        warnings.warn(f"{solver} did not reach tol={tol:g} in {max_iter} passes (residual "
+                      f"{res.residuals[-1] if res.residuals else float('nan'):.3g})", stacklevel=2)
+    return figures

@@ -101,6 +101,43 @@ def cluster_options(fn):
     return fn
 
 
+def method_options(fn, links: bool = True):
+    """--method pairs|hierarchical, and the hierarchical method's --epsilon / --link-rays
+    (they write radiosity.visibility.method and radiosity.hierarchy.*)."""
+    if links:
+        fn = click.option("--link-rays", type=int, default=None, expose_value=False,
+                          help="hierarchical: sample rays per link not proven visible (a square).",
+                          callback=_set_config(lambda v: {"radiosity.hierarchy.link-rays": v}))(fn)
+        fn = click.option("--epsilon", type=float, default=None, expose_value=False,
+                          help="hierarchical: refine links while their error estimate exceeds this.",
+                          callback=_set_config(lambda v: {"radiosity.hierarchy.epsilon": v}))(fn)
+    return click.option("--method", type=click.Choice(["pairs", "hierarchical"]), default=None,
+                        expose_value=False,
+                        help="pairs: one visibility bit per pair of sub-elements (the seed's); "
+                             "hierarchical: links between nodes of the split trees (default: "
+                             "radiosity.visibility.method).",
+                        callback=_set_config(lambda v: {"radiosity.visibility.method": v}))(fn)
+
+
+def _hierarchical() -> bool:
+    from . import config
+
+    return config.get("visibility.method") == "hierarchical"
+
+
+def _links_summary(fig: dict) -> str:
+    return _table([("sub-elements", f"{fig['sub_elements']} ({fig['leaves']} leaves, "
+                                    f"{fig['split_off_nodes']} nodes split off unseen originals)"),
+                   ("links", f"{fig['links']} ({fig['links_per_leaf']:.1f} per leaf, "
+                             f"{fig['bytes_per_link']} bytes each)"),
+                   ("proven by shafts", f"{fig['shaft_visible']} visible, {fig['shaft_blocked']} "
+                                        "blocked (no ray)"),
+                   ("rays cast", f"{fig['rays']} ({fig['link_rays']} per link on "
+                                 f"{fig['ray_links']} links)"),
+                   ("tasks", f"{fig['tasks']} ({fig['task_unit']}), {fig['tasks_reused']} reused"),
+                   ("time", f"{fig['time_s']:.2f} s")])
+
+
 def _table(rows: list[tuple[str, object]]) -> str:
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
@@ -150,10 +187,12 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, workers, sc
 @click.option("--resume", is_flag=True, help="Keep the finished tasks of an interrupted run.")
 @lambda fn: kernel_options(fn, "The kernel the matrix is for: nxm and mc cast one ray per "
                                 "sample pair (default: radiosity.solve.kernel).")
+@method_options
 @cluster_options
 @_friendly
 def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_kind):
-    """The visibility matrix of a preprocessed RUN_DIR (seed §4.3), bit-packed in its store."""
+    """The visibility matrix of a preprocessed RUN_DIR (seed §4.3), bit-packed in its store;
+    with --method hierarchical, the links between nodes of its split trees instead."""
     from . import config
     from .cluster import open_client
     from .kernels import sampling_of
@@ -161,6 +200,14 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     from .visibility import compute_visibility
 
     RunStore(run_dir).load_partition()  # fail before starting a cluster
+    if _hierarchical():
+        from .links import compute_links, resolve_params
+
+        resolve_params(RunStore(run_dir).load_elements(), kernel)  # bad settings fail here
+        with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+            fig = compute_links(run_dir, client, kernel=kernel, unit=task_unit, resume=resume)
+        click.echo(_links_summary(fig))
+        return
     sampling_of(config.get("solve.kernel", kernel))  # a bad nxm-points / mc-samples fails here
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         fig = compute_visibility(run_dir, client, unit=task_unit, resume=resume, kernel=kernel)
@@ -214,15 +261,24 @@ def _solve_summary(fig: dict) -> str:
 @main.command()
 @click.argument("run_dir", type=click.Path())
 @solve_options
+@lambda fn: method_options(fn, links=False)
 @cluster_options
 @_friendly
 def solve(run_dir, solver, kernel, tol, max_iterations, workers, scheduler, cluster_kind):
-    """Solve the radiosity system of RUN_DIR (after visibility): form factors on the fly."""
+    """Solve the radiosity system of RUN_DIR (after visibility): form factors on the fly;
+    with --method hierarchical, over its links (the kernel was fixed by the link stage)."""
     from .cluster import open_client
     from .solve import run_solve
     from .store import RunStore
 
     RunStore(run_dir).load_partition()
+    if _hierarchical():
+        from .linksolve import run_solve_links
+
+        with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+            fig = run_solve_links(run_dir, client, solver=solver, tol=tol, max_iter=max_iterations)
+        click.echo(_solve_summary(fig))
+        return
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         fig = run_solve(run_dir, client, solver=solver, kernel=kernel, tol=tol, max_iter=max_iterations)
     click.echo(_solve_summary(fig))
@@ -270,6 +326,7 @@ def plan(scene, resolution, subpixel, tol):
 @click.option("--no-preview", is_flag=True, help="Skip preview.png (the original elements only).")
 @click.option("--full", is_flag=True, help="Simulate every effect, whatever the plan says.")
 @solve_options
+@method_options
 @image_options
 @cluster_options
 @_friendly
@@ -290,11 +347,17 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
         rep = render_scene(sc, out, client, subpixel=subpixel, unit=task_unit, solver=solver,
                            kernel=kernel, tol=tol, filter=filter_, sigma=sigma, exposure=exposure,
                            resume=resume, preview=not no_preview, echo=click.echo, full=full)
-    pre, vis, sol = rep["preprocess"], rep["visibility"], rep["solve"]
+    pre, sol = rep["preprocess"], rep["solve"]
     st = rep["render"]["stages"]
+    if _hierarchical() and "links" in rep and sol.get("method") == "hierarchical":
+        lk = rep["links"]
+        rays = ("links", f"{lk['links']} ({lk['links_per_leaf']:.1f} per leaf), {lk['rays']} rays")
+    else:
+        vis = rep["visibility"]
+        rays = ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)")
     click.echo(_table([
         ("sub-elements", f"{pre['sub_elements']} (from {pre['original_elements']} originals)"),
-        ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)"),
+        rays,
         ("solve", f"{sol['solver']}/{sol['kernel']}: {sol['iterations']} passes, residual "
                   f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"),
         ("times", f"preprocess {st['preprocess_s']:.1f} s, visibility {st['visibility_s']:.1f} s, "

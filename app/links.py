@@ -42,6 +42,7 @@ import numpy as np
 
 from . import config
 from .errors import RadiosityError
+from .exact import _point_ff, _polygon_ff
 from .hierarchy import MAX_DEPTH, _bit, polygon_area_center, split_one
 # the shaft-culling kernels are numba functions called from numba code here, so they are
 # imported at module level (issue 11 moves them to shafts.py)
@@ -54,6 +55,14 @@ COUNTERS = ("pairs", "links", "evaluated", "refined", "dropped_orientation", "sh
 C_PAIRS, C_LINKS, C_EVAL, C_REFINED, C_ORIENT, C_SVIS, C_SBLOCK, C_RAYLINKS, C_RAYS, C_RBLOCK, \
     C_PARTIAL, C_EXACT, C_SPLITOFF, C_ROUNDS = range(len(COUNTERS))
 WEIGHTS = ("none", "bf")
+ORACLES = ("ff", "gradient", "spread")
+
+
+def _oracle_id(name: str) -> int:
+    if name not in ORACLES:
+        raise RadiosityError(f"radiosity.hierarchy.oracle must be one of {', '.join(ORACLES)}, "
+                             f"got {name!r}")
+    return ORACLES.index(name)
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -78,6 +87,8 @@ class LinkParams:
     exact: bool
     plane_tol: float
     occlusion: bool = True
+    oracle: int = 2
+    gauss_gap: float = 2.0
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -209,12 +220,96 @@ def _blocks(o, P, nP, Q, nQ, everts, envert, enormal, eoffset, pad):
 
 
 @numba.njit(cache=True, inline="always")
-def _larger(Ap, Aq, can_p, can_q, all_pairs):
-    """Which node to split: the larger (1: q, 0: p) if it can; the other only in the all-pairs
-    limit (epsilon = 0: every link down to leaf pairs); -1: keep the link."""
-    if Aq >= Ap:
-        return 1 if can_q else (0 if all_pairs and can_p else -1)
-    return 0 if can_p else (1 if all_pairs and can_q else -1)
+def _pick(prefer, can_p, can_q, other):
+    """Which node to split: the preferred one (1: q, 0: p) if it can, else the other if
+    `other` (near links, the error oracles, epsilon = 0); -1: keep the link."""
+    if prefer == 1:
+        return 1 if can_q else (0 if other and can_p else -1)
+    return 0 if can_p else (1 if other and can_q else -1)
+
+
+@numba.njit(cache=True)
+def _spread(V, nv, nx, ny, nz, c, mx, my, mz, As, fc):
+    """Largest change of the disc estimate F(x -> source) between the receiver's centroid (fc)
+    and its vertices x (V[:nv], receiver normal n): the source is the point c with normal m
+    and area As. Catches what the centroids miss: grazing angles near a shared edge."""
+    out = 0.0
+    for i in range(nv):
+        dx, dy, dz = c[0] - V[i, 0], c[1] - V[i, 1], c[2] - V[i, 2]
+        r2 = dx * dx + dy * dy + dz * dz + 1e-300
+        a = max(nx * dx + ny * dy + nz * dz, 0.0)
+        b = max(-(mx * dx + my * dy + mz * dz), 0.0)
+        out = max(out, abs(As * a * b / (r2 * (np.pi * r2 + As)) - fc))
+    return out
+
+
+G2 = 0.5 / np.sqrt(3.0)  # 2 x 2 Gauss-Legendre on [0, 1]: 0.5 -+ G2
+
+
+@numba.njit(cache=True)
+def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_factor):
+    """F_pq, F_qp of a near link, exact to quadrature accuracy: where the smaller polygon is
+    farther from the larger one's box than gap_factor times its size, Lambert's exact
+    point-to-polygon form factor (exact.py) integrated over the smaller one by Gauss rules
+    (2 x 2 on a quad's bilinear map, 3 points on a triangle: smooth integrand there); otherwise
+    (touching, or about to) the double contour integral (exact.py). gp, gq: +-1, the sides
+    that face."""
+    small_is_p = Ap <= Aq
+    S, nS = (P, nP) if small_is_p else (Q, nQ)
+    L, nL = (Q, nQ) if small_is_p else (P, nP)
+    As, Al = (Ap, Aq) if small_is_p else (Aq, Ap)
+    gap2 = 0.0
+    for k in range(3):
+        slo = shi = S[0, k]
+        llo = lhi = L[0, k]
+        for i in range(1, 4):
+            slo, shi = min(slo, S[i, k]), max(shi, S[i, k])
+            llo, lhi = min(llo, L[i, k]), max(lhi, L[i, k])
+        d = max(llo - shi, slo - lhi, 0.0)
+        gap2 += d * d
+    if gap2 <= gap_factor * gap_factor * As:
+        f = _polygon_ff(P, nP, Q, nQ, True)
+        return f, f * Ap / Aq
+    n = np.empty(3)
+    m = np.empty(3)  # the larger one's facing side: points behind it see none of it
+    if small_is_p:
+        n[0], n[1], n[2] = gp * npx, gp * npy, gp * npz
+        m[0], m[1], m[2] = gq * nqx, gq * nqy, gq * nqz
+    else:
+        n[0], n[1], n[2] = gq * nqx, gq * nqy, gq * nqz
+        m[0], m[1], m[2] = gp * npx, gp * npy, gp * npz
+    m0 = m[0] * L[0, 0] + m[1] * L[0, 1] + m[2] * L[0, 2]
+    x = np.empty(3)
+    acc = 0.0
+    wsum = 0.0
+    if nS == 3:
+        for j in range(3):
+            u = 2.0 / 3.0 if j == 1 else 1.0 / 6.0
+            v = 2.0 / 3.0 if j == 2 else 1.0 / 6.0
+            for c in range(3):
+                x[c] = S[0, c] + u * (S[1, c] - S[0, c]) + v * (S[2, c] - S[0, c])
+            if m[0] * x[0] + m[1] * x[1] + m[2] * x[2] > m0:
+                acc += _point_ff(x, n, L, nL)
+            wsum += 1.0
+    else:
+        for j in range(4):
+            u = 0.5 + (G2 if j // 2 else -G2)
+            v = 0.5 + (G2 if j % 2 else -G2)
+            # the Jacobian of the bilinear map at (u, v): |dx/du x dx/dv|
+            du = (1 - v) * (S[1] - S[0]) + v * (S[2] - S[3])
+            dv = (1 - u) * (S[3] - S[0]) + u * (S[2] - S[1])
+            w = np.sqrt((du[1] * dv[2] - du[2] * dv[1]) ** 2 + (du[2] * dv[0] - du[0] * dv[2]) ** 2
+                        + (du[0] * dv[1] - du[1] * dv[0]) ** 2)
+            for c in range(3):
+                x[c] = ((1 - u) * (1 - v) * S[0, c] + u * (1 - v) * S[1, c] + u * v * S[2, c]
+                        + (1 - u) * v * S[3, c])
+            if m[0] * x[0] + m[1] * x[1] + m[2] * x[2] > m0:
+                acc += w * _point_ff(x, n, L, nL)
+            wsum += w
+    fs = acc / wsum if wsum > 0 else 0.0  # F from the smaller to the larger
+    if small_is_p:
+        return fs, fs * Ap / Aq
+    return fs * Aq / Ap, fs
 
 
 @numba.njit(cache=True)
@@ -276,7 +371,7 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
            Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, cnt, pmap,
            t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig, t_depth, t_path,
            normal, two_sided, ext, wrho, lhat, lref, elo, ehi, everts, envert, enormal, eoffset,
-           pad, eps, shadow, near_f, min_size, kid, exact, plane_tol, counts):
+           pad, eps, shadow, near_f, min_size, kid, exact, plane_tol, oracle, gauss_gap, counts):
     """One round of refinement from the entries (e_p, e_q local node ids; candidate occluders
     pool[e_c0:e_c1]; e_frac: the visible fraction measured by rays, or -1 not yet measured).
 
@@ -366,8 +461,26 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
         Ap, Aq = La[p], La[q]
         sp = 0 if ca > 0 else 1
         sq = 0 if cb > 0 else 1
-        err = max(Aq * g / (r2 * (np.pi * r2 + Aq)) * wrho[op, sp] * lhat[oq, sq],
-                  Ap * g / (r2 * (np.pi * r2 + Ap)) * wrho[oq, sq] * lhat[op, sp]) / lref
+        fpq = Aq * g / (r2 * (np.pi * r2 + Aq))
+        fqp = Ap * g / (r2 * (np.pi * r2 + Ap))
+        wpq = wrho[op, sp] * lhat[oq, sq] / lref
+        wqp = wrho[oq, sq] * lhat[op, sp] / lref
+        amount = max(fpq * wpq, fqp * wqp)  # weighted transfer (partly visible links)
+        prefer = 1 if Aq >= Ap else 0       # the node that looks larger from the other
+        ep = eq = 0.0
+        if oracle == 0:
+            err = amount
+        elif oracle == 1:  # the transfer's variation over the nodes that can still split
+            err = amount * ((np.sqrt(Ap) if can_p else 0.0)
+                            + (np.sqrt(Aq) if can_q else 0.0)) / np.sqrt(r2)
+        else:  # the kernel's spread over the vertices of each node that can still split
+            gp = 1.0 if sp == 0 else -1.0
+            gq = 1.0 if sq == 0 else -1.0
+            ep = wpq * _spread(Lv[p], Ln[p], gp * npx, gp * npy, gp * npz, Lc[q], gq * nqx,
+                               gq * nqy, gq * nqz, Aq, fpq) if can_p else 0.0
+            eq = wqp * _spread(Lv[q], Ln[q], gq * nqx, gq * nqy, gq * nqz, Lc[p], gp * npx,
+                               gp * npy, gp * npz, Ap, fqp) if can_q else 0.0
+            err = max(ep, eq)
         near = np.sqrt(r2) < near_f * max(np.sqrt(Ap), np.sqrt(Aq))
         split = -1  # 0: split p, 1: split q
         if frac < 0.0:
@@ -399,9 +512,14 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
             elif p_straddles and can_p:
                 split = 0
             elif near or err > eps:
-                split = _larger(Ap, Aq, can_p, can_q, eps <= 0.0)
-        elif 0.0 < frac < 1.0 and err > shadow:
-            split = _larger(Ap, Aq, can_p, can_q, eps <= 0.0)
+                # the smaller node only when the larger cannot split and its own error is
+                # above epsilon (splitting a node below the other's size dilutes the error
+                # per link: many small links each under epsilon, summing to a large one)
+                other = eps <= 0.0 or (oracle == 2 and (ep if prefer == 1 else eq) > eps) \
+                    or oracle == 1 or (near and oracle == 0)
+                split = _pick(prefer, can_p, can_q, other)
+        elif 0.0 < frac < 1.0 and amount > shadow:
+            split = _pick(prefer, can_p, can_q, oracle > 0 or eps <= 0.0)
             if split >= 0:
                 counts[10] += 1
         if split >= 0:
@@ -471,7 +589,12 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
         kp[nk], kq[nk], kv[nk] = p, q, v
         ks[nk, 0], ks[nk, 1] = sp, sq
         if exact and near:
-            kx[nk] = True  # filled in by the caller (exact.py)
+            gp = 1.0 if sp == 0 else -1.0
+            gq = 1.0 if sq == 0 else -1.0
+            kf[nk, 0], kf[nk, 1] = near_ff(Lv[p], Ln[p], Ap, gp, Lv[q], Ln[q], Aq, gq, npx, npy,
+                                           npz, nqx, nqy, nqz,
+                                           np.inf if p_straddles or q_straddles else gauss_gap)
+            kx[nk] = True
         elif kid == 0:
             w = g / (np.pi * r2 * r2)
             kf[nk, 0], kf[nk, 1] = w * Aq, w * Ap
@@ -531,45 +654,92 @@ def roots(pairs, root, pmap, t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_
 # ----------------------------------------------------------------------------- sample rays
 
 def ray_pairing(k: int) -> np.ndarray:
-    """The sample of Q each of the k = s^2 sample points of P is paired with: grid cell (i, j)
-    of P with cell (j, i) of Q, then rows shifted by a Latin-square step, so each of the
-    projections (u_P, u_Q) and (v_P, v_Q) of the 4-D sample set is a full s x s grid
-    (stratified where a shadow boundary lies), (k,) int64."""
+    """The sample of Q each of the k = s^2 stratified points of P is paired with, (k,) int64:
+    cell (i, j) of P with cell (j, i) of Q (s odd) or (j, (i + 2 j + 1) mod s) (s even). Both
+    projections (u_P, u_Q) and (v_P, v_Q) of the 4-D sample set are then full s x s grids
+    (stratified across a shadow boundary), and the set is symmetric under the central reflection
+    of both polygons, so a symmetric half occlusion gets exactly half of the rays."""
     s = int(round(np.sqrt(k)))
     i, j = np.divmod(np.arange(k), s)
-    return (j * s + (i + j) % s).astype(np.int64)
+    second = i if s % 2 else (i + 2 * j + 1) % s
+    return (j * s + second).astype(np.int64)
+
+
+def triangle_strata(k: int) -> np.ndarray:
+    """Barycentric (u, v) of the centroids of the s^2 equal sub-triangles of a triangle (the
+    regular subdivision, as kernels.sample_points), (k, 2) float64, k = s^2."""
+    s = int(round(np.sqrt(k)))
+    uv = []
+    for i in range(s):
+        for j in range(s - i):
+            uv.append(((i + 1 / 3) / s, (j + 1 / 3) / s))
+            if i + j <= s - 2:
+                uv.append(((i + 2 / 3) / s, (j + 2 / 3) / s))
+    return np.array(uv, np.float64)
+
+
+@numba.njit(cache=True)
+def _strata(V, nv, s, tri_uv, out, at):
+    """The k = s^2 stratified points of polygon V into out[at:at + k]: a quad's s x s cell
+    centres of its bilinear map, a triangle's sub-triangle centroids."""
+    k = s * s
+    for j in range(k):
+        if nv == 3:
+            u, v = tri_uv[j, 0], tri_uv[j, 1]
+            for c in range(3):
+                out[at + j, c] = V[0, c] + u * (V[1, c] - V[0, c]) + v * (V[2, c] - V[0, c])
+        else:
+            u = ((j // s) + 0.5) / s
+            v = ((j % s) + 0.5) / s
+            for c in range(3):
+                out[at + j, c] = ((1 - u) * (1 - v) * V[0, c] + u * (1 - v) * V[1, c]
+                                  + u * v * V[2, c] + (1 - u) * v * V[3, c])
+
+
+@numba.njit(cache=True)
+def link_points(Lv, Ln, Lc, Lo, p, q, s, tri_uv, perm):
+    """Ray end points of links (p, q): (2 n k, 3) points (the k samples of each p, then the k
+    samples of each q in the order perm pairs them with p's) and their originals (2 n k,)."""
+    n = p.shape[0]
+    k = s * s
+    pts = np.empty((2 * n * k, 3))
+    orig = np.empty(2 * n * k, np.int64)
+    tmp = np.empty((k, 3))
+    for i in range(n):
+        if k == 1:
+            pts[i] = Lc[p[i]]
+            pts[n + i] = Lc[q[i]]
+        else:
+            _strata(Lv[p[i]], Ln[p[i]], s, tri_uv, pts, i * k)
+            _strata(Lv[q[i]], Ln[q[i]], s, tri_uv, tmp, 0)
+            for j in range(k):
+                pts[n * k + i * k + j] = tmp[perm[j]]
+        for j in range(k):
+            orig[i * k + j] = Lo[p[i]]
+            orig[n * k + i * k + j] = Lo[q[i]]
+    return pts, orig
 
 
 def link_fractions(caster, k: int, verts: np.ndarray, nverts: np.ndarray, center: np.ndarray,
-                   orig: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+                   orig: np.ndarray, p: np.ndarray, q: np.ndarray, keep: list | None = None):
     """Visible fraction of links (p, q) (node ids into verts (N, 4, 3), nverts, center (N, 3),
     orig (N,)), with k rays each: k = 1 one ray between centroids; k = s^2 between the s x s
-    stratified points of each node (kernels.sample_points, nxm cells) paired by ray_pairing.
-    Returns (w,) float64."""
+    stratified points of each node (link_points) paired by ray_pairing. Returns (w,) float64."""
     if len(p) == 0:
         return np.zeros(0)
-    if k == 1:
-        pts = np.concatenate([center[p], center[q]])
-        n = len(p)
-        e = np.concatenate([orig[p], orig[q]])
-        occ = caster.occluded_pairs(pts, np.arange(n), np.arange(n, 2 * n), e)
-        return (~occ).astype(np.float64)
-    from .kernels import Sampling, sample_points
-
-    sm = Sampling("nxm", k)
+    s = int(round(np.sqrt(k)))
+    tri_uv, perm = triangle_strata(k), ray_pairing(k)
     out = np.empty(len(p))
-    step = max(1, (1 << 18) // k)
-    perm = ray_pairing(k)
-    for s in range(0, len(p), step):
-        pp, qq = p[s:s + step], q[s:s + step]
-        n = len(pp)
-        P, _ = sample_points(verts[pp], nverts[pp], sm)
-        Q, _ = sample_points(verts[qq], nverts[qq], sm)
-        pts = np.concatenate([P.reshape(-1, 3), Q[:, perm].reshape(-1, 3)])
-        e = np.concatenate([np.repeat(orig[pp], k), np.repeat(orig[qq], k)])
-        idx = np.arange(n * k)
-        occ = caster.occluded_pairs(pts, idx, idx + n * k, e).reshape(n, k)
-        out[s:s + n] = 1.0 - occ.mean(axis=1)
+    step = max(1, (1 << 19) // k)
+    for a in range(0, len(p), step):
+        pp, qq = p[a:a + step], q[a:a + step]
+        n = len(pp) * k
+        pts, e = link_points(verts, nverts, center, orig, pp, qq, s, tri_uv, perm)
+        idx = np.arange(n)
+        if keep is not None:
+            keep.append((pts, e))
+        occ = caster.occluded_pairs(pts, idx, idx + n, e).reshape(len(pp), k)
+        out[a:a + len(pp)] = 1.0 - occ.mean(axis=1)
     return out
 
 
@@ -609,12 +779,13 @@ def _tree_args(inp: LinkInputs):
             inp.t_orig, inp.t_depth, inp.t_path)
 
 
-def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | None = None):
+def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | None = None,
+                 polygons: bool = False):
     """All links of the original pairs (t, 2) [I, J]: the rounds of `refine` with the rays cast
     between them. Returns (links (k,) store.LINK_DTYPE, split-off nodes (j,) store.NODE_DTYPE,
-    counts (len(COUNTERS),) int64). keep_rays: a list that receives (p points, q points) of every
-    ray batch (benchmarks only)."""
-    from .exact import pair_form_factors_exact
+    counts (len(COUNTERS),) int64), and with `polygons` the split-off nodes' polygons (j, 4, 3)
+    as this task made them. keep_rays: a list that receives every batch of rays as the
+    (points, originals) given to the caster (benchmarks only)."""
     from .hierarchy import heap_code
     from .store import LINK_DTYPE, NODE_DTYPE
 
@@ -636,29 +807,20 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
                      inp.normal, inp.two_sided, inp.ext, inp.wrho, inp.lhat, inp.lref, inp.elo,
                      inp.ehi, inp.verts, inp.envert, inp.enormal, inp.eoffset,
                      inp.pad, prm.epsilon, prm.shadow, prm.near, prm.min_size, prm.kid,
-                     prm.exact, prm.plane_tol, counts)
+                     prm.exact, prm.plane_tol, prm.oracle, prm.gauss_gap, counts)
         tab.update(out[:12], out[12])
         kept.append(out[13:19])
         wp, wq, wc, wpool = out[19:]
         if not len(wp):
             break
-        if keep_rays is not None:
-            keep_rays.append((wp.copy(), wq.copy(), tab.Lv, tab.Ln, tab.Lc, tab.Lo))
-        f = link_fractions(caster, prm.rays, tab.Lv, tab.Ln.astype(np.int8), tab.Lc, tab.Lo, wp,
-                           wq)
+        f = link_fractions(caster, prm.rays, tab.Lv, tab.Ln, tab.Lc, tab.Lo, wp, wq, keep_rays)
         counts[C_RAYLINKS] += len(wp)
         counts[C_RAYS] += len(wp) * prm.rays
         ent = [wp, wq, wc[:, 0].copy(), (wc[:, 0] + wc[:, 1]).copy()]
         frac = f
         pool = wpool
     kp, kq, kf, kv, ks, kx = (np.concatenate(c) for c in zip(*kept))
-    if kx.any():  # near leaf links: the exact polygon form factor
-        x = np.nonzero(kx)[0]
-        P, Q = kp[x], kq[x]
-        fe = pair_form_factors_exact(tab.Lv[P], tab.Ln[P], tab.Lv[Q], tab.Ln[Q])
-        kf[x, 0] = fe
-        kf[x, 1] = fe * tab.La[P] / tab.La[Q]
-        counts[C_EXACT] += len(x)
+    counts[C_EXACT] = int(kx.sum())
     links = np.zeros(len(kp), LINK_DTYPE)
     links["po"], links["pc"] = tab.Lo[kp], heap_code(tab.Lp[kp], tab.Ld[kp])
     links["qo"], links["qc"] = tab.Lo[kq], heap_code(tab.Lp[kq], tab.Ld[kq])
@@ -671,6 +833,8 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
     used = used[tab.Lpn[used] < 0]
     nodes = np.zeros(len(used), NODE_DTYPE)
     nodes["o"], nodes["c"] = tab.Lo[used], heap_code(tab.Lp[used], tab.Ld[used])
+    if polygons:
+        return links, nodes, counts, tab.Lv[used].copy()
     return links, nodes, counts
 
 
@@ -728,7 +892,7 @@ def resolve_params(elements, kernel: str | None = None, epsilon: float | None = 
     (LinkParams, weight)."""
     from .kernels import KERNELS, base_kernel, kernel_id
 
-    kernel = config.get("solve.kernel", kernel)
+    kernel = config.get("hierarchy.kernel", kernel)
     kernel_id(kernel)
     if base_kernel(kernel) not in ("point", "disc"):
         raise RadiosityError(f"--method hierarchical supports the kernels point, disc, point-nf "
@@ -750,7 +914,9 @@ def resolve_params(elements, kernel: str | None = None, epsilon: float | None = 
                      min_size=float(config.get("hierarchy.min-node-size")) * diag, rays=k,
                      kid=0 if base_kernel(kernel) == "point" else 1,
                      exact=bool(KERNELS[kernel][3]), plane_tol=COS_TOL * diag,
-                     occlusion=bool(occlusion))
+                     occlusion=bool(occlusion),
+                     oracle=_oracle_id(config.get("hierarchy.oracle")),
+                     gauss_gap=float(config.get("hierarchy.near-gauss-gap")))
     return prm, weight
 
 
@@ -793,7 +959,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
             ls.rewrite_manifest(token, done)
     else:
         ls.create(pairs, first, token, {"params": prm.to_dict(), "weight": weight,
-                                        "kernel": config.get("solve.kernel", kernel),
+                                        "kernel": config.get("hierarchy.kernel", kernel),
                                         "unit": unit})
     tree = tree_nodes(part, el)
     key = tokenize(el.verts, el.nverts)
@@ -875,7 +1041,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
         **c, "links_per_leaf": c["links"] / max(1, table.leaves),
         "bytes_per_link": LINK_DTYPE.itemsize, "link_bytes": c["links"] * LINK_DTYPE.itemsize,
         "epsilon": prm.epsilon, "link_rays": prm.rays, "weight": weight,
-        "min_node_size": prm.min_size, "kernel": config.get("solve.kernel", kernel),
+        "min_node_size": prm.min_size, "kernel": config.get("hierarchy.kernel", kernel),
         "time_s": round(time.perf_counter() - t_start, 4), "time_tasks_s": round(wall, 4),
         "time_node_table_s": round(t_nodes, 4),
         "rays_per_s": c["rays"] / wall if wall > 0 else 0.0,

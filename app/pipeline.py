@@ -229,8 +229,13 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
 
 def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None, unit=None,
                  solver=None, kernel=None, tol=None, filter=None, sigma=None, exposure=None,
-                 resume=False, preview=True, progress=True, echo=print, full=False) -> dict:
+                 resume=False, preview=True, progress=True, echo=print, full=False,
+                 method=None, epsilon=None, link_rays=None) -> dict:
     """plan -> preprocess -> visibility -> solve -> image (+ the preview from the originals).
+
+    method: "pairs" (the seed's visibility matrix) or "hierarchical" (links between nodes of
+    the split trees, links.py; epsilon and link_rays are its settings); default
+    radiosity.visibility.method.
 
     The effects plan (planner.py) decides what is simulated; `full` forces every effect on.
     With `resume`, a run directory whose preprocessing matches (same scene file, camera and
@@ -262,8 +267,16 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     # decide the effects before the heavy stages, from the partition just made
     effects, est = scene_plan(scene, subpixel, tol, full, run_dir=out)
     update_report(out, "plan", {**effects.to_dict(), **est})
+    method = config.get("visibility.method", method)
+    if method not in ("pairs", "hierarchical"):
+        raise SceneError(f"--method must be pairs or hierarchical, got {method!r}")
     t = time.perf_counter()
-    if effects.interreflection:
+    if effects.interreflection and method == "hierarchical":
+        from .links import compute_links
+
+        compute_links(out, client, kernel=kernel, epsilon=epsilon, rays=link_rays, unit=unit,
+                      resume=resume and reuse, progress=progress, occlusion=effects.occlusion)
+    elif effects.interreflection:
         compute_visibility(out, client, unit=unit, resume=resume and reuse, progress=progress,
                            occlusion=effects.occlusion, kernel=kernel)
     else:
@@ -271,7 +284,11 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
         update_report(out, "visibility", {"skipped": True, "rays": 0, "pairs_total": 0})
     stages["visibility_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    if effects.interreflection:
+    if effects.interreflection and method == "hierarchical":
+        from .linksolve import run_solve_links
+
+        run_solve_links(out, client, solver=solver, tol=tol, progress=progress, effects=effects)
+    elif effects.interreflection:
         run_solve(out, client, solver=solver, kernel=kernel, tol=tol, progress=progress,
                   effects=effects)
     else:

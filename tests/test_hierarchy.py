@@ -1,0 +1,431 @@
+"""Hierarchical radiosity (--method hierarchical, SPEC §8): canonical nodes, link refinement,
+link visibility, the push-pull operator, and exact answers it must reach."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import dask.config
+import numpy as np
+import pytest
+
+from app.exact import differential_to_rectangle, pair_form_factors_exact
+from app.hierarchy import decode, node_table, seen_originals, tree_nodes
+from app.links import COUNTERS, LinkInputs, compute_links, refine_pairs, resolve_params
+from app.linksolve import (leaf_vectors, open_link_operator, run_solve_links,
+                           task_link_arrays)
+from app.rays import RayCaster
+from app.scene import load_scene
+from app.store import RunStore
+from app.subdivide import split_polygons, subdivide_scene
+from conftest import prepared, radiance, scene_path, write_scene
+
+ALL_PAIRS = {"radiosity.hierarchy.min-node-size": 1e9, "radiosity.hierarchy.weight": "none",
+             "radiosity.hierarchy.near-gauss-gap": float("inf")}
+
+
+def _count(counts, name):
+    return int(counts[COUNTERS.index(name)])
+
+
+def in_process(path, res=None, kernel="point-nf", epsilon=None, rays=None, seen=None, cfg=None):
+    """A scene's LinkInputs without a cluster: (scene, partition, tree, inputs)."""
+    sc = load_scene(path, resolution=res)
+    el = sc.elements
+    part, raster, _, _ = subdivide_scene(el, sc.camera)
+    tree = tree_nodes(part, el)
+    seen = seen_originals(raster, len(el)) if seen is None else seen
+    with dask.config.set({f"radiosity.hierarchy.{k}": v for k, v in (cfg or {}).items()}):
+        prm, weight = resolve_params(el, kernel, epsilon, rays)
+    return sc, part, tree, LinkInputs(tree, part, el, seen, prm, weight, "test")
+
+
+# ----------------------------------------------------------------------------- the all-pairs limit
+
+@pytest.mark.parametrize("scene, res, kernel", [("three-rectangles", 16, "point"),
+                                                ("three-rectangles", 16, "point-nf"),
+                                                ("cornell-box", 16, "point"),
+                                                ("cornell-box", 16, "point-nf")])
+def test_epsilon_zero_with_one_ray_per_leaf_pair_equals_the_pairs_method(client, tmp_path, scene,
+                                                                         res, kernel):
+    """epsilon = 0 refines every link to a pair of leaves; one ray between centroids
+    (--link-rays 1) is the pairs method's visibility; unseen originals are not split; near
+    links use the contour integral (no Gauss shortcut). Then F L and the solution equal
+    --method pairs with the same kernel (near field included)."""
+    from app.solve import open_operator, run_solve
+
+    out = prepared(client, tmp_path, scene_path(scene), res)
+    rs = RunStore(out)
+    opP, part, el = open_operator(rs, client, kernel)
+    run_solve(out, client, solver="cg", kernel=kernel, tol=1e-12, progress=False)
+    LP = radiance(out)
+    with dask.config.set(ALL_PAIRS):
+        fig = compute_links(out, client, kernel=kernel, epsilon=0.0, rays=1, progress=False)
+    opH, table, _, _ = open_link_operator(RunStore(out), None)
+    assert np.array_equal(table["leaf_sub"], np.arange(len(part)))
+    x = np.random.default_rng(3).random((2, 3, len(part)))
+    yP, yH = opP.apply(x, use_need=False), opH.apply(x, use_need=False)
+    assert np.abs(yH - yP).max() <= 1e-9 * np.abs(yP).max()
+    run_solve_links(out, None, solver="cg", tol=1e-12, progress=False)
+    LH = radiance(out)
+    assert np.abs(LH - LP).max() <= 1e-9 * np.abs(LP).max()
+    assert fig["rays"] < fig["links"] + fig["dropped_orientation"]  # shafts spared some rays
+
+
+# ----------------------------------------------------------------------------- canonical nodes
+
+EMITTER_AND_TWO_RECEIVERS = """
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 0 0 1
+v 0 0.5 1
+v 1 0.5 1
+v 1 0 1
+v 0 0.5 1
+v 0 1 1
+v 1 1 1
+v 1 0.5 1
+usemtl emitter
+f 1 2 3 4
+usemtl receiver
+f 5 6 7 8
+f 9 10 11 12
+"""
+MATERIALS = """
+[material.emitter]
+emission = [1.0, 1.0, 1.0]
+reflectance = [0.0, 0.0, 0.0]
+[material.receiver]
+reflectance = [0.5, 0.5, 0.5]
+"""
+CAMERA_ON_RECEIVERS = """
+[camera]
+position = [0.5, 0.5, 0.25]
+look_at = [0.5, 0.5, 1.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 90.0
+resolution = [24, 24]
+"""
+
+
+def _naive_polygon(root_verts, nv, path, depth):
+    """A node's polygon by walking its path with subdivide.split_polygons (the seed's rule)."""
+    poly = root_verts[None].copy()
+    for d in range(int(depth)):
+        c0, c1, _, _ = split_polygons(poly, np.array([nv], np.int8))
+        bit = (int(path) >> (63 - d)) & 1
+        poly = c1 if bit else c0
+    return poly[0]
+
+
+def test_two_tasks_split_an_unseen_original_into_the_same_named_nodes(tmp_path):
+    """The emitter is unseen: the tasks (emitter, receiver 1) and (emitter, receiver 2) split it
+    independently. Nodes with the same name have bit-identical polygons, equal to walking the
+    path with subdivide.split_polygons; the union tree tiles the emitter; the leaves of the seen
+    receivers are exactly their camera sub-elements."""
+    path = write_scene(tmp_path, EMITTER_AND_TWO_RECEIVERS, MATERIALS, camera=CAMERA_ON_RECEIVERS)
+    sc, part, tree, inp = in_process(path, epsilon=1e-4, rays=4)
+    el = sc.elements
+    assert not inp.ext[1] and not inp.ext[2] and inp.ext[0]  # the emitter alone is unseen
+    rc = RayCaster(el.verts, el.nverts)
+    got = [refine_pairs(inp, np.array([[0, j]]), rc, polygons=True) for j in (1, 2)]
+    (_, n1, _, v1), (_, n2, _, v2) = got
+    assert len(n1) > 10 and len(n2) > 10
+    c1 = {int(c): v for c, v in zip(n1["c"], v1)}
+    c2 = {int(c): v for c, v in zip(n2["c"], v2)}
+    common = set(c1) & set(c2)
+    assert len(common) > 0 and len(set(c1) ^ set(c2)) > 0  # shared nodes, and nodes of one only
+    for c in common:
+        assert np.array_equal(c1[c], c2[c])
+    for c, v in list(c1.items()) + list(c2.items()):
+        p, d = decode(np.array([c], np.uint64))
+        assert np.array_equal(v, _naive_polygon(el.verts[0], el.nverts[0], p[0], d[0]))
+    xs = np.concatenate([n1, n2])
+    table = node_table(tree, part, xs["o"], xs["c"])
+    lo, orig = table.leaf_node, table.orig
+    area = np.bincount(orig[lo], table.leaf_area, minlength=len(el))
+    np.testing.assert_allclose(area, el.area, rtol=1e-12)
+    seen = table.pnode[lo] >= 0
+    assert np.array_equal(table.verts[lo[seen & (orig[lo] > 0)]],
+                          part.verts[table.leaf_sub[seen & (orig[lo] > 0)]])
+    leaves = tree.leaf >= 0
+    assert np.array_equal(tree.verts[leaves], part.verts[tree.leaf[leaves]])
+
+
+# ----------------------------------------------------------------------------- exact answers
+
+def _solve(client, tmp_path, path, res=None, **kw):
+    out = prepared(client, tmp_path, path, res, visibility=False)
+    fig = compute_links(out, client, progress=False, **kw)
+    run_solve_links(out, client, solver="cg", tol=1e-11, progress=False)
+    rs = RunStore(out)
+    return rs.load_partition(), rs.load_elements(), radiance(out), fig
+
+
+def test_opposed_squares_with_the_emitter_out_of_view_pointwise(client, tmp_path):
+    """Receiver (seen, rho 0.5) over an unseen unit emitter (Le = 1) at distance 1: the
+    receiver's radiance is 0.5 F(x -> emitter), F from Howell's B-3 by superposition at each
+    sub-element's centre; within 1 % everywhere (one element for the emitter would be off by
+    up to 50 %: it must be split on demand)."""
+    obj = """
+    v 0 0 0
+    v 1 0 0
+    v 1 1 0
+    v 0 1 0
+    v 0 0 1
+    v 0 1 1
+    v 1 1 1
+    v 1 0 1
+    usemtl emitter
+    f 1 2 3 4
+    usemtl receiver
+    f 5 6 7 8
+    """
+    path = write_scene(tmp_path, obj, MATERIALS, camera=CAMERA_ON_RECEIVERS)
+    part, el, L, fig = _solve(client, tmp_path, path)
+    assert fig["unseen_originals_split"] == 1 and fig["split_off_nodes"] > 0
+    r = part.orig == 1
+    x, y = part.center[r, 0], part.center[r, 1]
+    F = sum(differential_to_rectangle(np.abs(a), np.abs(b), 1.0)
+            for a in (x, 1 - x) for b in (y, 1 - y))
+    rel = L[r, 0, 0] / (0.5 * F) - 1
+    print(f"opposed squares: {fig['links']} links, max |rel err| {np.abs(rel).max():.2e}")
+    assert np.abs(rel).max() < 0.01
+
+
+def test_perpendicular_squares_in_the_corner_strip(client, tmp_path):
+    """A seen floor (rho 0.5) and an unseen emitting wall sharing an edge at 90 degrees: the
+    floor's sub-elements within 0.1 of the edge get 0.5 F(sub-element -> wall) (exact polygon
+    form factor) within 2 %."""
+    obj = """
+    v 0 0 0
+    v 0 0 1
+    v 1 0 1
+    v 1 0 0
+    v 0 0 0
+    v 1 0 0
+    v 1 1 0
+    v 0 1 0
+    usemtl receiver
+    f 1 2 3 4
+    usemtl emitter
+    f 5 6 7 8
+    """
+    cam = """
+    [camera]
+    position = [0.5, 2.0, 0.6]
+    look_at = [0.5, 0.0, 0.6]
+    up = [0.0, 0.0, 1.0]
+    fov_y = 32.0
+    resolution = [32, 32]
+    """
+    path = write_scene(tmp_path, obj, MATERIALS, camera=cam)
+    part, el, L, fig = _solve(client, tmp_path, path)
+    r = (part.orig == 0) & (part.center[:, 2] < 0.1)
+    assert r.sum() > 20
+    F = pair_form_factors_exact(part.verts[r], part.nverts[r], np.repeat(el.verts[1:2], r.sum(), 0),
+                                np.repeat(el.nverts[1:2], r.sum(), 0))
+    rel = L[r, 0, 0] / (0.5 * F) - 1
+    print(f"perpendicular squares: {fig['links']} links, max |rel err| {np.abs(rel).max():.2e}")
+    assert np.abs(rel).max() < 0.02
+
+
+def test_closed_cube_rho_099_with_balanced_rows(client, tmp_path):
+    """Furnace cube, rho = 0.99, Le = 1: with rows balanced to 1 (normalise-rows closed) the
+    answer is Le / (1 - rho) = 100 within 0.1 %."""
+    cube = scene_path("furnace-cube")
+    src = open(cube).read().replace("reflectance = [0.5, 0.5, 0.5]", "reflectance = [0.99, 0.99, 0.99]")
+    src = src.replace('path = "furnace-cube.obj"',
+                      f'path = "{os.path.join(os.path.dirname(cube), "furnace-cube.obj")}"')
+    path = tmp_path / "furnace.toml"
+    path.write_text(src)
+    out = prepared(client, tmp_path, str(path), 12, visibility=False)
+    compute_links(out, client, progress=False)
+    fig = run_solve_links(out, client, solver="cg", tol=1e-12, progress=False, normalise="closed")
+    assert fig["converged"]
+    L = radiance(out)[:, 0, :]
+    np.testing.assert_allclose(L, 100.0, rtol=1e-3)
+
+
+# ----------------------------------------------------------------------------- the operator
+
+def test_push_pull_conserves_energy_in_an_open_scene(client, tmp_path):
+    """three-rectangles is open. Emitted power = absorbed + escaped, where escaped uses each
+    leaf's total outgoing form factor summed directly from the stored links over its ancestors
+    (not through the operator): this holds only if pull and push weigh by area consistently."""
+    out = prepared(client, tmp_path, scene_path("three-rectangles"), 16, visibility=False)
+    fig = compute_links(out, client, progress=False)
+    run_solve_links(out, client, solver="gauss-seidel", tol=1e-13, max_iter=500, progress=False)
+    rs = RunStore(out)
+    op, table, el, part = open_link_operator(rs, None)
+    Le, rho, A = leaf_vectors(table, el)
+    L = np.transpose(rs.read_arrays("solution")["leaf_radiance"], (1, 2, 0))
+    H = op.apply(L)
+    # independently: sum of F v over the links of each node, per side, then down the tree
+    N = len(table["orig"])
+    R = np.zeros((2, N))
+    for t in range(len(op.inp.entries)):
+        p, q, wpq, wqp, sp, sq = task_link_arrays(op.inp, t)
+        np.add.at(R, (sp, p), wpq)
+        np.add.at(R, (sq, q), wqp)
+    for i in range(N):
+        if table["parent"][i] >= 0:
+            R[:, i] += R[:, table["parent"][i]]
+    R = R[:, table["leaf_node"]][:, None, :]
+    emitted = np.pi * np.sum(A * Le)
+    absorbed = np.pi * np.sum(A * (1 - rho) * H)
+    escaped = np.pi * np.sum(A * L * (1 - R))
+    assert fig["links"] < fig["leaves"] ** 2 / 4 and escaped > 0.01 * emitted
+    assert absorbed + escaped == pytest.approx(emitted, rel=1e-9)
+
+
+def test_symmetric_form_and_every_solver_agree(client, tmp_path):
+    """With both directions on every link, x . A K z = z . A K x (to 1e-12); Jacobi,
+    Gauss-Seidel, progressive refinement and CG reach the same answer on the links."""
+    out = prepared(client, tmp_path, scene_path("cornell-box"), 12, visibility=False)
+    compute_links(out, client, progress=False)
+    op, table, el, part = open_link_operator(RunStore(out), client)
+    A = table["leaf_area"]
+    rng = np.random.default_rng(5)
+    x, z = rng.random((2, 2, 3, len(A)))
+    a, b = np.sum(x * A * op.apply(z)), np.sum(z * A * op.apply(x))
+    assert abs(a - b) <= 1e-12 * abs(a)
+    sols = {}
+    for solver in ("jacobi", "gauss-seidel", "progressive", "cg"):
+        fig = run_solve_links(out, client, solver=solver, tol=1e-10, progress=False)
+        assert fig["converged"], solver
+        sols[solver] = radiance(out)
+    ref = sols["cg"]
+    for s, L in sols.items():
+        assert np.abs(L - ref).max() <= 1e-7 * np.abs(ref).max(), s
+
+
+# ----------------------------------------------------------------------------- link visibility
+
+TWO_SQUARES = """
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 0 0 2
+v 0 1 2
+v 1 1 2
+v 1 0 2
+usemtl emitter
+f 1 2 3 4
+usemtl receiver
+f 5 6 7 8
+"""
+CAMERA_AWAY = """
+[camera]
+position = [0.5, 0.5, -5.0]
+look_at = [0.5, 0.5, -10.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 30.0
+resolution = [8, 8]
+"""
+
+
+@pytest.mark.parametrize("occluder, rays", [("", False), ("side", False), ("between", True)])
+def test_links_the_shafts_prove_visible_cast_no_ray(tmp_path, occluder, rays):
+    """Two facing squares alone, or with an occluder beside the shaft: every link is proven
+    visible by the shafts and no ray is cast; an occluder between them makes rays necessary."""
+    quads = {"side": "v 3 0 0.5\nv 4 0 0.5\nv 4 1 1.5\nv 3 1 1.5\nf 9 10 11 12\n",
+             "between": "v 0.2 0.2 1\nv 0.6 0.2 1\nv 0.6 0.6 1\nv 0.2 0.6 1\nf 9 10 11 12\n",
+             "": ""}
+    path = write_scene(tmp_path, TWO_SQUARES + quads[occluder], MATERIALS, camera=CAMERA_AWAY)
+    sc, part, tree, inp = in_process(path, epsilon=1e-3, rays=16)
+    links, _, counts = refine_pairs(inp, np.array([[0, 1]]), RayCaster(sc.elements.verts,
+                                                                       sc.elements.nverts))
+    assert len(links) > 1
+    if rays:
+        assert _count(counts, "rays") > 0 and np.any(links["v"] < 1)
+    else:
+        assert _count(counts, "rays") == 0
+        assert _count(counts, "shaft_visible") == len(links) and np.all(links["v"] == 1)
+
+
+@pytest.mark.parametrize("height", [0.6, 1.3])
+@pytest.mark.parametrize("angle", [0.0, 30.0, 75.0])
+@pytest.mark.parametrize("k", [4, 16])
+def test_half_occluded_pair_gets_the_visible_fraction_within_one_ray(tmp_path, height, angle, k):
+    """Unit squares at z = 0 and z = 2 (one link: nothing may split) and a large occluder at
+    z = height covering the half-plane through the shaft's axis at `angle`: half of all point
+    pairs see each other. k stratified rays give the fraction within 1/k."""
+    t = np.radians(angle)
+    n, u = np.array([np.cos(t), np.sin(t)]), np.array([-np.sin(t), np.cos(t)])
+    c = np.array([0.5, 0.5])
+    corners = [c + 5 * u, c + 5 * u - 5 * n, c - 5 * u - 5 * n, c - 5 * u]  # behind the line
+    occ = "".join(f"v {x:.12f} {y:.12f} {height}\n" for x, y in corners) + "f 9 10 11 12\n"
+    path = write_scene(tmp_path, TWO_SQUARES + occ, MATERIALS, camera=CAMERA_AWAY)
+    sc, part, tree, inp = in_process(path, epsilon=1e9, rays=k, seen=np.zeros(3, bool),
+                                     cfg={"min-node-size": 1e9})
+    links, _, counts = refine_pairs(inp, np.array([[0, 1]]),
+                                    RayCaster(sc.elements.verts, sc.elements.nverts))
+    assert len(links) == 1 and _count(counts, "rays") == k
+    assert abs(float(links["v"][0]) - 0.5) <= 1.0 / k
+
+
+# ----------------------------------------------------------------------------- store, CLI
+
+def test_corrupted_link_task_is_detected_and_recomputed_on_resume(client, tmp_path):
+    out = prepared(client, tmp_path, scene_path("three-rectangles"), 12, visibility=False)
+    fig = compute_links(out, client, progress=False)
+    from app.store import links_path
+
+    store = os.path.join(out, "store.zarr")
+    a = os.path.join(links_path(store), "0-links")
+    assert os.path.isdir(a)
+    chunk = next(os.path.join(r, f) for r, _, fs in os.walk(a) for f in fs if "zarr.json" not in f)
+    with open(chunk, "r+b") as f:
+        data = bytearray(f.read())
+        data[len(data) // 2] ^= 0xFF
+        f.seek(0)
+        f.write(data)
+    from app.errors import StoreError
+
+    with pytest.raises(StoreError, match="corrupted"):
+        open_link_operator(RunStore(out), None)[0].apply(np.ones((2, 3, fig["leaves"])))
+    fig2 = compute_links(out, client, progress=False, resume=True)
+    assert fig2["tasks_corrupted_recomputed"] == 1 and fig2["tasks_computed"] == 1
+    assert fig2["links"] == fig["links"]
+
+
+@pytest.fixture
+def restore_config():
+    """The CLI's flags set the process's dask.config: put it back afterwards."""
+    import copy
+
+    import dask_jobqueue  # noqa: F401  registers its defaults on import: snapshot after it
+    import distributed  # noqa: F401
+
+    saved = copy.deepcopy(dask.config.config)
+    yield
+    dask.config.config.clear()
+    dask.config.config.update(saved)
+
+
+def test_render_with_the_hierarchical_method_from_the_cli(client, tmp_path, restore_config):
+    from click.testing import CliRunner
+
+    from app.cli import main
+
+    addr = client.scheduler.address
+    out = str(tmp_path / "run")
+    res = CliRunner().invoke(main, ["render", scene_path("three-rectangles"), "--out", out,
+                                    "--resolution", "16", "--method", "hierarchical",
+                                    "--epsilon", "1e-3", "--link-rays", "9", "--no-preview",
+                                    "--scheduler", addr])
+    assert res.exit_code == 0, res.output
+    assert "links" in res.output and os.path.exists(os.path.join(out, "image.png"))
+    import json
+
+    rep = json.load(open(os.path.join(out, "report.json")))
+    assert rep["links"]["link_rays"] == 9 and rep["solve"]["method"] == "hierarchical"
+    bad = CliRunner().invoke(main, ["visibility", out, "--method", "hierarchical",
+                                    "--link-rays", "5", "--scheduler", addr])
+    assert bad.exit_code == 2 and "square" in bad.output
+    shutil.rmtree(out)

@@ -58,6 +58,16 @@ WEIGHTS = ("none", "bf")
 ORACLES = ("ff", "gradient", "spread")
 
 
+FAR_KERNELS = ("centroid", "polygon", "gauss")
+
+
+def _far_kernel(name: str) -> int:
+    if name not in FAR_KERNELS:
+        raise RadiosityError(f"radiosity.hierarchy.far-kernel must be one of "
+                             f"{', '.join(FAR_KERNELS)}, got {name!r}")
+    return FAR_KERNELS.index(name)
+
+
 def _oracle_id(name: str) -> int:
     if name not in ORACLES:
         raise RadiosityError(f"radiosity.hierarchy.oracle must be one of {', '.join(ORACLES)}, "
@@ -89,6 +99,7 @@ class LinkParams:
     occlusion: bool = True
     oracle: int = 2
     gauss_gap: float = 2.0
+    far_polygon: int = 1
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -230,17 +241,22 @@ def _pick(prefer, can_p, can_q, other):
 
 @numba.njit(cache=True)
 def _spread(V, nv, nx, ny, nz, c, mx, my, mz, As, fc):
-    """Largest change of the disc estimate F(x -> source) between the receiver's centroid (fc)
-    and its vertices x (V[:nv], receiver normal n): the source is the point c with normal m
-    and area As. Catches what the centroids miss: grazing angles near a shared edge."""
-    out = 0.0
+    """The disc estimate F(x -> c) between the point c (normal m, area As) and the vertices x
+    of polygon V[:nv] (normal n), against its value fc at V's centroid: (largest change, change
+    of the mean). The first is how much a receiver's irradiance varies over it (first order,
+    and what the centroids miss at grazing angles near a shared edge); the second the error of
+    the centroid rule over a source (second order: the linear part averages out)."""
+    big = 0.0
+    mean = 0.0
     for i in range(nv):
         dx, dy, dz = c[0] - V[i, 0], c[1] - V[i, 1], c[2] - V[i, 2]
         r2 = dx * dx + dy * dy + dz * dz + 1e-300
         a = max(nx * dx + ny * dy + nz * dz, 0.0)
         b = max(-(mx * dx + my * dy + mz * dz), 0.0)
-        out = max(out, abs(As * a * b / (r2 * (np.pi * r2 + As)) - fc))
-    return out
+        f = As * a * b / (r2 * (np.pi * r2 + As))
+        big = max(big, abs(f - fc))
+        mean += f
+    return big, abs(mean / nv - fc)
 
 
 G2 = 0.5 / np.sqrt(3.0)  # 2 x 2 Gauss-Legendre on [0, 1]: 0.5 -+ G2
@@ -267,7 +283,7 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
             llo, lhi = min(llo, L[i, k]), max(lhi, L[i, k])
         d = max(llo - shi, slo - lhi, 0.0)
         gap2 += d * d
-    if gap2 <= gap_factor * gap_factor * As:
+    if gap_factor >= 0.0 and gap2 <= gap_factor * gap_factor * As:
         f = _polygon_ff(P, nP, Q, nQ, True)
         return f, f * Ap / Aq
     n = np.empty(3)
@@ -310,6 +326,26 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
     if small_is_p:
         return fs, fs * Ap / Aq
     return fs * Aq / Ap, fs
+
+
+@numba.njit(cache=True)
+def centroid_to_polygon(P, nP, cp, Ap, gp, Q, nQ, cq, Aq, gq, npx, npy, npz, nqx, nqy, nqz):
+    """F_pq, F_qp of a far link: the exact form factor from a differential element at the
+    smaller node's centroid to the larger polygon (Lambert's formula, exact.py), the other by
+    reciprocity. Exact over the larger node: only the smaller one's extent is approximated
+    (to second order), where the point kernel errs over both."""
+    n = np.empty(3)
+    if Ap <= Aq:
+        n[0], n[1], n[2] = gp * npx, gp * npy, gp * npz
+        if gq * (nqx * (cp[0] - Q[0, 0]) + nqy * (cp[1] - Q[0, 1]) + nqz * (cp[2] - Q[0, 2])) <= 0:
+            return 0.0, 0.0
+        f = _point_ff(cp, n, Q, nQ)
+        return f, f * Ap / Aq
+    n[0], n[1], n[2] = gq * nqx, gq * nqy, gq * nqz
+    if gp * (npx * (cq[0] - P[0, 0]) + npy * (cq[1] - P[0, 1]) + npz * (cq[2] - P[0, 2])) <= 0:
+        return 0.0, 0.0
+    f = _point_ff(cq, n, P, nP)
+    return f * Aq / Ap, f
 
 
 @numba.njit(cache=True)
@@ -371,7 +407,8 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
            Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, cnt, pmap,
            t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig, t_depth, t_path,
            normal, two_sided, ext, wrho, lhat, lref, elo, ehi, everts, envert, enormal, eoffset,
-           pad, eps, shadow, near_f, min_size, kid, exact, plane_tol, oracle, gauss_gap, counts):
+           pad, eps, shadow, near_f, min_size, kid, exact, plane_tol, oracle, gauss_gap, far_polygon,
+           counts):
     """One round of refinement from the entries (e_p, e_q local node ids; candidate occluders
     pool[e_c0:e_c1]; e_frac: the visible fraction measured by rays, or -1 not yet measured).
 
@@ -473,13 +510,24 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
         elif oracle == 1:  # the transfer's variation over the nodes that can still split
             err = amount * ((np.sqrt(Ap) if can_p else 0.0)
                             + (np.sqrt(Aq) if can_q else 0.0)) / np.sqrt(r2)
-        else:  # the kernel's spread over the vertices of each node that can still split
+        else:  # the estimate's spread over the vertices of each node that can still split
             gp = 1.0 if sp == 0 else -1.0
             gq = 1.0 if sq == 0 else -1.0
-            ep = wpq * _spread(Lv[p], Ln[p], gp * npx, gp * npy, gp * npz, Lc[q], gq * nqx,
-                               gq * nqy, gq * nqz, Aq, fpq) if can_p else 0.0
-            eq = wqp * _spread(Lv[q], Ln[q], gq * nqx, gq * nqy, gq * nqz, Lc[p], gp * npx,
-                               gp * npy, gp * npz, Ap, fqp) if can_q else 0.0
+            # receiving: how much F(x -> other node) varies over the node's vertices (first
+            # order; what the centroids miss at grazing angles); as a source approximated at its
+            # centroid: the centroid rule's error (second order)
+            if can_p:
+                big, curv = _spread(Lv[p], Ln[p], gp * npx, gp * npy, gp * npz, Lc[q], gq * nqx,
+                                    gq * nqy, gq * nqz, Aq, fpq)
+                ep = wpq * big
+                if Ap <= Aq or not far_polygon:
+                    ep += max(wpq, wqp) * curv
+            if can_q:
+                big, curv = _spread(Lv[q], Ln[q], gq * nqx, gq * nqy, gq * nqz, Lc[p], gp * npx,
+                                    gp * npy, gp * npz, Ap, fqp)
+                eq = wqp * big
+                if Aq < Ap or not far_polygon:
+                    eq += max(wpq, wqp) * curv
             err = max(ep, eq)
         near = np.sqrt(r2) < near_f * max(np.sqrt(Ap), np.sqrt(Aq))
         split = -1  # 0: split p, 1: split q
@@ -595,6 +643,17 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
                                            npz, nqx, nqy, nqz,
                                            np.inf if p_straddles or q_straddles else gauss_gap)
             kx[nk] = True
+        elif far_polygon == 2:
+            gp = 1.0 if sp == 0 else -1.0
+            gq = 1.0 if sq == 0 else -1.0
+            kf[nk, 0], kf[nk, 1] = near_ff(Lv[p], Ln[p], Ap, gp, Lv[q], Ln[q], Aq, gq, npx, npy,
+                                           npz, nqx, nqy, nqz, -1.0)
+        elif far_polygon:
+            gp = 1.0 if sp == 0 else -1.0
+            gq = 1.0 if sq == 0 else -1.0
+            kf[nk, 0], kf[nk, 1] = centroid_to_polygon(Lv[p], Ln[p], Lc[p], Ap, gp, Lv[q], Ln[q],
+                                                       Lc[q], Aq, gq, npx, npy, npz, nqx, nqy,
+                                                       nqz)
         elif kid == 0:
             w = g / (np.pi * r2 * r2)
             kf[nk, 0], kf[nk, 1] = w * Aq, w * Ap
@@ -807,7 +866,7 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
                      inp.normal, inp.two_sided, inp.ext, inp.wrho, inp.lhat, inp.lref, inp.elo,
                      inp.ehi, inp.verts, inp.envert, inp.enormal, inp.eoffset,
                      inp.pad, prm.epsilon, prm.shadow, prm.near, prm.min_size, prm.kid,
-                     prm.exact, prm.plane_tol, prm.oracle, prm.gauss_gap, counts)
+                     prm.exact, prm.plane_tol, prm.oracle, prm.gauss_gap, prm.far_polygon, counts)
         tab.update(out[:12], out[12])
         kept.append(out[13:19])
         wp, wq, wc, wpool = out[19:]
@@ -916,7 +975,8 @@ def resolve_params(elements, kernel: str | None = None, epsilon: float | None = 
                      exact=bool(KERNELS[kernel][3]), plane_tol=COS_TOL * diag,
                      occlusion=bool(occlusion),
                      oracle=_oracle_id(config.get("hierarchy.oracle")),
-                     gauss_gap=float(config.get("hierarchy.near-gauss-gap")))
+                     gauss_gap=float(config.get("hierarchy.near-gauss-gap")),
+                     far_polygon=_far_kernel(config.get("hierarchy.far-kernel")))
     return prm, weight
 
 

@@ -28,6 +28,7 @@ import numba
 import numpy as np
 
 from . import config
+from .exact import _point_ff
 from .errors import RadiosityError, StoreError
 
 LINK_CACHE_KEY = "links"
@@ -156,6 +157,82 @@ def gs_sweep(L, Le, rho, S, tp, ts, sn, ss, w, ptr, noff, parent, node_area, lea
 
 
 @numba.njit(cache=True)
+def final_gather(Lbar, tp, ts, sn, ss, w, v, ptr, origs, node_leaf, lo, hi, leaf_center, normal,
+                 node_orig, verts, nverts, child, levels, ncap, mode, d, y):
+    """y (2, C, M) += the irradiance of the leaves of originals `origs`, gathered over the
+    directed link ends into them (ptr by target original), each re-evaluated at the leaves it
+    reaches: the source is taken `levels` levels down its tree (its descendants c there), and
+    leaf l gets v F_l sum_c F(l -> c) Lbar_c / sum_c F(l -> c), with F(l -> c) the exact form
+    factor from a differential element at l's centroid to polygon c (exact.py) and F_l the
+    link's own form factor for a link into the leaf itself, sum_c F(l -> c) for one into a
+    larger node. This undoes the uniform push over coarse receivers and, over coarse sources,
+    weighs their parts by how much each leaf sees of them. Returns the evaluations made."""
+    from_d = d.shape[0] > 0
+    C = Lbar.shape[1]
+    n = np.empty(3)
+    evals = 0
+    src = np.empty(1 << max(levels, 0), np.int64)
+    nxt = np.empty(1 << max(levels, 0), np.int64)
+    acc = np.empty(C)
+    for e in origs:
+        for k in range(ptr[e], ptr[e + 1]):
+            t, s = tp[k], sn[k]
+            f0 = min(ncap[t], ncap[s]) if mode == 1 else 1.0
+            leaf_t = node_leaf[t] >= 0
+            # the source's descendants `levels` down (or its leaves, if sooner)
+            ns = 1
+            src[0] = s
+            for _ in range(levels):
+                m = 0
+                for i in range(ns):
+                    c0 = child[src[i], 0]
+                    if c0 < 0:
+                        nxt[m] = src[i]
+                        m += 1
+                    else:
+                        nxt[m] = c0
+                        nxt[m + 1] = child[src[i], 1]
+                        m += 2
+                for i in range(m):
+                    src[i] = nxt[i]
+                ns = m
+            if leaf_t and ns == 1:  # nothing to re-evaluate: the link as in the solve
+                l = node_leaf[t]
+                g = f0 * w[k] * (d[l] if from_d else 1.0)
+                for c in range(C):
+                    y[ts[k], c, l] += g * Lbar[ss[k], c, s]
+                continue
+            gt = 1.0 if ts[k] == 0 else -1.0
+            gs = 1.0 if ss[k] == 0 else -1.0
+            ot, os_ = node_orig[t], node_orig[s]
+            n[0], n[1], n[2] = gt * normal[ot, 0], gt * normal[ot, 1], gt * normal[ot, 2]
+            mx, my, mz = gs * normal[os_, 0], gs * normal[os_, 1], gs * normal[os_, 2]
+            S = verts[s]
+            m0 = mx * S[0, 0] + my * S[0, 1] + mz * S[0, 2]
+            l0, l1 = (node_leaf[t], node_leaf[t] + 1) if leaf_t else (lo[t], hi[t])
+            for l in range(l0, l1):
+                x = leaf_center[l]
+                if mx * x[0] + my * x[1] + mz * x[2] <= m0:
+                    continue
+                tot = 0.0
+                for c in range(C):
+                    acc[c] = 0.0
+                for i in range(ns):
+                    f = _point_ff(x, n, verts[src[i]], nverts[src[i]])
+                    evals += 1
+                    tot += f
+                    for c in range(C):
+                        acc[c] += f * Lbar[ss[k], c, src[i]]
+                if tot <= 0.0:
+                    continue
+                F = (w[k] / v[k] if v[k] > 0 else 0.0) if leaf_t else tot
+                g = f0 * v[k] * F / tot * (d[l] if from_d else 1.0)
+                for c in range(C):
+                    y[ts[k], c, l] += g * acc[c]
+    return evals
+
+
+@numba.njit(cache=True)
 def node_min(leaf_value, lo, hi):
     """Minimum of leaf_value over each node's leaves lo:hi, (N,)."""
     out = np.empty(lo.shape[0])
@@ -180,7 +257,8 @@ class LinkSolveInputs:
     sided (M,) two-sided leaves (kept for the operator protocol: link sides are fixed by the
     refinement)."""
 
-    def __init__(self, table: dict, entries: np.ndarray, store_path: str, token: str):
+    def __init__(self, table: dict, entries: np.ndarray, store_path: str, token: str,
+                 normal: np.ndarray, memory: list | None = None):
         self.orig = table["orig"].astype(np.int64)
         self.parent = table["parent"].astype(np.int64)
         self.lo = table["lo"].astype(np.int64)
@@ -193,9 +271,19 @@ class LinkSolveInputs:
         self.leaf_orig = self.orig[self.leaf_node]
         # node areas as sums of their leaves' (what pull divides by), summed bottom-up
         self.node_area = _node_sums(self.leaf_area, self.leaf_node, self.parent)
+        self.normal = np.asarray(normal, np.float64)  # (n, 3) of the originals
+        self.verts = table["verts"]
+        self.nverts = table["nverts"].astype(np.int64)
+        from .geometry import polygon_properties
+
+        self.leaf_center = polygon_properties(self.verts[self.leaf_node],
+                                              table["nverts"][self.leaf_node])[2]
+        self.child = _children(self.parent)
+        self.fg_levels = 0  # final gather: levels below a link's source (set by the stage)
         self.node_leaf = np.full(len(self.orig), -1, np.int64)
         self.node_leaf[self.leaf_node] = np.arange(len(self.leaf_node))
         self.entries = entries
+        self.memory = memory  # link arrays per task held in memory (in-process use), or None
         self.store_path = store_path
         self.token = token
         self.cap = np.ones(len(self.leaf_node))
@@ -211,6 +299,23 @@ class LinkSolveInputs:
         if np.all(cap == 1.0):
             return 0, np.ones(1), np.zeros(0)
         return 1, node_min(cap, self.lo, self.hi), np.zeros(0)
+
+
+def _children(parent: np.ndarray) -> np.ndarray:
+    """(N, 2) int64 children of each node from the parents (children follow in table order)."""
+    child = np.full((len(parent), 2), -1, np.int64)
+    idx = np.nonzero(parent >= 0)[0]
+    par = parent[idx]
+    first = np.ones(len(idx), bool)
+    first[1:] = par[1:] != par[:-1]
+    # in pre-order the second child of p comes after the first's subtree: sort by parent
+    order = np.argsort(par, kind="stable")
+    idx, par = idx[order], par[order]
+    first = np.ones(len(idx), bool)
+    first[1:] = par[1:] != par[:-1]
+    child[par[first], 0] = idx[first]
+    child[par[~first], 1] = idx[~first]
+    return child
 
 
 def _node_sums(leaf_value, leaf_node, parent):
@@ -230,7 +335,8 @@ def _sum_up(s, parent):
 
 def task_link_arrays(inp: LinkSolveInputs, task: int):
     """The links of one link task as node indices and weights, verified, from this worker's
-    cache or the store: p, q (k,) int64; wpq = F_pq v, wqp = F_qp v (k,); sp, sq (k,) int64."""
+    cache or the store: p, q (k,) int64; wpq = F_pq v, wqp = F_qp v (k,); sp, sq (k,) int64;
+    v (k,) the visible fractions."""
     from .solve import _cached
 
     def load():
@@ -238,8 +344,11 @@ def task_link_arrays(inp: LinkSolveInputs, task: int):
         from .store import read_links
 
         e = inp.entries[task]
-        links, _ = read_links(inp.store_path, task, {"crc": int(e[0]), "n": int(e[1]),
-                                                     "nx": int(e[2])})
+        if inp.memory is not None:
+            links = inp.memory[task]
+        else:
+            links, _ = read_links(inp.store_path, task, {"crc": int(e[0]), "n": int(e[1]),
+                                                         "nx": int(e[2])})
         p = find_codes(inp.orig, inp.path, inp.depth, inp.noff, links["po"].astype(np.int64),
                        links["pc"])
         q = find_codes(inp.orig, inp.path, inp.depth, inp.noff, links["qo"].astype(np.int64),
@@ -249,7 +358,7 @@ def task_link_arrays(inp: LinkSolveInputs, task: int):
                              "the node table: run the link stage again")
         v = links["v"].astype(np.float64)
         return (p, q, links["fpq"] * v, links["fqp"] * v, links["sp"].astype(np.int64),
-                links["sq"].astype(np.int64))
+                links["sq"].astype(np.int64), v)
 
     return _cached((inp.store_path, inp.token, LINK_CACHE_KEY, task), load,
                    lambda a: sum(x.nbytes for x in a))
@@ -263,7 +372,7 @@ def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = T
     G = np.zeros_like(Lbar)
     terms = 0
     for t in task_ids:
-        p, q, wpq, wqp, sp, sq = task_link_arrays(inp, int(t))
+        p, q, wpq, wqp, sp, sq, _ = task_link_arrays(inp, int(t))
         terms += gather(Lbar, p, q, wpq, wqp, sp, sq, G, ncap, mode)
     y = np.zeros_like(L)
     push(G, inp.parent, inp.leaf_node, d, y)
@@ -279,27 +388,43 @@ def _directed(inp: LinkSolveInputs):
 
     def load():
         got = [task_link_arrays(inp, t) for t in range(len(inp.entries))]
-        p, q, wpq, wqp, sp, sq = (np.concatenate([g[k] for g in got]) if got else
-                                  np.zeros(0, np.int64 if k in (0, 1, 4, 5) else np.float64)
-                                  for k in range(6))
+        p, q, wpq, wqp, sp, sq, v = (np.concatenate([g[k] for g in got]) if got else
+                                     np.zeros(0, np.int64 if k in (0, 1, 4, 5) else np.float64)
+                                     for k in range(7))
         tp = np.concatenate([p, q])
         sn = np.concatenate([q, p])
         ts = np.concatenate([sp, sq])
         ss = np.concatenate([sq, sp])
         w = np.concatenate([wpq, wqp])
+        vv = np.concatenate([v, v])
         to = inp.orig[tp]
         order = np.argsort(to, kind="stable")
         n = len(inp.noff) - 1
         ptr = np.concatenate([[0], np.cumsum(np.bincount(to, minlength=n))]).astype(np.int64)
-        return tp[order], ts[order], sn[order], ss[order], w[order], ptr, p, q
+        return tp[order], ts[order], sn[order], ss[order], w[order], ptr, vv[order]
 
     return _cached((inp.store_path, inp.token, LINK_CACHE_KEY, "directed"), load,
                    lambda a: sum(x.nbytes for x in a))
 
 
+def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
+    """The final gather (final_gather) into the leaves of originals `origs`, from the solved
+    L (2, C, M): (y (2, C, M) nonzero on those leaves only, leaf evaluations)."""
+    tp, ts, sn, ss, w, ptr, v = _directed(inp)
+    mode, ncap, d = inp.cap_args()
+    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d)
+    y = np.zeros_like(L)
+    evals = final_gather(Lbar, tp, ts, sn, ss, w, v, ptr, np.asarray(origs, np.int64),
+                         inp.node_leaf, inp.lo, inp.hi, inp.leaf_center, inp.normal, inp.orig,
+                         inp.verts, inp.nverts, inp.child, inp.fg_levels, ncap, mode, d, y)
+    if len(inp.need):
+        y[:, :, ~inp.need[inp.leaf_orig]] = 0.0
+    return y, evals
+
+
 def task_gs_sweep(inp: LinkSolveInputs, L, Le, rho):
     """One block Gauss-Seidel sweep (all links on this worker). Returns (L, link terms)."""
-    tp, ts, sn, ss, w, ptr, p, q = _directed(inp)
+    tp, ts, sn, ss, w, ptr, _ = _directed(inp)
     mode, ncap, d = inp.cap_args()
     if mode == 1:
         w = w * np.minimum(ncap[tp], ncap[sn])
@@ -333,6 +458,19 @@ class _Base:
             load[g] += n[t] + 1
         self.groups = [np.array(sorted(m), np.int64) for m in members if m]
 
+    def orig_groups(self, k: int) -> list:
+        """The originals cut into k groups of about equal leaf counts (final gather)."""
+        n = len(self.inp.noff) - 1
+        leaves = np.bincount(self.inp.leaf_orig, minlength=n)
+        order = np.argsort(-leaves, kind="stable")
+        load = np.zeros(max(1, k))
+        members = [[] for _ in range(len(load))]
+        for o in order:
+            g = int(np.argmin(load))
+            members[g].append(int(o))
+            load[g] += leaves[o] + 1
+        return [np.array(sorted(m), np.int64) for m in members if m]
+
     def row_sums(self) -> np.ndarray:
         """sum over the links of F v for every leaf and side, pushed down, (2, M) (one pass)."""
         M = len(self.inp.leaf_area)
@@ -357,6 +495,12 @@ class LocalLinkOperator(_Base):
     def configure(self, **arrays) -> None:
         for k, v in arrays.items():
             setattr(self.inp, k, v)
+
+    def final_gather(self, L):
+        """The final gather of the solved L (task_final_gather), (2, C, M)."""
+        y, evals = task_final_gather(self.inp, np.arange(len(self.inp.noff) - 1), L)
+        self.evals = evals
+        return y
 
     def gs_sweep(self, L, Le, rho):
         new, t = task_gs_sweep(self.inp, L, Le, rho)
@@ -398,6 +542,21 @@ class LinkOperator(_Base):
             setattr(self.inp, k, v)
         [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
 
+    def final_gather(self, L):
+        """The final gather of the solved L, one task per group of originals."""
+        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
+        groups = self.orig_groups(len(self.groups))
+        futs = [self.client.submit(task_final_gather, self.inp_f, g, Lf, pure=False,
+                                   workers=[w] if w else None, allow_other_workers=True,
+                                   retries=self.retries)
+                for g, w in zip(groups, self.workers or [None] * len(groups))]
+        y = np.zeros_like(L)
+        self.evals = 0
+        for yp, e in self.client.gather(futs):
+            y += yp
+            self.evals += e
+        return y
+
     def gs_sweep(self, L, Le, rho):
         w = self.workers[0] if self.workers else None
         if self._gs_fixed is None or self._gs_fixed[0] is not Le:
@@ -415,7 +574,7 @@ class LinkOperator(_Base):
 
 # ----------------------------------------------------------------------------- the stage
 
-def solve_inputs(rs) -> tuple:
+def solve_inputs(rs, elements) -> tuple:
     """(LinkSolveInputs, node table dict, kernel) of a run whose link stage finished."""
     from .store import LinkStore
 
@@ -433,7 +592,18 @@ def solve_inputs(rs) -> tuple:
     table = ls.read_nodes()
     entries = np.array([[done[t]["crc"], done[t]["n"], done[t]["nx"]] for t in range(ntasks)],
                        np.int64).reshape(-1, 3)
-    return LinkSolveInputs(table, entries, rs.path, token), table, ls.attrs().get("kernel")
+    return (LinkSolveInputs(table, entries, rs.path, token, elements.normal), table,
+            ls.attrs().get("kernel"))
+
+
+def memory_inputs(table: dict, tasks: list, normal: np.ndarray) -> LinkSolveInputs:
+    """LinkSolveInputs over link arrays held in memory (one (k,) LINK_DTYPE array per task),
+    for in-process use without a store."""
+    entries = np.array([[0, len(t), 0] for t in tasks], np.int64).reshape(-1, 3)
+    import uuid
+
+    return LinkSolveInputs(table, entries, "memory", f"memory-{uuid.uuid4().hex}", normal,
+                           memory=list(tasks))
 
 
 def leaf_vectors(table: dict, elements):
@@ -460,21 +630,25 @@ def to_sub_elements(L: np.ndarray, table: dict, m: int) -> np.ndarray:
 def open_link_operator(rs, client=None):
     """The operator of a run's links: a LinkOperator over `client`, or in-process (None).
     Returns (op, table, elements, partition)."""
-    inp, table, kernel = solve_inputs(rs)
+    el = rs.load_elements()
+    inp, table, kernel = solve_inputs(rs, el)
     if client is None:
         op = LocalLinkOperator(inp, kernel)
     else:
         [inp_f] = client.scatter([inp], broadcast=True, hash=False)
         op = LinkOperator(client, inp_f, inp, kernel)
-    return op, table, rs.load_elements(), rs.load_partition()
+    return op, table, el, rs.load_partition()
 
 
 def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float | None = None,
                     max_iter: int | None = None, progress: bool = True, callback=None,
                     normalise=None, effects=None) -> dict:
-    """Solve a hierarchical run (after the link stage) on its leaves; write solution/radiance
-    (m, 2, 3) per sub-element (to_sub_elements) and solution/leaf_radiance (M, 2, 3), and the
-    report's "solve" section. client None: in-process."""
+    """Solve a hierarchical run (after the link stage) on its leaves; then, with
+    radiosity.hierarchy.final-gather, one final gather that re-evaluates every link into a node
+    above the leaves at each of its leaves (the uniform push leaves a saw-tooth over coarse
+    receivers). Writes solution/radiance (m, 2, 3) per sub-element (to_sub_elements of the
+    final gather), solution/leaf_radiance (M, 2, 3) (the solver's fixed point L = Le + rho K L)
+    and the report's "solve" section. client None: in-process."""
     from tqdm.auto import tqdm
 
     from .solve import anorm, get_solver, normalise_rows
@@ -521,8 +695,15 @@ def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float 
     y = op.apply(res.radiance)
     final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
     M = len(area)
+    t_fg = time.perf_counter()
+    gather_final = bool(config.get("hierarchy.final-gather"))
+    if gather_final:
+        op.configure(fg_levels=int(config.get("hierarchy.final-gather-levels")))
+    Lf = Le + rho * op.final_gather(res.radiance) if gather_final else res.radiance
+    t_fg = time.perf_counter() - t_fg
     L3 = np.broadcast_to(res.radiance, (2, 3, M)) if channels == 1 else res.radiance
-    radiance = to_sub_elements(L3, table, len(part))
+    F3 = np.broadcast_to(Lf, (2, 3, M)) if channels == 1 else Lf
+    radiance = to_sub_elements(F3, table, len(part))
     figures = {
         "method": "hierarchical", "solver": solver, "kernel": op.kernel, "tol": tol,
         "iterations": res.iterations, "converged": bool(res.converged),
@@ -533,6 +714,8 @@ def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float 
         "near_field": None, "partial_visibility": None,
         "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(el),
         "channel_terms": int(op.terms) * channels,
+        "final_gather": gather_final, "final_gather_evaluations": int(getattr(op, "evals", 0)),
+        "time_final_gather_s": round(t_fg, 4),
     }
     if res.ambient is not None:
         figures["ambient"] = res.ambient.tolist()

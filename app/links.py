@@ -100,6 +100,7 @@ class LinkParams:
     oracle: int = 2
     gauss_gap: float = 2.0
     far_polygon: int = 1
+    weighted_rays: bool = True
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -779,8 +780,34 @@ def link_points(Lv, Ln, Lc, Lo, p, q, s, tri_uv, perm):
     return pts, orig
 
 
+@numba.njit(cache=True)
+def _weighted(occ, pts, e, normal, n, k):
+    """Kernel-weighted visible fraction of each link: sum_j K_j V_j / sum_j K_j over its k
+    rays, K_j = |cos_a cos_b| / r^4 of the sample pair (unnormalised cosines), (n,)."""
+    out = np.empty(n)
+    for i in range(n):
+        num = 0.0
+        den = 0.0
+        for j in range(k):
+            a = i * k + j
+            b = n * k + a
+            dx = pts[b, 0] - pts[a, 0]
+            dy = pts[b, 1] - pts[a, 1]
+            dz = pts[b, 2] - pts[a, 2]
+            r2 = dx * dx + dy * dy + dz * dz + 1e-300
+            ca = normal[e[a], 0] * dx + normal[e[a], 1] * dy + normal[e[a], 2] * dz
+            cb = normal[e[b], 0] * dx + normal[e[b], 1] * dy + normal[e[b], 2] * dz
+            w = abs(ca * cb) / (r2 * r2)
+            den += w
+            if not occ[a]:
+                num += w
+        out[i] = num / den if den > 0 else 0.0
+    return out
+
+
 def link_fractions(caster, k: int, verts: np.ndarray, nverts: np.ndarray, center: np.ndarray,
-                   orig: np.ndarray, p: np.ndarray, q: np.ndarray, keep: list | None = None):
+                   orig: np.ndarray, p: np.ndarray, q: np.ndarray, keep: list | None = None,
+                   normal: np.ndarray | None = None):
     """Visible fraction of links (p, q) (node ids into verts (N, 4, 3), nverts, center (N, 3),
     orig (N,)), with k rays each: k = 1 one ray between centroids; k = s^2 between the s x s
     stratified points of each node (link_points) paired by ray_pairing. Returns (w,) float64."""
@@ -797,8 +824,11 @@ def link_fractions(caster, k: int, verts: np.ndarray, nverts: np.ndarray, center
         idx = np.arange(n)
         if keep is not None:
             keep.append((pts, e))
-        occ = caster.occluded_pairs(pts, idx, idx + n, e).reshape(len(pp), k)
-        out[a:a + len(pp)] = 1.0 - occ.mean(axis=1)
+        occ = caster.occluded_pairs(pts, idx, idx + n, e)
+        if normal is None or k == 1:
+            out[a:a + len(pp)] = 1.0 - occ.reshape(len(pp), k).mean(axis=1)
+        else:
+            out[a:a + len(pp)] = _weighted(occ, pts, e, normal, len(pp), k)
     return out
 
 
@@ -872,7 +902,8 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
         wp, wq, wc, wpool = out[19:]
         if not len(wp):
             break
-        f = link_fractions(caster, prm.rays, tab.Lv, tab.Ln, tab.Lc, tab.Lo, wp, wq, keep_rays)
+        f = link_fractions(caster, prm.rays, tab.Lv, tab.Ln, tab.Lc, tab.Lo, wp, wq, keep_rays,
+                           inp.normal if prm.weighted_rays else None)
         counts[C_RAYLINKS] += len(wp)
         counts[C_RAYS] += len(wp) * prm.rays
         ent = [wp, wq, wc[:, 0].copy(), (wc[:, 0] + wc[:, 1]).copy()]
@@ -976,7 +1007,8 @@ def resolve_params(elements, kernel: str | None = None, epsilon: float | None = 
                      occlusion=bool(occlusion),
                      oracle=_oracle_id(config.get("hierarchy.oracle")),
                      gauss_gap=float(config.get("hierarchy.near-gauss-gap")),
-                     far_polygon=_far_kernel(config.get("hierarchy.far-kernel")))
+                     far_polygon=_far_kernel(config.get("hierarchy.far-kernel")),
+                     weighted_rays=bool(config.get("hierarchy.kernel-weighted-rays")))
     return prm, weight
 
 

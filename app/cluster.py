@@ -179,8 +179,8 @@ def jobqueue_kwargs(kind: str, threads_per_worker: int | None = None, security=N
     # the engine's dashboard page on the batch cluster's scheduler too (merged with the config's
     # scheduler options, which an explicit scheduler_options would otherwise replace)
     so = dict(kw.get("scheduler_options") or dask.config.get(f"{section}.scheduler-options", default={}) or {})
-    if "app.dashboard" not in so.get("preload", []):
-        so["preload"] = [*so.get("preload", []), "app.dashboard"]
+    if "radiosity.dashboard" not in so.get("preload", []):
+        so["preload"] = [*so.get("preload", []), "radiosity.dashboard"]
     kw["scheduler_options"] = so
     return kw
 
@@ -220,7 +220,7 @@ def local_cluster(n: int, threads_per_worker: int | None = None, security=None, 
                         processes=processes,
                         dashboard_address=config.get("cluster.dashboard-address"),
                         silence_logs=40, scheduler_kwargs={"preload": [  # the page of dashboard.py
-                            *dask.config.get("distributed.scheduler.preload"), "app.dashboard"]},
+                            *dask.config.get("distributed.scheduler.preload"), "radiosity.dashboard"]},
                         **kw)
 
 
@@ -353,7 +353,7 @@ def _no_workers_message(cluster, kind: str, have: int, n: int, timeout: float, e
              "Check: (1) are the jobs still pending (queue, partition, account, walltime, cores or memory "
              f"larger than a node)? see `{STATUS_COMMANDS[kind][0]}`;",
              f"(2) the worker job logs in {logdir} (e.g. python {python} missing on the compute nodes, "
-             "`app` not importable, out of memory);",
+             "`radiosity` not importable, out of memory);",
              f"(3) can the compute nodes reach the scheduler at {addr}? set `interface:` (e.g. ib0) in "
              "jobqueue.yaml, check firewalls;"]
     if getattr(getattr(cluster, "security", None), "tls_ca_file", None):

@@ -18,14 +18,14 @@ import dask.config
 
 from common import ROOT, table, write
 
-from app.cluster import open_client
-from app.kernels import KERNELS, sampling_of
-from app.pipeline import preprocess
-from app.scene import load_scene
-from app.solve import run_solve
-from app.store import RunStore
-from app.study import form_factor_of_run, kernel_setting
-from app.visibility import compute_visibility
+from radiosity.cluster import open_client
+from radiosity.kernels import KERNELS, sampling_of
+from radiosity.pipeline import preprocess
+from radiosity.scene import load_scene
+from radiosity.solve import run_solve
+from radiosity.store import RunStore
+from radiosity.study import form_factor_of_run, kernel_setting
+from radiosity.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 VALIDATION = ("parallel-squares", "perpendicular-squares")

@@ -18,12 +18,12 @@ import numpy as np
 
 from common import ROOT, best_of, table, write
 
-from app.cluster import open_client
-from app.pipeline import preprocess, render_scene
-from app.scene import load_scene
-from app.solve import all_task_bytes, open_operator, run_solve, side_vectors, task_apply
-from app.store import RunStore
-from app.visibility import compute_visibility
+from radiosity.cluster import open_client
+from radiosity.pipeline import preprocess, render_scene
+from radiosity.scene import load_scene
+from radiosity.solve import all_task_bytes, open_operator, run_solve, side_vectors, task_apply
+from radiosity.store import RunStore
+from radiosity.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 

@@ -17,11 +17,11 @@ import numpy as np
 
 from common import best_of, table, write
 
-from app.cluster import open_client
-from app.pipeline import preprocess
-from app.scene import load_scene
-from app.store import RunStore
-from app.visibility import VisInputs, block_candidates, classify, compute_visibility
+from radiosity.cluster import open_client
+from radiosity.pipeline import preprocess
+from radiosity.scene import load_scene
+from radiosity.store import RunStore
+from radiosity.visibility import VisInputs, block_candidates, classify, compute_visibility
 
 
 def run(scene, res, workers, unit=None):
@@ -38,7 +38,7 @@ def run(scene, res, workers, unit=None):
 
 def ray_throughput(scene, res):
     """Segments of the largest block that needed rays: our occluded() against raw embreex."""
-    from app.rays import RayCaster, element_triangles
+    from radiosity.rays import RayCaster, element_triangles
     from embreex import mesh_construction, rtcore_scene
 
     sc = load_scene(scene, resolution=res)

@@ -37,9 +37,9 @@ def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibili
              **kw) -> str:
     """A run directory of `scene` (a TOML path) preprocessed at `res` (kw: preprocess options),
     with its one-ray visibility matrix unless `visibility` is False."""
-    from app.pipeline import preprocess
-    from app.scene import load_scene
-    from app.visibility import compute_visibility
+    from radiosity.pipeline import preprocess
+    from radiosity.scene import load_scene
+    from radiosity.visibility import compute_visibility
 
     out = str(tmp_path / name)
     preprocess(load_scene(scene, resolution=res), out, client, progress=False, **kw)
@@ -50,7 +50,7 @@ def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibili
 
 def radiance(out: str) -> np.ndarray:
     """The solved radiance (m, 2, 3) of a run directory."""
-    from app.store import RunStore
+    from radiosity.store import RunStore
 
     return RunStore(out).read_arrays("solution")["radiance"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.rays import RayCaster
+from radiosity.rays import RayCaster
 
 COS_TOL = 1e-9
 

@@ -10,15 +10,15 @@ import os
 import numpy as np
 import pytest
 
-from app.exact import parallel_rectangles, perpendicular_rectangles
-from app.geometry import polygon_properties
-from app.kernels import pair_form_factors
-from app.pipeline import preprocess
-from app.scene import load_scene
-from app.solve import open_operator, run_solve
-from app.store import RunStore
-from app.study import accuracy, form_factor_of_run, pareto
-from app.visibility import compute_visibility
+from radiosity.exact import parallel_rectangles, perpendicular_rectangles
+from radiosity.geometry import polygon_properties
+from radiosity.kernels import pair_form_factors
+from radiosity.pipeline import preprocess
+from radiosity.scene import load_scene
+from radiosity.solve import open_operator, run_solve
+from radiosity.store import RunStore
+from radiosity.study import accuracy, form_factor_of_run, pareto
+from radiosity.visibility import compute_visibility
 from conftest import prepared, radiance, scene_path, write_scene
 
 
@@ -201,7 +201,7 @@ def test_pass_accumulates_1e5_elements_in_float64(rng):
     vectorised pass (kernels.tile_apply, fastmath reassociation included) must match an extended-
     precision sum of the same form factors to 1e-12, where a float32 accumulation is off by more
     than 1e-7 (measured here: the check below)."""
-    from app.kernels import BOTH, tile_apply
+    from radiosity.kernels import BOTH, tile_apply
 
     C = 100_000
     m = C + 1
@@ -295,7 +295,7 @@ def test_pareto_front():
 def test_study_seed_writes_its_plots(client, tmp_path):
     import contextlib
 
-    from app.study import seed
+    from radiosity.study import seed
 
     @contextlib.contextmanager
     def same(n):
@@ -310,7 +310,7 @@ def test_study_seed_writes_its_plots(client, tmp_path):
 
 
 def test_coaxial_discs_validation_value_is_the_64_gon_contour_integral():
-    from app.exact import polygon_form_factor
+    from radiosity.exact import polygon_form_factor
 
     n = 64
     ring = np.array([[np.cos(2 * np.pi * k / n), np.sin(2 * np.pi * k / n), 0.0] for k in range(n)])

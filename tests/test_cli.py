@@ -8,7 +8,7 @@ import os
 import pytest
 from click.testing import CliRunner
 
-from app.cli import main
+from radiosity.cli import main
 from conftest import FLOOR_AND_TRIANGLE, scene_path, write_scene
 
 BUILTIN = ["cornell-box", "three-rectangles", "construction-in-wood", "room-2400", "furnace-cube",

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import yaml
 
-from app.cluster import (adaptive_bounds, jobqueue_cluster, jobqueue_kwargs, open_client,
+from radiosity.cluster import (adaptive_bounds, jobqueue_cluster, jobqueue_kwargs, open_client,
                          slurm_unavailable, tls_mode)
-from app.errors import RadiosityError
+from radiosity.errors import RadiosityError
 
 from conftest import ROOT, scene_path
 
@@ -43,9 +43,9 @@ def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback():
 
 
 def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene, tmp_path, client):
-    from app.pipeline import preprocess
-    from app.scene import load_scene
-    from app.visibility import compute_visibility
+    from radiosity.pipeline import preprocess
+    from radiosity.scene import load_scene
+    from radiosity.visibility import compute_visibility
 
     sc = load_scene(small_scene)
     with dask.config.set({"radiosity.cluster.tls": "temporary"}), open_client(1, kind="local", quiet=True) as c:
@@ -187,9 +187,9 @@ def _wait_queue_empty(timeout=30.0) -> list[str]:
 
 
 def test_render_through_slurm_jobs_equals_local_render(slurm, client, tmp_path):
-    from app.pipeline import render_scene
-    from app.scene import load_scene
-    from app.store import RunStore
+    from radiosity.pipeline import render_scene
+    from radiosity.scene import load_scene
+    from radiosity.store import RunStore
 
     sc = load_scene(scene_path("three-rectangles"), resolution=12)
     logs = tmp_path / "slurm-logs"

@@ -1,4 +1,4 @@
-"""The radiosity page on the Dask dashboard, end to end: a LocalCluster from app.cluster (dashboard
+"""The radiosity page on the Dask dashboard, end to end: a LocalCluster from radiosity.cluster (dashboard
 on 127.0.0.1, port 0, page added by the scheduler preload), a tiny real run publishing its
 progress, and the page loaded and screenshotted in headless Chromium over the DevTools protocol
 (plain `chromium --screenshot` would catch the page before Bokeh has drawn anything)."""
@@ -151,19 +151,19 @@ async def _browse(port: int, url: str, publish_later) -> tuple[dict, dict, bytes
         ws.close()
 
 
-@pytest.mark.filterwarnings("ignore::app.scene.SceneWarning")  # the published red wall
+@pytest.mark.filterwarnings("ignore::radiosity.scene.SceneWarning")  # the published red wall
 @pytest.mark.skipif(not os.path.exists(CHROMIUM),
                     reason=f"headless Chromium not found at {CHROMIUM} (apt-get install chromium)")
 def test_dashboard_page_in_chromium(tmp_path):
     import dask
 
-    from app.cluster import open_client
-    from app.dashboard import PATH, page_url
-    from app.monitor import Monitor
-    from app.pipeline import preprocess
-    from app.scene import load_scene
-    from app.solve import run_solve
-    from app.visibility import compute_visibility
+    from radiosity.cluster import open_client
+    from radiosity.dashboard import PATH, page_url
+    from radiosity.monitor import Monitor
+    from radiosity.pipeline import preprocess
+    from radiosity.scene import load_scene
+    from radiosity.solve import run_solve
+    from radiosity.visibility import compute_visibility
 
     t0 = time.perf_counter()
     out = str(tmp_path / "run")

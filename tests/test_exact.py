@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.exact import (coaxial_discs, differential_to_rectangle, pair_form_factors_exact,
+from radiosity.exact import (coaxial_discs, differential_to_rectangle, pair_form_factors_exact,
                        parallel_rectangles, perpendicular_rectangles, polygon_area,
                        polygon_form_factor, polygon_point_form_factor)
-from app.kernels import pair_form_factors
+from radiosity.kernels import pair_form_factors
 
 # 40-digit evaluations (mpmath) of the catalogue's formulas
 OPPOSED_UNIT = 0.19982489569838738304   # C-11, unit squares at distance 1

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 from click.testing import CliRunner
 
-from app.cli import main
-from app.pipeline import render_scene
-from app.planner import plan_effects
-from app.scene import load_scene
-from app.store import RunStore
+from radiosity.cli import main
+from radiosity.pipeline import render_scene
+from radiosity.planner import plan_effects
+from radiosity.scene import load_scene
+from radiosity.store import RunStore
 from conftest import scene_path, write_scene
 
 CAM_ABOVE = """

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from app import render
-from app.pipeline import preprocess
-from app.scene import load_scene
-from app.store import RunStore
+from radiosity import render
+from radiosity.pipeline import preprocess
+from radiosity.scene import load_scene
+from radiosity.store import RunStore
 from conftest import scene_path, write_scene
 
 CHROMIUM = "/usr/bin/chromium"

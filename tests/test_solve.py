@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 import naive
-from app.errors import RadiosityError
-from app.kernels import pair_form_factors
-from app.solve import SOLVERS, open_operator, run_solve, side_vectors
-from app.store import RunStore
-from app.visibility import dense_visibility
+from radiosity.errors import RadiosityError
+from radiosity.kernels import pair_form_factors
+from radiosity.solve import SOLVERS, open_operator, run_solve, side_vectors
+from radiosity.store import RunStore
+from radiosity.visibility import dense_visibility
 from conftest import prepared, radiance, scene_path, write_scene
 
 ALL = list(SOLVERS)

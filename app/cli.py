@@ -1,6 +1,6 @@
 """The `radiosity` command: one subcommand per pipeline stage, over a Dask cluster.
 
-Every flag overrides the matching `radiosity.*` key of dask.config (see app/radiosity.yaml).
+Every flag overrides the matching `radiosity.*` key of dask.config (see radiosity.yaml).
 """
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ def main():
 def preprocess(scene, out, resolution, subpixel, variant, subscenes, workers, scheduler, cluster_kind):
     """Camera-driven subdivision of SCENE (seed §3) into the run directory OUT."""
     from .cluster import open_client
-    from .pipeline import preprocess as run
+    from .preprocess import preprocess as run
     from .scene import load_scene
 
     sc = load_scene(scene, resolution=resolution)
@@ -156,7 +156,7 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     """The visibility matrix of a preprocessed RUN_DIR (seed §4.3), bit-packed in its store."""
     from . import config
     from .cluster import open_client
-    from .kernels import sampling_of
+    from .settings import sampling_of
     from .store import RunStore
     from .visibility import compute_visibility
 
@@ -185,7 +185,7 @@ def _visibility_summary(fig: dict) -> str:
 
 def solve_options(fn):
     """--solver / --kernel (and its sampling) / --tol / --max-iterations."""
-    from .solve import SOLVERS
+    from .solvers import SOLVERS
 
     fn = click.option("--max-iterations", type=int, default=None, help="Pass limit.")(fn)
     fn = click.option("--tol", type=float, default=None, help="Relative residual to stop at.")(fn)
@@ -219,12 +219,14 @@ def _solve_summary(fig: dict) -> str:
 def solve(run_dir, solver, kernel, tol, max_iterations, workers, scheduler, cluster_kind):
     """Solve the radiosity system of RUN_DIR (after visibility): form factors on the fly."""
     from .cluster import open_client
+    from .render import previewer
     from .solve import run_solve
     from .store import RunStore
 
     RunStore(run_dir).load_partition()
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
-        fig = run_solve(run_dir, client, solver=solver, kernel=kernel, tol=tol, max_iter=max_iterations)
+        fig = run_solve(run_dir, client, solver=solver, kernel=kernel, tol=tol, max_iter=max_iterations,
+                        preview=previewer(run_dir))
     click.echo(_solve_summary(fig))
 
 
@@ -250,7 +252,7 @@ def image(run_dir, filter_, sigma, exposure):
 def plan(scene, resolution, subpixel, tol):
     """Print which effects SCENE calls for, which are skipped and why, before any heavy work."""
     from .pipeline import scene_plan
-    from .planner import describe
+    from .effects import describe
     from .scene import load_scene
 
     sc = load_scene(scene, resolution=resolution)

@@ -24,6 +24,31 @@ import numpy as np
 BINS = 64
 
 
+def progress_bar(total, desc: str, enabled: bool = True, initial: int = 0, unit: str = "task"):
+    """A progress bar on stderr for long work (tqdm; disabled when `enabled` is False)."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc=desc, unit=unit, disable=not enabled,
+                leave=False)
+
+
+def peak_rss_mb(client) -> dict:
+    """Peak resident memory (MiB) of the driver ("master") and of each worker, keyed by the
+    worker's address."""
+    import resource
+
+    def peak():  # runs on each worker
+        import resource as r
+        return r.getrusage(r.RUSAGE_SELF).ru_maxrss / 1024.0
+
+    out = {"master": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    try:
+        out["workers"] = {k: round(v, 1) for k, v in client.run(peak).items()}
+    except Exception:  # a worker that died mid-run has no figure
+        pass
+    return out
+
+
 def heat_map(tiles_ij: np.ndarray, task_of_tile: np.ndarray, done: np.ndarray, n: int,
              bins: int = BINS) -> np.ndarray:
     """Fraction of visibility tiles done per bin of original-element pairs, (b, b) float64.
@@ -78,8 +103,7 @@ class Monitor:
             return
         done = np.zeros(len(plan.tasks), bool)
         done[list(done_tasks)] = True
-        task_of = np.repeat(np.arange(len(plan.tasks)), plan.tasks[:, 1] - plan.tasks[:, 0])
-        hm = heat_map(plan.tiles[:, :2], task_of, done, n)
+        hm = heat_map(plan.tiles[:, :2], plan.task_of_tile(), done, n)
         self._set("visibility", {"n": int(n), "bins": int(hm.shape[0]),
                                  "done": np.where(np.isnan(hm), -1.0, hm).round(3).tolist(),
                                  "tasks_done": int(done.sum()), "tasks": int(len(done))})

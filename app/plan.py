@@ -1,4 +1,7 @@
-"""The visibility task plan: pure integer arithmetic on numpy, no Dask (decide first, then run).
+"""Pure planning of the Dask work: integer arithmetic on numpy, no Dask (decide first, then run).
+
+The visibility task plan (below), the subscene ranges of the preprocessing tasks and the
+packing of visibility tasks into the solver's worker groups.
 
 The visibility matrix V (m x m bits, symmetric) is cut along the original elements: the block
 (I, J), I < J, holds the bits between the sub-elements of I (rows) and of J (columns). Diagonal
@@ -30,8 +33,11 @@ FIRST, END, TSTART, TBYTES = range(4)
 
 @dataclass(frozen=True)
 class VisibilityPlan:
-    """tiles : (t, 7) int64 [I, J, r0, r1, ncols, byte start, nbytes], in task order
-    tasks : (k, 4) int64 [first tile, end tile, byte start, padded nbytes]
+    """tiles : (t, 7) int64 [I, J, r0, r1, ncols, byte start, nbytes], in task order (columns
+        named by the module constants I, J, R0, R1, NCOLS, START, NBYTES, which the numba pass
+        loops index directly)
+    tasks : (k, 4) int64 [first tile, end tile, byte start, padded nbytes] (FIRST, END, TSTART,
+        TBYTES)
     culled : (c, 2) int64 block pairs (I, J) skipped whole (they cannot face each other)
     chunk : bytes per Zarr chunk; total : bytes of the array; unit : 'block' or 'stripe'
     """
@@ -43,11 +49,53 @@ class VisibilityPlan:
     total: int
     unit: str
 
+    def __len__(self) -> int:
+        return len(self.tasks)
+
+    def tiles_of(self, task: int) -> np.ndarray:
+        """The tiles of one task, (t_k, 7) int64 (a view)."""
+        t = self.tasks[task]
+        return self.tiles[t[FIRST]:t[END]]
+
+    def tile_bits(self) -> np.ndarray:
+        """Pairs (bits) in each tile, (t,) int64."""
+        return (self.tiles[:, R1] - self.tiles[:, R0]) * self.tiles[:, NCOLS]
+
+    def task_of_tile(self) -> np.ndarray:
+        """The task each tile belongs to, (t,) int64."""
+        return np.repeat(np.arange(len(self.tasks)), self.tasks[:, END] - self.tasks[:, FIRST])
+
     def task_bits(self) -> np.ndarray:
         """Estimated cost of each task: the number of pairs (bits) it holds, (k,) int64."""
-        bits = (self.tiles[:, R1] - self.tiles[:, R0]) * self.tiles[:, NCOLS]
-        c = np.concatenate([[0], np.cumsum(bits)])
+        c = np.concatenate([[0], np.cumsum(self.tile_bits())])
         return c[self.tasks[:, END]] - c[self.tasks[:, FIRST]]
+
+    def tile_of_pairs(self, offsets: np.ndarray, a: np.ndarray, b: np.ndarray):
+        """Where the bits of pairs (a, b) of sub-elements lie (any order).
+
+        offsets (n + 1,) sub-element offsets of the originals. Returns found (k,) bool (False
+        for pairs of one original or of a block culled whole: their bit is 0), and for the
+        found pairs the tile (k_f,) and the bit index within the tile (k_f,), both int64."""
+        orig = np.searchsorted(offsets, np.concatenate([a, b]), side="right") - 1
+        oa, ob = orig[:len(a)], orig[len(a):]
+        lo = np.where(oa < ob, a, b)
+        hi = np.where(oa < ob, b, a)
+        I_, J_ = np.minimum(oa, ob), np.maximum(oa, ob)
+        r = lo - offsets[I_]
+        tiles = self.tiles
+        n = len(offsets)
+        stride = int(offsets[-1]) + 1
+        tkey = (tiles[:, I] * n + tiles[:, J]) * stride + tiles[:, R0]
+        order = np.argsort(tkey, kind="stable")
+        pos = np.searchsorted(tkey[order], (I_ * n + J_) * stride + r, side="right") - 1
+        t = order[np.maximum(pos, 0)] if len(order) else np.zeros(len(a), np.int64)
+        if len(order) == 0:
+            return np.zeros(len(a), bool), t[:0], t[:0]
+        found = ((I_ != J_) & (tiles[t, I] == I_) & (tiles[t, J] == J_) & (tiles[t, R0] <= r)
+                 & (r < tiles[t, R1]))
+        t, r, hi, J_ = t[found], r[found], hi[found], J_[found]
+        bit = (r - tiles[t, R0]) * tiles[t, NCOLS] + (hi - offsets[J_])
+        return found, t, bit
 
     def cost_order(self) -> np.ndarray:
         """Task ids, most expensive first (long tasks start early); ties by id (deterministic)."""
@@ -149,3 +197,29 @@ def choose_unit(unit: str, n_originals: int, threshold: int) -> str:
     if unit not in ("block", "stripe"):
         raise ValueError(f"--task-unit must be block, stripe or auto, got {unit!r}")
     return unit
+
+
+def subscene_ranges(weights: np.ndarray, ntasks: int) -> list[tuple[int, int]]:
+    """Cut 0..n into at most `ntasks` contiguous ranges of about equal total weight (the
+    preprocessing's subscene tasks, seed §4.2)."""
+    n = len(weights)
+    ntasks = max(1, min(ntasks, n))
+    cum = np.cumsum(weights, dtype=float)
+    total = cum[-1] if n else 0.0
+    cuts = np.searchsorted(cum, total * np.arange(1, ntasks) / ntasks, side="left") + 1
+    bounds = np.unique(np.concatenate([[0], np.clip(cuts, 1, n), [n]]))
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
+def pack_groups(cost: np.ndarray, ngroups: int) -> list[np.ndarray]:
+    """Tasks with estimated `cost` (k,) packed into at most `ngroups` groups of about equal
+    total cost (longest first onto the least loaded group); each group's task ids sorted.
+    The solver pins one group to one worker, whose cache keeps the group's tiles."""
+    order = np.argsort(-np.asarray(cost), kind="stable")
+    load = np.zeros(max(1, ngroups))
+    members = [[] for _ in range(len(load))]
+    for t in order:
+        g = int(np.argmin(load))
+        members[g].append(int(t))
+        load[g] += cost[t]
+    return [np.array(sorted(m), np.int64) for m in members if m]

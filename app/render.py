@@ -688,3 +688,24 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     }
     update_report(d, "render", figures)
     return figures
+
+
+def previewer(run_dir: str):
+    """A function (2, C, m) radiance -> small sRGB image (h, w, 3) uint8 of the run's camera
+    view, for the dashboard's live preview while the solver runs."""
+    from .store import RunStore
+
+    rs = RunStore(run_dir)
+    if not rs.has("raster"):
+        return lambda L: np.zeros((1, 1, 3), np.uint8)
+    part, el = rs.load_partition(), rs.load_elements()
+    sub = rs.read_arrays("raster")["sub"]
+    camera = rs.load_camera()
+    K = int(rs.attrs.get("subpixel", 1))
+
+    def make(L):
+        L = np.broadcast_to(L, (2, 3, L.shape[2]))
+        rad = np.ascontiguousarray(np.transpose(L, (2, 0, 1)))
+        return tonemap(downsample(pixel_radiance(part, el, camera, sub, rad), K, "box"))
+
+    return make

@@ -231,6 +231,25 @@ def read_bits(store_path: str, start: int, nbytes: int) -> np.ndarray:
     return arr[start:start + nbytes]
 
 
+def _corrupted(run_dir: str, task: int, why: str) -> StoreError:
+    return StoreError(f"visibility task {task} of {run_dir} is corrupted ({why}): run radiosity "
+                      f"visibility {run_dir} --resume to recompute it")
+
+
+def read_task_checked(store_path: str, task: int, start: int, nbytes: int, crc: int) -> np.ndarray:
+    """The bytes of one visibility task, checked against the crc32 recorded when it finished;
+    a mismatch or an unreadable (corrupted) chunk raises StoreError with the repair command.
+    Called on the workers."""
+    run_dir = os.path.dirname(store_path)
+    try:
+        data = read_bits(store_path, start, nbytes)
+    except Exception as e:  # a chunk that no longer decodes is corrupted like a bad checksum
+        raise _corrupted(run_dir, task, f"unreadable chunk: {type(e).__name__}") from None
+    if zlib.crc32(data.tobytes()) != int(crc):
+        raise _corrupted(run_dir, task, "checksum")
+    return data
+
+
 class VisibilityStore:
     """The visibility group of a run store: plan arrays, packed bits and the task manifest."""
 
@@ -336,6 +355,61 @@ class VisibilityStore:
         except Exception:  # an unreadable (corrupted) chunk, a missing or altered partial list
             return False
         return zlib.crc32(data.tobytes()) == entry["crc"]
+
+    def task_bytes(self, plan, task: int, entry: dict | None) -> np.ndarray:
+        """The verified (unpadded) bytes of one finished task; a missing or corrupted task
+        raises StoreError naming the command that repairs it (never used silently)."""
+        if entry is None:
+            raise StoreError(f"visibility task {task} of {self.rs.run_dir} is missing: "
+                             f"run radiosity visibility {self.rs.run_dir} --resume")
+        from .plan import TSTART
+
+        return read_task_checked(self.rs.path, task, int(plan.tasks[task, TSTART]),
+                                 int(entry["nbytes"]), int(entry["crc"]))
+
+    def iter_tiles(self):
+        """Yield (I, J, r0, r1, bits (r1 - r0, nJ) bool) for every stored tile, task by task
+        (the bit layout is in plan.py; every task's bytes are verified first)."""
+        from .plan import I, J, NBYTES, NCOLS, R0, R1, START, TSTART
+
+        _, plan, done = self.require()
+        for task in range(len(plan.tasks)):
+            data = self.task_bytes(plan, task, done.get(task))
+            base = int(plan.tasks[task, TSTART])
+            for tile in plan.tiles_of(task):
+                off = int(tile[START]) - base
+                rows, cols = int(tile[R1] - tile[R0]), int(tile[NCOLS])
+                bits = np.unpackbits(data[off:off + int(tile[NBYTES])], count=rows * cols,
+                                     bitorder="little")
+                yield int(tile[I]), int(tile[J]), int(tile[R0]), int(tile[R1]), \
+                    bits.reshape(rows, cols).astype(bool)
+
+    def dense(self, offsets: np.ndarray) -> np.ndarray:
+        """The whole matrix as (m, m) bool, symmetric: for small scenes and tests only."""
+        m = int(offsets[-1])
+        V = np.zeros((m, m), bool)
+        for i, j, r0, r1, bits in self.iter_tiles():
+            V[offsets[i] + r0:offsets[i] + r1, offsets[j]:offsets[j + 1]] = bits
+        return V | V.T
+
+    def pair_bits(self, offsets: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+        """The stored bit of each pair (ia, ib) of sub-elements (any order), (k,) bool; reads
+        (and verifies) each task that holds one of the pairs once."""
+        from .plan import START, TSTART
+
+        _, plan, done = self.require()
+        found, t, bit = plan.tile_of_pairs(offsets, np.asarray(ia, np.int64),
+                                           np.asarray(ib, np.int64))
+        pos = plan.tiles[t, START] + (bit >> 3)  # byte in the whole bits array
+        task_of = plan.task_of_tile()[t]
+        got = np.zeros(len(t), bool)
+        for task in np.unique(task_of):
+            k = task_of == task
+            data = self.task_bytes(plan, int(task), done.get(int(task)))
+            got[k] = ((data[pos[k] - plan.tasks[task, TSTART]] >> (bit[k] & 7)) & 1).astype(bool)
+        out = np.zeros(len(found), bool)
+        out[found] = got
+        return out
 
     def sampling(self):
         """The kernels.Sampling the matrix was computed with (None: one ray between centres)."""

@@ -30,7 +30,8 @@ import numpy as np
 
 from . import config
 from .errors import RadiosityError
-from .kernels import KERNELS, MC, NXM, kernel_id, sampling_of
+from .kernels import MC, NXM, get_kernel, kernel_id
+from .settings import sampling_of
 
 COLUMNS = ["resolution", "subpixel", "kernel", "solver", "tol", "sub_elements", "passes", "time_preprocess_s",
            "time_visibility_s", "time_solve_s", "time_image_s", "time_total_s", "error", "pareto"]
@@ -100,7 +101,8 @@ def _visibility_key(spec: str) -> str:
 
 def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> float:
     """F from material `frm` to material `to` as the run's operator computes it (front sides)."""
-    from .solve import normalise_rows, open_operator
+    from .operator import open_operator
+    from .solve import normalise_rows
     from .store import RunStore
 
     rs = RunStore(run_dir)
@@ -119,7 +121,7 @@ def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> 
 def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels, tols,
              reference: str | None = None, solver: str | None = None, echo=print) -> list[dict]:
     """Run the sweep; write results.csv, results.md and accuracy.png into `out`."""
-    from .pipeline import preprocess
+    from .preprocess import preprocess
     from .render import read_exr, render_outputs
     from .scene import load_scene
     from .solve import run_solve
@@ -163,7 +165,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                 passes = 0
                 # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
                 solve_with = config.get("solve.solver", solver)
-                if solve_with == "cg" and not KERNELS[kernel][2]:
+                if solve_with == "cg" and not get_kernel(kernel).reciprocal:
                     solve_with = "gauss-seidel"
                 if "form_factor" in val:
                     f = form_factor_of_run(run, client, kernel, val["from"], val["to"])
@@ -200,12 +202,12 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
             r["error"] = image_error(images[(r["resolution"], r["subpixel"], r["kernel"], r["tol"])], ref)
     elif images:  # against the finest setting, at its camera rays' hit points
         from .rays import RayCaster
-        from .subdivide import raster_band
+        from .rays import raster_band
 
         key = max(images, key=lambda q: (q[0] * q[1], -q[3], q[2] == "point-nf", q[2] == "point"))
         echo(f"  reference: the finest setting {key[0]}x{key[0]} K={key[1]} {key[2]} tol={key[3]:g}")
         fine = load_scene(scene_path, resolution=key[0])
-        rc = RayCaster(fine.elements.verts, fine.elements.nverts)
+        rc = RayCaster(fine.elements.verts, fine.elements.nverts, float(config.get("rays.epsilon")))
         h = fine.camera.height * key[1]
         orig, pts = raster_band(rc, fine.elements.normal, fine.elements.center, fine.camera, key[1],
                                 slice(0, h))
@@ -295,7 +297,8 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .pipeline import preprocess, render_preview, render_scene
+    from .pipeline import render_preview, render_scene
+    from .preprocess import preprocess
     from .scene import load_scene
     from .visibility import compute_visibility
 

@@ -270,27 +270,14 @@ def merge_partitions(pieces: list, element_ranges: list, n_elements: int) -> Par
                      split_a=arr["split_a"], split_m=arr["split_m"])
 
 
-# ----------------------------------------------------------------------------- the raster
-
-def raster_band(caster, normal, center, camera, subpixel: int, rows: slice):
-    """First hits of the camera rays through the fine-raster rows `rows`, against the elements
-    the caster was built from (normal, center (n, 3): their planes, for the exact hit points).
-
-    Returns orig (p,) int32 (-1 where nothing is hit) and points (p, 3) float64.
-    """
-    from .camera import hit_points, ray_directions32
-
-    dirs = ray_directions32(camera, subpixel, rows.start, rows.stop)
-    elem = caster.first_hit(camera.center, dirs, unit=True)
-    return elem, hit_points(camera, subpixel, rows.start, elem, normal, center)
-
+# ----------------------------------------------------------------------------- the sequential stage
 
 def subdivide_scene(elements, camera, subpixel: int = 1, max_depth: int = 48, caster=None):
     """The sequential preprocessing: full raster, then every element in one call.
 
     Returns (Partition, raster_orig (H*K, W*K) int32, points (H*K*W*K, 3), figures).
     """
-    from .rays import RayCaster
+    from .rays import RayCaster, raster_band
 
     rc = caster or RayCaster(elements.verts, elements.nverts)
     h = camera.height * subpixel

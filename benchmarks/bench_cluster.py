@@ -21,7 +21,8 @@ import time
 from common import ROOT, table, write
 
 from radiosity.cluster import open_client, slurm_unavailable
-from radiosity.pipeline import preprocess, render_scene
+from radiosity.pipeline import render_scene
+from radiosity.preprocess import preprocess
 from radiosity.scene import load_scene
 from radiosity.visibility import compute_visibility
 

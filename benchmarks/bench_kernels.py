@@ -19,8 +19,9 @@ import dask.config
 from common import ROOT, table, write
 
 from radiosity.cluster import open_client
-from radiosity.kernels import KERNELS, sampling_of
-from radiosity.pipeline import preprocess
+from radiosity.kernels import KERNELS
+from radiosity.settings import sampling_of
+from radiosity.preprocess import preprocess
 from radiosity.scene import load_scene
 from radiosity.solve import run_solve
 from radiosity.store import RunStore

@@ -17,7 +17,8 @@ from common import best_of, table, write
 from radiosity.camera import ray_directions32
 from radiosity.rays import RayCaster, element_triangles
 from radiosity.scene import load_scene
-from radiosity.subdivide import raster_band, subdivide
+from radiosity.rays import raster_band
+from radiosity.subdivide import subdivide
 
 
 def raw_embree(el):
@@ -64,7 +65,7 @@ def main():
         res *= 2
     # the Dask pipeline at the largest resolution (includes cluster round trips)
     from radiosity.cluster import open_client
-    from radiosity.pipeline import preprocess
+    from radiosity.preprocess import preprocess
     import tempfile
 
     with open_client(args.workers, quiet=True) as client:

@@ -19,9 +19,11 @@ import numpy as np
 from common import ROOT, best_of, table, write
 
 from radiosity.cluster import open_client
-from radiosity.pipeline import preprocess, render_scene
+from radiosity.pipeline import render_scene
+from radiosity.preprocess import preprocess
 from radiosity.scene import load_scene
-from radiosity.solve import all_task_bytes, open_operator, run_solve, side_vectors, task_apply
+from radiosity.operator import all_task_bytes, open_operator, task_apply
+from radiosity.solve import run_solve, side_vectors
 from radiosity.store import RunStore
 from radiosity.visibility import compute_visibility
 

@@ -37,7 +37,7 @@ def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibili
              **kw) -> str:
     """A run directory of `scene` (a TOML path) preprocessed at `res` (kw: preprocess options),
     with its one-ray visibility matrix unless `visibility` is False."""
-    from radiosity.pipeline import preprocess
+    from radiosity.preprocess import preprocess
     from radiosity.scene import load_scene
     from radiosity.visibility import compute_visibility
 

@@ -13,9 +13,10 @@ import pytest
 from radiosity.exact import parallel_rectangles, perpendicular_rectangles
 from radiosity.geometry import polygon_properties
 from radiosity.kernels import pair_form_factors
-from radiosity.pipeline import preprocess
+from radiosity.preprocess import preprocess
 from radiosity.scene import load_scene
-from radiosity.solve import open_operator, run_solve
+from radiosity.operator import open_operator
+from radiosity.solve import run_solve
 from radiosity.store import RunStore
 from radiosity.study import accuracy, form_factor_of_run, pareto
 from radiosity.visibility import compute_visibility
@@ -201,7 +202,7 @@ def test_pass_accumulates_1e5_elements_in_float64(rng):
     vectorised pass (kernels.tile_apply, fastmath reassociation included) must match an extended-
     precision sum of the same form factors to 1e-12, where a float32 accumulation is off by more
     than 1e-7 (measured here: the check below)."""
-    from radiosity.kernels import BOTH, tile_apply
+    from radiosity.passes import BOTH, CAP_MIN, tile_apply
 
     C = 100_000
     m = C + 1
@@ -218,7 +219,7 @@ def test_pass_accumulates_1e5_elements_in_float64(rng):
     packed = np.packbits(np.ones(C, bool), bitorder="little")
     cx, cy, cz = (np.ascontiguousarray(c[:, k]) for k in range(3))
     nx, ny, nz = (np.ascontiguousarray(n[:, k]) for k in range(3))
-    tile_apply(0, packed, 1, C, 0, 1, cx, cy, cz, nx, ny, nz, area, np.ones(m), np.zeros(m, bool),
+    tile_apply(0, packed, 1, C, 0, 1, cx, cy, cz, nx, ny, nz, area, np.ones(m), CAP_MIN, np.zeros(m, bool),
                np.zeros((m, 0, 3)), np.zeros((m, 0)), L, y, BOTH, True, True)
     fab, _ = pair_form_factors("point", np.repeat(c[:1], C, 0), np.repeat(n[:1], C, 0),
                                np.repeat(area[:1], C), c[1:], n[1:], area[1:])

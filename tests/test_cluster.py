@@ -43,7 +43,7 @@ def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback():
 
 
 def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene, tmp_path, client):
-    from radiosity.pipeline import preprocess
+    from radiosity.preprocess import preprocess
     from radiosity.scene import load_scene
     from radiosity.visibility import compute_visibility
 

@@ -160,7 +160,7 @@ def test_dashboard_page_in_chromium(tmp_path):
     from radiosity.cluster import open_client
     from radiosity.dashboard import PATH, page_url
     from radiosity.monitor import Monitor
-    from radiosity.pipeline import preprocess
+    from radiosity.preprocess import preprocess
     from radiosity.scene import load_scene
     from radiosity.solve import run_solve
     from radiosity.visibility import compute_visibility

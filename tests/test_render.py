@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 from radiosity import render
-from radiosity.pipeline import preprocess
+from radiosity.preprocess import preprocess
 from radiosity.scene import load_scene
 from radiosity.store import RunStore
 from conftest import scene_path, write_scene

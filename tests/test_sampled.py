@@ -13,8 +13,10 @@ from click.testing import CliRunner
 import naive
 from radiosity.cli import main
 from radiosity.errors import RadiosityError, StoreError
-from radiosity.kernels import Sampling, sample_points, sampling_of
-from radiosity.solve import open_operator, run_solve
+from radiosity.kernels import Sampling, sample_points
+from radiosity.settings import sampling_of
+from radiosity.operator import open_operator
+from radiosity.solve import run_solve
 from radiosity.store import RunStore, VisibilityStore, read_partial
 from radiosity.visibility import compute_visibility
 from conftest import prepared, scene_path

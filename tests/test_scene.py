@@ -210,7 +210,7 @@ def test_missing_unreadable_and_unknown_files(tmp_path):
 
 
 def test_camera_that_sees_nothing(tmp_path, client):
-    from radiosity.pipeline import preprocess
+    from radiosity.preprocess import preprocess
 
     cam = CAM.replace("look_at = [0.5, 0.0, 0.5]", "look_at = [0.5, 4.0, -5.0]")
     sc = load_scene(write_scene(tmp_path, FLOOR_AND_TRIANGLE, camera=cam))

@@ -8,7 +8,9 @@ import pytest
 import naive
 from radiosity.errors import RadiosityError
 from radiosity.kernels import pair_form_factors
-from radiosity.solve import SOLVERS, open_operator, run_solve, side_vectors
+from radiosity.operator import open_operator
+from radiosity.solve import run_solve, side_vectors
+from radiosity.solvers import SOLVERS
 from radiosity.store import RunStore
 from radiosity.visibility import dense_visibility
 from conftest import prepared, radiance, scene_path, write_scene

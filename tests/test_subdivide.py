@@ -10,7 +10,8 @@ from hypothesis import given, settings, strategies as st
 
 from radiosity.camera import pixel_directions, project
 from radiosity.geometry import polygon_properties
-from radiosity.pipeline import preprocess, subscene_ranges
+from radiosity.plan import subscene_ranges
+from radiosity.preprocess import preprocess
 from radiosity.scene import load_scene
 from radiosity.store import RunStore
 from radiosity.subdivide import lookup, split_polygons, subdivide, subdivide_scene

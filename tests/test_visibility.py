@@ -12,11 +12,12 @@ from hypothesis import given, settings, strategies as st
 
 import naive
 from radiosity.errors import StoreError
-from radiosity.pipeline import preprocess
+from radiosity.preprocess import preprocess
 from radiosity.plan import END, FIRST, NBYTES, START, TBYTES, TSTART, choose_chunk, make_plan
 from radiosity.scene import load_scene
 from radiosity.store import RunStore, VisibilityStore
-from radiosity.visibility import _shaft_excludes, compute_visibility, dense_visibility
+from radiosity.shafts import _shaft_excludes
+from radiosity.visibility import compute_visibility, dense_visibility
 from conftest import scene_path
 
 

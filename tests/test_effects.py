@@ -7,7 +7,7 @@ from click.testing import CliRunner
 
 from radiosity.cli import main
 from radiosity.pipeline import render_scene
-from radiosity.planner import plan_effects
+from radiosity.effects import plan_effects
 from radiosity.scene import load_scene
 from radiosity.store import RunStore
 from conftest import scene_path, write_scene

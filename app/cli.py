@@ -134,12 +134,7 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, workers, sc
                f"{sc.camera.width}x{sc.camera.height}")
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         fig = run(sc, out, client, subpixel=subpixel, variant=variant, subscenes=subscenes)
-    rows = [("original elements", fig["original_elements"]), ("sub-elements", fig["sub_elements"]),
-            ("max depth", fig["max_depth"]), ("unseen, left unsplit", fig["unseen_unsplit"]),
-            ("pixels hit", fig["pixels_hit"]), ("time", f"{fig['time_total_s']:.2f} s")]
-    if "sub_elements_exact" in fig:
-        rows.insert(2, ("sub-elements (exact variant)", fig["sub_elements_exact"]))
-    click.echo(_table(rows))
+    click.echo(_table(fig.rows()))
     click.echo(f"wrote {out}/store.zarr and {out}/report.json")
 
 
@@ -164,23 +159,7 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     sampling_of(config.get("solve.kernel", kernel))  # a bad nxm-points / mc-samples fails here
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         fig = compute_visibility(run_dir, client, unit=task_unit, resume=resume, kernel=kernel)
-    click.echo(_visibility_summary(fig))
-
-
-def _visibility_summary(fig: dict) -> str:
-    pt = max(1, fig["pairs_total"])
-    rows = [("sub-elements", fig["sub_elements"]),
-            ("pairs", fig["pairs_total"]),
-            ("culled by orientation", f"{fig['pairs_culled_by_orientation']} ({fig['pairs_culled_by_orientation'] / pt:.1%})"),
-            ("proven visible by shafts", f"{fig['pairs_shaft_visible']} ({fig['pairs_shaft_visible'] / pt:.1%})"),
-            ("rays cast", f"{fig['rays']} ({fig['rays'] / pt:.1%} of pairs, "
-                          f"{fig.get('rays_per_pair', 1)} per pair)"),
-            ("visible pairs", fig["pairs_visible"]),
-            ("tasks", f"{fig['tasks']} {fig['task_unit']} ({fig['tasks_computed']} computed, "
-                      f"{fig['tasks_reused']} reused)"),
-            ("idle fraction", "-" if fig["idle_fraction"] is None else f"{fig['idle_fraction']:.1%}"),
-            ("time", f"{fig['time_s']:.2f} s")]
-    return _table(rows)
+    click.echo(_table(fig.rows()))
 
 
 def solve_options(fn):
@@ -203,14 +182,6 @@ def image_options(fn):
     return fn
 
 
-def _solve_summary(fig: dict) -> str:
-    return _table([("solver", f"{fig['solver']} ({fig['kernel']} kernel)"),
-                   ("passes", f"{fig['iterations']} ({'converged' if fig['converged'] else 'NOT converged'})"),
-                   ("final residual", f"{fig['final_residual']:.3g}"),
-                   ("pair terms/s", f"{fig['pair_terms_per_s'] / 1e6:.1f} M"),
-                   ("time", f"{fig['time_s']:.2f} s")])
-
-
 @main.command()
 @click.argument("run_dir", type=click.Path())
 @solve_options
@@ -227,7 +198,7 @@ def solve(run_dir, solver, kernel, tol, max_iterations, workers, scheduler, clus
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         fig = run_solve(run_dir, client, solver=solver, kernel=kernel, tol=tol, max_iter=max_iterations,
                         preview=previewer(run_dir))
-    click.echo(_solve_summary(fig))
+    click.echo(_table(fig.rows()))
 
 
 @main.command()
@@ -240,7 +211,7 @@ def image(run_dir, filter_, sigma, exposure):
 
     fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure)
     click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html "
-               f"({fig['width']}x{fig['height']}, exposure {fig['exposure']:.3g})")
+               f"({fig.width}x{fig.height}, exposure {fig.exposure:.3g})")
 
 
 @main.command()
@@ -256,10 +227,10 @@ def plan(scene, resolution, subpixel, tol):
     from .scene import load_scene
 
     sc = load_scene(scene, resolution=resolution)
-    p, est = scene_plan(sc, subpixel, tol)
+    planned = scene_plan(sc, subpixel, tol)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
-    click.echo(describe(p, est["unseen_unsplit"], est["sub_elements_estimate"]))
+    click.echo(describe(planned.effects, planned.unseen_unsplit, planned.sub_elements))
 
 
 @main.command()
@@ -292,16 +263,7 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
         rep = render_scene(sc, out, client, subpixel=subpixel, unit=task_unit, solver=solver,
                            kernel=kernel, tol=tol, filter=filter_, sigma=sigma, exposure=exposure,
                            resume=resume, preview=not no_preview, echo=click.echo, full=full)
-    pre, vis, sol = rep["preprocess"], rep["visibility"], rep["solve"]
-    st = rep["render"]["stages"]
-    click.echo(_table([
-        ("sub-elements", f"{pre['sub_elements']} (from {pre['original_elements']} originals)"),
-        ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)"),
-        ("solve", f"{sol['solver']}/{sol['kernel']}: {sol['iterations']} passes, residual "
-                  f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"),
-        ("times", f"preprocess {st['preprocess_s']:.1f} s, visibility {st['visibility_s']:.1f} s, "
-                  f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, total {st['total_s']:.1f} s"),
-    ]))
+    click.echo(_table(rep.rows()))
     click.echo(f"wrote {out}/image.exr, image.png, preview.png, mesh.glb, mesh.ply, viewer.html, report.json"
                if not no_preview else f"wrote {out}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, report.json")
 

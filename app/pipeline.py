@@ -9,6 +9,7 @@ import os
 import shutil
 import time
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -19,9 +20,56 @@ from .preprocess import preprocess
 from .rays import RayCaster, raster_band
 from .render import previewer, render_outputs
 from .solve import run_solve, write_direct_solution
-from .store import RunStore, update_report
+from .store import RunStore, StageFigures, update_report
 from .types import Scene
 from .visibility import compute_visibility
+
+
+@dataclass(frozen=True)
+class RenderFigures(StageFigures):
+    """A whole render: the time of each stage (report.json, section "render") and the report
+    every stage wrote, read by section (fig["solve"], fig["visibility"], ...)."""
+
+    SECTION = "render"
+    stages: dict
+    report: dict
+
+    def to_dict(self) -> dict:
+        return {"stages": self.stages}
+
+    def __getitem__(self, key: str):
+        return self.report[key]
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.report
+
+    def rows(self):
+        pre, vis, sol = self.report["preprocess"], self.report["visibility"], self.report["solve"]
+        st = self.stages
+        return [
+            ("sub-elements", f"{pre['sub_elements']} (from {pre['original_elements']} originals)"),
+            ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)"),
+            ("solve", f"{sol['solver']}/{sol['kernel']}: {sol['iterations']} passes, residual "
+                      f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"),
+            ("times", f"preprocess {st['preprocess_s']:.1f} s, visibility {st['visibility_s']:.1f} s, "
+                      f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, "
+                      f"total {st['total_s']:.1f} s")]
+
+
+@dataclass(frozen=True)
+class PlanFigures(StageFigures):
+    """The effects plan of a scene and the size estimates behind it (report.json, "plan")."""
+
+    SECTION = "plan"
+    effects: object              # effects.EffectsPlan
+    unseen_unsplit: int          # originals the camera does not see (left as one element)
+    sub_elements: int            # from the partition, or estimated from one camera raster
+    estimated: bool
+
+    def to_dict(self) -> dict:
+        key = "sub_elements_estimate" if self.estimated else "sub_elements"
+        return {**self.effects.to_dict(), "unseen_unsplit": self.unseen_unsplit,
+                key: self.sub_elements}
 
 
 def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = None,
@@ -30,7 +78,7 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
 
     With a preprocessed `run_dir`, the estimates use its partition (sub-elements per original)
     and raster; otherwise one camera raster estimates them (about 1.4 sub-elements per pixel
-    hit, seen on the built-in scenes). Returns (plan, figures)."""
+    hit, seen on the built-in scenes). Returns PlanFigures."""
     tol = float(config.get("solve.tol", tol))
     el = scene.elements
     if run_dir is not None:
@@ -38,7 +86,6 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
         sizes = np.diff(rs.load_partition().offsets).astype(float)
         elem = rs.read_arrays("raster")["orig"].ravel()
         pix = np.bincount(elem[elem >= 0], minlength=len(el))
-        key = "sub_elements"
     else:
         subpixel = int(config.get("subdivide.subpixel", subpixel))
         cam = scene.camera
@@ -46,14 +93,14 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
         elem, _ = raster_band(rc, el.normal, el.center, cam, subpixel, slice(0, cam.height * subpixel))
         pix = np.bincount(elem[elem >= 0], minlength=len(el))
         sizes = np.maximum(1.0, 1.4 * pix)
-        key = "sub_elements_estimate"
-    plan = plan_effects(el, tol=tol, full=full, sizes=sizes)
-    return plan, {"unseen_unsplit": int((pix == 0).sum()), key: int(sizes.sum())}
+    return PlanFigures(plan_effects(el, tol=tol, full=full, sizes=sizes), int((pix == 0).sum()),
+                       int(sizes.sum()), estimated=run_dir is None)
 
 
 def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None, unit=None,
                  solver=None, kernel=None, tol=None, filter=None, sigma=None, exposure=None,
-                 resume=False, preview=True, progress=True, echo=print, full=False) -> dict:
+                 resume=False, preview=True, progress=True, echo=print,
+                 full=False) -> RenderFigures:
     """plan -> preprocess -> visibility -> solve -> image (+ the preview from the originals).
 
     The effects plan (effects.py) decides what is simulated; `full` forces every effect on.
@@ -78,8 +125,9 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
         preprocess(scene, out, client, subpixel=subpixel, variant=variant, progress=progress)
     stages["preprocess_s"] = time.perf_counter() - t
     # decide the effects before the heavy stages, from the partition just made
-    effects, est = scene_plan(scene, subpixel, tol, full, run_dir=out)
-    update_report(out, "plan", {**effects.to_dict(), **est})
+    planned = scene_plan(scene, subpixel, tol, full, run_dir=out)
+    planned.write(out)
+    effects = planned.effects
     t = time.perf_counter()
     if effects.interreflection:
         compute_visibility(out, client, unit=unit, resume=resume and reuse, progress=progress,
@@ -100,11 +148,12 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     stages["image_s"] = time.perf_counter() - t
     if preview:
         t = time.perf_counter()
-        stages["preview"] = render_preview(scene, out, client, tol=tol, exposure=fig.get("exposure"))
+        stages["preview"] = render_preview(scene, out, client, tol=tol, exposure=fig.exposure)
         stages["preview_s"] = time.perf_counter() - t
     stages["total_s"] = time.perf_counter() - t0
     stages["peak_rss_mb"] = peak_rss_mb(client)
-    return update_report(out, "render", {"stages": stages})
+    report = update_report(out, "render", {"stages": stages})
+    return RenderFigures(stages, report)
 
 
 def render_preview(scene: Scene, out: str, client, tol=None,

@@ -19,7 +19,7 @@ from .monitor import Monitor, peak_rss_mb
 from .plan import subscene_ranges
 from .rays import RayCaster, caster_for, raster_band
 from .runner import run_tasks
-from .store import RunStore, update_report
+from .store import RunStore, StageFigures
 from .subdivide import lookup, merge_partitions, subdivide, warn_depth_guard
 from .types import Scene
 
@@ -34,6 +34,41 @@ class RasterInputs:
     subpixel: int
     key: str
     epsilon: float
+
+
+@dataclass(frozen=True)
+class PreprocessFigures(StageFigures):
+    """The preprocessing stage's figures (report.json, section "preprocess")."""
+
+    SECTION = "preprocess"
+    variant: str
+    subpixel: int
+    resolution: list
+    original_elements: int
+    sub_elements: int
+    max_depth: int
+    levels: int
+    unseen_unsplit: int
+    pixels_hit: int
+    max_pixels_per_sub_element: int
+    depth_guarded: int
+    sub_elements_per_pixel: float
+    subscene_tasks: int
+    raster_tasks: int
+    time_raster_s: float
+    time_subdivide_s: float
+    time_total_s: float
+    peak_rss_mb: dict
+    sub_elements_exact: int | None = None     # seed variant: the exact partition's size
+    over_refined_elements: int | None = None  # seed variant: originals split differently
+
+    def rows(self):
+        rows = [("original elements", self.original_elements), ("sub-elements", self.sub_elements),
+                ("max depth", self.max_depth), ("unseen, left unsplit", self.unseen_unsplit),
+                ("pixels hit", self.pixels_hit), ("time", f"{self.time_total_s:.2f} s")]
+        if self.sub_elements_exact is not None:
+            rows.insert(2, ("sub-elements (exact variant)", self.sub_elements_exact))
+        return rows
 
 
 # ----------------------------------------------------------------------------- tasks
@@ -72,7 +107,7 @@ def task_seed_subscene(inp: RasterInputs, start, stop, max_depth, rows_per_batch
 
 def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
                variant: str | None = None, subscenes: int | None = None,
-               progress: bool = True) -> dict:
+               progress: bool = True) -> PreprocessFigures:
     """Camera-driven subdivision as Dask tasks; writes elements, partition and raster to the store."""
     t0 = time.perf_counter()
     subpixel = int(config.get("subdivide.subpixel", subpixel))
@@ -175,7 +210,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         figures["over_refined_elements"] = int(np.sum(np.diff(part.offsets) != np.diff(exact.offsets)))
     store.save_partition(part, figures)
     store.write_arrays("raster", {"orig": elem.reshape(h, w), "sub": sub.reshape(h, w)})
-    figures["time_total_s"] = round(time.perf_counter() - t0, 4)
-    figures["peak_rss_mb"] = peak_rss_mb(client)
-    update_report(out, "preprocess", figures)
-    return figures
+    fig = PreprocessFigures(**figures, time_total_s=round(time.perf_counter() - t0, 4),
+                            peak_rss_mb=peak_rss_mb(client))
+    fig.write(out)
+    return fig

@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 import time
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,7 +19,41 @@ from .operator import open_operator
 from .passes import CAP_MIN, CAP_PRODUCT
 from .settings import sampling_of
 from .solvers import SOLVERS, anorm, get_solver  # noqa: F401  (SOLVERS: the registry, re-exported)
-from .store import RunStore, update_report
+from .store import RunStore, StageFigures
+
+
+@dataclass(frozen=True)
+class SolveFigures(StageFigures):
+    """The solve stage's figures (report.json, section "solve")."""
+
+    SECTION = "solve"
+    solver: str
+    kernel: str
+    iterations: int
+    converged: bool
+    residuals: list                  # relative residual (or the solver's bound) per pass
+    final_residual: float            # one true-residual pass, the same measure for every solver
+    passes: int                      # operator products, residual and row-sum passes included
+    pair_terms: int
+    pair_terms_per_s: float          # in the solver's own passes
+    time_s: float
+    sub_elements: int
+    channels: int
+    tol: float | None = None
+    row_sums: dict | None = None
+    near_field: dict | None = None
+    partial_visibility: dict | None = None
+    two_sided_sub_elements: int = 0
+    gathering_elements: int = 0
+    channel_terms: int = 0
+    ambient: list | None = None      # progressive refinement's ambient term
+
+    def rows(self):
+        return [("solver", f"{self.solver} ({self.kernel} kernel)"),
+                ("passes", f"{self.iterations} ({'converged' if self.converged else 'NOT converged'})"),
+                ("final residual", f"{self.final_residual:.3g}"),
+                ("pair terms/s", f"{self.pair_terms_per_s / 1e6:.1f} M"),
+                ("time", f"{self.time_s:.2f} s")]
 
 
 def side_vectors(part, elements):
@@ -72,22 +107,23 @@ def normalise_rows(op, mode="cap"):
     return out, scaling
 
 
-def write_direct_solution(run_dir: str) -> dict:
+def write_direct_solution(run_dir: str) -> SolveFigures:
     """No interreflection (reflectance 0 everywhere, effects.py): L = Le, without a pass."""
     rs = RunStore(run_dir, "r+")
     part, el = rs.load_partition(), rs.load_elements()
     rs.drop_after("nearfield")
     rs.write_arrays("solution", {"radiance": el.emission[part.orig]}, {"solver": "direct"})
-    fig = {"solver": "direct (L = Le)", "kernel": "-", "iterations": 0, "converged": True,
-           "residuals": [], "final_residual": 0.0, "passes": 0, "pair_terms": 0,
-           "pair_terms_per_s": 0.0, "time_s": 0.0, "sub_elements": len(part), "channels": 0}
-    update_report(run_dir, "solve", fig)
+    fig = SolveFigures(solver="direct (L = Le)", kernel="-", iterations=0, converged=True,
+                       residuals=[], final_residual=0.0, passes=0, pair_terms=0,
+                       pair_terms_per_s=0.0, time_s=0.0, sub_elements=len(part), channels=0)
+    fig.write(run_dir)
     return fig
 
 
 def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | None = None,
               tol: float | None = None, max_iter: int | None = None, progress: bool = True,
-              callback=None, normalise: bool | None = None, effects=None, preview=None) -> dict:
+              callback=None, normalise: bool | None = None, effects=None,
+              preview=None) -> SolveFigures:
     """Solve the run's radiosity system; write solution/radiance (m, 2, 3) and report figures.
 
     effects: an effects.EffectsPlan (grey scenes solve one channel, dead rows skip gathering,
@@ -149,7 +185,7 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
     L3 = np.broadcast_to(res.radiance, (2, 3, len(area))) if channels == 1 else res.radiance
     radiance = np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))  # (m, 2, 3)
-    figures = {
+    fig = SolveFigures(**{
         "solver": solver, "kernel": kernel, "tol": tol, "iterations": res.iterations,
         "converged": bool(res.converged), "residuals": [float(r) for r in res.residuals],
         "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
@@ -162,14 +198,13 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
         "two_sided_sub_elements": int(op.inp.sided.sum()),
         "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(part.offsets) - 1,
         "channel_terms": int(op.terms) * channels,
-    }
-    if res.ambient is not None:
-        figures["ambient"] = res.ambient.tolist()
+        "ambient": None if res.ambient is None else res.ambient.tolist(),
+    })
     rs.drop_after("nearfield")
     rs.write_arrays("solution", {"radiance": radiance},
-                    {k: v for k, v in figures.items() if k != "residuals"})
-    update_report(run_dir, "solve", figures)
+                    {k: v for k, v in fig.to_dict().items() if k != "residuals"})
+    fig.write(run_dir)
     if not res.converged:
         warnings.warn(f"{solver} did not reach tol={tol:g} in {max_iter} passes (residual "
                       f"{res.residuals[-1] if res.residuals else float('nan'):.3g})", stacklevel=2)
-    return figures
+    return fig

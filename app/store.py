@@ -24,10 +24,12 @@ groups of the stages after it, so a store never mixes results of different input
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
 import zlib
+from typing import ClassVar
 
 import numpy as np
 
@@ -159,6 +161,37 @@ def update_report(run_dir: str, section: str, data: dict) -> dict:
         json.dump(report, f, indent=2, default=_json_default)
     os.replace(tmp, fn)
     return report
+
+
+@dataclasses.dataclass(frozen=True)
+class StageFigures:
+    """What a stage measured: a frozen dataclass that writes its section of report.json and the
+    rows of the CLI's summary. Reads like the report section too (fig["key"]), for callers that
+    hold a report key (studies, tests)."""
+
+    SECTION: ClassVar[str] = ""
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    def write(self, run_dir: str) -> dict:
+        """Merge these figures into report.json's section; returns the whole report."""
+        return update_report(run_dir, self.SECTION, self.to_dict())
+
+    def rows(self) -> list[tuple[str, object]]:
+        """(label, value) rows of the CLI's summary table."""
+        return []
+
+    def __getitem__(self, key: str):
+        if key not in self.__dataclass_fields__:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.__dataclass_fields__
+
+    def get(self, key: str, default=None):
+        return getattr(self, key, default) if key in self else default
 
 
 def _json_default(o):

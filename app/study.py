@@ -107,9 +107,9 @@ def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> 
 
     rs = RunStore(run_dir)
     op, part, el = open_operator(rs, client, kernel)
-    _, cap = normalise_rows(op)
-    if cap is not None:
-        op.configure(cap=cap)
+    _, scaling = normalise_rows(op)
+    if scaling:
+        op.configure(**scaling)
     names = np.array(el.material_names)[el.material[part.orig]]
     x = np.zeros((2, 1, len(part)))
     x[0, 0, names == to] = 1.0
@@ -173,7 +173,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                     t_solve, t_img = time.perf_counter() - t, 0.0
                 else:
                     fig = run_solve(run, client, solver=solve_with, kernel=kernel, tol=tol, progress=False)
-                    passes = fig["iterations"]
+                    passes = fig.iterations
                     t_solve = time.perf_counter() - t
                     t = time.perf_counter()
                     render_outputs(run, exposure="auto")

@@ -39,9 +39,62 @@ from .rays import caster_for
 from .runner import run_tasks
 from .settings import sampling_of
 from .shafts import BOX_PAD, block_candidates, classify, set_bits, small_tile_pairs
-from .store import RunStore, VisibilityStore, update_report, write_bits, write_partial
+from .store import RunStore, StageFigures, VisibilityStore, write_bits, write_partial
 
 SMALL_TILE_FACTOR = 8  # tiles with pairs * this < number of elements skip the shaft search
+
+
+@dataclass(frozen=True)
+class VisibilityFigures(StageFigures):
+    """The visibility stage's figures (report.json, section "visibility"); pair counts are of
+    unordered pairs of sub-elements."""
+
+    SECTION = "visibility"
+    task_unit: str
+    tasks: int
+    tasks_computed: int
+    tasks_reused: int
+    tasks_corrupted_recomputed: int
+    tiles: int
+    chunk_bytes: int
+    store_bytes: int
+    sub_elements: int
+    blocks_culled: int
+    pairs_total: int
+    pairs_in_blocks: int
+    pairs_facing: int
+    pairs_shaft_visible: int
+    rays: int
+    pairs_visible: int
+    shaft_tests: int
+    pairs_partial: int
+    pairs_culled_by_orientation: int
+    rays_fraction_of_pairs: float
+    naive_ordered_rays: int
+    time_s: float
+    time_tasks_s: float
+    busy_s_per_worker: dict
+    idle_fraction: float | None
+    workers: int
+    occlusion: bool
+    sampling: str | None
+    rays_per_pair: int
+    peak_rss_mb: dict
+
+    def rows(self):
+        pt = max(1, self.pairs_total)
+        culled = self.pairs_culled_by_orientation
+        return [("sub-elements", self.sub_elements), ("pairs", self.pairs_total),
+                ("culled by orientation", f"{culled} ({culled / pt:.1%})"),
+                ("proven visible by shafts",
+                 f"{self.pairs_shaft_visible} ({self.pairs_shaft_visible / pt:.1%})"),
+                ("rays cast", f"{self.rays} ({self.rays / pt:.1%} of pairs, "
+                              f"{self.rays_per_pair} per pair)"),
+                ("visible pairs", self.pairs_visible),
+                ("tasks", f"{self.tasks} {self.task_unit} ({self.tasks_computed} computed, "
+                          f"{self.tasks_reused} reused)"),
+                ("idle fraction", "-" if self.idle_fraction is None else f"{self.idle_fraction:.1%}"),
+                ("time", f"{self.time_s:.2f} s")]
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -248,7 +301,7 @@ def plan_for(part, elements, unit: str | None):
 
 def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bool = False,
                        progress: bool = True, on_done=None, occlusion: bool = True,
-                       kernel: str | None = None) -> dict:
+                       kernel: str | None = None) -> VisibilityFigures:
     """The dynamic master (seed §4.3) through the one runner (runner.py): a bounded window of
     tasks in flight per worker thread, most expensive first; failed tasks are resubmitted;
     every finished task is recorded with its checksum, so `resume` recomputes only what is
@@ -328,7 +381,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
     m = len(part)
     naive = m * (m - 1)  # ordered pairs a brute force would trace
     nworkers = len(client.scheduler_info()["workers"]) or 1
-    figures = {
+    fig = VisibilityFigures(**{
         "task_unit": plan.unit, "tasks": int(len(plan.tasks)), "tasks_computed": computed[0],
         "tasks_reused": int(len(plan.tasks) - computed[0]), "tasks_corrupted_recomputed": corrupted,
         "tiles": int(len(plan.tiles)), "chunk_bytes": plan.chunk, "store_bytes": plan.total,
@@ -344,9 +397,9 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
         "sampling": None if sampling is None else sampling.describe(),
         "rays_per_pair": 1 if sampling is None else sampling.rays_per_pair,
         "peak_rss_mb": peak_rss_mb(client),
-    }
-    update_report(run_dir, "visibility", figures)
-    return figures
+    })
+    fig.write(run_dir)
+    return fig
 
 
 # ----------------------------------------------------------------------------- readers

@@ -65,7 +65,7 @@ def cost(client, res, settings, max_rays_per_pair):
                     t = time.perf_counter()
                     vis = compute_visibility(d, client, progress=False, kernel=kernel)
                     t_vis = min(t_vis, time.perf_counter() - t)
-                solver = "cg" if KERNELS[kernel][2] else "gauss-seidel"
+                solver = "cg" if KERNELS[kernel].reciprocal else "gauss-seidel"
                 t = time.perf_counter()
                 sol = run_solve(d, client, solver=solver, kernel=kernel, progress=False)
                 t_sol = time.perf_counter() - t

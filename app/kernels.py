@@ -1,4 +1,5 @@
-"""Form-factor kernels (SPEC §2), evaluated on the fly inside the solver's pair loop.
+"""Form-factor kernels (SPEC §2): the registry, the formulas and the sample points, evaluated
+on the fly inside the solver's pass loops (passes.py).
 
 Only the visibility bit is stored (seed §2.2, remark); every pass recomputes F from the
 sub-elements' centres, normals and areas. For a visible pair (a, b) with d = c_b - c_a,
@@ -24,8 +25,6 @@ fraction phi = sum w c c V / r^4 / sum w c c / r^4 (visibility.py), so that phi 
 unoccluded sum is exactly the kernel with a visibility term per sample pair.
 
 Radiance lives per side: the side of a that b sees is 0 (front) if ca > 0 else 1 (back).
-Arrays are structure-of-arrays so the inner loop vectorises: L and y are (2, 3, m) float64
-[side, channel, sub-element].
 """
 
 from __future__ import annotations

@@ -420,7 +420,9 @@ def _rgb(val, what, fn) -> np.ndarray:
 
 
 def load_scene(path: str, resolution=None) -> Scene:
-    """Read a scene TOML (or a bare mesh file, which then needs no camera) into a Scene."""
+    """Read a scene TOML (or a folder holding scene.toml) into a Scene: its meshes, material
+    overrides and camera. A bare mesh file is not a scene (it has no camera): write a TOML with
+    one [[mesh]] entry and a [camera] table."""
     path = os.path.abspath(path)
     if os.path.isdir(path) and os.path.exists(os.path.join(path, "scene.toml")):
         path = os.path.join(path, "scene.toml")

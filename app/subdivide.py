@@ -48,10 +48,11 @@ def sides(points, a, m):
 
 @numba.njit(cache=True)
 def locate(points, orig, root, child, split_a, split_m):
-    """Two-level lookup (seed §3.2): sub-element of each point, given its original element.
+    """Two-level lookup (seed §3.2): the leaf node of the split tree holding each point, given
+    its original element (`lookup` maps leaf nodes to sub-elements).
 
-    points (n, 3) float64 on the original's plane; orig (n,) int32 (-1: no element -> -1);
-    tree arrays of a Partition. O(depth) per point.
+    points (n, 3) float64 on the original's plane; orig (n,) int32 (-1: no element); tree
+    arrays of a Partition. Returns (n,) int32 node ids, -1 where orig is -1. O(depth) per point.
     """
     n = points.shape[0]
     out = np.full(n, -1, np.int32)

@@ -113,3 +113,12 @@ def test_task_functions_read_no_configuration():
                 assert "get" not in {n.attr for n in ast.walk(node) if isinstance(n, ast.Attribute)
                                      and isinstance(n.value, ast.Name) and n.value.id == "config"}
     assert found >= 6  # raster, subdivide, seed subscene, visibility, apply, gs sweep
+
+
+def test_readme_layout_names_every_module():
+    """The README's layout table is the map a newcomer reads: every module is on it."""
+    readme = open(os.path.join(os.path.dirname(APP), "README.md")).read()
+    section = readme[readme.index("## Layout"):]
+    section = section[:section.index("\n## ", 5)] if "\n## " in section[5:] else section
+    missing = [m for m in _modules() if f"`{m}`" not in section]
+    assert not missing, f"README's Layout misses {missing}"

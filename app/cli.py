@@ -163,14 +163,19 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
 
 
 def solve_options(fn):
-    """--solver / --kernel (and its sampling) / --tol / --max-iterations."""
+    """--solver / --kernel (and its sampling) / --tol / --max-iterations / --closure."""
     from .solvers import SOLVERS
 
+    fn = click.option("--closure", type=click.Choice(["auto", "on", "off"]), default=None,
+                      expose_value=False,
+                      help="Is the scene closed (rows balanced to exactly 1)? auto: from the geometry.",
+                      callback=_set_config(lambda v: {"radiosity.solve.closure": v}))(fn)
     fn = click.option("--max-iterations", type=int, default=None, help="Pass limit.")(fn)
     fn = click.option("--tol", type=float, default=None, help="Relative residual to stop at.")(fn)
     fn = kernel_options(fn)
-    fn = click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
-                      help="Solver (default: radiosity.solve.solver).")(fn)
+    fn = click.option("--solver", type=click.Choice(["auto", *SOLVERS]), default=None,
+                      help="Solver (default: radiosity.solve.solver, auto: CG for reciprocal "
+                           "kernels, Gauss-Seidel otherwise).")(fn)
     return fn
 
 
@@ -230,7 +235,8 @@ def plan(scene, resolution, subpixel, tol):
     planned = scene_plan(sc, subpixel, tol)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
-    click.echo(describe(planned.effects, planned.unseen_unsplit, planned.sub_elements))
+    click.echo(describe(planned.effects, planned.unseen_unsplit, planned.sub_elements,
+                        planned.closure))
 
 
 @main.command()

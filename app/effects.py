@@ -161,8 +161,9 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
                        estimates=est, full=full)
 
 
-def describe(plan: EffectsPlan, unseen: int | None = None, sub_elements: int | None = None) -> str:
-    """The plan as the `radiosity plan` command prints it."""
+def describe(plan: EffectsPlan, unseen: int | None = None, sub_elements: int | None = None,
+             closure=None) -> str:
+    """The plan as the `radiosity plan` command prints it (closure: a closure.Closure)."""
     lines = ["effect             on/off  why"]
     rows = [("occlusion", plan.occlusion), ("interreflection", plan.interreflection),
             ("colour", plan.colour)]
@@ -170,6 +171,9 @@ def describe(plan: EffectsPlan, unseen: int | None = None, sub_elements: int | N
         lines.append(f"{name:<18} {'on' if on else 'OFF':<7} {plan.reasons[name].split(': ', 1)[-1]}")
     lines.append(f"{'two-sided':<18} {'':<7} {plan.reasons['two_sided']}")
     lines.append(f"{'dead rows':<18} {'':<7} {plan.reasons['dead_rows']}")
+    if closure is not None:
+        lines.append(f"{'closure':<18} {'on' if closure.closed else 'OFF':<7} "
+                     f"{closure.reason.split(': ', 1)[-1]}")
     if unseen is not None:
         lines.append(f"{'subdivision':<18} {'':<7} only where the camera sees: {unseen} elements "
                      "stay unsplit" + (f", about {sub_elements} sub-elements" if sub_elements else ""))

@@ -19,7 +19,7 @@ from .monitor import peak_rss_mb
 from .preprocess import preprocess
 from .rays import RayCaster, raster_band
 from .render import previewer, render_outputs
-from .solve import run_solve, write_direct_solution
+from .solve import resolve_closure, run_solve, write_direct_solution
 from .store import RunStore, StageFigures, update_report
 from .types import Scene
 from .visibility import compute_visibility
@@ -62,14 +62,15 @@ class PlanFigures(StageFigures):
 
     SECTION = "plan"
     effects: object              # effects.EffectsPlan
+    closure: object              # closure.Closure: closed or open, and why
     unseen_unsplit: int          # originals the camera does not see (left as one element)
     sub_elements: int            # from the partition, or estimated from one camera raster
     estimated: bool
 
     def to_dict(self) -> dict:
         key = "sub_elements_estimate" if self.estimated else "sub_elements"
-        return {**self.effects.to_dict(), "unseen_unsplit": self.unseen_unsplit,
-                key: self.sub_elements}
+        return {**self.effects.to_dict(), "closure": self.closure.to_dict(),
+                "unseen_unsplit": self.unseen_unsplit, key: self.sub_elements}
 
 
 def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = None,
@@ -93,7 +94,8 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
         elem, _ = raster_band(rc, el.normal, el.center, cam, subpixel, slice(0, cam.height * subpixel))
         pix = np.bincount(elem[elem >= 0], minlength=len(el))
         sizes = np.maximum(1.0, 1.4 * pix)
-    return PlanFigures(plan_effects(el, tol=tol, full=full, sizes=sizes), int((pix == 0).sum()),
+    return PlanFigures(plan_effects(el, tol=tol, full=full, sizes=sizes),
+                       resolve_closure(config.get("solve.closure"), el), int((pix == 0).sum()),
                        int(sizes.sum()), estimated=run_dir is None)
 
 
@@ -139,7 +141,7 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     t = time.perf_counter()
     if effects.interreflection:
         run_solve(out, client, solver=solver, kernel=kernel, tol=tol, progress=progress,
-                  effects=effects, preview=previewer(out))
+                  effects=effects, preview=previewer(out), closure=planned.closure)
     else:
         write_direct_solution(out)
     stages["solve_s"] = time.perf_counter() - t

@@ -13,12 +13,13 @@ import numpy as np
 
 from . import config
 from .errors import RadiosityError
+from .closure import Closure, detect_closure
 from .kernels import get_kernel
 from .monitor import Monitor, progress_bar
 from .operator import open_operator
 from .passes import CAP_MIN, CAP_PRODUCT
 from .settings import sampling_of
-from .solvers import SOLVERS, anorm, get_solver  # noqa: F401  (SOLVERS: the registry, re-exported)
+from .solvers import SOLVERS, anorm, choose_solver, get_solver  # noqa: F401  (SOLVERS: re-exported)
 from .store import RunStore, StageFigures
 
 
@@ -47,11 +48,13 @@ class SolveFigures(StageFigures):
     gathering_elements: int = 0
     channel_terms: int = 0
     ambient: list | None = None      # progressive refinement's ambient term
+    closure: dict | None = None      # closure.Closure: closed or open, and why
 
     def rows(self):
         return [("solver", f"{self.solver} ({self.kernel} kernel)"),
                 ("passes", f"{self.iterations} ({'converged' if self.converged else 'NOT converged'})"),
                 ("final residual", f"{self.final_residual:.3g}"),
+                *([("closure", self.closure["reason"])] if self.closure else []),
                 ("pair terms/s", f"{self.pair_terms_per_s / 1e6:.1f} M"),
                 ("time", f"{self.time_s:.2f} s")]
 
@@ -61,6 +64,27 @@ def side_vectors(part, elements):
     Le = np.ascontiguousarray(np.transpose(elements.emission[part.orig], (1, 2, 0)))
     rho = np.ascontiguousarray(np.transpose(elements.reflectance[part.orig], (1, 2, 0)))
     return Le, rho, part.area
+
+
+def row_mode(mode, closure) -> str:
+    """The row handling to use: `mode` (radiosity.solve.normalise-rows) unless it is auto, then
+    closed for a closed scene and cap for an open one (closure: a closure.Closure)."""
+    mode = {True: "cap", False: "off", None: "auto"}.get(mode, mode)
+    if mode == "auto":
+        return "closed" if closure is not None and closure.closed else "cap"
+    return mode
+
+
+def resolve_closure(setting, elements):
+    """closure.Closure for radiosity.solve.closure = auto (detected), on or off (stated)."""
+    setting = {True: "on", False: "off", None: "auto"}.get(setting, setting)
+    if setting not in ("auto", "on", "off"):
+        raise RadiosityError(f"radiosity.solve.closure must be auto, on or off, got {setting!r}")
+    if setting == "auto":
+        return detect_closure(elements, float(config.get("rays.epsilon")))
+    closed = setting == "on"
+    return Closure(closed, 0, 0, -1, 0.0, f"{'closed' if closed else 'open'}: stated "
+                   f"(closure: {setting})" + (": rows balanced to exactly 1" if closed else ""))
 
 
 def normalise_rows(op, mode="cap"):
@@ -77,7 +101,7 @@ def normalise_rows(op, mode="cap"):
         what is left of the kernel's error no longer decides the answer when rho -> 1.
     off (or False): only report.
     """
-    mode = {True: "cap", False: "off", None: "cap"}.get(mode, mode)
+    mode = {True: "cap", False: "off", None: "cap", "auto": "cap"}.get(mode, mode)
     if mode not in ("cap", "closed", "off"):
         raise RadiosityError(f"radiosity.solve.normalise-rows must be cap, closed or off, got {mode!r}")
     sums = op.row_sums()
@@ -123,14 +147,15 @@ def write_direct_solution(run_dir: str) -> SolveFigures:
 def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | None = None,
               tol: float | None = None, max_iter: int | None = None, progress: bool = True,
               callback=None, normalise: bool | None = None, effects=None,
-              preview=None) -> SolveFigures:
+              preview=None, closure=None) -> SolveFigures:
     """Solve the run's radiosity system; write solution/radiance (m, 2, 3) and report figures.
 
     effects: an effects.EffectsPlan (grey scenes solve one channel, dead rows skip gathering,
     two-sided elements reached from one side are solved one-sided). preview: a function
-    (2, C, m) radiance -> (h, w, 3) uint8 image for the dashboard (render.previewer), or None."""
-    solver = config.get("solve.solver", solver)
+    (2, C, m) radiance -> (h, w, 3) uint8 image for the dashboard (render.previewer), or None.
+    closure: a closure.Closure already decided (the plan's), else radiosity.solve.closure."""
     kernel = config.get("solve.kernel", kernel)
+    solver = choose_solver(config.get("solve.solver", solver), kernel)
     tol = float(config.get("solve.tol", tol))
     max_iter = int(config.get("solve.max-iterations", max_iter))
     fn = get_solver(solver)
@@ -141,7 +166,10 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     rs = RunStore(run_dir, "r+")
     op, part, el = open_operator(rs, client, kernel)
     Le, rho, area = side_vectors(part, el)
-    rows, changes = normalise_rows(op, config.get("solve.normalise-rows", normalise))
+    mode = config.get("solve.normalise-rows", normalise)
+    if mode in ("auto", None) and closure is None:
+        closure = resolve_closure(config.get("solve.closure"), el)
+    rows, changes = normalise_rows(op, row_mode(mode, closure))
     channels = 3
     if effects is not None:
         changes["sided"] = effects.two_sided[part.orig]
@@ -199,6 +227,7 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
         "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(part.offsets) - 1,
         "channel_terms": int(op.terms) * channels,
         "ambient": None if res.ambient is None else res.ambient.tolist(),
+        "closure": None if closure is None else closure.to_dict(),
     })
     rs.drop_after("nearfield")
     rs.write_arrays("solution", {"radiance": radiance},

@@ -154,6 +154,15 @@ def cg(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
 SOLVERS = {"jacobi": jacobi, "gauss-seidel": gauss_seidel, "progressive": progressive, "cg": cg}
 
 
+def choose_solver(name: str, kernel: str) -> str:
+    """The solver to run: `name`, or for "auto" CG when the kernel is reciprocal (symmetric
+    form, fewest passes) and Gauss-Seidel otherwise."""
+    if name == "auto":
+        return "cg" if get_kernel(kernel).reciprocal else "gauss-seidel"
+    get_solver(name)
+    return name
+
+
 def get_solver(name: str):
     try:
         return SOLVERS[name]

@@ -31,6 +31,7 @@ import numpy as np
 from . import config
 from .errors import RadiosityError
 from .kernels import MC, NXM, get_kernel, kernel_id
+from .solvers import choose_solver
 from .settings import sampling_of
 
 COLUMNS = ["resolution", "subpixel", "kernel", "solver", "tol", "sub_elements", "passes", "time_preprocess_s",
@@ -166,7 +167,8 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                 # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
                 solve_with = config.get("solve.solver", solver)
                 if solve_with == "cg" and not get_kernel(kernel).reciprocal:
-                    solve_with = "gauss-seidel"
+                    solve_with = "auto"
+                solve_with = choose_solver(solve_with, kernel)
                 if "form_factor" in val:
                     f = form_factor_of_run(run, client, kernel, val["from"], val["to"])
                     err = abs(f / val["form_factor"] - 1.0)

@@ -16,7 +16,7 @@ LAYERS = [
     {"cli"},
     {"pipeline", "study"},
     {"preprocess", "visibility", "solve", "render", "dashboard", "cluster"},
-    {"operator", "solvers", "runner", "monitor", "settings", "nearfield", "effects"},
+    {"operator", "solvers", "runner", "monitor", "settings", "nearfield", "effects", "closure"},
     {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "scene", "camera", "rays"},
     {"types", "geometry", "config", "errors"},
 ]

@@ -10,7 +10,8 @@ The test is a Monte Carlo estimate of each original element's row-sum deficit 1 
 rays leave stratified points of every element in cosine-weighted directions over each side
 that can receive light (the front; also the back of two-sided elements); a ray *escapes* when
 it hits nothing, or hits a one-sided element from behind (which our transport treats as black:
-F = 0 there). A scene is closed when no ray escapes (up to `leak` of them: rays that slip
+F = 0 there). A point whose every ray meets a back face lies inside a solid (under a block that
+stands on the floor) and is left out. A scene is closed when no ray escapes (up to `leak` of them: rays that slip
 through float32 cracks where two elements meet). This is exact where it matters: a room with
 its blocks standing on the floor is closed however its meshes are cut (no edge matching), and a
 box with one face missing is open.
@@ -98,9 +99,15 @@ def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
         h = hit >= 0
         back[h] = (np.einsum("ij,ij->i", elements.normal[hit[h]], d[h]) > 0) & \
             ~elements.two_sided[hit[h]]
-        esc = (~h | back).reshape(len(ids), -1).sum(axis=1)
+        # a point whose every ray meets a back face lies inside a solid (the part of a floor
+        # under a block standing on it): it takes no part in the transport, and is not counted
+        P = pts.shape[1]
+        miss = (~h).reshape(len(ids), P, directions)
+        back = back.reshape(len(ids), P, directions)
+        buried = back.all(axis=2)
+        esc = np.where(buried[..., None], False, miss | back).sum(axis=(1, 2))
         np.add.at(lost, ids, esc)
-        np.add.at(cast, ids, pts.shape[1] * directions)
+        np.add.at(cast, ids, (~buried).sum(axis=1) * directions)
     frac = lost / np.maximum(cast, 1)
     worst = int(np.argmax(frac)) if n else -1
     total, escaped = int(cast.sum()), int(lost.sum())

@@ -20,7 +20,7 @@ from .plan import subscene_ranges
 from .rays import RayCaster, caster_for, raster_band
 from .runner import run_tasks
 from .store import RunStore, StageFigures
-from .subdivide import lookup, merge_partitions, subdivide, warn_depth_guard
+from .subdivide import importance_points, lookup, merge_partitions, subdivide, warn_depth_guard
 from .types import Scene
 
 
@@ -49,6 +49,9 @@ class PreprocessFigures(StageFigures):
     max_depth: int
     levels: int
     unseen_unsplit: int
+    unseen_refined: int          # unseen originals split for the seen ones' sake
+    unseen_sub_elements: int
+    unseen_mode: str             # refine or keep (the seed's rule)
     pixels_hit: int
     max_pixels_per_sub_element: int
     depth_guarded: int
@@ -64,7 +67,9 @@ class PreprocessFigures(StageFigures):
 
     def rows(self):
         rows = [("original elements", self.original_elements), ("sub-elements", self.sub_elements),
-                ("max depth", self.max_depth), ("unseen, left unsplit", self.unseen_unsplit),
+                ("max depth", self.max_depth),
+                ("unseen", f"{self.unseen_refined} refined into {self.unseen_sub_elements} "
+                           f"sub-elements, {self.unseen_unsplit} left whole ({self.unseen_mode})"),
                 ("pixels hit", self.pixels_hit), ("time", f"{self.time_total_s:.2f} s")]
         if self.sub_elements_exact is not None:
             rows.insert(2, ("sub-elements (exact variant)", self.sub_elements_exact))
@@ -134,7 +139,8 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     [inp_f] = client.scatter([inp], broadcast=True, hash=False)
     # task keys: deterministic per run directory and inputs (never shared between two runs)
     token = tokenize(key, cam.to_dict(), subpixel, variant, max_depth, ntasks, rows_per_task,
-                     inp.epsilon, store.path)
+                     inp.epsilon, store.path, config.get("subdivide.unseen"),
+                     config.get("subdivide.unseen-factor"), config.get("subdivide.unseen-budget"))
     repair = f"run radiosity preprocess again into {out}"
 
     # 1. the ID raster of the original scene (row bands), needed by both variants for the image
@@ -155,18 +161,38 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         raise SceneError(f"{scene.path}: the camera sees no element (at {cam.center.tolist()}, "
                          f"looking along {cam.z.tolist()}): check [camera]")
 
-    # 2. subdivision, one task per subscene (contiguous ranges of original ids)
+    # 2. subdivision, one task per subscene (contiguous ranges of original ids); the unseen
+    # originals get importance points of their own (subdivide.importance_points)
     t1 = time.perf_counter()
+    seen = np.zeros(len(el), bool)
+    seen[elem[hit]] = True
+    unseen_mode = config.get("subdivide.unseen")
+    if unseen_mode not in ("refine", "keep"):
+        raise SceneError(f"radiosity.subdivide.unseen must be refine or keep, got {unseen_mode!r}")
+    up, ue = np.zeros((0, 3)), np.zeros(0, np.int64)
+    if unseen_mode == "refine" and variant == "exact" and (~seen).any():
+        hp_all, he_all = pts[hit], elem[hit]
+        sample = hp_all[:: max(1, len(hp_all) // 4096)]
+        from scipy.spatial import cKDTree
+
+        pixel = float(np.median(cKDTree(hp_all).query(sample, k=2)[0][:, 1]))
+        up, ue = importance_points(el.verts, el.nverts, el.normal, el.two_sided,
+                                   np.nonzero(~seen)[0], hp_all, el.normal[he_all],
+                                   float(config.get("subdivide.unseen-factor")), pixel,
+                                   int(float(config.get("subdivide.unseen-budget")) * hit.sum())
+                                   + int((~seen).sum()), max_depth)
     if variant == "none":  # no preprocessing: every original is one element (seed §6, image 1)
         ranges = [(0, len(el))]
         args = [(el.verts, el.nverts, el.normal, np.zeros((0, 3)), np.zeros(0, np.int64),
                  max_depth, np.arange(len(el)))]
         fn = task_subdivide
     elif variant == "exact":
-        counts = np.bincount(elem[hit], minlength=len(el))
+        e_all = np.concatenate([elem[hit], ue]).astype(np.int64)
+        p_all = np.concatenate([pts[hit], up])
+        counts = np.bincount(e_all, minlength=len(el))
         ranges = subscene_ranges(counts + 1.0, ntasks)
-        order = np.argsort(elem[hit], kind="stable")
-        he, hp = elem[hit][order], pts[hit][order]
+        order = np.argsort(e_all, kind="stable")
+        he, hp = e_all[order], p_all[order]
         starts = np.searchsorted(he, [a for a, _ in ranges] + [len(el)])
         args = [(el.verts[a:b], el.nverts[a:b], el.normal[a:b], hp[starts[i]:starts[i + 1]],
                  he[starts[i]:starts[i + 1]] - a, max_depth, np.arange(a, b))
@@ -189,13 +215,14 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     # 3. the sub-element raster (two-level lookup) and the store
     sub = lookup(part, pts, elem)
     per_sub = np.bincount(sub[sub >= 0], minlength=len(part))
-    seen = np.zeros(len(el), bool)
-    seen[elem[hit]] = True
+    unseen_subs = int(np.diff(part.offsets)[~seen].sum())
+    refined = int((np.diff(part.offsets)[~seen] > 1).sum())
     figures = {
         "variant": variant, "subpixel": subpixel, "resolution": [cam.width, cam.height],
         "original_elements": len(el), "sub_elements": len(part),
         "max_depth": int(part.depth.max(initial=0)), "levels": max(f["levels"] for _, f in pieces),
-        "unseen_unsplit": int((~seen).sum()), "pixels_hit": int(hit.sum()),
+        "unseen_unsplit": int((~seen).sum()) - refined, "unseen_refined": refined,
+        "unseen_sub_elements": unseen_subs, "unseen_mode": unseen_mode, "pixels_hit": int(hit.sum()),
         "max_pixels_per_sub_element": int(per_sub.max(initial=0)), "depth_guarded": guarded,
         "sub_elements_per_pixel": len(part) / max(1, int(hit.sum())),
         "subscene_tasks": len(ranges), "raster_tasks": len(bands),

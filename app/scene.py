@@ -31,7 +31,7 @@ _MATERIAL_KEYS = {"reflectance", "emission", "two_sided", "back_reflectance", "b
 _LOOKAT_KEYS = {"position", "look_at", "up", "fov_y", "resolution"}
 _SEED_KEYS = {"center", "x", "y", "z", "focal_distance", "resolution"}
 _TOP_KEYS = {"name", "description", "mesh", "material", "camera", "validation"}
-_VALIDATION_KEYS = {"form_factor", "from", "to", "radiance"}
+_VALIDATION_KEYS = {"form_factor", "from", "to", "radiance", "kind", "emitter", "receiver"}
 
 
 class SceneWarning(UserWarning):
@@ -528,7 +528,7 @@ def load_scene(path: str, resolution=None) -> Scene:
     if unknown:
         raise SceneError(f"{path}: [validation] has unknown key(s) {sorted(unknown)}; allowed: "
                          f"{sorted(_VALIDATION_KEYS)}")
-    for k in ("from", "to"):
+    for k in ("from", "to", "emitter", "receiver"):
         if k in validation and validation[k] not in names:
             raise SceneError(f"{path}: [validation] {k} = {validation[k]!r} is not a material of "
                              f"the scene ({names})")

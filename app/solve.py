@@ -115,17 +115,20 @@ def normalise_rows(op, mode="cap"):
         scaling = {"cap": np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0), "cmode": CAP_MIN}
     elif mode == "closed":
         total = sums.sum(axis=0)
-        if np.any(total <= 0):
-            raise RadiosityError("normalise-rows=closed needs a closed scene: some element sees "
-                                 "nothing")
-        d = 1.0 / np.sqrt(total)
+        # sub-elements that see nothing (under a block standing on the floor) keep their empty
+        # rows; every other row is balanced to 1
+        live = total > 0
+        if not live.any():
+            raise RadiosityError("normalise-rows=closed needs a closed scene: no element sees "
+                                 "another")
+        d = np.where(live, 1.0 / np.sqrt(np.where(live, total, 1.0)), 1.0)
         m = len(d)
         for it in range(100):
             Fd = op.apply(np.broadcast_to(d, (2, 1, m)).copy(), use_need=False)[:, 0, :].sum(axis=0)
-            err = np.abs(d * Fd - 1.0).max()
+            err = np.abs(d * Fd - 1.0)[live].max()
             if err < 1e-12:
                 break
-            d = np.sqrt(d / Fd)
+            d = np.where(live, np.sqrt(d / np.where(live, Fd, 1.0)), 1.0)
         scaling = {"cap": d, "cmode": CAP_PRODUCT}  # pairs scaled by the product d_a d_b
         out.update({"normalised": True, "balancing_passes": it + 1, "balancing_error": float(err)})
     return out, scaling

@@ -19,7 +19,7 @@ import warnings
 import numba
 import numpy as np
 
-from .geometry import polygon_properties
+from .geometry import diameter, polygon_properties
 from .types import Partition
 
 TIE = 1e-9  # lengths within this relative difference count as equal: keeps splits scale-free
@@ -295,3 +295,68 @@ def lookup(part: Partition, points: np.ndarray, orig: np.ndarray) -> np.ndarray:
     node = locate(np.ascontiguousarray(points, float), np.ascontiguousarray(orig, np.int32),
                   part.root, part.child, part.split_a, part.split_m)
     return np.where(node >= 0, part.leaf[np.maximum(node, 0)], -1).astype(np.int32)
+
+
+# ----------------------------------------------------------------------------- unseen elements
+
+def importance_points(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray,
+                      two_sided: np.ndarray, ids: np.ndarray, seen_points: np.ndarray,
+                      seen_normal: np.ndarray, factor: float, min_size: float, budget: int,
+                      max_depth: int = 48):
+    """Where to split the originals the camera does not see (they still send and reflect light).
+
+    A node of an unseen original is split by the seed's rule while its diameter exceeds
+    `factor` times its distance to the nearest seen surface point that faces it (camera hit
+    points `seen_points` (p, 3) with their elements' normals `seen_normal` (p, 3)) and exceeds
+    `min_size`; nodes no seen point faces stay whole. verts (n, 4, 3), nverts, normal (n, 3),
+    two_sided (n,) of the originals; ids (u,): the unseen ones. At most `budget` leaves in all
+    (the most important splits first, level by level).
+
+    Returns points (q, 3) and their originals (q,): one point per leaf (its centroid), to be
+    fed to `subdivide` with the camera's pixels, which then makes exactly these leaves (every
+    split separates the centroids of the children's leaves), so the partition keeps one kind of
+    split tree and its canonical order.
+    """
+    from scipy.spatial import cKDTree
+
+    if len(ids) == 0 or len(seen_points) == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    tree = cKDTree(seen_points)
+    k = min(16, len(seen_points))
+    node_v = np.asarray(verts, float)[ids]
+    node_n = np.asarray(nverts, np.int8)[ids]
+    node_o = np.asarray(ids, np.int64)
+    depth = 0
+    done_v, done_n, done_o = [], [], []
+    while len(node_o):
+        area, _, c = polygon_properties(node_v, node_n)
+        diam = diameter(node_v, node_n)
+        dist, idx = tree.query(c, k=k)
+        dist, idx = dist.reshape(len(c), k), idx.reshape(len(c), k)
+        d = seen_points[idx] - c[:, None, :]                           # (q, k, 3)
+        nq = normal[node_o][:, None, :]
+        side = np.einsum("qkc,qkc->qk", d, np.broadcast_to(nq, d.shape))
+        front = (side > 0) | (two_sided[node_o][:, None] & (side < 0))
+        back = np.einsum("qkc,qkc->qk", d, seen_normal[idx]) < 0       # the point's side faces c
+        facing = front & back
+        near = np.where(facing.any(axis=1), np.where(facing, dist, np.inf).min(axis=1), np.inf)
+        want = (diam > factor * near) & (diam > min_size) & (depth < max_depth)
+        room = budget - (sum(len(o) for o in done_o) + len(node_o))
+        if want.sum() > room:  # over budget: split the most important nodes only
+            order = np.argsort(-(diam / np.maximum(near, 1e-300)), kind="stable")
+            keep = np.zeros(len(want), bool)
+            keep[order[:max(room, 0)]] = True
+            want &= keep
+        done_v.append(node_v[~want])
+        done_n.append(node_n[~want])
+        done_o.append(node_o[~want])
+        if not want.any():
+            break
+        c0, c1, _, _ = split_polygons(node_v[want], node_n[want])
+        node_v = np.stack([c0, c1], 1).reshape(-1, 4, 3)
+        node_n = np.repeat(node_n[want], 2)
+        node_o = np.repeat(node_o[want], 2)
+        depth += 1
+    leaf_v, leaf_n = np.concatenate(done_v), np.concatenate(done_n)
+    _, _, centre = polygon_properties(leaf_v, leaf_n)
+    return centre, np.concatenate(done_o)

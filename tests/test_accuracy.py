@@ -35,8 +35,14 @@ def test_centre_kernel_error_at_a_right_angle_edge_is_the_documented_59_percent(
 @pytest.mark.parametrize("res", [8, 16, 32])
 def test_near_field_row_sums_in_a_closed_scene_stay_within_one_percent(client, tmp_path, res):
     """Furnace cube: every row of F must sum to 1. Measured max |sum - 1|: point 0.40,
-    point-nf 0.004 / 0.006 / 0.006 at 8 / 16 / 32 (every refinement level)."""
-    out = prepared(client, tmp_path, scene_path("furnace-cube"), res)
+    point-nf 0.004 / 0.006 / 0.006 at 8 / 16 / 32 (every refinement level). The partition is
+    the camera's alone (unseen elements whole, as measured then): refining the unseen ones to
+    other sizes next to the seen ones moves point-nf's worst row to 0.016 at 8^2, which the
+    closed-scene balancing of the default removes."""
+    import dask.config
+
+    with dask.config.set({"radiosity.subdivide.unseen": "keep"}):
+        out = prepared(client, tmp_path, scene_path("furnace-cube"), res)
     rs = RunStore(out)
     worst = {}
     for kernel in ("point", "point-nf"):

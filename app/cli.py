@@ -57,7 +57,7 @@ def _friendly(fn):
                 log = write_failure_log(_RUN.get("run_dir"), msg, e.worker_traceback)
                 err = fs_error(e.cause) if e.cause is not None else None
                 if err is not None:
-                    msg = fs_error_line(err) + (f"; then: {_RUN['again']}" if _RUN.get("again") else "")
+                    msg = fs_error_line(err, _RUN.get("run_dir")) + (f"; then: {_RUN['again']}" if _RUN.get("again") else "")
                 msg += f" (worker traceback in {log})"
             click.echo(f"error: {msg}", err=True)
             sys.exit(2)
@@ -71,7 +71,7 @@ def _friendly(fn):
             err = fs_error(e)
             if err is None:
                 raise
-            click.echo(f"error: {fs_error_line(err)}"
+            click.echo(f"error: {fs_error_line(err, _RUN.get('run_dir'))}"
                        + (f"; then: {_RUN['again']}" if _RUN.get("again") else ""), err=True)
             sys.exit(2)
         finally:

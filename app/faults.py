@@ -48,12 +48,17 @@ def write_failure_log(run_dir: str | None, title: str, text: str) -> str:
     entry = f"==== {time.strftime('%Y-%m-%d %H:%M:%S')} {title}\n{text.rstrip()}\n\n"
     for d in ([run_dir] if run_dir and os.path.isdir(run_dir) else []) + [tempfile.gettempdir()]:
         fn = os.path.join(d, FAILURE_LOG)
+        existed = os.path.exists(fn)
         try:
             with open(fn, "a") as f:
                 f.write(entry)
             return fn
-        except OSError:
-            continue
+        except OSError:  # a full or read-only filesystem: the next place
+            if not existed:
+                try:
+                    os.remove(fn)
+                except OSError:
+                    pass
     return "(no log: nothing writable)"
 
 
@@ -72,10 +77,10 @@ def fs_error(e: BaseException) -> OSError | None:
     return None
 
 
-def fs_error_line(e: OSError, what: str = "") -> str:
-    """One line for a filesystem fault: the path, what happened, what to do."""
+def fs_error_line(e: OSError, where: str | None = None) -> str:
+    """One line for a filesystem fault: the path (e's, else `where`), what happened, what to do."""
     from .preflight import FS_ERRORS, fs_advice
 
-    path = e.filename or "the run directory"
+    path = e.filename or where or "the run directory"
     why = FS_ERRORS.get(e.errno, e.strerror or str(e))
-    return f"cannot write {path}{' (' + what + ')' if what else ''}: {why}; {fs_advice(e.errno)}"
+    return f"cannot write {path}: {why}; {fs_advice(e.errno)}"

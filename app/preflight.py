@@ -51,15 +51,19 @@ FS_ERRORS = {errno.ENOSPC: "the filesystem is full", errno.EROFS: "the filesyste
              errno.EEXIST: "it exists and is not a directory", errno.EISDIR: "it is a directory"}
 
 
-def fs_advice(err: int | None) -> str:
+def fs_advice(err: int | None, existing: bool = False) -> str:
+    """What to do about a filesystem error; `existing`: for a run directory that exists."""
     if err in (errno.ENOSPC, errno.EDQUOT):
         return "free space there (or use a run directory on another filesystem)"
     if err in (errno.EROFS, errno.EACCES, errno.EPERM):
+        if existing:
+            return "copy the run directory to a writable filesystem (or fix its permissions) " \
+                   "and run the command on the copy"
         return "use a run directory on a writable filesystem (or fix its permissions)"
     return "choose another run directory"
 
 
-def _probe(d: str, what: str) -> None:
+def _probe(d: str, what: str, existing: bool = False) -> None:
     """Create and delete a small file in directory d: the only test of writability that also
     holds for root and read-only mounts."""
     fn = os.path.join(d, f".radiosity-probe-{os.getpid()}")
@@ -75,7 +79,7 @@ def _probe(d: str, what: str) -> None:
         except OSError:
             pass
         raise StoreError(f"cannot write {what} {d}: {FS_ERRORS.get(e.errno, e.strerror)}; "
-                         f"{fs_advice(e.errno)}") from None
+                         f"{fs_advice(e.errno, existing)}") from None
 
 
 def check_new_run_dir(out: str) -> None:
@@ -108,8 +112,8 @@ def check_run_dir(run_dir: str, write: bool = True) -> None:
 
     RunStore(run_dir)  # exists, right format
     if write:
-        _probe(os.path.abspath(run_dir), "into the run directory")
-        _probe(os.path.join(os.path.abspath(run_dir), STORE), "into the run store")
+        _probe(os.path.abspath(run_dir), "into the run directory", True)
+        _probe(os.path.join(os.path.abspath(run_dir), STORE), "into the run store", True)
 
 
 # ----------------------------------------------------------------------------- the scene

@@ -13,6 +13,7 @@ deterministic (bad input, corrupted data): it is not retried further.
 
 from __future__ import annotations
 
+import errno
 import time
 import traceback as tb
 from dataclasses import dataclass, field
@@ -49,6 +50,16 @@ def cost_order(tasks, cost=None) -> list[int]:
         return tasks.tolist()
     c = np.asarray(cost)[tasks]
     return tasks[np.lexsort((tasks, -c))].tolist()
+
+
+#: Filesystem errors a retry would only repeat (full, read-only, no permission, quota).
+_FS_ERRNOS = (errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT)
+
+
+def deterministic(exc: BaseException) -> bool:
+    """A failure that is the same wherever and whenever it runs: bad or corrupted input (a
+    RadiosityError) or a filesystem that cannot take the bytes. Not retried."""
+    return isinstance(exc, RadiosityError) or (isinstance(exc, OSError) and exc.errno in _FS_ERRNOS)
 
 
 def _describe(exc: BaseException, trace) -> tuple[str, str]:
@@ -101,12 +112,13 @@ def run_tasks(client, fn, tasks, args_of, *, name: str, token: str, cost=None, w
                 summary, text = _describe(e, fut.traceback() if fut.status == "error" else None)
                 fut.release()
                 stats.attempts[task] = stats.attempts.get(task, 0) + 1
-                same = last_error.get(task) == summary
+                same = last_error.get(task) == summary or deterministic(e)
                 last_error[task] = summary
                 if stats.attempts[task] > retries or same:
                     for f in list(ac.futures):
                         f.cancel()
-                    why = "the same error twice" if same else f"{stats.attempts[task]} times"
+                    why = (f"{stats.attempts[task]} times" if not same else "the same error twice"
+                           if stats.attempts[task] > 1 else "an error that a retry would repeat")
                     raise TaskFailed(f"{name} task {task} failed ({why}): {summary}; the finished "
                                      f"tasks are kept{': ' + repair if repair else ''}", text, e) from None
                 stats.resubmitted += 1

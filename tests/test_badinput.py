@@ -70,3 +70,13 @@ def test_every_numeric_option_is_checked_before_anything_starts(tmp_path, args, 
     r = CliRunner().invoke(main, args)
     one_line_error(r, *fragments)
     assert not os.path.exists(tmp_path / "out"), "a refused command made its run directory"
+
+
+def test_out_that_is_a_file_or_under_a_file(tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    r = CliRunner().invoke(main, ["render", S, "--out", str(f)])
+    one_line_error(r, f"--out {f} is a file, not a directory")
+    r = CliRunner().invoke(main, ["preprocess", S, "--out", str(f / "sub" / "run")])
+    one_line_error(r, f"lies under {f}, which is a file")
+    assert f.read_text() == "x"

@@ -130,3 +130,114 @@ def test_two_concurrent_renders_into_one_out_one_is_refused(tmp_path):
         if a.poll() is None:
             kill_group(a)
     assert (out / "image.png").exists() and not (out / "run.lock").exists()
+
+
+# ----------------------------------------------------------------------------- filesystems
+
+@pytest.fixture
+def tmpfs(tmp_path):
+    """A small tmpfs of our own (4 MiB): full and read-only filesystems for real. Skips only
+    where mounting is refused outside CI; under CI=true it must work."""
+    d = tmp_path / "fs"
+    d.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(d)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        msg = f"cannot mount a tmpfs here: {(r.stderr or r.stdout).strip()}"
+        if os.environ.get("CI") == "true":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    try:
+        yield d
+    finally:
+        subprocess.run(["umount", "-l", str(d)], capture_output=True)
+
+
+def remount(d, mode: str) -> None:
+    subprocess.run(["mount", "-o", f"remount,{mode}", str(d)], check=True, capture_output=True)
+
+
+def fill(d, leave_pages: int) -> str:
+    """Fill the filesystem of d, then give back `leave_pages` pages of 4 KiB."""
+    fn = os.path.join(d, "filler")
+    block = b"\0" * (1 << 16)
+    with open(fn, "wb") as f:
+        try:
+            while True:
+                f.write(block)
+                f.flush()
+        except OSError:
+            pass
+    size = os.path.getsize(fn)
+    os.truncate(fn, max(0, size - leave_pages * 4096))
+    return fn
+
+
+def cli(args, client=None):
+    from click.testing import CliRunner
+
+    from radiosity.cli import main
+
+    extra = ["--scheduler", client.scheduler.address] if client is not None else []
+    return CliRunner().invoke(main, [str(a) for a in args] + extra)
+
+
+def one_error(r, *fragments) -> str:
+    assert r.exit_code == 2, r.output
+    [line] = error_lines(r.output)
+    assert "Traceback" not in r.output, r.output
+    for f in fragments:
+        assert f in line, r.output
+    return line
+
+
+def test_out_on_a_read_only_filesystem(tmpfs):
+    remount(tmpfs, "ro")
+    r = cli(["render", S, "--out", tmpfs / "run", *SMALL])
+    one_error(r, f"cannot create the run directory {tmpfs / 'run'}", "read-only",
+              "writable filesystem")
+    r = cli(["render", S, "--out", tmpfs, *SMALL])  # exists, but nothing can be written there
+    one_error(r, f"cannot write into the run directory {tmpfs}", "read-only")
+
+
+def test_solve_and_image_on_a_read_only_run(client, tmpfs):
+    from conftest import prepared
+
+    run_dir = prepared(client, tmpfs, S, 8)
+    remount(tmpfs, "ro")
+    try:
+        for args in (["solve", run_dir], ["image", run_dir], ["visibility", run_dir, "--resume"]):
+            r = cli(args, client if args[0] != "image" else None)
+            one_error(r, f"cannot write into the run directory {run_dir}", "read-only",
+                      "copy the run directory to a writable filesystem")
+            assert "dashboard" not in r.output  # before any cluster
+    finally:
+        remount(tmpfs, "rw")
+
+
+def test_full_disk_during_visibility_then_resume(client, tmpfs, tmp_path):
+    """ENOSPC while the workers write visibility chunks: one line naming the path, the
+    manifest holds only tasks whose bytes are on disk, and --resume completes the matrix
+    (equal to one computed on a roomy disk)."""
+    from conftest import prepared
+    from radiosity.store import RunStore, VisibilityStore
+    from radiosity.visibility import dense_visibility
+
+    cornell = scene_path("cornell-box")
+    run_dir = prepared(client, tmpfs, cornell, 16, visibility=False)
+    ref = prepared(client, tmp_path, cornell, 16, name="ref")
+    filler = fill(tmpfs, leave_pages=24)
+    r = cli(["visibility", run_dir], client)
+    line = one_error(r, f"cannot write {run_dir}/store.zarr/visibility/bits: the filesystem is full",
+                     f"then: radiosity visibility {run_dir}", "--resume", "worker traceback in")
+    rs = RunStore(run_dir)
+    vs = VisibilityStore(rs)
+    token, plan, done = vs.token(), vs.plan(), vs.finished(vs.token())
+    assert 0 < len(done) < len(plan.tasks), line
+    assert all(vs.verify(plan, t, e) for t, e in done.items())
+    os.remove(filler)
+    r = cli(["visibility", run_dir, "--resume"], client)
+    assert r.exit_code == 0, r.output
+    rep = json.loads(open(os.path.join(run_dir, "report.json")).read())["visibility"]
+    assert rep["tasks_reused"] == len(done) and rep["tasks_computed"] == len(plan.tasks) - len(done)
+    np.testing.assert_array_equal(dense_visibility(RunStore(run_dir)), dense_visibility(RunStore(ref)))

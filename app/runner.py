@@ -134,3 +134,41 @@ def run_tasks(client, fn, tasks, args_of, *, name: str, token: str, cost=None, w
                 submit(nxt)
     stats.wall_s = time.perf_counter() - t0
     return stats
+
+
+def gather_retrying(client, submit, count: int, retries: int = 3, name: str = "task",
+                    repair: str = "") -> list:
+    """Results of the futures submit(i, attempt) for i in range(count), in order. A task that
+    raises is resubmitted (attempt + 1) up to `retries` times, unless the failure is
+    deterministic (`deterministic`: a RadiosityError such as a corrupted chunk, a full or
+    read-only filesystem), which is raised at once as it is; one that keeps failing raises
+    TaskFailed with the worker's traceback. (A dead worker's tasks are rescheduled by the
+    scheduler itself and cost no attempt.)"""
+    from distributed import wait
+
+    pending = {i: submit(i, 0) for i in range(count)}
+    out: list = [None] * count
+    attempts = [0] * count
+    while pending:
+        wait(list(pending.values()))
+        for i, f in list(pending.items()):
+            if f.status == "finished":
+                out[i] = f.result()
+                del pending[i]
+                continue
+            try:
+                exc, trace = f.exception(), f.traceback()
+            except Exception as e:  # cancelled: no exception object to fetch
+                exc, trace = e, None
+            attempts[i] += 1
+            if deterministic(exc) or attempts[i] > retries:
+                for g in pending.values():
+                    g.cancel()
+                if deterministic(exc):
+                    raise exc
+                summary, text = _describe(exc, trace)
+                raise TaskFailed(f"{name} {i} failed {attempts[i]} times: {summary}"
+                                 f"{': ' + repair if repair else ''}", text, exc) from None
+            f.release()
+            pending[i] = submit(i, attempts[i])
+    return out

@@ -241,3 +241,113 @@ def test_full_disk_during_visibility_then_resume(client, tmpfs, tmp_path):
     rep = json.loads(open(os.path.join(run_dir, "report.json")).read())["visibility"]
     assert rep["tasks_reused"] == len(done) and rep["tasks_computed"] == len(plan.tasks) - len(done)
     np.testing.assert_array_equal(dense_visibility(RunStore(run_dir)), dense_visibility(RunStore(ref)))
+
+
+# ----------------------------------------------------------------------------- corruption
+
+def corrupt_a_chunk(run_dir: str) -> str:
+    """Flip bytes inside the zstd frame header of the largest stored visibility chunk."""
+    d = os.path.join(run_dir, "store.zarr", "visibility", "bits", "c")
+    fn = max((os.path.join(d, f) for f in os.listdir(d)), key=os.path.getsize)
+    b = bytearray(open(fn, "rb").read())
+    assert b[:4] == b"\x28\xb5\x2f\xfd"  # a zstd frame
+    for k in range(4, 8):
+        b[k] ^= 0xFF
+    open(fn, "wb").write(bytes(b))
+    return fn
+
+
+def test_corrupted_zstd_frame_stops_solve_in_one_line_and_resume_recomputes_it(client, tmp_path):
+    from conftest import prepared
+    from radiosity.store import RunStore
+    from radiosity.visibility import compute_visibility, dense_visibility
+
+    run_dir = prepared(client, tmp_path, scene_path("cornell-box"), 12)
+    before = dense_visibility(RunStore(run_dir))
+    corrupt_a_chunk(run_dir)
+    r = cli(["solve", run_dir], client)
+    one_error(r, f"of {run_dir} is corrupted (unreadable chunk",
+              f"run radiosity visibility {run_dir} --resume")
+    fig = compute_visibility(run_dir, client, resume=True, progress=False)
+    assert fig.tasks_corrupted_recomputed == 1 and fig.tasks_computed == 1
+    np.testing.assert_array_equal(dense_visibility(RunStore(run_dir)), before)
+    r = cli(["solve", run_dir], client)
+    assert r.exit_code == 0, r.output
+
+
+# ----------------------------------------------------------------------------- retries
+
+def _count_and_fail(path: str, kind: str, fail_times: int = 99):
+    """A task that records each attempt in `path`, then fails `fail_times` times."""
+    import errno as _errno
+
+    from radiosity.errors import StoreError
+
+    with open(path, "a") as f:
+        f.write("x")
+    n = os.path.getsize(path)
+    if n > fail_times:
+        return n
+    if kind == "store":
+        raise StoreError("visibility task 3 of /somewhere is corrupted (checksum)")
+    if kind == "enospc":
+        raise OSError(_errno.ENOSPC, "No space left on device", "/somewhere/bits")
+    if kind == "same":
+        raise ValueError("always the same")
+    raise ValueError(f"attempt {n}")  # a different message each time
+
+
+@pytest.mark.parametrize("kind,attempts", [("store", 1), ("enospc", 1), ("same", 2), ("varies", 4)])
+def test_runner_stops_deterministic_failures_at_once(client, tmp_path, kind, attempts):
+    from radiosity.runner import TaskFailed, run_tasks
+
+    path = str(tmp_path / "attempts")
+    with pytest.raises(TaskFailed) as ei:
+        run_tasks(client, _count_and_fail, [0], lambda t: (path, kind), name="t", token=kind,
+                  retries=3, progress=False, repair="rerun with: radiosity x --resume")
+    assert os.path.getsize(path) == attempts
+    assert "_count_and_fail" in ei.value.worker_traceback  # the worker's own traceback
+    assert ei.value.args[0].endswith("rerun with: radiosity x --resume")
+
+
+def test_operator_gather_raises_corruption_at_once_and_retries_the_rest(client, tmp_path):
+    from radiosity.errors import StoreError
+    from radiosity.runner import TaskFailed, gather_retrying
+
+    path = str(tmp_path / "a")
+
+    def submit(kind, fail_times=99):
+        return lambda i, attempt: client.submit(_count_and_fail, path, kind, fail_times, pure=False)
+
+    with pytest.raises(StoreError, match="corrupted"):
+        gather_retrying(client, submit("store"), 1, retries=3)
+    assert os.path.getsize(path) == 1
+    os.remove(path)
+    assert gather_retrying(client, submit("varies", fail_times=2), 1, retries=3) == [3]
+    os.remove(path)
+    with pytest.raises(TaskFailed, match="failed 4 times"):
+        gather_retrying(client, submit("varies"), 1, retries=3)
+
+
+def test_a_failed_task_prints_one_line_naming_its_log(tmp_path):
+    """The CLI keeps a TaskFailed's worker traceback in RUN_DIR/radiosity-error.log."""
+    import click
+    from click.testing import CliRunner
+
+    from radiosity import cli as cli_mod
+    from radiosity.runner import TaskFailed
+
+    @click.command()
+    @cli_mod._friendly
+    def boom():
+        cli_mod._started(str(tmp_path))
+        raise TaskFailed("visibility task 7 failed (the same error twice): ValueError: x; the "
+                         "finished tasks are kept", "Traceback (most recent call last):\n  worker "
+                         "frames\nValueError: x\n")
+
+    r = CliRunner().invoke(boom, [])
+    assert r.exit_code == 2
+    log = tmp_path / "radiosity-error.log"
+    [line] = error_lines(r.output)
+    assert line.endswith(f"(worker traceback in {log})") and "Traceback" not in r.output
+    assert "worker frames" in log.read_text() and "visibility task 7" in log.read_text()

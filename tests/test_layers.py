@@ -16,7 +16,8 @@ LAYERS = [
     {"cli"},
     {"pipeline", "study"},
     {"preprocess", "visibility", "solve", "render", "dashboard", "cluster"},
-    {"operator", "solvers", "runner", "monitor", "settings", "nearfield", "effects", "closure"},
+    {"operator", "solvers", "runner", "monitor", "settings", "nearfield", "effects", "closure",
+     "preflight", "runlock", "faults"},
     {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "scene", "camera", "rays"},
     {"types", "geometry", "config", "errors"},
 ]

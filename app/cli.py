@@ -19,6 +19,9 @@ def _showwarning(message, category, filename, lineno, file=None, line=None):
     click.echo(f"warning: {message}", err=True)
 
 
+#: Exit status of a solve (or render) whose solver did not reach the tolerance (README).
+NOT_CONVERGED = 3
+
 #: What the running command works on, for the line an interrupted or failed run prints:
 #: run_dir, and again: the command that continues it (set by each command as it starts).
 _RUN: dict = {}
@@ -325,6 +328,10 @@ def solve_options(fn):
                       expose_value=False,
                       help="Is the scene closed (rows balanced to exactly 1)? auto: from the geometry.",
                       callback=_set_config(lambda v: {"radiosity.solve.closure": v}))(fn)
+    fn = click.option("--keep-unconverged", is_flag=True,
+                      help="Write the solution even when the solver did not converge (by default "
+                           "a converged solution already in the run is kept; exit status 3 "
+                           "either way).")(fn)
     fn = click.option("--max-iterations", type=POSITIVE_INT, default=None, help="Pass limit.")(fn)
     fn = click.option("--tol", type=TOL, default=None,
                       help="Relative residual to stop at, in (0, 1).")(fn)
@@ -349,7 +356,8 @@ def image_options(fn):
 @solve_options
 @cluster_options
 @_friendly
-def solve(run_dir, solver, kernel, tol, max_iterations, workers, scheduler, cluster_kind):
+def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, workers, scheduler,
+          cluster_kind):
     """Solve the radiosity system of RUN_DIR (after visibility): form factors on the fly."""
     from .cluster import open_client
     from .preflight import check_run_dir, check_solve
@@ -367,8 +375,10 @@ def solve(run_dir, solver, kernel, tol, max_iterations, workers, scheduler, clus
     with run_lock(run_dir, _command_line()), open_client(workers, scheduler, cluster_kind,
                                                          echo=click.echo) as client:
         fig = run_solve(run_dir, client, solver=solver, kernel=kernel, tol=tol, max_iter=max_iterations,
-                        preview=previewer(run_dir))
+                        preview=previewer(run_dir), keep_unconverged=keep_unconverged)
     click.echo(_table(fig.rows()))
+    if not fig.converged:
+        sys.exit(NOT_CONVERGED)
 
 
 @main.command()
@@ -427,7 +437,8 @@ def plan(scene, resolution, subpixel, tol):
 @cluster_options
 @_friendly
 def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full, solver, kernel,
-           tol, max_iterations, filter_, sigma, exposure, workers, scheduler, cluster_kind):
+           tol, max_iterations, keep_unconverged, filter_, sigma, exposure, workers, scheduler,
+           cluster_kind):
     """Preprocess, visibility, solve and image of SCENE into the run directory OUT."""
     from .cluster import open_client
     from .pipeline import render_scene
@@ -449,10 +460,13 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
                                                      echo=click.echo) as client:
         rep = render_scene(sc, out, client, subpixel=subpixel, unit=task_unit, solver=solver,
                            kernel=kernel, tol=tol, filter=filter_, sigma=sigma, exposure=exposure,
-                           resume=resume, preview=not no_preview, echo=click.echo, full=full)
+                           resume=resume, preview=not no_preview, echo=click.echo, full=full,
+                           keep_unconverged=keep_unconverged)
     click.echo(_table(rep.rows()))
     click.echo(f"wrote {out}/image.exr, image.png, preview.png, mesh.glb, mesh.ply, viewer.html, report.json"
                if not no_preview else f"wrote {out}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, report.json")
+    if not rep["solve"].get("converged", True):
+        sys.exit(NOT_CONVERGED)
 
 
 @main.group()

@@ -351,3 +351,29 @@ def test_a_failed_task_prints_one_line_naming_its_log(tmp_path):
     [line] = error_lines(r.output)
     assert line.endswith(f"(worker traceback in {log})") and "Traceback" not in r.output
     assert "worker frames" in log.read_text() and "visibility task 7" in log.read_text()
+
+
+# ----------------------------------------------------------------------------- convergence
+
+def test_an_unconverged_solve_exits_3_and_keeps_the_converged_solution(client, tmp_path):
+    from conftest import prepared, radiance
+
+    run_dir = prepared(client, tmp_path, S, 8)
+    r = cli(["solve", run_dir, "--tol", "1e-9"], client)
+    assert r.exit_code == 0, r.output
+    good = radiance(run_dir)
+    r = cli(["solve", run_dir, "--solver", "jacobi", "--max-iterations", "1"], client)
+    assert r.exit_code == 3, r.output
+    assert "NOT converged" in r.output and "kept the previous converged solution" in r.output
+    np.testing.assert_array_equal(radiance(run_dir), good)
+    rep = json.loads(open(os.path.join(run_dir, "report.json")).read())["solve"]
+    assert rep["converged"] is False and rep["solution"].startswith("kept the previous")
+    r = cli(["solve", run_dir, "--solver", "jacobi", "--max-iterations", "1", "--keep-unconverged"],
+            client)
+    assert r.exit_code == 3 and "written, NOT converged" in r.output, r.output
+    assert not np.array_equal(radiance(run_dir), good)
+    # and nothing to keep: the unconverged one is written, still exit 3
+    r = cli(["render", S, "--out", tmp_path / "r2", "--resolution", "8", "--no-preview",
+             "--solver", "jacobi", "--max-iterations", "1"], client)
+    assert r.exit_code == 3 and "NOT converged" in r.output, r.output
+    assert (tmp_path / "r2" / "image.png").exists()

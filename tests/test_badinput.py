@@ -80,3 +80,57 @@ def test_out_that_is_a_file_or_under_a_file(tmp_path):
     r = CliRunner().invoke(main, ["preprocess", S, "--out", str(f / "sub" / "run")])
     one_line_error(r, f"lies under {f}, which is a file")
     assert f.read_text() == "x"
+
+
+# ----------------------------------------------------------------------------- the scene
+
+from conftest import FLOOR_AND_TRIANGLE, write_scene  # noqa: E402
+
+LIGHT = "[material.default]\nreflectance = [0.5, 0.5, 0.5]\nemission = [1.0, 1.0, 1.0]\n"
+AWAY = """
+[camera]
+position = [0.5, 2.0, -1.5]
+look_at = [0.5, 4.0, -5.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 30.0
+resolution = [32, 24]
+"""
+
+
+def test_a_camera_that_sees_nothing_is_caught_before_any_cluster(tmp_path):
+    path = write_scene(tmp_path, FLOOR_AND_TRIANGLE, LIGHT, camera=AWAY)
+    r = CliRunner().invoke(main, ["plan", path])
+    one_line_error(r, "the camera sees no element", "check [camera]")
+    for cmd in (["render", path, "--out", str(tmp_path / "out")],
+                ["preprocess", path, "--out", str(tmp_path / "out")]):
+        r = CliRunner().invoke(main, cmd)
+        one_line_error(r, "the camera sees no element")
+        assert not os.path.exists(tmp_path / "out")  # no half-made run directory
+
+
+def test_a_scene_without_an_emitter_is_said_up_front(tmp_path):
+    path = write_scene(tmp_path, FLOOR_AND_TRIANGLE, "[material.default]\nreflectance = [0.5, 0.5, 0.5]\n")
+    r = CliRunner().invoke(main, ["plan", path])
+    assert r.exit_code == 0, r.output
+    assert "warning:" in r.output and "no element emits light" in r.output and "black" in r.output
+
+
+def test_a_camera_that_sees_one_small_thing_is_not_refused(tmp_path):
+    """The coarse ray grid misses a tiny element; the full raster then finds it."""
+    from radiosity.preflight import COARSE_RAYS, check_scene
+    from radiosity.scene import load_scene
+
+    obj = "v 0.499 0.499 0\nv 0.501 0.499 0\nv 0.5 0.501 0\nf 1 2 3\n"
+    cam = """
+    [camera]
+    position = [0.5, 0.5, -1.0]
+    look_at = [0.5, 0.5, 0.0]
+    up = [0.0, 1.0, 0.0]
+    fov_y = 60.0
+    resolution = [600, 600]
+    """
+    path = write_scene(tmp_path, obj, "[material.default]\nemission = [1.0, 1.0, 1.0]\n"
+                                      "reflectance = [0.0, 0.0, 0.0]\n", camera=cam)
+    sc = load_scene(path)
+    assert 600 > COARSE_RAYS
+    assert check_scene(sc, 1)["hits"] >= 1

@@ -8,6 +8,7 @@ from __future__ import annotations
 import functools
 import math
 import sys
+import time
 import warnings
 
 import click
@@ -26,6 +27,7 @@ NOT_CONVERGED = 3
 #: run_dir, and again: the command that continues it (set by each command as it starts).
 _RUN: dict = {}
 _ARGV: list = []
+_T0: list = [time.time()]  # when the command started (the process's start for a real command)
 
 
 def _command_line(resume: bool = False) -> str:
@@ -86,6 +88,45 @@ def _friendly(fn):
 def _started(run_dir: str, resume: bool = True) -> None:
     """Say which run directory the command works on and how to continue it if it stops."""
     _RUN.update(run_dir=run_dir, again=_command_line(resume))
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("radiosity")
+    except Exception:
+        return "unknown"
+
+
+def _record_run(run_dir: str, scene_name: str | None = None) -> None:
+    """report.json's "run" section: who made this run directory and how (version, command
+    line, date, scene); the command's wall time is added when it ends (_finish)."""
+    import datetime
+    import socket
+
+    from .store import RunStore, update_report
+
+    if scene_name is None:
+        try:
+            scene_name = RunStore(run_dir).attrs.get("scene_name")
+        except Exception:
+            scene_name = None
+    update_report(run_dir, "run", {
+        "version": _version(), "command": _command_line(), "stage": _ARGV[0] if _ARGV else "",
+        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "scene": scene_name, "host": socket.gethostname()})
+
+
+def _finish(run_dir: str | None, rows: list) -> list:
+    """The summary's last row: the wall time of the whole command (start-up, imports, cluster
+    start and stop, every stage), also written to report.json's "run" section."""
+    wall = time.time() - _T0[0]
+    if run_dir is not None:
+        from .store import update_report
+
+        update_report(run_dir, "run", {"wall_s": round(wall, 3)})
+    return [*rows, ("wall time", f"{wall:.1f} s (the whole command)")]
 
 
 class _Finite(click.FloatRange):
@@ -164,6 +205,14 @@ class OneLineGroup(click.Group):
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         _ARGV[:] = list(sys.argv[1:] if args is None else args)
+        _T0[0] = time.time()
+        if args is None:  # a real command: count the interpreter's start and imports too
+            try:
+                import psutil
+
+                _T0[0] = min(_T0[0], psutil.Process().create_time())
+            except Exception:
+                pass
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, False, **extra)
         try:
@@ -287,7 +336,8 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, workers, sc
     with run_lock(out, _command_line()), open_client(workers, scheduler, cluster_kind,
                                                      echo=click.echo) as client:
         fig = run(sc, out, client, subpixel=subpixel, variant=variant, subscenes=subscenes)
-    click.echo(_table(fig.rows()))
+        _record_run(out, sc.name)
+    click.echo(_table(_finish(out, fig.rows())))
     click.echo(f"wrote {out}/store.zarr and {out}/report.json")
 
 
@@ -316,8 +366,9 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     _started(run_dir)
     with run_lock(run_dir, _command_line()), open_client(workers, scheduler, cluster_kind,
                                                          echo=click.echo) as client:
+        _record_run(run_dir)
         fig = compute_visibility(run_dir, client, unit=task_unit, resume=resume, kernel=kernel)
-    click.echo(_table(fig.rows()))
+    click.echo(_table(_finish(run_dir, fig.rows())))
 
 
 def solve_options(fn):
@@ -376,7 +427,8 @@ def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, worker
                                                          echo=click.echo) as client:
         fig = run_solve(run_dir, client, solver=solver, kernel=kernel, tol=tol, max_iter=max_iterations,
                         preview=previewer(run_dir), keep_unconverged=keep_unconverged)
-    click.echo(_table(fig.rows()))
+        _record_run(run_dir)
+    click.echo(_table(_finish(run_dir, fig.rows())))
     if not fig.converged:
         sys.exit(NOT_CONVERGED)
 
@@ -395,6 +447,8 @@ def image(run_dir, filter_, sigma, exposure):
     _started(run_dir, resume=False)
     with run_lock(run_dir, _command_line()):
         fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure)
+        _record_run(run_dir)
+        _finish(run_dir, [])
     click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html "
                f"({fig.width}x{fig.height}, exposure {fig.exposure:.3g})")
 
@@ -462,7 +516,8 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
                            kernel=kernel, tol=tol, filter=filter_, sigma=sigma, exposure=exposure,
                            resume=resume, preview=not no_preview, echo=click.echo, full=full,
                            keep_unconverged=keep_unconverged)
-    click.echo(_table(rep.rows()))
+        _record_run(out, sc.name)
+    click.echo(_table(_finish(out, rep.rows())))
     click.echo(f"wrote {out}/image.exr, image.png, preview.png, mesh.glb, mesh.ply, viewer.html, report.json"
                if not no_preview else f"wrote {out}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, report.json")
     if not rep["solve"].get("converged", True):

@@ -148,11 +148,14 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
     emitter = Le.max(axis=(1, 2)) > 0
     reach = _reachable(facing, emitter, reflect)
     gather = np.ones(n, bool) if full else (reflect & reach)
+    # three disjoint kinds that add up to the rows dropped: ~(reflect & reach)
     dead_emit = int((emitter & ~reflect).sum())
-    dead_dark = int((~reach).sum())
+    dead_black = int((~emitter & ~reflect).sum())
+    dead_dark = int((reflect & ~reach).sum())
     reasons["dead_rows"] = (f"{int((~gather).sum())} of {n} elements drop out of the iteration "
-                            f"({dead_emit} emitters that reflect nothing, {dead_dark} that no light "
-                            "can reach)" if not full else "off (--full)")
+                            f"({dead_emit} emitters that reflect nothing, {dead_black} other "
+                            f"elements that reflect nothing, {dead_dark} that no light can reach)"
+                            if not full else "off (--full)")
     dead = ~gather
     est["pair_terms_saved_per_pass"] = est.get("pair_terms_saved_per_pass", 0.0) + float(
         ((s[iu] * s[ju]) * both * (dead[iu].astype(float) + dead[ju])).sum())

@@ -330,11 +330,13 @@ class DaskOperator(_Base):
         self._gs_fixed = None  # (Le, [futures of Le, rho]) scattered once for Gauss-Seidel
 
     def _run_groups(self, L, live_orig, use_need) -> list:
-        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
+        Lf = self.client.scatter([L], broadcast=False, hash=False)
         workers = self.workers or [None] * len(self.groups)
 
         def submit(i, attempt):
-            return self.client.submit(task_apply, self.inp_f, self.groups[i], Lf, self.kid,
+            if attempt and Lf[0].status != "finished":  # its only copy died with a worker
+                Lf[:] = self.client.scatter([L], broadcast=False, hash=False)
+            return self.client.submit(task_apply, self.inp_f, self.groups[i], Lf[0], self.kid,
                                       live_orig, use_need, pure=False,
                                       workers=[workers[i]] if workers[i] else None,
                                       allow_other_workers=True)
@@ -351,13 +353,21 @@ class DaskOperator(_Base):
         w = self.workers[0] if self.workers else None
         if self._gs_fixed is None or self._gs_fixed[0] is not Le:
             self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
-        Lf = self.client.scatter([L], hash=False)[0]
-        Lef, rhof = self._gs_fixed[1]
-        [(new, terms)] = gather_retrying(
-            self.client, lambda i, attempt: self.client.submit(
-                task_gs_sweep, self.inp_f, Lf, Lef, rhof, self.kid, pure=False,
-                workers=[w] if w else None, allow_other_workers=True),
-            1, self.retries, name="Gauss-Seidel sweep")
+        Lf = self.client.scatter([L], hash=False)
+
+        def submit(i, attempt):
+            if attempt:  # scattered inputs whose only copy died with a worker: again
+                if Lf[0].status != "finished":
+                    Lf[:] = self.client.scatter([L], hash=False)
+                if any(f.status != "finished" for f in self._gs_fixed[1]):
+                    self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
+            Lef, rhof = self._gs_fixed[1]
+            return self.client.submit(task_gs_sweep, self.inp_f, Lf[0], Lef, rhof, self.kid,
+                                      pure=False, workers=[w] if w else None,
+                                      allow_other_workers=True)
+
+        [(new, terms)] = gather_retrying(self.client, submit, 1, self.retries,
+                                         name="Gauss-Seidel sweep")
         self.terms += terms
         self.passes += 1
         return new

@@ -31,6 +31,7 @@ import math
 import os
 import struct
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -666,6 +667,7 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     from .store import RunStore
 
     t0 = time.perf_counter()
+    sigma_given = sigma is not None
     filter = config.get("render.filter", filter)
     sigma = float(config.get("render.sigma", sigma))
     exposure = config.get("render.exposure", exposure)
@@ -686,6 +688,13 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     k = int(rs.attrs.get("subpixel", 1))
     raster = rs.read_arrays("raster")["sub"]
     radiance = rs.read_arrays("solution")["radiance"]
+    if filter == "gaussian" and k == 1:
+        warnings.warn(f"{run_dir} has no sub-samples (preprocessed with --subpixel 1): the "
+                      f"Gaussian filter only blurs the image by sigma = {sigma:g} pixels; "
+                      "preprocess with --subpixel 2 or more, or use --filter box", stacklevel=2)
+    elif filter == "box" and sigma_given:
+        warnings.warn("--sigma is the Gaussian filter's width: ignored with --filter box",
+                      stacklevel=2)
     if raster.shape != (camera.height * k, camera.width * k):
         raise StoreError(f"{rs.path}: raster/sub has shape {raster.shape}, the camera and "
                          f"subpixel {k} need {(camera.height * k, camera.width * k)}: run "

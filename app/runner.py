@@ -143,19 +143,25 @@ def gather_retrying(client, submit, count: int, retries: int = 3, name: str = "t
     deterministic (`deterministic`: a RadiosityError such as a corrupted chunk, a full or
     read-only filesystem), which is raised at once as it is; one that keeps failing raises
     TaskFailed with the worker's traceback. (A dead worker's tasks are rescheduled by the
-    scheduler itself and cost no attempt.)"""
+    scheduler itself and cost no attempt; a task cancelled because a scattered input died with
+    its worker costs one, and `submit` should scatter that input again when attempt > 0.)"""
     from distributed import wait
 
     pending = {i: submit(i, 0) for i in range(count)}
     out: list = [None] * count
     attempts = [0] * count
     while pending:
-        wait(list(pending.values()))
+        try:
+            wait(list(pending.values()))
+        except Exception:  # some were cancelled: an input's only copy died with a worker
+            pass
         for i, f in list(pending.items()):
             if f.status == "finished":
                 out[i] = f.result()
                 del pending[i]
                 continue
+            if f.status not in ("error", "cancelled", "lost"):
+                continue  # still running: the next round waits for it
             try:
                 exc, trace = f.exception(), f.traceback()
             except Exception as e:  # cancelled: no exception object to fetch

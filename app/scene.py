@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import struct
 import tomllib
 import warnings
@@ -24,6 +25,15 @@ from .geometry import diameter, polygon_properties
 from .types import Camera, Elements, Scene
 
 MESH_FORMATS = (".obj", ".gltf", ".glb", ".ply")
+#: Largest vertex coordinate accepted: fourth powers of lengths (|cross product|^2, r^4 in
+#: the sampled kernels) must stay finite in float64 (1e75^4 = 1e300 < 1.8e308).
+MAX_COORD = 1e75
+#: Largest camera resolution a side (a raster of 65536^2 int32 is 16 GiB already).
+MAX_RESOLUTION = 65536
+#: Smallest length taken for a direction (camera vectors): below it squares underflow to 0.
+TINY = 1e-150
+_KEYWORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+_GARBLED = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ufffd]")
 DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
 
 _MESH_KEYS = {"path", "material", "two_sided"}
@@ -64,6 +74,14 @@ def _floats(parts, fn, lineno, n=3):
     return vals
 
 
+def _check_line(fn: str, lineno: int, line: str, key: str, kind: str) -> None:
+    """A text line of an OBJ or MTL file starts with a keyword and holds no binary bytes
+    (unknown keywords are skipped, as other readers do; garbage is not)."""
+    if _GARBLED.search(line) or not _KEYWORD.match(key):
+        raise SceneError(f"{fn} could not be parsed as {kind} (line {lineno}): "
+                         f"{line.strip()[:40]!r} is not a {kind} statement")
+
+
 def _read_text(fn: str) -> list[str]:
     try:
         with open(fn, encoding="utf-8", errors="replace") as f:
@@ -82,6 +100,7 @@ def _load_mtl(fn: str) -> dict:
         if not parts:
             continue
         key, args = parts[0], parts[1:]
+        _check_line(fn, lineno, line.split("#", 1)[0], key, "MTL")
         if key == "newmtl":
             cur = " ".join(args)
             mats[cur] = {}
@@ -105,6 +124,7 @@ def load_obj(fn: str) -> RawMesh:
         if not parts:
             continue
         key, args = parts[0], parts[1:]
+        _check_line(fn, lineno, line.split("#", 1)[0], key, "OBJ")
         if key == "v":
             verts.append(_floats(args, fn, lineno))
         elif key == "f":
@@ -220,9 +240,19 @@ def polygons_from_raw(raw: RawMesh, fn: str):
     out_v, out_n, out_f, out_m = [], [], [], []
     V = raw.vertices
     for fi, idx in enumerate(raw.faces):
+        bad = [k for k in idx if not 0 <= k < len(V)]
+        if bad:
+            raise SceneError(f"{fn}: face {fi + 1} refers to vertex {bad[0]}, which does not exist "
+                             f"({len(V)} vertices)")
+        if len(idx) < 3:
+            raise SceneError(f"{fn}: face {fi + 1} has {len(idx)} vertices; a face needs at least 3")
         p = V[idx]
         if not np.all(np.isfinite(p)):
             raise SceneError(f"{fn}: face {fi + 1} has a NaN or infinite vertex coordinate")
+        if np.abs(p).max() > MAX_COORD:
+            raise SceneError(f"{fn}: face {fi + 1} has a vertex coordinate of {np.abs(p).max():.3g}: "
+                             f"beyond {MAX_COORD:g}, lengths to the fourth power overflow; "
+                             "rescale the mesh")
         mat = raw.face_material[fi]
         polys = []
         if len(idx) == 3:
@@ -338,6 +368,8 @@ def _vec(val, what: str, fn: str, n: int = 3) -> np.ndarray:
         raise SceneError(f"{fn}: {what} must be a list of {n} numbers, got {val!r}") from None
     if a.shape != (n,) or not np.all(np.isfinite(a)):
         raise SceneError(f"{fn}: {what} must be a list of {n} finite numbers, got {val!r}")
+    if np.abs(a).max(initial=0.0) > MAX_COORD:
+        raise SceneError(f"{fn}: {what} {val!r} is beyond {MAX_COORD:g}: rescale the scene")
     return a
 
 
@@ -353,10 +385,12 @@ def parse_resolution(val, where: str) -> tuple[int, int]:
             w, h = int(val[0]), int(val[1])
         else:
             w = h = int(val)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise SceneError(f"{where}: resolution must be N, [W, H] or 'WxH', got {val!r}") from None
     if w <= 0 or h <= 0:
         raise SceneError(f"{where}: resolution must be positive, got {w}x{h}")
+    if max(w, h) > MAX_RESOLUTION:
+        raise SceneError(f"{where}: resolution {w}x{h} is beyond {MAX_RESOLUTION} pixels a side")
     return w, h
 
 
@@ -379,15 +413,18 @@ def parse_camera(cam: dict, fn: str, resolution=None) -> Camera:
         pos = _vec(cam["position"], "camera.position", fn)
         at = _vec(cam["look_at"], "camera.look_at", fn)
         up = _vec(cam.get("up", [0, 1, 0]), "camera.up", fn)
-        fov = float(cam["fov_y"])
+        fov = _num(cam["fov_y"], "camera.fov_y", fn)
         if not 0 < fov < 180:
             raise SceneError(f"{fn}: camera.fov_y must be in (0, 180) degrees, got {fov}")
         z = at - pos
-        if np.linalg.norm(z) == 0:
+        if not np.linalg.norm(z) > TINY:
             raise SceneError(f"{fn}: camera.look_at equals camera.position")
         z /= np.linalg.norm(z)
+        if not np.linalg.norm(up) > TINY:
+            raise SceneError(f"{fn}: camera.up must be a non-zero vector, got {cam.get('up')!r}")
+        up = up / np.linalg.norm(up)
         x = np.cross(z, up)
-        if np.linalg.norm(x) < 1e-9 * np.linalg.norm(up):
+        if np.linalg.norm(x) < 1e-9:
             raise SceneError(f"{fn}: camera.up is parallel to the viewing direction")
         x /= np.linalg.norm(x)
         y = np.cross(x, z)
@@ -408,11 +445,22 @@ def parse_camera(cam: dict, fn: str, resolution=None) -> Camera:
             raise SceneError(f"{fn}: camera basis x, y, z is not orthonormal (x.y={x @ y:.3g}, "
                              f"y.z={y @ z:.3g}, x.z={x @ z:.3g}, |x|={np.linalg.norm(x):.6g}, "
                              f"|y|={np.linalg.norm(y):.6g}, |z|={np.linalg.norm(z):.6g})")
-        d = float(cam["focal_distance"])
+        d = _num(cam["focal_distance"], "camera.focal_distance", fn)
         if not d > 0:
             raise SceneError(f"{fn}: camera.focal_distance must be positive, got {d}")
         return Camera(r, x, y, z, d, res[0], res[1], 1.0, 1.0)
     raise SceneError(f"{fn}: [camera] needs either 'position' (look-at form) or 'center' (seed's form)")
+
+
+def _num(val, what: str, fn: str) -> float:
+    """A finite number within MAX_COORD, or a SceneError naming the key."""
+    try:
+        v = float(val)
+    except (TypeError, ValueError):
+        raise SceneError(f"{fn}: {what} must be a number, got {val!r}") from None
+    if not math.isfinite(v) or abs(v) > MAX_COORD:
+        raise SceneError(f"{fn}: {what} must be a finite number below {MAX_COORD:g}, got {val!r}")
+    return v
 
 
 def _rgb(val, what, fn) -> np.ndarray:
@@ -433,6 +481,8 @@ def load_scene(path: str, resolution=None) -> Scene:
             doc = tomllib.load(f)
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{path}: not valid TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{path}: not valid TOML: not UTF-8 text (byte {e.start})") from None
     except OSError as e:
         raise SceneError(f"cannot read scene file {path}: {e.strerror}") from None
     unknown = set(doc) - _TOP_KEYS

@@ -134,3 +134,40 @@ def test_a_camera_that_sees_one_small_thing_is_not_refused(tmp_path):
     sc = load_scene(path)
     assert 600 > COARSE_RAYS
     assert check_scene(sc, 1)["hits"] >= 1
+
+
+# ----------------------------------------------------------------------------- meshes
+
+def test_garbage_bytes_in_an_obj_name_the_line(tmp_path):
+    path = write_scene(tmp_path, "v 0 0 0\nv 1 0 0\nv 0 1 0\n", LIGHT)
+    with open(tmp_path / "mesh.obj", "ab") as f:
+        f.write(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\xff\xfe garbage\nf 1 2 3\n")
+    r = CliRunner().invoke(main, ["plan", path])
+    one_line_error(r, "mesh.obj could not be parsed as OBJ (line 4)")
+
+
+def test_a_huge_coordinate_is_rejected_up_front(tmp_path):
+    import warnings
+
+    from radiosity.errors import SceneError
+    from radiosity.scene import load_scene
+
+    path = write_scene(tmp_path, "v 0 0 0\nv 1e300 0 0\nv 1 0 1\nv 0 0 1\nf 1 4 3 2\n", LIGHT)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow warning, no "non-convex quad" on the way
+        with pytest.raises(SceneError, match="face 1 has a vertex coordinate of 1e.300"):
+            load_scene(path)
+
+
+def test_plan_dead_rows_add_up_on_coaxial_discs():
+    import re
+
+    r = CliRunner().invoke(main, ["plan", scene_path("coaxial-discs"), "--resolution", "8"])
+    assert r.exit_code == 0, r.output
+    [line] = [ln for ln in r.output.splitlines() if ln.startswith("dead rows")]
+    m = re.search(r"(\d+) of (\d+) elements drop out of the iteration \((\d+) emitters that "
+                  r"reflect nothing, (\d+) other elements that reflect nothing, (\d+) that no "
+                  r"light can reach\)", line)
+    assert m, line
+    dropped, total, a, b, c = map(int, m.groups())
+    assert dropped == a + b + c and total == 128 and dropped > 0

@@ -377,3 +377,176 @@ def test_an_unconverged_solve_exits_3_and_keeps_the_converged_solution(client, t
              "--solver", "jacobi", "--max-iterations", "1"], client)
     assert r.exit_code == 3 and "NOT converged" in r.output, r.output
     assert (tmp_path / "r2" / "image.png").exists()
+
+
+# ----------------------------------------------------------------------------- whole runs
+
+class Watched:
+    """A `radiosity` process whose stderr is read line by line as it comes."""
+
+    def __init__(self, *args):
+        import threading
+
+        self.p = start(*args)
+        self.err: list[str] = []
+        self.t = threading.Thread(target=self._read, daemon=True)
+        self.t.start()
+
+    def _read(self):
+        for line in self.p.stderr:
+            self.err.append(line)
+
+    def wait_line(self, fragment: str, timeout=240):
+        wait_for(lambda: any(fragment in ln for ln in self.err), timeout, repr(fragment), self.p)
+
+    def finish(self, timeout=300):
+        out = self.p.stdout.read()  # stderr belongs to the reader thread
+        self.p.wait(timeout)
+        self.t.join(10)
+        return self.p.returncode, out, "".join(self.err)
+
+    def workers(self):
+        """The worker processes (children of the driver that are not multiprocessing helpers)."""
+        import psutil
+
+        kids = psutil.Process(self.p.pid).children(recursive=True)
+        return [k for k in kids if "resource_tracker" not in " ".join(k.cmdline())]
+
+
+CORNELL = scene_path("cornell-box")
+LONG = ["--resolution", "16", "--workers", "2", "--no-preview", "--solver", "jacobi", "--tol", "1e-10"]
+
+
+@pytest.fixture(scope="module")
+def reference_run(tmp_path_factory):
+    """A successful render as a user runs it (its own process and cluster), stderr a pipe."""
+    out = tmp_path_factory.mktemp("ref") / "run"
+    w = Watched("render", CORNELL, "--out", out, *LONG)
+    rc, stdout, stderr = w.finish()
+    return out, rc, stdout, stderr
+
+
+def test_a_successful_run_prints_plain_progress_and_no_traceback(reference_run):
+    out, rc, stdout, stderr = reference_run
+    assert rc == 0, stderr
+    assert "Traceback" not in stderr and "CommClosedError" not in stderr, stderr
+    assert "\r" not in stderr  # no progress bar carriage returns into a pipe
+    for stage in ("raster", "subdivide", "visibility", "solve (jacobi)"):
+        assert f"{stage}: started" in stderr and f"{stage}: done" in stderr, stderr
+    assert "wall time" in stdout
+    rep = json.loads((out / "report.json").read_text())
+    run = rep["run"]
+    assert run["scene"] == "cornell-box" and run["command"].startswith("radiosity render ")
+    assert run["version"] and run["date"][:2] == "20" and run["wall_s"] > rep["render"]["stages"]["total_s"]
+    workers = set(rep["render"]["stages"]["peak_rss_mb"]["workers"])
+    assert set(rep["visibility"]["busy_s_per_worker"]) <= workers  # keyed by address everywhere
+    assert all(k.startswith("tcp://") for k in workers)
+
+
+def test_kill_a_worker_during_solve_the_answer_is_unchanged(reference_run, tmp_path):
+    from conftest import radiance
+
+    ref = reference_run[0]
+    out = tmp_path / "run"
+    w = Watched("render", CORNELL, "--out", out, *LONG)
+    try:
+        w.wait_line("solve (jacobi): started")
+        time.sleep(0.3)
+        victim = w.workers()[0]
+        victim.kill()
+        rc, stdout, stderr = w.finish()
+    finally:
+        if w.p.poll() is None:
+            kill_group(w.p)
+    assert rc == 0, stderr
+    assert "Traceback" not in stderr
+    np.testing.assert_allclose(radiance(str(out)), radiance(str(ref)), rtol=1e-12, atol=0)
+
+
+def test_kill_the_driver_during_solve_and_rerun_reuses_visibility(reference_run, tmp_path):
+    from conftest import radiance
+
+    out = tmp_path / "run"
+    w = Watched("render", CORNELL, "--out", out, *LONG)
+    try:
+        w.wait_line("solve (jacobi): started")
+    finally:
+        kill_group(w.p)  # SIGKILL: the driver and its workers, no cleanup at all
+    assert (out / "run.lock").exists()
+    r = run("render", CORNELL, "--out", out, *LONG, "--resume")
+    assert r.returncode == 0, r.stderr
+    assert "taking over the lock of a run that is no longer running" in r.stderr
+    assert "reusing the partition" in r.stdout and "Traceback" not in r.stderr
+    vis = json.loads((out / "report.json").read_text())["visibility"]
+    assert vis["tasks_computed"] == 0 and vis["tasks_reused"] == vis["tasks"] > 0
+    np.testing.assert_allclose(radiance(str(out)), radiance(str(reference_run[0])), rtol=1e-12)
+
+
+def test_ctrl_c_says_what_was_kept_in_one_line_and_resume_continues(tmp_path):
+    out = tmp_path / "run"
+    args = ["render", CORNELL, "--out", out, "--resolution", "16", "--workers", "2", "--no-preview"]
+    w = Watched(*args)
+    try:
+        w.wait_line("visibility: started")
+        os.killpg(w.p.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole group
+        rc, stdout, stderr = w.finish(120)
+    finally:
+        if w.p.poll() is None:
+            kill_group(w.p)
+    assert rc == 130, stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr and "Aborted" not in stderr, stderr
+    last = stderr.strip().splitlines()[-1]
+    assert last.startswith(f"interrupted: kept in {out}: the partition, "), stderr
+    assert last.endswith(f"; continue with: radiosity render {CORNELL} --out {out} --resolution 16 "
+                         "--workers 2 --no-preview --resume"), last
+    r = run(*args, "--resume")
+    assert r.returncode == 0 and "reusing the partition" in r.stdout, r.stderr
+
+
+def _total(x):
+    return float(np.sum(x))
+
+
+def test_a_pass_survives_losing_its_scattered_input_with_a_worker():
+    """The solver scatters L to one worker per pass; when that worker dies, the pass's tasks
+    are cancelled: gather_retrying resubmits them and the operator scatters L again."""
+    from distributed import Client, LocalCluster
+
+    from radiosity.runner import gather_retrying
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=50) as cl, Client(cl) as c:
+        a, b = sorted(c.scheduler_info()["workers"])
+        x = np.arange(10.0)
+        Lf = c.scatter([x], workers=[a], broadcast=False, hash=False)
+        try:
+            c.run(os._exit, 1, workers=[a])  # the only copy of L dies
+        except Exception:  # the worker could not answer: it is gone
+            pass
+        wait_for(lambda: Lf[0].status != "finished", 60, "the lost input")
+        scattered = [1]
+
+        def submit(i, attempt):
+            if attempt and Lf[0].status != "finished":
+                Lf[:] = c.scatter([x], broadcast=False, hash=False)
+                scattered[0] += 1
+            return c.submit(_total, Lf[0], pure=False)
+
+        assert gather_retrying(c, submit, 2, retries=3) == [45.0, 45.0]
+        assert scattered[0] == 2
+
+
+def test_image_names_the_solve_command_and_warns_about_idle_filters(client, tmp_path):
+    from conftest import prepared
+    from radiosity.solve import run_solve
+
+    run_dir = prepared(client, tmp_path, S, 8)
+    r = cli(["image", run_dir])
+    one_error(r, f"{run_dir} has no solution yet: run radiosity solve {run_dir} first")
+    run_solve(run_dir, client, progress=False)
+    r = cli(["image", run_dir, "--filter", "gaussian"])
+    assert r.exit_code == 0 and "warning:" in r.output and "has no sub-samples" in r.output, r.output
+    r = cli(["image", run_dir, "--sigma", "2"])
+    assert r.exit_code == 0 and "--sigma is the Gaussian filter's width: ignored" in r.output, r.output
+    r = cli(["image", run_dir])
+    assert r.exit_code == 0 and "warning" not in r.output, r.output

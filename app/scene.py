@@ -79,7 +79,7 @@ def _check_line(fn: str, lineno: int, line: str, key: str, kind: str) -> None:
     (unknown keywords are skipped, as other readers do; garbage is not)."""
     if _GARBLED.search(line) or not _KEYWORD.match(key):
         raise SceneError(f"{fn} could not be parsed as {kind} (line {lineno}): "
-                         f"{line.strip()[:40]!r} is not a {kind} statement")
+                         f"{line.strip()[:40]!r} is not an {kind} statement")
 
 
 def _read_text(fn: str) -> list[str]:

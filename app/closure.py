@@ -85,29 +85,33 @@ def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
         ids = np.arange(n) if side > 0 else np.nonzero(elements.two_sided)[0]
         if not len(ids):
             continue
-        nrm = side * elements.normal[ids]
-        t1, t2 = _frame(nrm)
         loc = _directions(directions, rng)                           # (D, 3)
-        dirs = (loc[None, :, :1] * t1[:, None] + loc[None, :, 1:2] * t2[:, None]
-                + loc[None, :, 2:] * nrm[:, None])                  # (k, D, 3)
-        o = pts[ids][:, :, None, :] + step * nrm[:, None, None, :]  # (k, P, 1, 3)
-        o = np.broadcast_to(o, (len(ids), pts.shape[1], directions, 3)).reshape(-1, 3)
-        d = np.broadcast_to(dirs[:, None], (len(ids), pts.shape[1], directions, 3)).reshape(-1, 3)
-        hit = rc.first_hit(np.ascontiguousarray(o), np.ascontiguousarray(d))
-        # a hit on a one-sided element from behind is black: the light is lost there too
-        back = np.zeros(len(hit), bool)
-        h = hit >= 0
-        back[h] = (np.einsum("ij,ij->i", elements.normal[hit[h]], d[h]) > 0) & \
-            ~elements.two_sided[hit[h]]
-        # a point whose every ray meets a back face lies inside a solid (the part of a floor
-        # under a block standing on it): it takes no part in the transport, and is not counted
-        P = pts.shape[1]
-        miss = (~h).reshape(len(ids), P, directions)
-        back = back.reshape(len(ids), P, directions)
-        buried = back.all(axis=2)
-        esc = np.where(buried[..., None], False, miss | back).sum(axis=(1, 2))
-        np.add.at(lost, ids, esc)
-        np.add.at(cast, ids, (~buried).sum(axis=1) * directions)
+        # elements in batches of about 1 M rays: memory stays bounded however many there are
+        batch = max(1, (1 << 20) // (pts.shape[1] * directions))
+        for s0 in range(0, len(ids), batch):
+            sub = ids[s0:s0 + batch]
+            nrm = side * elements.normal[sub]
+            t1, t2 = _frame(nrm)
+            dirs = (loc[None, :, :1] * t1[:, None] + loc[None, :, 1:2] * t2[:, None]
+                    + loc[None, :, 2:] * nrm[:, None])                  # (k, D, 3)
+            o = pts[sub][:, :, None, :] + step * nrm[:, None, None, :]  # (k, P, 1, 3)
+            o = np.broadcast_to(o, (len(sub), pts.shape[1], directions, 3)).reshape(-1, 3)
+            d = np.broadcast_to(dirs[:, None], (len(sub), pts.shape[1], directions, 3)).reshape(-1, 3)
+            hit = rc.first_hit(np.ascontiguousarray(o), np.ascontiguousarray(d))
+            # a hit on a one-sided element from behind is black: the light is lost there too
+            back = np.zeros(len(hit), bool)
+            h = hit >= 0
+            back[h] = (np.einsum("ij,ij->i", elements.normal[hit[h]], d[h]) > 0) & \
+                ~elements.two_sided[hit[h]]
+            # a point whose every ray meets a back face lies inside a solid (the part of a floor
+            # under a block standing on it): it takes no part in the transport, and is not counted
+            P = pts.shape[1]
+            miss = (~h).reshape(len(sub), P, directions)
+            back = back.reshape(len(sub), P, directions)
+            buried = back.all(axis=2)
+            esc = np.where(buried[..., None], False, miss | back).sum(axis=(1, 2))
+            np.add.at(lost, sub, esc)
+            np.add.at(cast, sub, (~buried).sum(axis=1) * directions)
     frac = lost / np.maximum(cast, 1)
     worst = int(np.argmax(frac)) if n else -1
     total, escaped = int(cast.sum()), int(lost.sum())

@@ -96,7 +96,9 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
         elem, _ = raster_band(rc, el.normal, el.center, cam, subpixel, slice(0, cam.height * subpixel))
         pix = np.bincount(elem[elem >= 0], minlength=len(el))
         sizes = np.maximum(1.0, 1.4 * pix)
-    return PlanFigures(plan_effects(el, tol=tol, full=full, sizes=sizes),
+    return PlanFigures(plan_effects(el, tol=tol, full=full, sizes=sizes,
+                                    max_pairs=int(float(config.get("plan.max-facing-pairs"))),
+                                    leaf=int(config.get("plan.leaf-size")), where=scene.path),
                        resolve_closure(config.get("solve.closure"), el), int((pix == 0).sum()),
                        int(sizes.sum()), estimated=run_dir is None)
 

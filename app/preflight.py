@@ -121,7 +121,9 @@ def check_run_dir(run_dir: str, write: bool = True) -> None:
 def check_scene(scene, subpixel: int | None = None) -> dict:
     """Light and camera of a scene, before any cluster starts. A camera that sees no element is
     an error (the image would be empty); a scene without an emitter is a warning (it renders
-    black, which is what it is, e.g. for a geometry check). Returns {"hits": coarse hits}."""
+    black, which is what it is, e.g. for a geometry check); a scene whose pairs of facing
+    originals (estimated) exceed radiosity.plan.max-facing-pairs is refused. Returns {"hits":
+    rays that hit, "facing_pairs_estimate": originals.estimate_facing_pairs}."""
     from .rays import RayCaster
 
     el, cam = scene.elements, scene.camera
@@ -129,6 +131,11 @@ def check_scene(scene, subpixel: int | None = None) -> dict:
         warnings.warn(f"{scene.path}: no element emits light (every emission is 0): the image "
                       "will be black; give a material an emission ([material.NAME] emission = "
                       "[r, g, b])", stacklevel=2)
+    # the work that grows as n^2 in the originals, refused up front when it would not fit
+    from .originals import check_budget, tree_of
+
+    est = check_budget(tree_of(el, int(config.get("plan.leaf-size"))),
+                       int(float(config.get("plan.max-facing-pairs"))), scene.path)
     subpixel = int(config.get("subdivide.subpixel", subpixel))
     rc = RayCaster(el.verts, el.nverts, float(config.get("rays.epsilon")))
     h, w = cam.height * subpixel, cam.width * subpixel
@@ -145,7 +152,7 @@ def check_scene(scene, subpixel: int | None = None) -> dict:
     if hits == 0:
         raise SceneError(f"{scene.path}: the camera sees no element (at {cam.center.tolist()}, "
                          f"looking along {cam.z.tolist()}): check [camera]")
-    return {"hits": hits}
+    return {"hits": hits, "facing_pairs_estimate": est}
 
 
 def _hits(rc, cam, subpixel, ys, xs) -> int:

@@ -330,7 +330,7 @@ class VisibilityStore:
             g.create_array(name, data=np.ascontiguousarray(a), chunks=_chunks(a))
         g.create_group("partial")
         g.attrs.update({"token": token, "chunk": plan.chunk, "total": plan.total,
-                        "unit": plan.unit, **attrs})
+                        "unit": plan.unit, "blocks_culled": plan.blocks_culled, **attrs})
         with open(self.manifest, "w") as f:
             f.write(json.dumps({"plan": token}) + "\n")
 
@@ -353,8 +353,10 @@ class VisibilityStore:
 
         g = self.rs.root["visibility"]
         at = g.attrs
-        return VisibilityPlan(tiles=g["tiles"][...], tasks=g["tasks"][...], culled=g["culled"][...],
-                              chunk=int(at["chunk"]), total=int(at["total"]), unit=at["unit"])
+        culled = g["culled"][...]
+        return VisibilityPlan(tiles=g["tiles"][...], tasks=g["tasks"][...], culled=culled,
+                              chunk=int(at["chunk"]), total=int(at["total"]), unit=at["unit"],
+                              blocks_culled=int(at.get("blocks_culled", len(culled))))
 
     def rewrite_manifest(self, token: str, entries: dict) -> None:
         """Keep only `entries` (task -> entry) in the manifest."""

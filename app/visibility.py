@@ -5,7 +5,8 @@ Per pair (a, b): V = 1 iff the two face each other (cos > 0 on a side that exist
 two-sided element) and the open segment between their centres hits nothing. Work is culled before
 any ray is cast:
 
-1. orientation, per block (plan.facing_blocks) and per pair (cos <= 0 -> 0, no ray);
+1. orientation, per block (originals.facing_pairs: cluster against cluster, nothing n x n) and
+   per pair (cos <= 0 -> 0, no ray);
 2. shafts (Haines & Wallace 1991), hierarchically: a block's rows and columns are halved
    recursively (sub-elements are in depth-first split order, so a range is a compact patch);
    each pair of ranges keeps only the occluder boxes that enter the shaft between their boxes;
@@ -34,7 +35,7 @@ from . import config
 from .errors import RadiosityError
 from .kernels import MC, NXM, Sampling, sample_points, sample_rays
 from .monitor import Monitor, peak_rss_mb
-from .plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, choose_unit, facing_blocks, make_plan
+from .plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, choose_unit, make_plan
 from .rays import caster_for
 from .runner import run_tasks
 from .settings import sampling_of
@@ -289,13 +290,17 @@ def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: 
 
 # ----------------------------------------------------------------------------- the master
 
-def plan_for(part, elements, unit: str | None):
-    """The visibility plan of a partition, with the task unit and sizes from the config."""
+def plan_for(part, elements, unit: str | None, where: str = "the scene"):
+    """The visibility plan of a partition, with the task unit and sizes from the config. The
+    blocks that face each other come from the hierarchy over the originals (originals.py):
+    nothing n x n, and at most radiosity.plan.max-facing-pairs of them (refused beyond)."""
+    from .originals import pairs_within_budget, tree_of
+
     unit = choose_unit(config.get("visibility.task-unit", unit), len(elements),
                        int(config.get("visibility.stripe-threshold")))
-    facing = facing_blocks(elements.verts, elements.nverts, elements.normal, elements.center,
-                           elements.two_sided)
-    return make_plan(part.offsets, facing, unit, int(config.get("visibility.max-task-bits")),
+    tree = tree_of(elements, int(config.get("plan.leaf-size")))
+    bi, bj, _ = pairs_within_budget(tree, int(float(config.get("plan.max-facing-pairs"))), where)
+    return make_plan(part.offsets, (bi, bj), unit, int(config.get("visibility.max-task-bits")),
                      min_task_bits=int(config.get("visibility.min-task-bits")))
 
 
@@ -316,7 +321,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
     rs = RunStore(run_dir, "r+")
     part = rs.load_partition()
     el = rs.load_elements()
-    plan = plan_for(part, el, unit)
+    plan = plan_for(part, el, unit, where=rs.attrs.get("scene") or run_dir)
     token = tokenize(plan.tiles, plan.tasks, plan.chunk, part.center, part.normal, el.verts,
                      epsilon, occlusion, None if sampling is None else sampling.to_dict())
     vs = VisibilityStore(rs)
@@ -386,7 +391,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
         "task_unit": plan.unit, "tasks": int(len(plan.tasks)), "tasks_computed": computed[0],
         "tasks_reused": int(len(plan.tasks) - computed[0]), "tasks_corrupted_recomputed": corrupted,
         "tiles": int(len(plan.tiles)), "chunk_bytes": plan.chunk, "store_bytes": plan.total,
-        "sub_elements": m, "blocks_culled": int(len(plan.culled)),
+        "sub_elements": m, "blocks_culled": int(plan.blocks_culled),
         "pairs_total": m * (m - 1) // 2, **c,
         "pairs_culled_by_orientation": m * (m - 1) // 2 - c["pairs_facing"],
         "rays_fraction_of_pairs": c["rays"] / max(1, m * (m - 1) // 2),

@@ -18,12 +18,13 @@ LAYERS = [
     {"preprocess", "visibility", "solve", "render", "dashboard", "cluster"},
     {"operator", "solvers", "runner", "monitor", "settings", "nearfield", "effects", "closure",
      "preflight", "runlock", "faults"},
-    {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "scene", "camera", "rays"},
+    {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "scene", "camera", "rays",
+     "originals"},
     {"types", "geometry", "config", "errors"},
 ]
 # modules whose code runs on workers (or is pure): no configuration, no Client
 WORKER_SIDE = {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "camera",
-               "rays", "types", "geometry", "errors"}
+               "rays", "types", "geometry", "errors", "originals"}
 
 
 def _modules() -> dict:

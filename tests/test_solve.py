@@ -43,7 +43,8 @@ def test_sphere_interior_reaches_the_exact_answer(client, tmp_path):
     for solver in ALL:
         # rows as the kernel makes them (1 - 1/n here): the closed-scene balancing that the
         # default applies to this enclosure would move them to 1
-        fig = run_solve(out, client, solver=solver, tol=1e-10, progress=False, normalise="cap")
+        fig = run_solve(out, client, solver=solver, kernel="point", tol=1e-10, progress=False,
+                        normalise="cap")
         L = radiance(out)[:, 0, 0]
         assert fig["converged"], solver
         np.testing.assert_allclose(L, exact, rtol=1e-8, err_msg=solver)
@@ -100,7 +101,7 @@ def test_point_kernel_is_reciprocal_and_disc_is_not(client, tmp_path, rng):
 def test_energy_balance_in_an_open_scene(client, tmp_path):
     """three-rectangles is open: emitted power = absorbed + escaped, for the discrete system."""
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 16)
-    run_solve(out, client, solver="gauss-seidel", tol=1e-12, progress=False)
+    run_solve(out, client, solver="gauss-seidel", kernel="point", tol=1e-12, progress=False)
     rs = RunStore(out)
     op, part, el = open_operator(rs, client, "point")
     Le, rho, A = side_vectors(part, el)

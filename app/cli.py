@@ -6,6 +6,7 @@ Every flag overrides the matching `radiosity.*` key of dask.config (see app/radi
 from __future__ import annotations
 
 import functools
+import os
 import sys
 import warnings
 
@@ -377,13 +378,20 @@ def _floats(s: str, kind=float):
 @click.option("--kernels", default="point,disc", show_default=True,
               help="Form-factor kernels; the sampled ones may name their sample count: nxm:16, mc:64.")
 @click.option("--tols", default="1e-6", show_default=True, help="Solver tolerances.")
-@click.option("--reference", type=click.Path(exists=True), default=None,
-              help="A reference image (EXR) to measure the error against.")
+@click.option("--reference", default=None, metavar="auto|PATH.exr",
+              help="auto: ground truth path-traced by Mitsuba 3 (made once in OUT/reference, "
+                   "reused), and the path tracer itself in the sweep; or a reference image (EXR).")
+@click.option("--reference-spp", type=int, default=None,
+              help="--reference auto: samples per pixel of the reference "
+                   "(default: radiosity.reference.study-spp).")
+@click.option("--path-tracer-spp", default=None, metavar="N,N,...",
+              help="--reference auto: the path tracer's sample counts (default: 1, 4, 16, ... "
+                   "up to the reference's / 16).")
 @click.option("--solver", default=None, help="Solver (default: radiosity.solve.solver).")
 @cluster_options
 @_friendly
-def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, solver, workers,
-                   scheduler, cluster_kind):
+def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, reference_spp,
+                   path_tracer_spp, solver, workers, scheduler, cluster_kind):
     """Sweep resolution x sub-pixel x kernel x tolerance on SCENE; time every stage, measure the
     error; write results.csv, results.md and accuracy.png (error against time, Pareto front)."""
     from .cluster import open_client
@@ -392,9 +400,17 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
     ks = [k for k in kernels.split(",") if k]
     for k in ks:
         kernel_setting(k)  # a bad name or count fails before the cluster starts
+    if reference == "auto":
+        from .reference import load_mitsuba
+
+        load_mitsuba(echo=click.echo)  # Mitsuba missing fails before the sweep
+    elif reference is not None and not os.path.isfile(reference):
+        raise RadiosityError(f"--reference {reference}: no such file (give an EXR image, or auto)")
+    pts = _floats(path_tracer_spp, int) if path_tracer_spp else None
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         rows = accuracy(scene, out, client, _floats(resolutions, int), _floats(subpixels, int), ks,
-                        _floats(tols), reference=reference, solver=solver, echo=click.echo)
+                        _floats(tols), reference=reference, solver=solver, echo=click.echo,
+                        reference_spp=reference_spp, path_tracer_spp=pts)
     best = [r for r in rows if r["pareto"]]
     click.echo(f"wrote {out}/results.csv, results.md, accuracy.png; {len(best)} settings on the Pareto front")
 

@@ -465,3 +465,42 @@ def form_factor(scene: Scene, frm: str, to: str, spp: int, passes: int, seed: in
         var += (el.area[j] * float(se.mean())) ** 2
     norm = math.pi * float(le[0, 0]) * float(el.area[src].sum())
     return power / norm, math.sqrt(var) / norm
+
+
+# ----------------------------------------------------------------------------- for the accuracy study
+
+def reference_at(scene: Scene, out: str, spp: int, passes: int, echo=print):
+    """Make, or reuse when `out` holds one of this scene and camera with at least `spp` samples
+    in `passes` passes, a reference in `out`. Returns (mean (H, W, 3), stderr, figures)."""
+    from .render import read_exr
+
+    fig = reusable(out, scene, spp, passes)
+    if fig is None:
+        fig = make_reference(scene, out, spp=spp, passes=passes, echo=echo)
+    else:
+        echo(f"  reusing the reference in {out} ({fig['spp']} spp, {fig['variant']})")
+    return (read_exr(os.path.join(out, "reference.exr")).astype(np.float64),
+            read_exr(os.path.join(out, "reference-stderr.exr")).astype(np.float64), fig)
+
+
+def path_tracer_runs(scene: Scene, spps, seed: int = 12345, echo=print) -> list[dict]:
+    """The path tracer as a method of the study: for each sample count, one render of the
+    scene's camera, timed (the conversion and scene build, measured once after a warm-up, plus
+    the render; the kernel compilation is left out as the engine's numba warm-up is).
+    Returns [{"spp", "time_s", "image" (H, W, 3) float64}]."""
+    mi, var = load_mitsuba(echo=echo)
+    depth, _ = path_depth(scene)
+    msc, _ = mitsuba_scene(scene, depth, mi=mi)
+    render_passes(mi, msc, 2, 2, seed=seed)  # warm-up: compiles the kernel
+    t = time.perf_counter()
+    msc, _ = mitsuba_scene(scene, depth, mi=mi)
+    t_build = time.perf_counter() - t
+    runs = []
+    for k, spp in enumerate(spps):
+        t = time.perf_counter()
+        mean, _, _ = render_passes(mi, msc, int(spp), 1, seed=seed + 1 + k)
+        runs.append({"spp": int(spp), "time_s": t_build + time.perf_counter() - t, "image": mean,
+                     "variant": var})
+        echo(f"  path tracer {scene.camera.width}x{scene.camera.height} {spp} spp: "
+             f"{runs[-1]['time_s']:.2f} s")
+    return runs

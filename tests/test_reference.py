@@ -319,3 +319,54 @@ def test_find_libllvm_takes_the_newest_recent_one(monkeypatch, tmp_path):
     monkeypatch.setattr(reference, "_LLVM_GLOBS", (str(tmp_path),))
     assert reference.find_libllvm() == str(tmp_path / "libLLVM.so.19.1")
     assert reference.find_libllvm(20) is None
+
+
+# ----------------------------------------------------------------------------- the accuracy study
+
+def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
+    import csv
+
+    from app.cli import main
+    from app.compare import element_raster, errors, interior
+    from app.render import read_exr
+    from app.study import accuracy, image_error
+
+    out = tmp_path / "st"
+    args = ["study", "accuracy", scene_path("cornell-box"), "--out", str(out), "--resolutions", "12,24",
+            "--kernels", "point", "--reference", "auto", "--reference-spp", "256",
+            "--path-tracer-spp", "1,16", "--scheduler", client.scheduler.address]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    with open(out / "results.csv") as f:
+        rows = list(csv.DictReader(f))
+    pt = [x for x in rows if x["kernel"] == "path tracer"]
+    rad = [x for x in rows if x["kernel"] == "point"]
+    assert len(pt) == 2 and len(rad) == 2 and [int(x["spp"]) for x in pt] == [1, 16]
+    assert all(float(x["error"]) > 0 and float(x["noise_floor"]) > 0 and float(x["time_total_s"]) > 0
+               and float(x["error_surface"]) > 0 for x in rows)
+    assert float(pt[1]["error"]) < 0.5 * float(pt[0]["error"])  # 16x the samples: ~1/4 the noise
+    # the reference at 16 x 16, and 8 x 8 box-filtered from it; one row recomputed by hand
+    ref = read_exr(str(out / "reference" / "r24" / "reference.exr"))
+    assert json.loads((out / "reference" / "r24" / "reference.json").read_text())["spp"] == 256
+    assert not (out / "reference" / "r12").exists()
+    sc = _scene("cornell-box", 12)
+    img = read_exr(str(out / "runs" / "r12-k1" / "image.exr"))
+    small = ref.astype(float).reshape(12, 2, 12, 2, 3).mean(axis=(1, 3))
+    want = errors(img, small, interior(element_raster(sc)))["mare"]
+    assert float(rad[0]["error"]) == pytest.approx(want, rel=1e-6)
+    assert (out / "accuracy.png").stat().st_size > 10_000 and (out / "surfaces.csv").stat().st_size > 100
+    md = (out / "results.md").read_text()
+    assert "path tracer, 16 spp" in md and "reference's own noise" in md
+    # a second study reuses the reference
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0 and "reusing the reference" in r.output
+    # a user's EXR keeps its meaning: relative RMS difference of the images
+    rows = accuracy(scene_path("cornell-box"), str(tmp_path / "st2"), client, [8], [1], ["point"], [1e-6],
+                    reference=str(out / "reference" / "r24" / "reference.exr"), echo=lambda *a: None)
+    img2 = read_exr(str(tmp_path / "st2" / "runs" / "r8-k1" / "image.exr"))
+    assert rows[0]["error"] == pytest.approx(image_error(img2, ref), rel=1e-9)
+    # validation scenes have their exact answer
+    r = CliRunner().invoke(main, ["study", "accuracy", scene_path("parallel-squares"), "--out",
+                                  str(tmp_path / "st3"), "--reference", "auto", "--scheduler",
+                                  client.scheduler.address])
+    assert r.exit_code == 2 and "[validation]" in r.output

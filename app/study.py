@@ -206,7 +206,8 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                          "time_preprocess_s": t_pre, "time_visibility_s": t_vis[key],
                          "time_solve_s": t_solve, "time_image_s": t_img,
                          "time_total_s": t_pre + t_vis[key] + t_solve + t_img, "error": err})
-            echo(f"  {res}x{res} K={k} {label} tol={tol:g}: error {err:.3g}, "
+            echo(f"  {res}x{res} K={k} {label} tol={tol:g}: "
+                 f"{'error at the end' if np.isnan(err) else f'error {err:.3g}'}, "
                  f"{rows[-1]['time_total_s']:.2f} s")
     if images and reference == "auto":  # against Mitsuba; the path tracer joins the sweep
         rows += against_mitsuba(scene_path, out, rows, images, resolutions, reference_spp,
@@ -297,17 +298,20 @@ def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, r
     for r in rows:
         r["spp"] = 0
         measure(r, images[(r["resolution"], r["subpixel"], r["kernel"], r["tol"])])
+        echo(f"  {r['resolution']}x{r['resolution']} K={r['subpixel']} {r['kernel']} tol={r['tol']:g}: "
+             f"error {r['error']:.3g} (per surface {r['error_surface']:.3g}), {r['time_total_s']:.2f} s")
     if path_tracer_spp is None:
         path_tracer_spp = [4 ** i for i in range(12) if 4 ** i <= max(1, spp // 16)]
     pt = []
-    for run in path_tracer_runs(fine_scene, path_tracer_spp, echo=echo):
+    for run in path_tracer_runs(fine_scene, path_tracer_spp, echo=lambda *a: None):
         r = {"resolution": finest, "subpixel": 1, "kernel": PATH_TRACER, "solver": f"mitsuba {run['variant']}",
              "tol": float("nan"), "sub_elements": 0, "passes": 0, "time_preprocess_s": 0.0,
              "time_visibility_s": 0.0, "time_solve_s": run["time_s"], "time_image_s": 0.0,
              "time_total_s": run["time_s"], "spp": run["spp"]}
         measure(r, run["image"])
         pt.append(r)
-        echo(f"  path tracer {run['spp']} spp: error {r['error']:.3g}, {run['time_s']:.2f} s")
+        echo(f"  path tracer {run['spp']} spp: error {r['error']:.3g} (per surface "
+             f"{r['error_surface']:.3g}), {run['time_s']:.2f} s")
     with open(os.path.join(out, "surfaces.csv"), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(surfaces[0]) if surfaces else ["resolution"])
         w.writeheader()

@@ -6,6 +6,7 @@ Every flag overrides the matching `radiosity.*` key of dask.config (see radiosit
 from __future__ import annotations
 
 import functools
+import os
 import sys
 import warnings
 
@@ -274,6 +275,62 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
                if not no_preview else f"wrote {out}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, report.json")
 
 
+@main.command()
+@click.argument("scene", type=click.Path())
+@click.option("--out", "-o", required=True, type=click.Path(), help="Directory for reference.exr, "
+              "reference-stderr.exr and reference.json.")
+@click.option("--spp", type=int, default=None, help="Samples per pixel in all (default: radiosity.reference.spp).")
+@click.option("--passes", type=int, default=None,
+              help="Independent passes the samples are split into, for the standard error "
+                   "(default: radiosity.reference.passes).")
+@click.option("--resolution", default=None, metavar="N|WxH", help="Override the camera resolution.")
+@click.option("--seed", type=int, default=None, help="Seed of the first pass.")
+@click.option("--variant", type=click.Choice(["auto", "llvm_ad_rgb", "scalar_rgb"]), default=None,
+              help="Mitsuba variant (default: radiosity.reference.variant, auto).")
+@_friendly
+def reference(scene, out, spp, passes, resolution, seed, variant):
+    """Ground truth: SCENE path-traced by Mitsuba 3 (the same elements, materials, sides and
+    camera); mean radiance, per-pixel standard error and figures into OUT."""
+    from .reference import make_reference
+    from .scene import load_scene
+
+    sc = load_scene(scene, resolution=resolution)
+    fig = make_reference(sc, out, spp=spp, passes=passes, seed=seed, variant=variant, echo=click.echo)
+    click.echo(_table([
+        ("samples", f"{fig['spp']} spp in {fig['passes']} passes ({fig['variant']}, Mitsuba "
+                    f"{fig['mitsuba_version']})"),
+        ("path depth", f"{fig['max_depth']} (max reflectance {fig['max_reflectance']:.3g}: light "
+                       f"dropped <= {fig['truncation_bound']:.2g} of the largest radiance)"),
+        ("relative std. error", f"median {fig['rel_stderr_median']:.3g}, 99th percentile "
+                                f"{fig['rel_stderr_p99']:.3g}"),
+        ("time", f"{fig['time_s']:.1f} s")]))
+    click.echo(f"wrote {out}/reference.exr, reference-stderr.exr, reference.json")
+
+
+@main.command()
+@click.argument("a", type=click.Path())
+@click.argument("b", type=click.Path())
+@click.option("--out", "-o", default=None, type=click.Path(),
+              help="Directory for compare.png (false-colour relative difference) and compare.json.")
+@_friendly
+def compare(a, b, out):
+    """Error of image A against reference B (EXR, linear RGB): mean absolute relative error,
+    max, per channel; B's noise when B-stderr.exr lies beside it."""
+    from .compare import compare_files
+
+    fig = compare_files(a, b, out)
+    pc = fig["per_channel"]
+    rows = [("pixels", f"{fig['pixels']} of {fig['width']}x{fig['height']} (where B > 0)"),
+            ("mean abs. relative error", f"{fig['mare']:.4g}"),
+            ("max relative error", f"{fig['max']:.4g}"),
+            ("per channel R, G, B", f"{pc['R']:.4g}, {pc['G']:.4g}, {pc['B']:.4g}")]
+    if "noise_floor" in fig:
+        rows.append(("B's own noise", f"{fig['noise_floor']:.4g} (the error an exact image would show)"))
+    click.echo(_table(rows))
+    if out:
+        click.echo(f"wrote {out}/compare.png (scale +-{fig['scale']:.3g}), {out}/compare.json")
+
+
 @main.group()
 def study():
     """Studies: what accuracy costs in time."""
@@ -291,13 +348,20 @@ def _floats(s: str, kind=float):
 @click.option("--kernels", default="point,disc", show_default=True,
               help="Form-factor kernels; the sampled ones may name their sample count: nxm:16, mc:64.")
 @click.option("--tols", default="1e-6", show_default=True, help="Solver tolerances.")
-@click.option("--reference", type=click.Path(exists=True), default=None,
-              help="A reference image (EXR) to measure the error against.")
+@click.option("--reference", default=None, metavar="auto|PATH.exr",
+              help="auto: ground truth path-traced by Mitsuba 3 (made once in OUT/reference, "
+                   "reused), and the path tracer itself in the sweep; or a reference image (EXR).")
+@click.option("--reference-spp", type=int, default=None,
+              help="--reference auto: samples per pixel of the reference "
+                   "(default: radiosity.reference.study-spp).")
+@click.option("--path-tracer-spp", default=None, metavar="N,N,...",
+              help="--reference auto: the path tracer's sample counts (default: 1, 4, 16, ... "
+                   "up to the reference's / 16).")
 @click.option("--solver", default=None, help="Solver (default: radiosity.solve.solver).")
 @cluster_options
 @_friendly
-def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, solver, workers,
-                   scheduler, cluster_kind):
+def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, reference_spp,
+                   path_tracer_spp, solver, workers, scheduler, cluster_kind):
     """Sweep resolution x sub-pixel x kernel x tolerance on SCENE; time every stage, measure the
     error; write results.csv, results.md and accuracy.png (error against time, Pareto front)."""
     from .cluster import open_client
@@ -306,9 +370,17 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
     ks = [k for k in kernels.split(",") if k]
     for k in ks:
         kernel_setting(k)  # a bad name or count fails before the cluster starts
+    if reference == "auto":
+        from .reference import load_mitsuba
+
+        load_mitsuba(echo=click.echo)  # Mitsuba missing fails before the sweep
+    elif reference is not None and not os.path.isfile(reference):
+        raise RadiosityError(f"--reference {reference}: no such file (give an EXR image, or auto)")
+    pts = _floats(path_tracer_spp, int) if path_tracer_spp else None
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         rows = accuracy(scene, out, client, _floats(resolutions, int), _floats(subpixels, int), ks,
-                        _floats(tols), reference=reference, solver=solver, echo=click.echo)
+                        _floats(tols), reference=reference, solver=solver, echo=click.echo,
+                        reference_spp=reference_spp, path_tracer_spp=pts)
     best = [r for r in rows if r["pareto"]]
     click.echo(f"wrote {out}/results.csv, results.md, accuracy.png; {len(best)} settings on the Pareto front")
 

@@ -15,7 +15,7 @@ APP = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 
 LAYERS = [
     {"cli"},
     {"pipeline", "study"},
-    {"preprocess", "visibility", "solve", "render", "dashboard", "cluster"},
+    {"preprocess", "visibility", "solve", "render", "dashboard", "cluster", "reference", "compare"},
     {"operator", "solvers", "runner", "monitor", "settings", "nearfield", "effects", "closure"},
     {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "scene", "camera", "rays"},
     {"types", "geometry", "config", "errors"},

@@ -23,7 +23,8 @@ Method, per unordered pair {i, j} (each computed once; F_ji = F_ij A_i / A_j):
    occluder is unobstructed (F = the unobstructed value, no rays). Otherwise the visible
    fraction phi is sampled with rays (Embree, rays.py): level s puts s x s jittered stratified
    points on each facet and traces all s^4 point pairs, phi being their kernel-weighted visible
-   fraction (seed §2.2 method 2). A pair whose unobstructed F is at most the accuracy stops at
+   fraction (seed §2.2 method 2). A pair whose unobstructed F (the larger of F_ij and F_ji) is
+   at most the accuracy stops at
    s = 1 (one ray between centroids; its error is at most F <= accuracy); a larger one starts
    at the s where one sample pair carries at most the accuracy (F / s^4 <= accuracy) and
    doubles s until two successive levels agree within the accuracy, F |phi_s - phi_s/2| <=
@@ -410,8 +411,10 @@ def _batch(inp: Inputs, prm: Params, caster, a: int, bl: np.ndarray, counts: np.
     ia, ib, blk, f, bnd = ia[keep], ib[keep], blk[keep], f[keep], bnd[keep]
     t2 = time.perf_counter()
     times[1] += t2 - t1
+    # the accuracy holds for both directions: F_ji = F_ij A_i / A_j may be the larger one
+    fmax = f * np.maximum(1.0, inp.area[ia] / inp.area[ib])
     proven = np.zeros(len(ia), np.bool_)
-    counts[_TESTS] += prove_unobstructed(ia, ib, blk, f > prm.accuracy, bl, a, inp.start, inp.end,
+    counts[_TESTS] += prove_unobstructed(ia, ib, blk, fmax > prm.accuracy, bl, a, inp.start, inp.end,
                                          inp.left, inp.right, inp.lo, inp.hi, inp.root, inp.verts,
                                          inp.nv, inp.flo, inp.fhi, inp.normal, inp.doff, inp.pad,
                                          proven)
@@ -421,7 +424,7 @@ def _batch(inp: Inputs, prm: Params, caster, a: int, bl: np.ndarray, counts: np.
     un = np.nonzero(~proven)[0]
     counts[_PROVEN] += len(ia) - len(un)
     if len(un):
-        phi[un] = _sampled(inp, prm, caster, ia[un], ib[un], f[un], counts)
+        phi[un] = _sampled(inp, prm, caster, ia[un], ib[un], fmax[un], counts)
     times[3] += time.perf_counter() - t3
     F = f * phi
     nz = np.nonzero(F > 0)[0]
@@ -431,7 +434,8 @@ def _batch(inp: Inputs, prm: Params, caster, a: int, bl: np.ndarray, counts: np.
 
 
 def _sampled(inp: Inputs, prm: Params, caster, fi, fj, fu, counts) -> np.ndarray:
-    """Visible fractions (k,) of pairs (fi, fj) (tree order) with unobstructed F fu: a pair
+    """Visible fractions (k,) of pairs (fi, fj) (tree order) whose larger unobstructed factor
+    (of F_ij, F_ji) is fu: a pair
     with fu <= accuracy takes level 1 (one ray between centroids); a larger one starts at
     the level s0 where one sample pair carries at most the accuracy (fu / s0^4 <= accuracy)
     and doubles s until two successive levels agree (fu |phi_s - phi_s/2| <= accuracy) or s

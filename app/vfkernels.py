@@ -504,11 +504,12 @@ def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
     """Jittered stratified points of facets fids (tree order): s * s per facet, pts
     (len(fids) * s * s, 3), weights w (same count; each facet's sum to 1 in expectation).
 
-    s = 1: the centroid. Triangles: one uniform point in each of the s^2 congruent
-    sub-triangles of the regular subdivision, weight 1 / s^2. Quads: one point in each cell of
-    an s x s grid of the bilinear map, weight = its Jacobian / (s^2 area) (unbiased for any
-    planar convex quad). The jitter depends on (seed, gid[facet], s, cell) only (gid: the
-    facets' original ids), so every task draws the same points."""
+    Triangles: one uniform point in each of the s^2 congruent sub-triangles of the regular
+    subdivision, weight 1 / s^2. Quads: one point in each cell of an s x s grid of the bilinear
+    map, weight = its Jacobian / (s^2 area) (unbiased for any planar convex quad). s = 1: the
+    centroid (measured: one random point instead doubles the rows' errors on the urban scene of
+    benchmarks/bench_viewfactors.py). The jitter depends on (seed, gid[facet], s, cell) only (gid: the facets' original ids), so
+    every task draws the same points."""
     S = s * s
     for t in range(fids.shape[0]):
         f = fids[t]

@@ -434,10 +434,12 @@ def _verts_side(verts, nv, i, n, d, pad):
 def prove_unobstructed(ia, ib, blk, need, bleaf, aleaf, start, end, left, right, lo, hi, root,
                        verts, nv, flo, fhi, normal, doff, pad, proven):
     """For pairs sorted by block (blk indexes bleaf; all rows in leaf aleaf): proven[p] = True
-    when no facet can cut a segment between facets ia[p] and ib[p]: the block's shaft holds no
-    candidate at all, or (for pairs with need[p]) none of the block's candidates survives the
-    pair's own tests (its plane holds both facets' vertices on one closed side, or its box is
-    outside the shaft of the two facets' boxes). Returns the number of facet tests made."""
+    when no facet can cut a segment between facets ia[p] and ib[p]. Blocks with a pair that
+    needs it (need[p]: pairs that would otherwise take many rays) are tested: a block whose
+    shaft holds no candidate at all is proven whole; otherwise each needing pair is proven when
+    none of the block's candidates survives the pair's own tests (its plane holds both facets'
+    vertices on one closed side, or its box is outside the shaft of the two facets' boxes).
+    Returns the number of facet tests made."""
     cand = np.empty(flo.shape[0], np.int64)
     tests = 0
     p = 0
@@ -449,13 +451,16 @@ def prove_unobstructed(ia, ib, blk, need, bleaf, aleaf, start, end, left, right,
         while q < n and blk[q] == k:
             any_need = any_need or need[q]
             q += 1
+        if not any_need:   # one ray each decides them as well as a proof would
+            p = q
+            continue
         b = bleaf[k]
         nc = block_occluders(start, end, left, right, lo, hi, root, flo, fhi, normal, doff, pad,
                              lo[aleaf], hi[aleaf], lo[b], hi[b], cand)
         if nc == 0:
             for r in range(p, q):
                 proven[r] = True
-        elif any_need:
+        else:
             for r in range(p, q):
                 if not need[r]:
                     continue

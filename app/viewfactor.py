@@ -24,14 +24,15 @@ Method, per unordered pair {i, j} (each computed once; F_ji = F_ij A_i / A_j):
    fraction phi is sampled with rays (Embree, rays.py): level s puts s x s jittered stratified
    points on each facet and traces all s^4 point pairs, phi being their kernel-weighted visible
    fraction (seed §2.2 method 2). A pair whose unobstructed F (the larger of F_ij and F_ji) is
-   at most the accuracy stops at
-   s = 1 (one ray between centroids; its error is at most F <= accuracy); a larger one starts
-   at the s where one sample pair carries at most the accuracy (F / s^4 <= accuracy) and
-   doubles s until two successive levels agree within the accuracy, F |phi_s - phi_s/2| <=
-   accuracy, or s reaches `max-points-per-side`. (Jittered stratification over the s^4 cell
-   pairs: where a shadow edge crosses a pair, the standard error of phi is about
-   0.5 s^-2.5, measured on the half-blocked squares of the tests.) F = phi x the unobstructed F, so obstructed
-   <= unobstructed holds by construction, and so does reciprocity.
+   at most the accuracy stops at s = 1 (one ray between centroids; its error is at most
+   F <= accuracy); a larger one starts at the s where one sample pair carries at most the
+   accuracy (F / s^4 <= accuracy), stops there when its sample pairs are unanimous (all
+   visible or all blocked: what they missed lies within one cell pair), and otherwise doubles
+   s until two successive levels agree within the accuracy, F |phi_s - phi_s/2| <= accuracy,
+   or s reaches `max-points-per-side`. (Jittered stratification over the s^4 cell pairs:
+   where a shadow edge crosses a pair, the standard error of phi is about 0.5 s^-2.5,
+   measured on the half-blocked squares of the tests.) F = phi x the unobstructed F, so
+   obstructed <= unobstructed holds by construction, and so does reciprocity.
 4. Tasks: runs of consecutive leaves, balanced by their pair counts, run on Dask through a
    bounded as_completed window (`_run_blocks`); each task writes its pairs into the run's Zarr
    store and the master records a crc32 per task in a manifest (a rerun with resume=True
@@ -112,7 +113,7 @@ def load_facets(mesh) -> Facets:
     """The facets of `mesh`: a path (OBJ, glTF/GLB, PLY, or a scene TOML / its directory, whose
     [[mesh]] files are read and whose camera and materials are ignored), a trimesh.Trimesh, a
     (vertices (V, 3), faces) pair, a types.Elements, or Facets. Bad input raises SceneError."""
-    from .scene import MESH_FORMATS, RawMesh, load_mesh, polygons_from_raw
+    from .scene import MESH_FORMATS, RawMesh, load_mesh
     from .types import Elements
 
     if isinstance(mesh, Facets):
@@ -130,10 +131,7 @@ def load_facets(mesh) -> Facets:
             files = [path]
         else:
             raise SceneError(f"{path}: not a mesh ({', '.join(MESH_FORMATS)}) or a scene TOML")
-        parts = []
-        for fn in files:
-            v, n, f, _ = polygons_from_raw(load_mesh(fn), fn, merge=False)
-            parts.append((v, n, f))
+        parts = [_polygons(load_mesh(fn), fn) for fn in files]
         return _from_polygons(parts, files)
     if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
         vertices, faces, name = mesh.vertices, mesh.faces, "mesh"
@@ -150,9 +148,43 @@ def load_facets(mesh) -> Facets:
         if len(f) < 3 or min(f) < 0 or max(f) >= len(V):
             raise SceneError(f"{name}: face {k + 1} {f} refers to vertices that do not exist "
                              f"(there are {len(V)})")
-    raw = RawMesh(V, F, ["default"] * len(F))
-    v, n, f, _ = polygons_from_raw(raw, name, merge=False)
-    return _from_polygons([(v, n, f)], [name])
+    return _from_polygons([_polygons(RawMesh(V, F, ["default"] * len(F)), name)], [name])
+
+
+def _polygons(raw, fn: str):
+    """(verts (n, 4, 3), nverts (n,), face (n,)) of a raw mesh, one facet per face, as
+    scene.polygons_from_raw(merge=False) gives them. Meshes of valid triangles and planar
+    convex quads (the usual case) are checked with whole-array operations; any other mesh
+    goes through polygons_from_raw, which repairs (with a warning) or rejects (one line naming
+    the face) exactly as the scene loader does."""
+    from .scene import polygons_from_raw
+
+    sizes = np.array([len(f) for f in raw.faces], np.int64)
+    if len(sizes) and sizes.min() >= 3 and sizes.max() <= 4:
+        V = np.asarray(raw.vertices, float)
+        idx = np.array([list(f) + [f[2]] * (4 - len(f)) for f in raw.faces], np.int64)
+        p = V[idx]
+        if np.isfinite(p).all():
+            p0, p1, p2, p3 = (p[:, k] for k in range(4))
+            c012 = np.cross(p1 - p0, p2 - p0)
+            n = c012 + np.cross(p2 - p0, p3 - p0)
+            nn = np.linalg.norm(n, axis=1)
+            diam = np.linalg.norm(p[:, :, None] - p[:, None], axis=-1).max(axis=(1, 2))
+            quad = sizes == 4
+            off = np.abs(np.einsum("ij,ij->i", p3 - p0, c012))
+            c = np.linalg.norm(c012, axis=1)
+            planar = (c > 0) & (off <= config.get("scene.planarity-tolerance") * diam * np.maximum(c, 1e-300))
+            unit = n / np.where(nn > 0, nn, 1.0)[:, None]
+            turns = np.stack([np.einsum("ij,ij->i", np.cross(p[:, (k + 1) % 4] - p[:, k],
+                                                             p[:, (k + 2) % 4] - p[:, (k + 1) % 4]), unit)
+                              for k in range(4)], 1)
+            convex = (turns > 0).all(axis=1)
+            area = 0.5 * nn
+            ok = (area > config.get("scene.min-relative-area") * diam ** 2) & (~quad | (planar & convex))
+            if ok.all():
+                return p, sizes.astype(np.int8), np.arange(len(sizes), dtype=np.int32)
+    v, nv, f, _ = polygons_from_raw(raw, fn, merge=False)
+    return v, nv, f
 
 
 def _toml_meshes(path: str) -> list:
@@ -437,9 +469,9 @@ def _sampled(inp: Inputs, prm: Params, caster, fi, fj, fu, counts) -> np.ndarray
     """Visible fractions (k,) of pairs (fi, fj) (tree order) whose larger unobstructed factor
     (of F_ij, F_ji) is fu: a pair
     with fu <= accuracy takes level 1 (one ray between centroids); a larger one starts at
-    the level s0 where one sample pair carries at most the accuracy (fu / s0^4 <= accuracy)
-    and doubles s until two successive levels agree (fu |phi_s - phi_s/2| <= accuracy) or s
-    reaches smax."""
+    the level s0 where one sample pair carries at most the accuracy (fu / s0^4 <= accuracy),
+    stops there if all its sample pairs agree (phi = 0 or 1), and else doubles s until two
+    successive levels agree (fu |phi_s - phi_s/2| <= accuracy) or s reaches smax."""
     k = len(fi)
     counts[_SAMPLED] += k
     phi = np.zeros(k)
@@ -460,6 +492,9 @@ def _sampled(inp: Inputs, prm: Params, caster, fi, fj, fu, counts) -> np.ndarray
         sm = small[active]
         pp = prev[active]
         agree = has & ~np.isnan(pp) & (fu[active] * np.abs(ph - pp) <= prm.accuracy)
+        # the first level, unanimous (every sample pair visible, or none): a region it missed
+        # lies within one cell pair, which carries at most the accuracy
+        agree |= has & np.isnan(pp) & ((ph == 0.0) | (ph == 1.0))
         last = la >= prm.smax
         accept = has & (sm | agree | last)
         counts[_ONE] += int(np.count_nonzero(accept & sm & (la == 1)))

@@ -2,14 +2,14 @@
 urban scene of about 22 000 facets (time, memory, nonzeros, row sums).
 
     python benchmarks/bench_viewfactors.py [--part compare|urban|both] [--blocks-small 3]
-        [--blocks 8] [--workers 2]
+        [--blocks 8] [--workers 2] [--repeat 2]
 
 compare: an urban scene of `--blocks-small`^2 blocks (2 976 facets at 3: streets, walls and
 roofs in 2.5 m tiles; buildings block most views). Both tools run on the same machine in the
 same process tree: ours on a LocalCluster of `--workers` single-threaded processes,
 pyviewfactor 1.1 (`compute_viewfactor_matrix(mesh, obstacles=[mesh])`: one ray between
 centroids per pair, its numba `prange` on all cores). Both are warmed first (numba compiles),
-then timed. Reference: ours at accuracy 1e-4 with up to 32 x 32 points per facet; the
+then timed (best of --repeat). The machine is shared: the JSON records the load average. Reference: ours at accuracy 1e-4 with up to 32 x 32 points per facet; the
 reference itself is checked against an independent brute force (the exact unobstructed factor
 times a visible fraction from random point pairs, one Embree ray each) on 400 random pairs
 that are partly blocked in the reference (4 096 rays each) and on 12 whole rows (1 024 rays
@@ -94,9 +94,9 @@ def urban(nb=8, block=20.0, street=10.0, tile=2.5, hmin=7.5, hmax=22.5, seed=0):
 
 # ----------------------------------------------------------------------------- helpers
 
-def ours(mesh, workers, accuracy=None, smax=None, warm=True):
-    """Our matrix (CSR), figures and wall time on a fresh LocalCluster (warmed on a tiny mesh:
-    numba loads its cache on every worker)."""
+def ours(mesh, workers, accuracy=None, smax=None, warm=True, repeat=1):
+    """Our result and best wall time of `repeat` runs on a fresh LocalCluster (warmed on a
+    tiny mesh: numba loads its cache on every worker)."""
     import dask.config
 
     from app.viewfactor import compute_viewfactors
@@ -107,15 +107,18 @@ def ours(mesh, workers, accuracy=None, smax=None, warm=True):
         if warm:
             compute_viewfactors(urban(1, block=5, street=5), os.path.join(d, "warm"), client,
                                 progress=False)
-        t = time.perf_counter()
-        res = compute_viewfactors(mesh, os.path.join(d, "run"), client, accuracy=accuracy,
-                                  progress=False)
-        wall = time.perf_counter() - t
+        wall = np.inf
+        for k in range(repeat):
+            t = time.perf_counter()
+            res = compute_viewfactors(mesh, os.path.join(d, f"run{k}"), client, accuracy=accuracy,
+                                      progress=False)
+            wall = min(wall, time.perf_counter() - t)
     return res, wall
 
 
-def pyviewfactor_matrix(V, F):
-    """pyviewfactor's matrix as ours (row i: from facet i), and its wall time (warmed)."""
+def pyviewfactor_matrix(V, F, repeat=1):
+    """pyviewfactor's matrix as ours (row i: from facet i), and its best wall time of `repeat`
+    runs (warmed)."""
     import pyvista as pv
     import pyviewfactor as pvf
     import scipy.sparse as sp
@@ -127,9 +130,11 @@ def pyviewfactor_matrix(V, F):
 
     Vw, Fw = urban(1, block=5, street=5)
     run(Vw, Fw)                                      # numba compiles
-    t = time.perf_counter()
-    M = run(V, F)
-    wall = time.perf_counter() - t
+    wall = np.inf
+    for _ in range(repeat):
+        t = time.perf_counter()
+        M = run(V, F)
+        wall = min(wall, time.perf_counter() - t)
     return sp.csr_matrix(M.T), wall                  # pyviewfactor: F[i, j] = F(j -> i)
 
 
@@ -206,7 +211,7 @@ def check_reference(fac, ref, acc_ref, k=400, rows=12, rays=4096, seed=5) -> dic
 
 # ----------------------------------------------------------------------------- parts
 
-def compare(nb: int, workers: int) -> list:
+def compare(nb: int, workers: int, repeat: int) -> list:
     from app.viewfactor import load_facets
 
     V, F = urban(nb)
@@ -216,13 +221,13 @@ def compare(nb: int, workers: int) -> list:
     chk = check_reference(fac, ref.matrix, 1e-4)
     rows = []
     for acc in (1e-2, 1e-3):
-        res, wall = ours((V, F), workers, accuracy=acc)
+        res, wall = ours((V, F), workers, accuracy=acc, repeat=repeat)
         f = res.figures
         rows.append({"part": "compare", "tool": f"radiosity (accuracy {acc:g})", "facets": len(F),
                      "time_s": round(wall, 2), "nonzeros": f["nonzeros"], "rays": f["rays"],
                      "peak_worker_MiB": max(f["peak_rss_mb"].get("workers", {0: 0}).values()),
                      **errors(res.matrix, ref.matrix, fac.area)})
-    M, wall = pyviewfactor_matrix(V, F)
+    M, wall = pyviewfactor_matrix(V, F, repeat)
     rows.append({"part": "compare", "tool": "pyviewfactor 1.1 (centroid ray)", "facets": len(F),
                  "time_s": round(wall, 2), "nonzeros": int(M.nnz), "rays": None,
                  **errors(M, ref.matrix, fac.area)})
@@ -257,13 +262,17 @@ def main():
     ap.add_argument("--blocks-small", type=int, default=3)
     ap.add_argument("--blocks", type=int, default=8)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=2, help="compare: best of this many timed runs")
     a = ap.parse_args()
     rows = []
+    load = [os.getloadavg()[0]]
     if a.part in ("compare", "both"):
-        rows += compare(a.blocks_small, a.workers)
+        rows += compare(a.blocks_small, a.workers, a.repeat)
     if a.part in ("urban", "both"):
         rows += big(a.blocks, a.workers)
-    fn = write("viewfactors", rows, {"workers": a.workers})
+    load.append(os.getloadavg()[0])
+    fn = write("viewfactors", rows, {"workers": a.workers, "repeat": a.repeat,
+                                     "load_average_1min_before_after": load})
     print(table(rows, ["part", "tool", "facets", "time_s", "nonzeros", "rays", "peak_worker_MiB",
                        "row_l1_median", "row_l1_p99", "row_l1_max", "row_sum_err_max",
                        "factor_err_max"]))

@@ -329,6 +329,29 @@ def test_cheap_kernel_is_within_its_proven_bound(rng):
     assert np.median(bound[far] / f[far]) < 1e-4          # useful where it is used
 
 
+def test_facets_load_as_the_scene_loader_would(recwarn):
+    """The whole-array loader gives polygons_from_raw(merge=False)'s facets for valid meshes, and
+    hands any other mesh to it (repairs with a warning; errors name the face)."""
+    from app.errors import SceneError
+    from app.scene import RawMesh, polygons_from_raw
+    from app.viewfactor import _polygons
+
+    rng = np.random.default_rng(4)
+    for V, F in (box([0, 0, 0], [1, 2, 3], 3), _random_scene(rng)):
+        raw = RawMesh(np.asarray(V, float), F, ["default"] * len(F))
+        got, want = _polygons(raw, "m"), polygons_from_raw(raw, "m", merge=False)
+        assert all(np.array_equal(a, b) for a, b in zip(got, want[:3]))
+    # two triangles forming a square stay two facets (no merge)
+    tri = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.]]), [[0, 1, 2], [0, 2, 3]], ["d"] * 2)
+    assert len(load_facets((tri.vertices, tri.faces))) == 2
+    bent = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.3], [0, 1, 0]]), [[0, 1, 2, 3]], ["default"])
+    assert list(_polygons(bent, "bent.obj")[1]) == [3, 3]
+    assert any("non-planar quad" in str(w.message) for w in recwarn)
+    flat = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.]]), [[0, 1, 2]], ["default"])
+    with pytest.raises(SceneError, match="face 1 .* zero area"):
+        _polygons(flat, "flat.obj")
+
+
 # ----------------------------------------------------------------------------- enclosures
 
 def test_cube_enclosure_rows_and_reciprocity(client, tmp_path):
@@ -351,7 +374,7 @@ def test_concentric_cubes_are_balanced_exactly(client, tmp_path):
     """An inward cube around an outward one (occlusion, sampled visibility): closed, rows sum
     to 1 within 5 x the accuracy before balancing (sampling errors add up over a row: 3e-3
     measured at 1e-3) and within 1e-12 after; reciprocity to 1e-12; the balancing factors move
-    by about as much as the rows were off."""
+    by less than 3 x as much as the rows were off (1.7 x measured)."""
     mesh = join(box([0, 0, 0], [1, 1, 1], 3), box([0.3, 0.3, 0.3], [0.7, 0.7, 0.7], 1, inward=False))
     acc = 1e-3
     res = run(client, tmp_path, mesh, accuracy=acc)
@@ -364,7 +387,8 @@ def test_concentric_cubes_are_balanced_exactly(client, tmp_path):
     S = (sp.diags(A) @ M).toarray()
     assert np.abs(S - S.T).max() < 1e-12
     assert M.data.max() <= 1 and not M.diagonal().any()
-    assert abs(fig["balance_scale_min"] - 1) < 5 * acc and abs(fig["balance_scale_max"] - 1) < 5 * acc
+    dev = max(abs(fig["row_sum_min"] - 1), abs(fig["row_sum_max"] - 1))
+    assert max(abs(fig["balance_scale_min"] - 1), abs(fig["balance_scale_max"] - 1)) < 3 * dev
     # the inner cube's facets see only the outer cube (row sums 1 even before balancing: they
     # are convex); the outer facets' rows lost what the inner cube hides
     inner = slice(54, 60)
@@ -378,8 +402,12 @@ def test_open_and_outward_meshes_are_not_enclosures(client, tmp_path):
     assert not res.figures["closed"] and not res.figures["balanced"]
     assert "no neighbour" in res.figures["not_enclosure_because"]
     assert res.figures["row_sum_max"] < 1
-    with pytest.warns(UserWarning, match="do not form an enclosure"):
+    with pytest.warns(UserWarning) as rec:
         on = run(client, tmp_path, open_box, "on", enclosure="on")
+    msgs = [str(w.message) for w in rec]
+    assert any("do not form an enclosure" in m for m in msgs)
+    # the rows next to the missing face lose the most: the warning names them
+    assert any("before balancing" in m and "worst rows: facet" in m and "(face " in m for m in msgs)
     assert on.figures["balanced"]
     assert np.abs(np.asarray(on.matrix.sum(axis=1)).ravel() - 1).max() < 1e-12
     out = run(client, tmp_path, box([0, 0, 0], [1, 1, 1], 2, inward=False), "outward")

@@ -331,6 +331,64 @@ def compare(a, b, out):
         click.echo(f"wrote {out}/compare.png (scale +-{fig['scale']:.3g}), {out}/compare.json")
 
 
+@main.command()
+@click.argument("mesh", type=click.Path())
+@click.option("--out", "-o", required=True, type=click.Path(), help="Run directory to create.")
+@click.option("--accuracy", type=float, default=None,
+              help="Target absolute error of each factor (default: radiosity.viewfactors.accuracy).")
+@click.option("--enclosure", type=click.Choice(["auto", "on", "off"]), default=None,
+              help="Balance rows to 1 keeping reciprocity: auto (closed meshes with inward "
+                   "normals), on, off (default: radiosity.viewfactors.enclosure).")
+@click.option("--format", "fmt", type=click.Choice(["npz", "csv"]), default="npz", show_default=True,
+              help="viewfactors.npz always; csv adds viewfactors.csv (small meshes).")
+@click.option("--cutoff", type=float, default=None,
+              help="Drop cluster pairs whose form-factor bound is at most this (default 0: none).")
+@click.option("--resume", is_flag=True, help="Keep the finished tasks of an interrupted run in OUT.")
+@cluster_options
+@_friendly
+def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, workers, scheduler, cluster_kind):
+    """View factors between the facets of MESH (OBJ, glTF, PLY or a scene TOML): sparse,
+    obstructed, reciprocal; rows balanced to 1 for enclosures."""
+    from .cluster import open_client
+    from .viewfactor import compute_viewfactors, load_facets, resolve_params
+
+    resolve_params(accuracy, cutoff)  # bad values fail before the cluster starts
+    fac = load_facets(mesh)
+    click.echo(f"{len(fac)} facets from {', '.join(fac.sources)}")
+    with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+        res = compute_viewfactors(fac, out, client, accuracy=accuracy, enclosure=enclosure,
+                                  fmt=fmt, cutoff=cutoff, resume=resume)
+    click.echo(_viewfactors_summary(res.figures))
+    click.echo(f"wrote {out}/" + f", {out}/".join(res.figures["files"] + ["report.json"]))
+
+
+def _viewfactors_summary(fig: dict) -> str:
+    pt = max(1, fig["pairs_total"])
+
+    def part(k):
+        return f"{fig[k]} ({fig[k] / pt:.1%})"
+
+    hist = fig["row_sum_final_histogram"]
+    rows = [("facets", fig["facets"]), ("pairs", fig["pairs_total"]),
+            ("culled (face away)", f"{fig['pairs_culled_cluster'] + fig['pairs_facing_away']} "
+                                   f"({(fig['pairs_culled_cluster'] + fig['pairs_facing_away']) / pt:.1%})"),
+            ("dropped by cut-off", part("pairs_dropped_cutoff")),
+            ("unobstructed, proven by shafts", part("pairs_proven_unobstructed")),
+            ("sampled with rays", f"{part('pairs_sampled')}, {fig['rays']} rays"),
+            ("exact / cheap kernel", f"{fig['pairs_exact_kernel']} / {fig['pairs_cheap_kernel']}"),
+            ("nonzeros", fig["nonzeros"]),
+            ("enclosure", ("balanced" if fig["balanced"] else "not balanced")
+             + ("" if fig["enclosure"] else f" ({fig['not_enclosure_because']})")),
+            ("row sums", f"{fig['row_sum_min']:.6g} .. {fig['row_sum_max']:.6g}"
+             + (f" -> {fig['row_sum_final_min']:.15g} .. {fig['row_sum_final_max']:.15g}"
+                if fig["balanced"] else "")),
+            ("row sum histogram", ", ".join(f"{k}: {v}" for k, v in hist.items() if v)),
+            ("reciprocity residual", f"{fig['reciprocity_residual_max']:.3g}"),
+            ("obstructed > unobstructed", fig["obstructed_over_unobstructed"]),
+            ("time", f"{fig['time_s']:.2f} s")]
+    return _table(rows)
+
+
 @main.group()
 def study():
     """Studies: what accuracy costs in time."""

@@ -211,10 +211,12 @@ def _is_convex(q: np.ndarray, n: np.ndarray) -> bool:
     return all(x > 0 for x in s)
 
 
-def polygons_from_raw(raw: RawMesh, fn: str):
+def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True):
     """Validate faces and turn them into polygons: (verts (n,4,3), nverts (n,), face (n,), material names).
 
     Non-planar or non-convex quads become two triangles, n-gons a triangle fan; each with a warning.
+    merge=False keeps triangle pairs that form parallelograms apart (view factors between the
+    user's own facets).
     """
     tol = config.get("scene.planarity-tolerance")
     out_v, out_n, out_f, out_m = [], [], [], []
@@ -259,7 +261,8 @@ def polygons_from_raw(raw: RawMesh, fn: str):
     verts = np.array(out_v, float)
     nverts = np.array(out_n, np.int8)
     face = np.array(out_f, np.int32)
-    verts, nverts, face, out_m = merge_parallelograms(verts, nverts, face, out_m)
+    if merge:
+        verts, nverts, face, out_m = merge_parallelograms(verts, nverts, face, out_m)
     area, _, _ = polygon_properties(verts, nverts)
     diam = diameter(verts, nverts)
     bad = np.nonzero(~(area > config.get("scene.min-relative-area") * diam ** 2))[0]

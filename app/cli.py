@@ -6,6 +6,7 @@ Every flag overrides the matching `radiosity.*` key of dask.config (see radiosit
 from __future__ import annotations
 
 import functools
+import math
 import os
 import sys
 import warnings
@@ -19,22 +20,166 @@ def _showwarning(message, category, filename, lineno, file=None, line=None):
     click.echo(f"warning: {message}", err=True)
 
 
+#: Exit status of a solve (or render) whose solver did not reach the tolerance (README).
+NOT_CONVERGED = 3
+
+#: What the running command works on, for the line an interrupted or failed run prints:
+#: run_dir, and again: the command that continues it (set by each command as it starts).
+_RUN: dict = {}
+_ARGV: list = []
+
+
+def _command_line(resume: bool = False) -> str:
+    """The command being run, as the user can type it again (with --resume if asked)."""
+    import shlex
+
+    args = list(_ARGV)
+    if resume and "--resume" not in args:
+        args.append("--resume")
+    return "radiosity " + shlex.join(args)
+
+
 def _friendly(fn):
-    """Print RadiosityError as one line and exit 2; show our warnings without source lines."""
+    """Every way a command can stop, as one line: RadiosityError (exit 2; a failed task's
+    worker traceback goes to a log file the line names), a filesystem fault (exit 2), Ctrl-C
+    (exit 130: what was kept and the command that continues). Our warnings without source
+    lines."""
 
     @functools.wraps(fn)
     def wrapper(*a, **kw):
+        from .faults import fs_error, fs_error_line, kept, write_failure_log
+        from .runner import TaskFailed
+
         old = warnings.showwarning
         warnings.showwarning = _showwarning
+        _RUN.clear()
         try:
             return fn(*a, **kw)
         except RadiosityError as e:
-            click.echo(f"error: {e}", err=True)
+            msg = str(e)
+            if isinstance(e, TaskFailed) and e.worker_traceback:
+                log = write_failure_log(_RUN.get("run_dir"), msg, e.worker_traceback)
+                err = fs_error(e.cause) if e.cause is not None else None
+                if err is not None:
+                    msg = fs_error_line(err, _RUN.get("run_dir")) + (f"; then: {_RUN['again']}" if _RUN.get("again") else "")
+                msg += f" (worker traceback in {log})"
+            click.echo(f"error: {msg}", err=True)
+            sys.exit(2)
+        except KeyboardInterrupt:
+            what = kept(_RUN.get("run_dir"))
+            again = _RUN.get("again")
+            click.echo("interrupted" + (f": kept in {_RUN['run_dir']}: {what}" if what else "")
+                       + (f"; continue with: {again}" if again else ""), err=True)
+            sys.exit(130)
+        except OSError as e:
+            err = fs_error(e)
+            if err is None:
+                raise
+            click.echo(f"error: {fs_error_line(err, _RUN.get('run_dir'))}"
+                       + (f"; then: {_RUN['again']}" if _RUN.get("again") else ""), err=True)
             sys.exit(2)
         finally:
             warnings.showwarning = old
 
     return wrapper
+
+
+def _started(run_dir: str, resume: bool = True) -> None:
+    """Say which run directory the command works on and how to continue it if it stops."""
+    _RUN.update(run_dir=run_dir, again=_command_line(resume))
+
+
+class _Finite(click.FloatRange):
+    """A float in a range that is also finite (click's FloatRange lets NaN through)."""
+
+    def convert(self, value, param, ctx):
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return v
+
+
+POSITIVE_INT = click.IntRange(min=1)
+POSITIVE = _Finite(min=0.0, min_open=True)
+TOL = _Finite(min=0.0, max=1.0, min_open=True, max_open=True)
+
+
+def _resolution(ctx, param, value):
+    """--resolution N|WxH, checked before anything starts (the scene loader takes the pair)."""
+    from .errors import SceneError
+    from .scene import parse_resolution
+
+    if value is None:
+        return None
+    try:
+        return parse_resolution(value, "--resolution")
+    except SceneError as e:
+        raise click.UsageError(str(e), ctx) from None
+
+
+def _exposure(ctx, param, value):
+    if value is None or str(value).lower() == "auto":
+        return value
+    try:
+        v = float(value)
+    except ValueError:
+        v = float("nan")
+    if not (math.isfinite(v) and v > 0):
+        raise click.BadParameter(f"must be a positive number or 'auto', got {value!r}", ctx, param)
+    return v
+
+
+def _adaptive(ctx, param, value):
+    from .cluster import adaptive_bounds
+
+    if value is not None:
+        try:
+            adaptive_bounds(value, 1)
+        except RadiosityError as e:
+            raise click.BadParameter(str(e), ctx, param) from None
+        import dask.config
+
+        dask.config.set({"radiosity.cluster.adaptive": value})
+    return value
+
+
+def _number_list(kind, lo, what):
+    """A callback for comma-separated lists (study accuracy): every item a `kind` > lo."""
+
+    def cb(ctx, param, value):
+        try:
+            items = [kind(x) for x in value.split(",") if x.strip()]
+        except ValueError:
+            raise click.BadParameter(f"expected comma-separated {what}, got {value!r}", ctx, param) from None
+        bad = [x for x in items if not (math.isfinite(x) and x > lo)]
+        if not items or bad:
+            raise click.BadParameter(f"expected comma-separated {what}, got {value!r}", ctx, param)
+        return value
+
+    return cb
+
+
+class OneLineGroup(click.Group):
+    """Usage errors (a bad option value, a missing argument) as one line `error: ...` with
+    exit status 2, like every other user error, instead of click's usage block."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        _ARGV[:] = list(sys.argv[1:] if args is None else args)
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, False, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, False, **extra)
+        except click.ClickException as e:
+            hint = ""
+            if isinstance(e, click.UsageError) and e.ctx is not None:
+                hint = f" (see: {e.ctx.command_path} --help)"
+            msg = " ".join(e.format_message().split())
+            click.echo(f"error: {msg}{hint}", err=True)
+            sys.exit(e.exit_code)
+        except click.Abort:  # Ctrl-C outside a command (commands say what they kept)
+            click.echo("interrupted", err=True)
+            sys.exit(130)
+        sys.exit(rv if isinstance(rv, int) else 0)
 
 
 def _set_config(key_fn):
@@ -71,7 +216,8 @@ def kernel_options(fn, help_="Form-factor kernel (default: radiosity.solve.kerne
             ("--mc-seed", "mc-seed", "mc kernel: seed of the random sample points."),
             ("--mc-samples", "mc-samples", "mc kernel: random sample pairs (rays) per pair."),
             ("--nxm-points", "nxm-points", "nxm kernel: sample points per element (a square).")):
-        fn = click.option(name, type=int, default=None, expose_value=False, help=help2,
+        kind = click.IntRange(min=0) if key == "mc-seed" else POSITIVE_INT
+        fn = click.option(name, type=kind, default=None, expose_value=False, help=help2,
                           callback=_set_config(lambda v, k=key: {f"radiosity.solve.{k}": v}))(fn)
     return click.option("--kernel", type=click.Choice(list(KERNELS)), default=None, help=help_)(fn)
 
@@ -84,7 +230,7 @@ def cluster_options(fn):
             ("--queue", "queue", str, "Batch jobs: queue / partition."),
             ("--walltime", "walltime", str, "Batch jobs: walltime, e.g. 02:00:00."),
             ("--memory", "memory", str, "Batch jobs: memory per job, e.g. 16GB."),
-            ("--cores", "cores", int, "Batch jobs: cores per job.")):
+            ("--cores", "cores", POSITIVE_INT, "Batch jobs: cores per job.")):
         fn = click.option(name, type=kind, default=None, expose_value=False, help=help_,
                           callback=_set_config(_jobqueue(key)))(fn)
     fn = click.option("--tls", is_flag=True, default=False, expose_value=False,
@@ -92,12 +238,12 @@ def cluster_options(fn):
                       callback=_set_config(lambda v: {"radiosity.cluster.tls": "temporary"}))(fn)
     fn = click.option("--adaptive", default=None, metavar="MIN:MAX", expose_value=False,
                       help="Scale the cluster adaptively between MIN and MAX workers.",
-                      callback=_set_config(lambda v: {"radiosity.cluster.adaptive": v}))(fn)
+                      callback=_adaptive)(fn)
     fn = click.option("--cluster", "cluster_kind", type=click.Choice(["local", "slurm", "pbs", "sge", "lsf"]),
                       default=None, help="Where workers run (default: radiosity.cluster.kind, local).")(fn)
     fn = click.option("--scheduler", default=None, metavar="ADDRESS",
                       help="Use a running Dask scheduler instead of starting a cluster.")(fn)
-    fn = click.option("--workers", type=int, default=None,
+    fn = click.option("--workers", type=POSITIVE_INT, default=None,
                       help="Number of workers (default: one per core).")(fn)
     return fn
 
@@ -107,7 +253,7 @@ def _table(rows: list[tuple[str, object]]) -> str:
     return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
 
 
-@click.group()
+@click.group(cls=OneLineGroup)
 @click.version_option(package_name="radiosity")
 def main():
     """Radiosity with simplified form factors (Debelov & Sattarov) on Dask."""
@@ -116,24 +262,31 @@ def main():
 @main.command()
 @click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Run directory to create.")
-@click.option("--resolution", default=None, metavar="N|WxH", help="Override the camera resolution.")
-@click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
+@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+              help="Override the camera resolution.")
+@click.option("--subpixel", type=POSITIVE_INT, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--variant", type=click.Choice(["exact", "seed", "none"]), default=None,
               help="exact: equals the sequential partition; seed: each subscene renders alone "
                    "(seed §4.2); none: no subdivision (the seed's image without preprocessing).")
-@click.option("--subscenes", type=int, default=None, help="Number of subscene tasks.")
+@click.option("--subscenes", type=POSITIVE_INT, default=None, help="Number of subscene tasks.")
 @cluster_options
 @_friendly
 def preprocess(scene, out, resolution, subpixel, variant, subscenes, workers, scheduler, cluster_kind):
     """Camera-driven subdivision of SCENE (seed §3) into the run directory OUT."""
     from .cluster import open_client
+    from .preflight import check_new_run_dir, check_scene
     from .preprocess import preprocess as run
+    from .runlock import run_lock
     from .scene import load_scene
 
     sc = load_scene(scene, resolution=resolution)
+    check_scene(sc, subpixel)
+    check_new_run_dir(out)
+    _started(out, resume=False)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
-    with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+    with run_lock(out, _command_line()), open_client(workers, scheduler, cluster_kind,
+                                                     echo=click.echo) as client:
         fig = run(sc, out, client, subpixel=subpixel, variant=variant, subscenes=subscenes)
     click.echo(_table(fig.rows()))
     click.echo(f"wrote {out}/store.zarr and {out}/report.json")
@@ -152,13 +305,18 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     """The visibility matrix of a preprocessed RUN_DIR (seed §4.3), bit-packed in its store."""
     from . import config
     from .cluster import open_client
+    from .preflight import check_run_dir
+    from .runlock import run_lock
     from .settings import sampling_of
     from .store import RunStore
     from .visibility import compute_visibility
 
+    check_run_dir(run_dir)
     RunStore(run_dir).load_partition()  # fail before starting a cluster
     sampling_of(config.get("solve.kernel", kernel))  # a bad nxm-points / mc-samples fails here
-    with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+    _started(run_dir)
+    with run_lock(run_dir, _command_line()), open_client(workers, scheduler, cluster_kind,
+                                                         echo=click.echo) as client:
         fig = compute_visibility(run_dir, client, unit=task_unit, resume=resume, kernel=kernel)
     click.echo(_table(fig.rows()))
 
@@ -171,8 +329,13 @@ def solve_options(fn):
                       expose_value=False,
                       help="Is the scene closed (rows balanced to exactly 1)? auto: from the geometry.",
                       callback=_set_config(lambda v: {"radiosity.solve.closure": v}))(fn)
-    fn = click.option("--max-iterations", type=int, default=None, help="Pass limit.")(fn)
-    fn = click.option("--tol", type=float, default=None, help="Relative residual to stop at.")(fn)
+    fn = click.option("--keep-unconverged", is_flag=True,
+                      help="Write the solution even when the solver did not converge (by default "
+                           "a converged solution already in the run is kept; exit status 3 "
+                           "either way).")(fn)
+    fn = click.option("--max-iterations", type=POSITIVE_INT, default=None, help="Pass limit.")(fn)
+    fn = click.option("--tol", type=TOL, default=None,
+                      help="Relative residual to stop at, in (0, 1).")(fn)
     fn = kernel_options(fn)
     fn = click.option("--solver", type=click.Choice(["auto", *SOLVERS]), default=None,
                       help="Solver (default: radiosity.solve.solver, auto: CG for reciprocal "
@@ -181,8 +344,9 @@ def solve_options(fn):
 
 
 def image_options(fn):
-    fn = click.option("--exposure", default=None, help="Exposure for PNG/mesh colours, or 'auto'.")(fn)
-    fn = click.option("--sigma", type=float, default=None, help="Gaussian sigma in fine pixels.")(fn)
+    fn = click.option("--exposure", default=None, callback=_exposure,
+                      help="Exposure for PNG/mesh colours, or 'auto'.")(fn)
+    fn = click.option("--sigma", type=POSITIVE, default=None, help="Gaussian sigma in fine pixels.")(fn)
     fn = click.option("--filter", "filter_", type=click.Choice(["box", "gaussian"]), default=None,
                       help="Sub-pixel reconstruction filter.")(fn)
     return fn
@@ -193,18 +357,29 @@ def image_options(fn):
 @solve_options
 @cluster_options
 @_friendly
-def solve(run_dir, solver, kernel, tol, max_iterations, workers, scheduler, cluster_kind):
+def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, workers, scheduler,
+          cluster_kind):
     """Solve the radiosity system of RUN_DIR (after visibility): form factors on the fly."""
     from .cluster import open_client
+    from .preflight import check_run_dir, check_solve
     from .render import previewer
+    from .runlock import run_lock
     from .solve import run_solve
-    from .store import RunStore
+    from .store import RunStore, VisibilityStore
 
-    RunStore(run_dir).load_partition()
-    with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+    check_solve(solver, kernel)
+    check_run_dir(run_dir)
+    rs = RunStore(run_dir)
+    rs.load_partition()
+    VisibilityStore(rs).require()
+    _started(run_dir, resume=False)
+    with run_lock(run_dir, _command_line()), open_client(workers, scheduler, cluster_kind,
+                                                         echo=click.echo) as client:
         fig = run_solve(run_dir, client, solver=solver, kernel=kernel, tol=tol, max_iter=max_iterations,
-                        preview=previewer(run_dir))
+                        preview=previewer(run_dir), keep_unconverged=keep_unconverged)
     click.echo(_table(fig.rows()))
+    if not fig.converged:
+        sys.exit(NOT_CONVERGED)
 
 
 @main.command()
@@ -213,26 +388,34 @@ def solve(run_dir, solver, kernel, tol, max_iterations, workers, scheduler, clus
 @_friendly
 def image(run_dir, filter_, sigma, exposure):
     """Write image.exr, image.png, mesh.glb, mesh.ply and viewer.html of a solved RUN_DIR."""
+    from .preflight import check_run_dir
     from .render import render_outputs
+    from .runlock import run_lock
 
-    fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure)
+    check_run_dir(run_dir)
+    _started(run_dir, resume=False)
+    with run_lock(run_dir, _command_line()):
+        fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure)
     click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html "
                f"({fig.width}x{fig.height}, exposure {fig.exposure:.3g})")
 
 
 @main.command()
 @click.argument("scene", type=click.Path())
-@click.option("--resolution", default=None, metavar="N|WxH", help="Override the camera resolution.")
-@click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
-@click.option("--tol", type=float, default=None, help="Solver tolerance (for the pass estimate).")
+@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+              help="Override the camera resolution.")
+@click.option("--subpixel", type=POSITIVE_INT, default=None, help="Criterion on a K-times finer raster.")
+@click.option("--tol", type=TOL, default=None, help="Solver tolerance (for the pass estimate).")
 @_friendly
 def plan(scene, resolution, subpixel, tol):
     """Print which effects SCENE calls for, which are skipped and why, before any heavy work."""
     from .pipeline import scene_plan
     from .effects import describe
+    from .preflight import check_scene
     from .scene import load_scene
 
     sc = load_scene(scene, resolution=resolution)
+    check_scene(sc, subpixel)
     planned = scene_plan(sc, subpixel, tol)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
@@ -243,8 +426,9 @@ def plan(scene, resolution, subpixel, tol):
 @main.command()
 @click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Run directory.")
-@click.option("--resolution", default=None, metavar="N|WxH", help="Override the camera resolution.")
-@click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
+@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+              help="Override the camera resolution.")
+@click.option("--subpixel", type=POSITIVE_INT, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--task-unit", type=click.Choice(["block", "stripe", "auto"]), default=None)
 @click.option("--resume", is_flag=True, help="Reuse the partition and finished visibility tasks in OUT.")
 @click.option("--no-preview", is_flag=True, help="Skip preview.png (the original elements only).")
@@ -254,32 +438,44 @@ def plan(scene, resolution, subpixel, tol):
 @cluster_options
 @_friendly
 def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full, solver, kernel,
-           tol, max_iterations, filter_, sigma, exposure, workers, scheduler, cluster_kind):
+           tol, max_iterations, keep_unconverged, filter_, sigma, exposure, workers, scheduler,
+           cluster_kind):
     """Preprocess, visibility, solve and image of SCENE into the run directory OUT."""
     from .cluster import open_client
     from .pipeline import render_scene
+    from .preflight import check_new_run_dir, check_scene, check_solve
+    from .runlock import run_lock
     from .scene import load_scene
 
     sc = load_scene(scene, resolution=resolution)
+    check_solve(solver, kernel)
+    check_scene(sc, subpixel)
+    check_new_run_dir(out)
+    _started(out)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
     if max_iterations is not None:
         import dask.config
         dask.config.set({"radiosity.solve.max-iterations": max_iterations})
-    with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
+    with run_lock(out, _command_line()), open_client(workers, scheduler, cluster_kind,
+                                                     echo=click.echo) as client:
         rep = render_scene(sc, out, client, subpixel=subpixel, unit=task_unit, solver=solver,
                            kernel=kernel, tol=tol, filter=filter_, sigma=sigma, exposure=exposure,
-                           resume=resume, preview=not no_preview, echo=click.echo, full=full)
+                           resume=resume, preview=not no_preview, echo=click.echo, full=full,
+                           keep_unconverged=keep_unconverged)
     click.echo(_table(rep.rows()))
     click.echo(f"wrote {out}/image.exr, image.png, preview.png, mesh.glb, mesh.ply, viewer.html, report.json"
                if not no_preview else f"wrote {out}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, report.json")
+    if not rep["solve"].get("converged", True):
+        sys.exit(NOT_CONVERGED)
 
 
 @main.command()
 @click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Directory for reference.exr, "
               "reference-stderr.exr and reference.json.")
-@click.option("--spp", type=int, default=None, help="Samples per pixel in all (default: radiosity.reference.spp).")
+@click.option("--spp", type=click.IntRange(min=1), default=None,
+              help="Samples per pixel in all (default: radiosity.reference.spp).")
 @click.option("--passes", type=int, default=None,
               help="Independent passes the samples are split into, for the standard error "
                    "(default: radiosity.reference.passes).")
@@ -401,15 +597,18 @@ def _floats(s: str, kind=float):
 @study.command("accuracy")
 @click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Directory for results.")
-@click.option("--resolutions", default="8,16,32", show_default=True, help="Camera resolutions.")
-@click.option("--subpixels", default="1", show_default=True, help="Sub-pixel factors.")
+@click.option("--resolutions", default="8,16,32", show_default=True, help="Camera resolutions.",
+              callback=_number_list(int, 0, "positive integers"))
+@click.option("--subpixels", default="1", show_default=True, help="Sub-pixel factors.",
+              callback=_number_list(int, 0, "positive integers"))
 @click.option("--kernels", default="point,disc", show_default=True,
               help="Form-factor kernels; the sampled ones may name their sample count: nxm:16, mc:64.")
-@click.option("--tols", default="1e-6", show_default=True, help="Solver tolerances.")
+@click.option("--tols", default="1e-6", show_default=True, help="Solver tolerances.",
+              callback=_number_list(float, 0.0, "tolerances > 0"))
 @click.option("--reference", default=None, metavar="auto|PATH.exr",
               help="auto: ground truth path-traced by Mitsuba 3 (made once in OUT/reference, "
                    "reused), and the path tracer itself in the sweep; or a reference image (EXR).")
-@click.option("--reference-spp", type=int, default=None,
+@click.option("--reference-spp", type=click.IntRange(min=1), default=None,
               help="--reference auto: samples per pixel of the reference "
                    "(default: radiosity.reference.study-spp).")
 @click.option("--path-tracer-spp", default=None, metavar="N,N,...",
@@ -446,9 +645,10 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
 @study.command("seed")
 @click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Directory for plots and tables.")
-@click.option("--resolutions", default="32,64,128,256", show_default=True)
-@click.option("--speedup-resolution", type=int, default=96, show_default=True)
-@click.option("--max-workers", type=int, default=None, help="Largest LocalCluster for the speedup.")
+@click.option("--resolutions", default="32,64,128,256", show_default=True,
+              callback=_number_list(int, 0, "positive integers"))
+@click.option("--speedup-resolution", type=POSITIVE_INT, default=96, show_default=True)
+@click.option("--max-workers", type=POSITIVE_INT, default=None, help="Largest LocalCluster for the speedup.")
 @_friendly
 def study_seed(scene, out, resolutions, speedup_resolution, max_workers):
     """Reproduce the seed's experiments on SCENE: Fig. 3, Fig. 4, the speedup table and the image

@@ -219,7 +219,9 @@ def local_cluster(n: int, threads_per_worker: int | None = None, security=None, 
                         threads_per_worker=config.get("cluster.threads-per-worker", threads_per_worker),
                         processes=processes,
                         dashboard_address=config.get("cluster.dashboard-address"),
-                        silence_logs=40, scheduler_kwargs={"preload": [  # the page of dashboard.py
+                        # a failed task's traceback goes to the run's log file (faults.py), not
+                        # to the terminal from every worker that tried it
+                        silence_logs=50, scheduler_kwargs={"preload": [  # the page of dashboard.py
                             *dask.config.get("distributed.scheduler.preload"), "radiosity.dashboard"]},
                         **kw)
 

@@ -27,6 +27,7 @@ from .kernels import get_kernel, kernel_id, sample_points, sampled_pairs
 from .passes import BOTH, CAP_MIN, gs_sweep, partial_apply, sparse_by_target, tiles_apply
 from .plan import I, J, TSTART, TBYTES, VisibilityPlan, pack_groups
 from .settings import sampling_of
+from .runner import gather_retrying
 from .store import VisibilityStore, read_partial, read_task_checked
 
 
@@ -330,11 +331,16 @@ class DaskOperator(_Base):
 
     def _run_groups(self, L, live_orig, use_need) -> list:
         [Lf] = self.client.scatter([L], broadcast=False, hash=False)
-        futs = [self.client.submit(task_apply, self.inp_f, g, Lf, self.kid, live_orig, use_need,
-                                   pure=False, workers=[w] if w else None,
-                                   allow_other_workers=True, retries=self.retries)
-                for g, w in zip(self.groups, self.workers or [None] * len(self.groups))]
-        return self.client.gather(futs)
+        workers = self.workers or [None] * len(self.groups)
+
+        def submit(i, attempt):
+            return self.client.submit(task_apply, self.inp_f, self.groups[i], Lf, self.kid,
+                                      live_orig, use_need, pure=False,
+                                      workers=[workers[i]] if workers[i] else None,
+                                      allow_other_workers=True)
+
+        return gather_retrying(self.client, submit, len(self.groups), self.retries,
+                               name="solve group")
 
     def configure(self, **arrays) -> None:
         """Replace input arrays and re-scatter the inputs to the workers (one scatter)."""
@@ -347,10 +353,11 @@ class DaskOperator(_Base):
             self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
         Lf = self.client.scatter([L], hash=False)[0]
         Lef, rhof = self._gs_fixed[1]
-        f = self.client.submit(task_gs_sweep, self.inp_f, Lf, Lef, rhof, self.kid, pure=False,
-                               workers=[w] if w else None, allow_other_workers=True,
-                               retries=self.retries)
-        new, terms = f.result()
+        [(new, terms)] = gather_retrying(
+            self.client, lambda i, attempt: self.client.submit(
+                task_gs_sweep, self.inp_f, Lf, Lef, rhof, self.kid, pure=False,
+                workers=[w] if w else None, allow_other_workers=True),
+            1, self.retries, name="Gauss-Seidel sweep")
         self.terms += terms
         self.passes += 1
         return new

@@ -50,7 +50,9 @@ class RenderFigures(StageFigures):
             ("sub-elements", f"{pre['sub_elements']} (from {pre['original_elements']} originals)"),
             ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)"),
             ("solve", f"{sol['solver']}/{sol['kernel']}: {sol['iterations']} passes, residual "
-                      f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"),
+                      f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"
+                      + ("" if sol.get("converged", True) else f", NOT converged: solution "
+                         f"{sol.get('solution', 'written')}")),
             ("times", f"preprocess {st['preprocess_s']:.1f} s, visibility {st['visibility_s']:.1f} s, "
                       f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, "
                       f"total {st['total_s']:.1f} s")]
@@ -102,7 +104,7 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
 def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None, unit=None,
                  solver=None, kernel=None, tol=None, filter=None, sigma=None, exposure=None,
                  resume=False, preview=True, progress=True, echo=print,
-                 full=False) -> RenderFigures:
+                 full=False, keep_unconverged=False) -> RenderFigures:
     """plan -> preprocess -> visibility -> solve -> image (+ the preview from the originals).
 
     The effects plan (effects.py) decides what is simulated; `full` forces every effect on.
@@ -141,7 +143,8 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     t = time.perf_counter()
     if effects.interreflection:
         run_solve(out, client, solver=solver, kernel=kernel, tol=tol, progress=progress,
-                  effects=effects, preview=previewer(out), closure=planned.closure)
+                  effects=effects, preview=previewer(out), closure=planned.closure,
+                  keep_unconverged=keep_unconverged)
     else:
         write_direct_solution(out)
     stages["solve_s"] = time.perf_counter() - t

@@ -13,6 +13,7 @@ deterministic (bad input, corrupted data): it is not retried further.
 
 from __future__ import annotations
 
+import errno
 import time
 import traceback as tb
 from dataclasses import dataclass, field
@@ -49,6 +50,16 @@ def cost_order(tasks, cost=None) -> list[int]:
         return tasks.tolist()
     c = np.asarray(cost)[tasks]
     return tasks[np.lexsort((tasks, -c))].tolist()
+
+
+#: Filesystem errors a retry would only repeat (full, read-only, no permission, quota).
+_FS_ERRNOS = (errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT)
+
+
+def deterministic(exc: BaseException) -> bool:
+    """A failure that is the same wherever and whenever it runs: bad or corrupted input (a
+    RadiosityError) or a filesystem that cannot take the bytes. Not retried."""
+    return isinstance(exc, RadiosityError) or (isinstance(exc, OSError) and exc.errno in _FS_ERRNOS)
 
 
 def _describe(exc: BaseException, trace) -> tuple[str, str]:
@@ -101,12 +112,13 @@ def run_tasks(client, fn, tasks, args_of, *, name: str, token: str, cost=None, w
                 summary, text = _describe(e, fut.traceback() if fut.status == "error" else None)
                 fut.release()
                 stats.attempts[task] = stats.attempts.get(task, 0) + 1
-                same = last_error.get(task) == summary
+                same = last_error.get(task) == summary or deterministic(e)
                 last_error[task] = summary
                 if stats.attempts[task] > retries or same:
                     for f in list(ac.futures):
                         f.cancel()
-                    why = "the same error twice" if same else f"{stats.attempts[task]} times"
+                    why = (f"{stats.attempts[task]} times" if not same else "the same error twice"
+                           if stats.attempts[task] > 1 else "an error that a retry would repeat")
                     raise TaskFailed(f"{name} task {task} failed ({why}): {summary}; the finished "
                                      f"tasks are kept{': ' + repair if repair else ''}", text, e) from None
                 stats.resubmitted += 1
@@ -122,3 +134,41 @@ def run_tasks(client, fn, tasks, args_of, *, name: str, token: str, cost=None, w
                 submit(nxt)
     stats.wall_s = time.perf_counter() - t0
     return stats
+
+
+def gather_retrying(client, submit, count: int, retries: int = 3, name: str = "task",
+                    repair: str = "") -> list:
+    """Results of the futures submit(i, attempt) for i in range(count), in order. A task that
+    raises is resubmitted (attempt + 1) up to `retries` times, unless the failure is
+    deterministic (`deterministic`: a RadiosityError such as a corrupted chunk, a full or
+    read-only filesystem), which is raised at once as it is; one that keeps failing raises
+    TaskFailed with the worker's traceback. (A dead worker's tasks are rescheduled by the
+    scheduler itself and cost no attempt.)"""
+    from distributed import wait
+
+    pending = {i: submit(i, 0) for i in range(count)}
+    out: list = [None] * count
+    attempts = [0] * count
+    while pending:
+        wait(list(pending.values()))
+        for i, f in list(pending.items()):
+            if f.status == "finished":
+                out[i] = f.result()
+                del pending[i]
+                continue
+            try:
+                exc, trace = f.exception(), f.traceback()
+            except Exception as e:  # cancelled: no exception object to fetch
+                exc, trace = e, None
+            attempts[i] += 1
+            if deterministic(exc) or attempts[i] > retries:
+                for g in pending.values():
+                    g.cancel()
+                if deterministic(exc):
+                    raise exc
+                summary, text = _describe(exc, trace)
+                raise TaskFailed(f"{name} {i} failed {attempts[i]} times: {summary}"
+                                 f"{': ' + repair if repair else ''}", text, exc) from None
+            f.release()
+            pending[i] = submit(i, attempts[i])
+    return out

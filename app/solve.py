@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 import warnings
@@ -49,10 +50,12 @@ class SolveFigures(StageFigures):
     channel_terms: int = 0
     ambient: list | None = None      # progressive refinement's ambient term
     closure: dict | None = None      # closure.Closure: closed or open, and why
+    solution: str = "written"        # written | kept previous (not converged) | written unconverged
 
     def rows(self):
         return [("solver", f"{self.solver} ({self.kernel} kernel)"),
                 ("passes", f"{self.iterations} ({'converged' if self.converged else 'NOT converged'})"),
+                *([("solution", self.solution)] if not self.converged else []),
                 ("final residual", f"{self.final_residual:.3g}"),
                 *([("closure", self.closure["reason"])] if self.closure else []),
                 ("pair terms/s", f"{self.pair_terms_per_s / 1e6:.1f} M"),
@@ -150,8 +153,12 @@ def write_direct_solution(run_dir: str) -> SolveFigures:
 def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | None = None,
               tol: float | None = None, max_iter: int | None = None, progress: bool = True,
               callback=None, normalise: bool | None = None, effects=None,
-              preview=None, closure=None) -> SolveFigures:
+              preview=None, closure=None, keep_unconverged: bool = False) -> SolveFigures:
     """Solve the run's radiosity system; write solution/radiance (m, 2, 3) and report figures.
+
+    A solve that does not reach `tol` does not replace a converged solution already in the
+    store (fig.solution says "kept previous"), unless `keep_unconverged`; with none to keep it
+    is written, marked converged = False. The CLI exits with status 3 either way.
 
     effects: an effects.EffectsPlan (grey scenes solve one channel, dead rows skip gathering,
     two-sided elements reached from one side are solved one-sided). preview: a function
@@ -232,11 +239,21 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
         "ambient": None if res.ambient is None else res.ambient.tolist(),
         "closure": None if closure is None else closure.to_dict(),
     })
-    rs.drop_after("nearfield")
-    rs.write_arrays("solution", {"radiance": radiance},
-                    {k: v for k, v in fig.to_dict().items() if k != "residuals"})
+    previous = rs.group_attrs("solution") if rs.has("solution") else {}
+    keep = not res.converged and not keep_unconverged and previous.get("converged") is True
+    if not res.converged:
+        fig = dataclasses.replace(fig, solution=(
+            f"kept the previous converged solution ({previous.get('solver')}, "
+            f"{previous.get('kernel')} kernel, final residual {previous.get('final_residual', float('nan')):.3g}); "
+            "--keep-unconverged replaces it" if keep else "written, NOT converged"))
+    if not keep:
+        rs.drop_after("nearfield")
+        rs.write_arrays("solution", {"radiance": radiance},
+                        {k: v for k, v in fig.to_dict().items() if k != "residuals"})
     fig.write(run_dir)
     if not res.converged:
         warnings.warn(f"{solver} did not reach tol={tol:g} in {max_iter} passes (residual "
-                      f"{res.residuals[-1] if res.residuals else float('nan'):.3g})", stacklevel=2)
+                      f"{res.residuals[-1] if res.residuals else float('nan'):.3g}): "
+                      + ("the previous converged solution is kept" if keep else
+                         "its solution is written, marked not converged"), stacklevel=2)
     return fig

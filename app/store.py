@@ -94,7 +94,11 @@ class RunStore:
 
     def read_arrays(self, group: str) -> dict:
         if group not in self.root:
-            raise StoreError(f"{self.path} has no '{group}' yet: run the stage that writes it first")
+            make = {"solution": f"radiosity solve {self.run_dir}",
+                    "visibility": f"radiosity visibility {self.run_dir}",
+                    "nearfield": f"radiosity solve {self.run_dir}"}.get(
+                group, f"radiosity preprocess SCENE --out {self.run_dir}")
+            raise StoreError(f"{self.run_dir} has no {group} yet: run {make} first")
         g = self.root[group]
         return {name: arr[...] for name, arr in g.arrays()}
 
@@ -209,10 +213,33 @@ def bits_path(store_path: str) -> str:
 
 
 def write_bits(store_path: str, start: int, buf: np.ndarray) -> None:
-    """Write a task's bytes at `start` (chunk-aligned, whole chunks): called on the workers."""
+    """Write a task's bytes at `start` (chunk-aligned, whole chunks) and make them durable
+    (fsync of its chunk files and their folder) before the task reports back: a task enters
+    the manifest only after its bytes are on disk. Called on the workers."""
     zarr = _zarr()
     arr = zarr.open_array(bits_path(store_path), mode="r+")
-    arr[start:start + len(buf)] = buf
+    try:
+        arr[start:start + len(buf)] = buf
+    except OSError as e:  # zarr's error names no file: name the array
+        raise OSError(e.errno, e.strerror, bits_path(store_path)) from None
+    if len(buf):
+        chunk = int(arr.chunks[0])
+        files = [os.path.join(bits_path(store_path), arr.metadata.encode_chunk_key((i,)))
+                 for i in range(start // chunk, (start + len(buf) - 1) // chunk + 1)]
+        fsync_paths(files + [os.path.dirname(files[0])])
+
+
+def fsync_paths(paths) -> None:
+    """fsync files and folders that exist (a chunk that equals the fill value is not written)."""
+    for p in paths:
+        try:
+            fd = os.open(p, os.O_RDONLY)
+        except FileNotFoundError:
+            continue
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def partial_path(store_path: str) -> str:

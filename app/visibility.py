@@ -331,8 +331,9 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
             else:
                 corrupted += 1
         done = good
-        if corrupted:
-            vs.rewrite_manifest(token, done)  # corrupted entries are never trusted again
+        # corrupted entries are never trusted again, and a line torn by a crash or a full disk
+        # must not swallow the next one: the manifest is rewritten clean before appending
+        vs.rewrite_manifest(token, done)
     else:
         rs.drop_after("raster")
         vs.create(plan, token, {"rays_epsilon": epsilon,

@@ -18,7 +18,7 @@ LAYERS = [
     {"preprocess", "visibility", "solve", "render", "dashboard", "cluster", "reference", "compare",
      "viewfactor"},
     {"operator", "solvers", "runner", "monitor", "settings", "nearfield", "effects", "closure",
-     "enclosure"},
+     "enclosure", "preflight", "runlock", "faults"},
     {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "scene", "camera", "rays",
      "bvh", "vfkernels"},
     {"types", "geometry", "config", "errors"},

@@ -1,0 +1,136 @@
+"""Bad input caught before anything starts: every numeric option, the run directory, the
+scene's light and camera. One line `error: ...`, exit status 2, no traceback, no cluster and no
+half-made run directory (issue 15)."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from click.testing import CliRunner
+
+from radiosity.cli import main
+from conftest import scene_path
+
+S = scene_path("three-rectangles")
+
+
+def one_line_error(r, *fragments):
+    assert r.exit_code == 2, r.output
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if ln.startswith("error:")]
+    assert len(errors) == 1, r.output
+    assert "Traceback" not in r.output and "dashboard:" not in r.output, r.output
+    for f in fragments:
+        assert f in errors[0], r.output
+    return errors[0]
+
+
+OUT = ["--out", "OUT"]
+CASES = [
+    # (command line after `radiosity`, fragments of the one error line)
+    (["plan", S, "--tol", "-1"], ["--tol", "-1"]),
+    (["plan", S, "--tol", "nan"], ["--tol", "not a finite number"]),
+    (["plan", S, "--tol", "1"], ["--tol"]),
+    (["plan", S, "--subpixel", "0"], ["--subpixel", "0"]),
+    (["plan", S, "--resolution", "0x5"], ["--resolution", "positive"]),
+    (["render", S, *OUT, "--tol", "-1"], ["--tol"]),
+    (["render", S, *OUT, "--max-iterations", "-3"], ["--max-iterations", "-3"]),
+    (["render", S, *OUT, "--max-iterations", "0"], ["--max-iterations"]),
+    (["render", S, *OUT, "--workers", "-1"], ["--workers", "-1"]),
+    (["render", S, *OUT, "--workers", "0"], ["--workers"]),
+    (["render", S, *OUT, "--subpixel", "0"], ["--subpixel"]),
+    (["render", S, *OUT, "--resolution", "abc"], ["--resolution"]),
+    (["render", S, *OUT, "--sigma", "0"], ["--sigma"]),
+    (["render", S, *OUT, "--sigma", "inf"], ["--sigma"]),
+    (["render", S, *OUT, "--exposure", "-2"], ["--exposure"]),
+    (["render", S, *OUT, "--nxm-points", "0"], ["--nxm-points"]),
+    (["render", S, *OUT, "--mc-samples", "-4"], ["--mc-samples"]),
+    (["render", S, *OUT, "--mc-seed", "-1"], ["--mc-seed"]),
+    (["render", S, *OUT, "--cores", "0"], ["--cores"]),
+    (["render", S, *OUT, "--adaptive", "4:2"], ["--adaptive", "maximum 2 < minimum 4"]),
+    (["render", S, *OUT, "--kernel", "nxm", "--nxm-points", "5"], ["nxm-points", "square"]),
+    (["render", S, *OUT, "--solver", "cg", "--kernel", "disc"], ["needs a reciprocal kernel"]),
+    (["render", S], ["--out"]),
+    (["preprocess", S, *OUT, "--subscenes", "0"], ["--subscenes"]),
+    (["preprocess", S, *OUT, "--workers", "-2"], ["--workers"]),
+    (["solve", "RUN", "--tol", "-1"], ["--tol"]),
+    (["solve", "RUN", "--max-iterations", "-3"], ["--max-iterations"]),
+    (["image", "RUN", "--sigma", "-1"], ["--sigma"]),
+    (["study", "accuracy", S, *OUT, "--tols", "1e-3,-1"], ["--tols"]),
+    (["study", "accuracy", S, *OUT, "--resolutions", "8,0"], ["--resolutions"]),
+    (["study", "seed", S, *OUT, "--max-workers", "0"], ["--max-workers"]),
+]
+
+
+@pytest.mark.parametrize("args,fragments", CASES, ids=[" ".join(a[:1] + a[2:]) for a, _ in CASES])
+def test_every_numeric_option_is_checked_before_anything_starts(tmp_path, args, fragments):
+    args = [str(tmp_path / "out") if a == "OUT" else str(tmp_path / "run") if a == "RUN" else a
+            for a in args]
+    r = CliRunner().invoke(main, args)
+    one_line_error(r, *fragments)
+    assert not os.path.exists(tmp_path / "out"), "a refused command made its run directory"
+
+
+def test_out_that_is_a_file_or_under_a_file(tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    r = CliRunner().invoke(main, ["render", S, "--out", str(f)])
+    one_line_error(r, f"--out {f} is a file, not a directory")
+    r = CliRunner().invoke(main, ["preprocess", S, "--out", str(f / "sub" / "run")])
+    one_line_error(r, f"lies under {f}, which is a file")
+    assert f.read_text() == "x"
+
+
+# ----------------------------------------------------------------------------- the scene
+
+from conftest import FLOOR_AND_TRIANGLE, write_scene  # noqa: E402
+
+LIGHT = "[material.default]\nreflectance = [0.5, 0.5, 0.5]\nemission = [1.0, 1.0, 1.0]\n"
+AWAY = """
+[camera]
+position = [0.5, 2.0, -1.5]
+look_at = [0.5, 4.0, -5.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 30.0
+resolution = [32, 24]
+"""
+
+
+def test_a_camera_that_sees_nothing_is_caught_before_any_cluster(tmp_path):
+    path = write_scene(tmp_path, FLOOR_AND_TRIANGLE, LIGHT, camera=AWAY)
+    r = CliRunner().invoke(main, ["plan", path])
+    one_line_error(r, "the camera sees no element", "check [camera]")
+    for cmd in (["render", path, "--out", str(tmp_path / "out")],
+                ["preprocess", path, "--out", str(tmp_path / "out")]):
+        r = CliRunner().invoke(main, cmd)
+        one_line_error(r, "the camera sees no element")
+        assert not os.path.exists(tmp_path / "out")  # no half-made run directory
+
+
+def test_a_scene_without_an_emitter_is_said_up_front(tmp_path):
+    path = write_scene(tmp_path, FLOOR_AND_TRIANGLE, "[material.default]\nreflectance = [0.5, 0.5, 0.5]\n")
+    r = CliRunner().invoke(main, ["plan", path])
+    assert r.exit_code == 0, r.output
+    assert "warning:" in r.output and "no element emits light" in r.output and "black" in r.output
+
+
+def test_a_camera_that_sees_one_small_thing_is_not_refused(tmp_path):
+    """The coarse ray grid misses a tiny element; the full raster then finds it."""
+    from radiosity.preflight import COARSE_RAYS, check_scene
+    from radiosity.scene import load_scene
+
+    obj = "v 0.499 0.499 0\nv 0.501 0.499 0\nv 0.5 0.501 0\nf 1 2 3\n"
+    cam = """
+    [camera]
+    position = [0.5, 0.5, -1.0]
+    look_at = [0.5, 0.5, 0.0]
+    up = [0.0, 1.0, 0.0]
+    fov_y = 60.0
+    resolution = [600, 600]
+    """
+    path = write_scene(tmp_path, obj, "[material.default]\nemission = [1.0, 1.0, 1.0]\n"
+                                      "reflectance = [0.0, 0.0, 0.0]\n", camera=cam)
+    sc = load_scene(path)
+    assert 600 > COARSE_RAYS
+    assert check_scene(sc, 1)["hits"] >= 1

@@ -66,10 +66,7 @@ def test_closed_scenes_with_rho_near_one_converge_to_le_over_one_minus_rho(clien
                       f'path = "{os.path.join(os.path.dirname(cube), "furnace-cube.obj")}"')
     path = tmp_path / "furnace.toml"
     path.write_text(src)
-    import dask.config
-
-    with dask.config.set({"radiosity.subdivide.unseen": "keep"}):  # the partition measured then
-        out = prepared(client, tmp_path, str(path), 12)
+    out = prepared(client, tmp_path, str(path), 12)
     fig = run_solve(out, client, solver="cg", kernel="point-nf", tol=1e-11, progress=False,
                     normalise="closed")
     assert fig["converged"] and fig["iterations"] <= 10

@@ -256,8 +256,8 @@ def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, r
     ground truth, in place: `error` (mean absolute relative error over the pixels wholly inside
     one element), `error_surface` (mean over the elements seen of their mean's relative error),
     `noise_floor` (what an exact image would show against this reference). Renders the path
-    tracer at `path_tracer_spp` (default: 1, 4, 16, ... up to spp / 16) at the finest
-    resolution and returns its rows; writes surfaces.csv (per element, per setting)."""
+    tracer at `path_tracer_spp` (default: 1, 4, 16, ... up to spp / 16) at every resolution of
+    the sweep and returns its rows; writes surfaces.csv (per element, per setting)."""
     from .compare import box_down, box_down_stderr, element_raster, errors, interior, noise_floor, surface_errors
     from .reference import path_tracer_runs, reference_at
     from .scene import load_scene
@@ -303,15 +303,17 @@ def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, r
     if path_tracer_spp is None:
         path_tracer_spp = [4 ** i for i in range(12) if 4 ** i <= max(1, spp // 16)]
     pt = []
-    for run in path_tracer_runs(fine_scene, path_tracer_spp, echo=lambda *a: None):
-        r = {"resolution": finest, "subpixel": 1, "kernel": PATH_TRACER, "solver": f"mitsuba {run['variant']}",
-             "tol": float("nan"), "sub_elements": 0, "passes": 0, "time_preprocess_s": 0.0,
-             "time_visibility_s": 0.0, "time_solve_s": run["time_s"], "time_image_s": 0.0,
-             "time_total_s": run["time_s"], "spp": run["spp"]}
-        measure(r, run["image"])
-        pt.append(r)
-        echo(f"  path tracer {run['spp']} spp: error {r['error']:.3g} (per surface "
-             f"{r['error_surface']:.3g}), {run['time_s']:.2f} s")
+    for res in sorted(set(resolutions)):  # at every resolution, so equal images are compared
+        for run in path_tracer_runs(load_scene(scene_path, resolution=res), path_tracer_spp,
+                                    echo=lambda *a: None):
+            r = {"resolution": res, "subpixel": 1, "kernel": PATH_TRACER, "solver": f"mitsuba {run['variant']}",
+                 "tol": float("nan"), "sub_elements": 0, "passes": 0, "time_preprocess_s": 0.0,
+                 "time_visibility_s": 0.0, "time_solve_s": run["time_s"], "time_image_s": 0.0,
+                 "time_total_s": run["time_s"], "spp": run["spp"]}
+            measure(r, run["image"])
+            pt.append(r)
+            echo(f"  path tracer {res}x{res} {run['spp']} spp: error {r['error']:.3g} (per surface "
+                 f"{r['error_surface']:.3g}), {run['time_s']:.2f} s")
     with open(os.path.join(out, "surfaces.csv"), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(surfaces[0]) if surfaces else ["resolution"])
         w.writeheader()
@@ -348,8 +350,8 @@ def write_results(out: str, rows: list[dict], title: str) -> None:
 
 
 def plot(path: str, rows: list[dict], title: str) -> None:
-    """Log-log error against total time, one marker per kernel, the path tracer as a line
-    (labels: samples per pixel), the reference's noise level per resolution as dashed lines, the
+    """Log-log error against total time, one marker per kernel, the path tracer as one line per
+    resolution (labels: samples per pixel), the reference's noise level per resolution as dashed lines, the
     Pareto front (over every method) as a step line."""
     import matplotlib
 
@@ -366,13 +368,17 @@ def plot(path: str, rows: list[dict], title: str) -> None:
             ax.annotate(f"{r['resolution']}" + (f"·{r['subpixel']}" if r["subpixel"] > 1 else ""),
                         (r["time_total_s"], r["error"]), fontsize=7, xytext=(3, 3),
                         textcoords="offset points")
-    pt = sorted([r for r in rows if r["kernel"] == PATH_TRACER and r["error"] > 0], key=lambda r: r["spp"])
-    if pt:
-        ax.plot([r["time_total_s"] for r in pt], [r["error"] for r in pt], "-x", color="tab:purple",
-                label=f"path tracer ({pt[0]['solver']}, {pt[0]['resolution']}²)", zorder=3)
+    pts = [r for r in rows if r["kernel"] == PATH_TRACER and r["error"] > 0]
+    shades = matplotlib.colormaps["Purples"]
+    res_pt = sorted({r["resolution"] for r in pts})
+    for i, res in enumerate(res_pt):
+        pt = sorted([r for r in pts if r["resolution"] == res], key=lambda r: r["spp"])
+        colour = shades(0.45 + 0.5 * (i + 1) / len(res_pt))
+        ax.plot([r["time_total_s"] for r in pt], [r["error"] for r in pt], "-x", color=colour, lw=1.2,
+                label=f"path tracer {res}² ({pt[0]['solver']})", zorder=3)
         for r in pt:
-            ax.annotate(f"{r['spp']} spp", (r["time_total_s"], r["error"]), fontsize=7, xytext=(3, -9),
-                        textcoords="offset points", color="tab:purple")
+            ax.annotate(f"{r['spp']}", (r["time_total_s"], r["error"]), fontsize=6, xytext=(2, -8),
+                        textcoords="offset points", color=colour)
     floors = sorted({(r["resolution"], r["noise_floor"]) for r in rows
                      if np.isfinite(r.get("noise_floor", np.nan))})
     for i, (res, fl) in enumerate(floors):
@@ -388,7 +394,7 @@ def plot(path: str, rows: list[dict], title: str) -> None:
     ax.set_yscale("log")
     ax.set_xlabel("time, all stages (s)")
     ax.set_ylabel("mean abs. relative error per pixel" if floors else "relative error")
-    ax.set_title(f"{title}: what accuracy costs (labels: resolution·K)" +
+    ax.set_title(f"{title}: what accuracy costs (labels: resolution·K" + (", spp" if pts else "") + ")" +
                  (" against Mitsuba 3" if floors else ""), fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)

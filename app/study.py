@@ -239,11 +239,14 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         for r in rows:
             q = (r["resolution"], r["subpixel"], r["kernel"], r["tol"])
             r["error"] = float(np.sqrt(np.mean((sample(q) - ref) ** 2)) / norm)
-    ok = np.array([r["error"] > 0 for r in rows])
+    # against Mitsuba, images of one size compete (radiosity at every K and the path tracer at
+    # that resolution): a per-pixel error of a 16 x 16 image says nothing of a 64 x 64 one
+    group = [r["resolution"] if reference == "auto" else 0 for r in rows]
     front = np.zeros(len(rows), bool)
-    if ok.any():
-        idx = np.nonzero(ok)[0]
-        front[idx] = pareto([rows[i]["time_total_s"] for i in idx], [rows[i]["error"] for i in idx])
+    for g in set(group):
+        idx = np.array([i for i, r in enumerate(rows) if group[i] == g and r["error"] > 0], int)
+        if len(idx):
+            front[idx] = pareto([rows[i]["time_total_s"] for i in idx], [rows[i]["error"] for i in idx])
     for r, p in zip(rows, front):
         r["pareto"] = bool(p)
     write_results(out, rows, os.path.basename(os.path.dirname(os.path.abspath(scene_path))))
@@ -352,7 +355,8 @@ def write_results(out: str, rows: list[dict], title: str) -> None:
 def plot(path: str, rows: list[dict], title: str) -> None:
     """Log-log error against total time, one marker per kernel, the path tracer as one line per
     resolution (labels: samples per pixel), the reference's noise level per resolution as dashed lines, the
-    Pareto front (over every method) as a step line."""
+    Pareto front (over every method; per resolution when the path tracer is there) as step
+    lines."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -386,10 +390,15 @@ def plot(path: str, rows: list[dict], title: str) -> None:
                    label="reference noise (per resolution)" if i == 0 else None)
         ax.annotate(f"{res}²", (1.0, fl), xycoords=("axes fraction", "data"), fontsize=7,
                     xytext=(-16, 2), textcoords="offset points", color="0.35")
-    front = sorted([r for r in rows if r.get("pareto")], key=lambda r: r["time_total_s"])
-    if front:
-        ax.step([r["time_total_s"] for r in front], [r["error"] for r in front], where="post",
-                color="k", lw=1, alpha=0.6, label="Pareto front", zorder=2)
+    groups = sorted({r["resolution"] for r in rows}) if pts else [None]  # see accuracy()
+    for i, g in enumerate(groups):
+        front = sorted([r for r in rows if r.get("pareto") and g in (None, r["resolution"])],
+                       key=lambda r: r["time_total_s"])
+        if front:
+            ax.step([r["time_total_s"] for r in front], [r["error"] for r in front], where="post",
+                    color="k", lw=1 if g in (None, groups[-1]) else 0.7, alpha=0.6 if g in (None, groups[-1]) else 0.3,
+                    label=("Pareto front" if g is None else "Pareto front per resolution") if i == 0 else None,
+                    zorder=2)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("time, all stages (s)")

@@ -358,9 +358,12 @@ def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
     assert (out / "accuracy.png").stat().st_size > 10_000 and (out / "surfaces.csv").stat().st_size > 100
     md = (out / "results.md").read_text()
     assert "path tracer, 16 spp" in md and "reference's own noise" in md
-    # a second study reuses the reference
-    r = CliRunner().invoke(main, args)
-    assert r.exit_code == 0 and "reusing the reference" in r.output
+    # a second study reuses the reference (same scene file, camera, spp and passes)
+    from app.reference import reference_at
+
+    said = []
+    again, _, fig = reference_at(_scene("cornell-box", 24), str(out / "reference" / "r24"), 256, 8, said.append)
+    assert "reusing the reference" in said[0] and np.array_equal(again, ref) and fig["spp"] == 256
     # a user's EXR keeps its meaning: relative RMS difference of the images
     rows = accuracy(scene_path("cornell-box"), str(tmp_path / "st2"), client, [8], [1], ["point"], [1e-6],
                     reference=str(out / "reference" / "r24" / "reference.exr"), echo=lambda *a: None)

@@ -243,11 +243,14 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         for r in rows:
             q = (r["resolution"], r["subpixel"], r["kernel"], r["tol"])
             r["error"] = float(np.sqrt(np.mean((sample(q) - ref) ** 2)) / norm)
-    ok = np.array([r["error"] > 0 for r in rows])
+    # against Mitsuba, images of one size compete (radiosity at every K and the path tracer at
+    # that resolution): a per-pixel error of a 16 x 16 image says nothing of a 64 x 64 one
+    group = [r["resolution"] if reference == "auto" else 0 for r in rows]
     front = np.zeros(len(rows), bool)
-    if ok.any():
-        idx = np.nonzero(ok)[0]
-        front[idx] = pareto([rows[i]["time_total_s"] for i in idx], [rows[i]["error"] for i in idx])
+    for g in set(group):
+        idx = np.array([i for i, r in enumerate(rows) if group[i] == g and r["error"] > 0], int)
+        if len(idx):
+            front[idx] = pareto([rows[i]["time_total_s"] for i in idx], [rows[i]["error"] for i in idx])
     for r, p in zip(rows, front):
         r["pareto"] = bool(p)
     write_results(out, rows, os.path.basename(os.path.dirname(os.path.abspath(scene_path))))
@@ -260,8 +263,8 @@ def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, r
     ground truth, in place: `error` (mean absolute relative error over the pixels wholly inside
     one element), `error_surface` (mean over the elements seen of their mean's relative error),
     `noise_floor` (what an exact image would show against this reference). Renders the path
-    tracer at `path_tracer_spp` (default: 1, 4, 16, ... up to spp / 16) at the finest
-    resolution and returns its rows; writes surfaces.csv (per element, per setting)."""
+    tracer at `path_tracer_spp` (default: 1, 4, 16, ... up to spp / 16) at every resolution of
+    the sweep and returns its rows; writes surfaces.csv (per element, per setting)."""
     from .compare import box_down, box_down_stderr, element_raster, errors, interior, noise_floor, surface_errors
     from .reference import path_tracer_runs, reference_at
     from .scene import load_scene
@@ -307,15 +310,17 @@ def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, r
     if path_tracer_spp is None:
         path_tracer_spp = [4 ** i for i in range(12) if 4 ** i <= max(1, spp // 16)]
     pt = []
-    for run in path_tracer_runs(fine_scene, path_tracer_spp, echo=lambda *a: None):
-        r = {"resolution": finest, "subpixel": 1, "kernel": PATH_TRACER, "solver": f"mitsuba {run['variant']}",
-             "tol": float("nan"), "sub_elements": 0, "passes": 0, "time_preprocess_s": 0.0,
-             "time_visibility_s": 0.0, "time_solve_s": run["time_s"], "time_image_s": 0.0,
-             "time_total_s": run["time_s"], "spp": run["spp"]}
-        measure(r, run["image"])
-        pt.append(r)
-        echo(f"  path tracer {run['spp']} spp: error {r['error']:.3g} (per surface "
-             f"{r['error_surface']:.3g}), {run['time_s']:.2f} s")
+    for res in sorted(set(resolutions)):  # at every resolution, so equal images are compared
+        for run in path_tracer_runs(load_scene(scene_path, resolution=res), path_tracer_spp,
+                                    echo=lambda *a: None):
+            r = {"resolution": res, "subpixel": 1, "kernel": PATH_TRACER, "solver": f"mitsuba {run['variant']}",
+                 "tol": float("nan"), "sub_elements": 0, "passes": 0, "time_preprocess_s": 0.0,
+                 "time_visibility_s": 0.0, "time_solve_s": run["time_s"], "time_image_s": 0.0,
+                 "time_total_s": run["time_s"], "spp": run["spp"]}
+            measure(r, run["image"])
+            pt.append(r)
+            echo(f"  path tracer {res}x{res} {run['spp']} spp: error {r['error']:.3g} (per surface "
+                 f"{r['error_surface']:.3g}), {run['time_s']:.2f} s")
     with open(os.path.join(out, "surfaces.csv"), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(surfaces[0]) if surfaces else ["resolution"])
         w.writeheader()
@@ -352,9 +357,10 @@ def write_results(out: str, rows: list[dict], title: str) -> None:
 
 
 def plot(path: str, rows: list[dict], title: str) -> None:
-    """Log-log error against total time, one marker per kernel, the path tracer as a line
-    (labels: samples per pixel), the reference's noise level per resolution as dashed lines, the
-    Pareto front (over every method) as a step line."""
+    """Log-log error against total time, one marker per kernel, the path tracer as one line per
+    resolution (labels: samples per pixel), the reference's noise level per resolution as dashed lines, the
+    Pareto front (over every method; per resolution when the path tracer is there) as step
+    lines."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -370,13 +376,17 @@ def plot(path: str, rows: list[dict], title: str) -> None:
             ax.annotate(f"{r['resolution']}" + (f"·{r['subpixel']}" if r["subpixel"] > 1 else ""),
                         (r["time_total_s"], r["error"]), fontsize=7, xytext=(3, 3),
                         textcoords="offset points")
-    pt = sorted([r for r in rows if r["kernel"] == PATH_TRACER and r["error"] > 0], key=lambda r: r["spp"])
-    if pt:
-        ax.plot([r["time_total_s"] for r in pt], [r["error"] for r in pt], "-x", color="tab:purple",
-                label=f"path tracer ({pt[0]['solver']}, {pt[0]['resolution']}²)", zorder=3)
+    pts = [r for r in rows if r["kernel"] == PATH_TRACER and r["error"] > 0]
+    shades = matplotlib.colormaps["Purples"]
+    res_pt = sorted({r["resolution"] for r in pts})
+    for i, res in enumerate(res_pt):
+        pt = sorted([r for r in pts if r["resolution"] == res], key=lambda r: r["spp"])
+        colour = shades(0.45 + 0.5 * (i + 1) / len(res_pt))
+        ax.plot([r["time_total_s"] for r in pt], [r["error"] for r in pt], "-x", color=colour, lw=1.2,
+                label=f"path tracer {res}² ({pt[0]['solver']})", zorder=3)
         for r in pt:
-            ax.annotate(f"{r['spp']} spp", (r["time_total_s"], r["error"]), fontsize=7, xytext=(3, -9),
-                        textcoords="offset points", color="tab:purple")
+            ax.annotate(f"{r['spp']}", (r["time_total_s"], r["error"]), fontsize=6, xytext=(2, -8),
+                        textcoords="offset points", color=colour)
     floors = sorted({(r["resolution"], r["noise_floor"]) for r in rows
                      if np.isfinite(r.get("noise_floor", np.nan))})
     for i, (res, fl) in enumerate(floors):
@@ -384,15 +394,20 @@ def plot(path: str, rows: list[dict], title: str) -> None:
                    label="reference noise (per resolution)" if i == 0 else None)
         ax.annotate(f"{res}²", (1.0, fl), xycoords=("axes fraction", "data"), fontsize=7,
                     xytext=(-16, 2), textcoords="offset points", color="0.35")
-    front = sorted([r for r in rows if r.get("pareto")], key=lambda r: r["time_total_s"])
-    if front:
-        ax.step([r["time_total_s"] for r in front], [r["error"] for r in front], where="post",
-                color="k", lw=1, alpha=0.6, label="Pareto front", zorder=2)
+    groups = sorted({r["resolution"] for r in rows}) if pts else [None]  # see accuracy()
+    for i, g in enumerate(groups):
+        front = sorted([r for r in rows if r.get("pareto") and g in (None, r["resolution"])],
+                       key=lambda r: r["time_total_s"])
+        if front:
+            ax.step([r["time_total_s"] for r in front], [r["error"] for r in front], where="post",
+                    color="k", lw=1 if g in (None, groups[-1]) else 0.7, alpha=0.6 if g in (None, groups[-1]) else 0.3,
+                    label=("Pareto front" if g is None else "Pareto front per resolution") if i == 0 else None,
+                    zorder=2)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("time, all stages (s)")
     ax.set_ylabel("mean abs. relative error per pixel" if floors else "relative error")
-    ax.set_title(f"{title}: what accuracy costs (labels: resolution·K)" +
+    ax.set_title(f"{title}: what accuracy costs (labels: resolution·K" + (", spp" if pts else "") + ")" +
                  (" against Mitsuba 3" if floors else ""), fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)

@@ -341,10 +341,11 @@ def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
         rows = list(csv.DictReader(f))
     pt = [x for x in rows if x["kernel"] == "path tracer"]
     rad = [x for x in rows if x["kernel"] == "point"]
-    assert len(pt) == 2 and len(rad) == 2 and [int(x["spp"]) for x in pt] == [1, 16]
+    assert len(rad) == 2 and [(int(x["resolution"]), int(x["spp"])) for x in pt] == [(12, 1), (12, 16), (24, 1), (24, 16)]
     assert all(float(x["error"]) > 0 and float(x["noise_floor"]) > 0 and float(x["time_total_s"]) > 0
                and float(x["error_surface"]) > 0 for x in rows)
-    assert float(pt[1]["error"]) < 0.5 * float(pt[0]["error"])  # 16x the samples: ~1/4 the noise
+    for lo, hi in (pt[0:2], pt[2:4]):  # 16x the samples: ~1/4 the noise
+        assert float(hi["error"]) < 0.5 * float(lo["error"])
     # the reference at 16 x 16, and 8 x 8 box-filtered from it; one row recomputed by hand
     ref = read_exr(str(out / "reference" / "r24" / "reference.exr"))
     assert json.loads((out / "reference" / "r24" / "reference.json").read_text())["spp"] == 256
@@ -357,9 +358,12 @@ def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
     assert (out / "accuracy.png").stat().st_size > 10_000 and (out / "surfaces.csv").stat().st_size > 100
     md = (out / "results.md").read_text()
     assert "path tracer, 16 spp" in md and "reference's own noise" in md
-    # a second study reuses the reference
-    r = CliRunner().invoke(main, args)
-    assert r.exit_code == 0 and "reusing the reference" in r.output
+    # a second study reuses the reference (same scene file, camera, spp and passes)
+    from app.reference import reference_at
+
+    said = []
+    again, _, fig = reference_at(_scene("cornell-box", 24), str(out / "reference" / "r24"), 256, 8, said.append)
+    assert "reusing the reference" in said[0] and np.array_equal(again, ref) and fig["spp"] == 256
     # a user's EXR keeps its meaning: relative RMS difference of the images
     rows = accuracy(scene_path("cornell-box"), str(tmp_path / "st2"), client, [8], [1], ["point"], [1e-6],
                     reference=str(out / "reference" / "r24" / "reference.exr"), echo=lambda *a: None)

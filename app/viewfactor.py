@@ -352,7 +352,7 @@ def task_viewfactors(inp: Inputs, prm: Params, leaves: np.ndarray, store_path: s
     from .rays import caster_for
     from .store import write_vf_task
 
-    t0 = time.time()
+    t0, c0 = time.time(), time.process_time()
     caster = caster_for(inp.key, inp.verts, inp.nv)
     counts = np.zeros(len(COUNTERS), np.int64)
     times = np.zeros(len(STAGES))
@@ -370,7 +370,7 @@ def task_viewfactors(inp: Inputs, prm: Params, leaves: np.ndarray, store_path: s
     counts[_STORED] = len(ij)
     res = write_vf_task(store_path, task, ij, f, drop)
     res.update(task=int(task), counts=counts.tolist(), times=times.tolist(), start=t0,
-               stop=time.time(), pid=os.getpid())
+               stop=time.time(), cpu=time.process_time() - c0, pid=os.getpid())
     return res
 
 
@@ -666,7 +666,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     busy: dict = {}
 
     def record(task, res):
-        man.record({k: res[k] for k in ("task", "crc", "n", "nd", "counts", "times")})
+        man.record({k: res[k] for k in ("task", "crc", "n", "nd", "counts", "times", "cpu")})
         done[task] = res
         busy[res["pid"]] = busy.get(res["pid"], 0.0) + res["stop"] - res["start"]
 
@@ -683,9 +683,11 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     t_tasks = time.perf_counter() - t_tasks
     counts = np.zeros(len(COUNTERS), np.int64)
     stage = np.zeros(len(STAGES))
+    cpu = 0.0
     for e in done.values():
         counts += np.asarray(e["counts"], np.int64)
-        stage += np.asarray(e.get("times", np.zeros(len(STAGES))))
+        stage += np.asarray(e["times"])
+        cpu += e["cpu"]
 
     t_asm = time.perf_counter()
     asm = assemble(rs, fac, tree, {t: done[t] for t in range(len(tasks))})
@@ -700,6 +702,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
         "tasks_corrupted_recomputed": corrupted, "leaf_size": leaf_size,
         "time_tasks_s": round(t_tasks, 3), "time_assembly_s": round(t_asm, 3),
         "task_time_by_stage_s": {k: round(float(v), 3) for k, v in zip(STAGES, stage)},
+        "task_cpu_s": round(cpu, 3),
         "busy_s_per_worker": {str(k): round(v, 3) for k, v in busy.items()},
         "workers": nworkers, "peak_rss_mb": _peak_rss_mb(client),
     })

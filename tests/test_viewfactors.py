@@ -352,6 +352,34 @@ def test_facets_load_as_the_scene_loader_would(recwarn):
         _polygons(flat, "flat.obj")
 
 
+def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
+    """Two groups of small squares 40 apart, facing each other: with a cut-off above their
+    cluster bound the far pairs are dropped (and only they), and the per-row bound reported
+    for the dropped pairs is at least what each row lost."""
+    near = [square(0.0, size=0.1, x0=0.2 * k, y0=0.0) for k in range(4)] + \
+           [square(0.5, up=False, size=0.1, x0=0.2 * k, y0=0.3) for k in range(4)]
+    far = [square(40.0, up=False, size=0.1, x0=0.2 * k, y0=0.0) for k in range(4)]
+    mesh = mesh_of(*near, *far)
+    with dask.config.set({"radiosity.viewfactors.leaf-size": 4}):
+        full = run(client, tmp_path, mesh, "full")
+        cut = run(client, tmp_path, mesh, "cut", cutoff=1e-4)
+    F0, F1 = full.matrix.toarray(), cut.matrix.toarray()
+    assert cut.figures["pairs_dropped_cutoff"] > 0
+    lost = F0 - F1
+    assert (lost >= 0).all() and lost[:8, :8].max() == 0           # near pairs untouched
+    assert lost[:4, 8:].min() > 0                                  # the floor no longer sees the far group
+    from app.store import RunStore
+    from app.viewfactor import assemble, make_inputs
+
+    fac = load_facets(mesh)
+    tree, _ = make_inputs(fac, 4)
+    lines = (tmp_path / "cut" / "viewfactors.manifest.jsonl").read_text().splitlines()[1:]
+    entries = {e["task"]: e for e in map(json.loads, lines)}
+    asm = assemble(RunStore(str(tmp_path / "cut")), fac, tree, entries)
+    assert (asm.dropped_bound >= lost.sum(axis=1) - 1e-15).all()
+    assert cut.figures["dropped_row_bound_max"] == pytest.approx(asm.dropped_bound.max())
+
+
 # ----------------------------------------------------------------------------- enclosures
 
 def test_cube_enclosure_rows_and_reciprocity(client, tmp_path):

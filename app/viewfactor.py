@@ -16,7 +16,7 @@ Method, per unordered pair {i, j} (each computed once; F_ji = F_ij A_i / A_j):
    leaf by leaf, in batches of at most `batch-pairs`.
 2. Unobstructed F. Pairs that face each other get the exact polygon form factor (exact.py, the
    double contour integral, clipped to the front half-spaces), except far pairs where the cheap
-   degree-3 product quadrature has a proven error bound (vfkernels, bound (*)) of at most
+   degree-5 product quadrature has a proven error bound (vfkernels, bound (*)) of at most
    `cheap-share` x accuracy x its value: there the cheap value is used and its bound recorded.
 3. Visibility. Shafts (Haines & Wallace) between the two leaves' boxes, then between the two
    facets' boxes, with the occluders found by walking the tree: a pair with no possible
@@ -348,7 +348,7 @@ def task_viewfactors(inp: Inputs, prm: Params, leaves: np.ndarray, store_path: s
                      task: int) -> dict:
     """All pairs (i, j), i in the given leaves, i < j in tree order: compute, write to the
     store (store.write_vf_task), and return the manifest entry: task, crc, n, nd, counts
-    (len(COUNTERS),), start, stop, pid."""
+    (len(COUNTERS),), times (len(STAGES),) seconds, cpu seconds, start, stop, pid."""
     from .rays import caster_for
     from .store import write_vf_task
 

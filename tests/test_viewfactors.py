@@ -380,6 +380,37 @@ def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
     assert cut.figures["dropped_row_bound_max"] == pytest.approx(asm.dropped_bound.max())
 
 
+def test_tree_and_task_plan_cover_every_facet_once(rng):
+    """The facet tree's leaves tile the facets, node boxes hold their facets, every facet normal
+    lies in its nodes' cones; the task plan takes every leaf once, in order, within the pair
+    budget (a single leaf may exceed it), with at least the requested number of tasks."""
+    from app.bvh import build_tree
+    from app.viewfactor import plan_tasks
+
+    n = 3000
+    center = rng.random((n, 3)) * [100, 100, 20]
+    normal = rng.normal(size=(n, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    lo, hi = center - rng.random((n, 3)), center + rng.random((n, 3))
+    t = build_tree(lo, hi, center, normal, rng.random(n) + 0.1, 16)
+    assert sorted(t.perm.tolist()) == list(range(n))
+    assert t.start[t.leaves][0] == 0 and t.end[t.leaves][-1] == n
+    assert (t.start[t.leaves][1:] == t.end[t.leaves][:-1]).all()
+    assert (t.end[t.leaves] - t.start[t.leaves]).max() <= 16
+    for v in range(len(t)):
+        idx = t.perm[t.start[v]:t.end[v]]
+        assert (lo[idx] >= t.lo[v]).all() and (hi[idx] <= t.hi[v]).all()
+        assert (np.linalg.norm(normal[idx] - t.axis[v], axis=1) <= t.spread[v] + 1e-12).all()
+    for budget, least in ((1, 1), (20000, 4), (10 ** 9, 8)):
+        tasks = plan_tasks(t, n, budget, least)
+        assert np.array_equal(np.concatenate(tasks), t.leaves)
+        na = t.end - t.start
+        for task in tasks:
+            c = sum(int(na[a] * (na[a] - 1) // 2 + na[a] * (n - t.end[a])) for a in task)
+            assert len(task) == 1 or c <= budget
+        assert len(tasks) >= least
+
+
 # ----------------------------------------------------------------------------- enclosures
 
 def test_cube_enclosure_rows_and_reciprocity(client, tmp_path):

@@ -712,16 +712,27 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     return ViewFactors(matrix, fac.area, fac, fig)
 
 
-def _peak_rss_mb(client) -> dict:
+def _peak_mib() -> float:
+    """Peak resident memory of this process's program image (MiB): VmHWM of /proc/self/status.
+    ru_maxrss is not used: Linux carries it across fork and exec, so a worker spawned by a
+    driver that once held 1 GiB would report 1 GiB."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:  # not Linux
+        pass
     import resource
 
-    def peak():  # on each worker
-        import resource as r
-        return r.getrusage(r.RUSAGE_SELF).ru_maxrss / 1024.0
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
-    out = {"master": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
+
+def _peak_rss_mb(client) -> dict:
+    """Peak resident memory of the driver and of each worker (MiB)."""
+    out = {"master": round(_peak_mib(), 1)}
     try:
-        out["workers"] = {k: round(v, 1) for k, v in client.run(peak).items()}
+        out["workers"] = {k: round(v, 1) for k, v in client.run(_peak_mib).items()}
     except Exception:  # a worker that died has no figure
         pass
     return out

@@ -411,6 +411,49 @@ def test_tree_and_task_plan_cover_every_facet_once(rng):
         assert len(tasks) >= least
 
 
+def test_jittered_points_lie_on_their_facets_and_integrate(rng):
+    """sample_facets: every point on its facet (a triangle, a trapezoid); the weighted sums
+    integrate 1, x and x^2 over the facet to the stratified-sampling accuracy (the trapezoid's
+    weights are the bilinear map's Jacobian), and the same (seed, facet, level) gives the same
+    points."""
+    from app.geometry import polygon_properties
+    from app.vfkernels import sample_facets
+
+    tri = [[0, 0, 0], [2, 0, 0], [0.5, 1.5, 0], [0.5, 1.5, 0]]
+    trap = [[0, 0, 0], [3, 0, 0], [2, 1, 0], [1, 1, 0]]
+    V = np.array([tri, trap], float)
+    nv = np.array([3, 4])
+    area, _, center = polygon_properties(V, nv)
+    # E[x^2]: over a triangle with vertex abscissae a, b, c, (a^2 + b^2 + c^2 + ab + bc + ca) / 6;
+    # over the trapezoid, row by row (y in [0, 1], x in [y, 3 - y]): (1/A) int ((3-y)^3 - y^3)/3
+    a, b, c = 0.0, 2.0, 0.5
+    y = np.linspace(0, 1, 200001)
+    exact_x2 = [(a * a + b * b + c * c + a * b + b * c + c * a) / 6,
+                np.trapezoid(((3 - y) ** 3 - y ** 3) / 3, y) / area[1]]
+    uniform_error = None
+    for s in (4, 16):
+        pts, w = np.empty((2 * s * s, 3)), np.empty(2 * s * s)
+        sample_facets(np.array([0, 1]), np.array([7, 8]), s, 3, V, nv, center, area, pts, w)
+        again = pts.copy()
+        sample_facets(np.array([0, 1]), np.array([7, 8]), s, 3, V, nv, center, area, pts, w)
+        assert np.array_equal(pts, again)
+        for k in range(2):
+            p, wk = pts[k * s * s:(k + 1) * s * s], w[k * s * s:(k + 1) * s * s]
+            # jittered strata: standard error about size / (3.5 s^2) for a linear function
+            assert abs(wk.sum() - 1) < 4.0 / s ** 2
+            assert np.allclose(wk @ p / wk.sum(), center[k], atol=6.0 / s ** 2)
+            assert abs(wk @ p[:, 0] ** 2 / wk.sum() - exact_x2[k]) < 20.0 / s ** 2
+            if k == 1 and s == 16:   # without the Jacobian the trapezoid's centroid is off
+                uniform_error = abs(p[:, 1].mean() - center[1, 1])
+            if k == 0:   # inside the triangle: barycentric coordinates >= 0
+                assert (p[:, 1] >= -1e-12).all() and (p[:, 1] <= 3 * p[:, 0] + 1e-12).all()
+                assert (p[:, 1] <= 1.5 * (2 - p[:, 0]) / 1.5 + 1e-12).all()
+            else:        # inside the trapezoid
+                assert ((p[:, 1] >= 0) & (p[:, 1] <= 1) & (p[:, 0] >= p[:, 1] - 1e-12)
+                        & (p[:, 0] <= 3 - p[:, 1] + 1e-12)).all()
+    assert uniform_error > 6.0 / 16 ** 2                 # the weights matter: the test can fail
+
+
 # ----------------------------------------------------------------------------- enclosures
 
 def test_cube_enclosure_rows_and_reciprocity(client, tmp_path):

@@ -575,8 +575,8 @@ def _viewfactors_summary(fig: dict) -> str:
             ("nonzeros", fig["nonzeros"]),
             ("enclosure", ("balanced" if fig["balanced"] else "not balanced")
              + ("" if fig["enclosure"] else f" ({fig['not_enclosure_because']})")),
-            ("row sums", f"{fig['row_sum_min']:.6g} .. {fig['row_sum_max']:.6g}"
-             + (f" -> {fig['row_sum_final_min']:.15g} .. {fig['row_sum_final_max']:.15g}"
+            ("row sums", f"{fig['row_sum_min']:.12g} .. {fig['row_sum_max']:.12g}"
+             + (f", balanced: {fig['row_sum_final_min']:.15g} .. {fig['row_sum_final_max']:.15g}"
                 if fig["balanced"] else "")),
             ("row sum histogram", ", ".join(f"{k}: {v}" for k, v in hist.items() if v)),
             ("reciprocity residual", f"{fig['reciprocity_residual_max']:.3g}"),

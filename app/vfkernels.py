@@ -504,6 +504,21 @@ def _u01(seed, facet, s, cell, comp):
     return float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
+@numba.njit(cache=True, inline="always")
+def _bilinear_jacobian(P, u, v):
+    """|dB/du x dB/dv| at (u, v) of the bilinear map B of the quad P (4, 3)."""
+    ax = (1 - v) * (P[1, 0] - P[0, 0]) + v * (P[2, 0] - P[3, 0])
+    ay = (1 - v) * (P[1, 1] - P[0, 1]) + v * (P[2, 1] - P[3, 1])
+    az = (1 - v) * (P[1, 2] - P[0, 2]) + v * (P[2, 2] - P[3, 2])
+    bx = (1 - u) * (P[3, 0] - P[0, 0]) + u * (P[2, 0] - P[1, 0])
+    by = (1 - u) * (P[3, 1] - P[0, 1]) + u * (P[2, 1] - P[1, 1])
+    bz = (1 - u) * (P[3, 2] - P[0, 2]) + u * (P[2, 2] - P[1, 2])
+    cx = ay * bz - az * by
+    cy = az * bx - ax * bz
+    cz = ax * by - ay * bx
+    return math.sqrt(cx * cx + cy * cy + cz * cz)
+
+
 @numba.njit(cache=True)
 def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
     """Jittered stratified points of facets fids (tree order): s * s per facet, pts
@@ -513,8 +528,8 @@ def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
     subdivision, weight 1 / s^2. Quads: one point in each cell of an s x s grid of the bilinear
     map, weight = its Jacobian / (s^2 area) (unbiased for any planar convex quad). s = 1: the
     centroid (measured: one random point instead doubles the rows' errors on the urban scene of
-    benchmarks/bench_viewfactors.py). The jitter depends on (seed, gid[facet], s, cell) only (gid: the facets' original ids), so
-    every task draws the same points."""
+    benchmarks/bench_viewfactors.py). The jitter depends on (seed, gid[facet], s, cell) only
+    (gid: the facets' original ids), so every task draws the same points."""
     S = s * s
     for t in range(fids.shape[0]):
         f = fids[t]
@@ -545,8 +560,9 @@ def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
                         uu = (u0 + r1 * (u1 - u0) + r2 * (u2 - u0)) / s
                         vv = (v0 + r1 * (v1 - v0) + r2 * (v2 - v0)) / s
                         for k in range(3):
-                            pts[base + c, k] = (verts[f, 0, k] + uu * (verts[f, 1, k] - verts[f, 0, k])
-                                                + vv * (verts[f, 2, k] - verts[f, 0, k]))
+                            p0 = verts[f, 0, k]
+                            pts[base + c, k] = (p0 + uu * (verts[f, 1, k] - p0)
+                                                + vv * (verts[f, 2, k] - p0))
                         w[base + c] = 1.0 / S
                         c += 1
         else:
@@ -559,16 +575,7 @@ def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
                         pts[base + c, k] = ((1 - u) * (1 - v) * verts[f, 0, k]
                                             + u * (1 - v) * verts[f, 1, k]
                                             + u * v * verts[f, 2, k] + (1 - u) * v * verts[f, 3, k])
-                    ax = (1 - v) * (verts[f, 1, 0] - verts[f, 0, 0]) + v * (verts[f, 2, 0] - verts[f, 3, 0])
-                    ay = (1 - v) * (verts[f, 1, 1] - verts[f, 0, 1]) + v * (verts[f, 2, 1] - verts[f, 3, 1])
-                    az = (1 - v) * (verts[f, 1, 2] - verts[f, 0, 2]) + v * (verts[f, 2, 2] - verts[f, 3, 2])
-                    bx = (1 - u) * (verts[f, 3, 0] - verts[f, 0, 0]) + u * (verts[f, 2, 0] - verts[f, 1, 0])
-                    by = (1 - u) * (verts[f, 3, 1] - verts[f, 0, 1]) + u * (verts[f, 2, 1] - verts[f, 1, 1])
-                    bz = (1 - u) * (verts[f, 3, 2] - verts[f, 0, 2]) + u * (verts[f, 2, 2] - verts[f, 1, 2])
-                    cx = ay * bz - az * by
-                    cy = az * bx - ax * bz
-                    cz = ax * by - ay * bx
-                    w[base + c] = math.sqrt(cx * cx + cy * cy + cz * cz) / (S * area[f])
+                    w[base + c] = _bilinear_jacobian(verts[f], u, v) / (S * area[f])
                     c += 1
 
 

@@ -16,7 +16,7 @@ Method, per unordered pair {i, j} (each computed once; F_ji = F_ij A_i / A_j):
    leaf by leaf, in batches of at most `batch-pairs`.
 2. Unobstructed F. Pairs that face each other get the exact polygon form factor (exact.py, the
    double contour integral, clipped to the front half-spaces), except far pairs where the cheap
-   degree-3 product quadrature has a proven error bound (vfkernels, bound (*)) of at most
+   degree-5 product quadrature has a proven error bound (vfkernels, bound (*)) of at most
    `cheap-share` x accuracy x its value: there the cheap value is used and its bound recorded.
 3. Visibility. Shafts (Haines & Wallace) between the two leaves' boxes, then between the two
    facets' boxes, with the occluders found by walking the tree: a pair with no possible
@@ -349,11 +349,11 @@ def task_viewfactors(inp: Inputs, prm: Params, leaves: np.ndarray, store_path: s
                      task: int) -> dict:
     """All pairs (i, j), i in the given leaves, i < j in tree order: compute, write to the
     store (store.write_vf_task), and return the manifest entry: task, crc, n, nd, counts
-    (len(COUNTERS),), start, stop, pid."""
+    (len(COUNTERS),), times (len(STAGES),) seconds, cpu seconds, start, stop, pid."""
     from .rays import caster_for
     from .store import write_vf_task
 
-    t0 = time.time()
+    t0, c0 = time.time(), time.process_time()
     caster = caster_for(inp.key, inp.verts, inp.nv, inp.epsilon)
     counts = np.zeros(len(COUNTERS), np.int64)
     times = np.zeros(len(STAGES))
@@ -371,7 +371,7 @@ def task_viewfactors(inp: Inputs, prm: Params, leaves: np.ndarray, store_path: s
     counts[_STORED] = len(ij)
     res = write_vf_task(store_path, task, ij, f, drop)
     res.update(task=int(task), counts=counts.tolist(), times=times.tolist(), start=t0,
-               stop=time.time(), pid=os.getpid())
+               stop=time.time(), cpu=time.process_time() - c0, pid=os.getpid())
     return res
 
 
@@ -611,7 +611,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     busy: dict = {}
 
     def record(task, res):
-        man.record({k: res[k] for k in ("task", "crc", "n", "nd", "counts", "times")})
+        man.record({k: res[k] for k in ("task", "crc", "n", "nd", "counts", "times", "cpu")})
         done[task] = res
         busy[res["pid"]] = busy.get(res["pid"], 0.0) + res["stop"] - res["start"]
 
@@ -640,9 +640,11 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     t_tasks = time.perf_counter() - t_tasks
     counts = np.zeros(len(COUNTERS), np.int64)
     stage = np.zeros(len(STAGES))
+    cpu = 0.0
     for e in done.values():
         counts += np.asarray(e["counts"], np.int64)
-        stage += np.asarray(e.get("times", np.zeros(len(STAGES))))
+        stage += np.asarray(e["times"])
+        cpu += e["cpu"]
 
     t_asm = time.perf_counter()
     asm = assemble(rs, fac, tree, {t: done[t] for t in range(len(tasks))})
@@ -657,6 +659,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
         "tasks_corrupted_recomputed": corrupted, "leaf_size": leaf_size,
         "time_tasks_s": round(t_tasks, 3), "time_assembly_s": round(t_asm, 3),
         "task_time_by_stage_s": {k: round(float(v), 3) for k, v in zip(STAGES, stage)},
+        "task_cpu_s": round(cpu, 3),
         "busy_s_per_worker": {str(k): round(v, 3) for k, v in busy.items()},
         "workers": nworkers, "peak_rss_mb": _peak_rss_mb(client),
     })
@@ -666,16 +669,27 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     return ViewFactors(matrix, fac.area, fac, fig)
 
 
-def _peak_rss_mb(client) -> dict:
+def _peak_mib() -> float:
+    """Peak resident memory of this process's program image (MiB): VmHWM of /proc/self/status.
+    ru_maxrss is not used: Linux carries it across fork and exec, so a worker spawned by a
+    driver that once held 1 GiB would report 1 GiB."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:  # not Linux
+        pass
     import resource
 
-    def peak():  # on each worker
-        import resource as r
-        return r.getrusage(r.RUSAGE_SELF).ru_maxrss / 1024.0
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
-    out = {"master": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
+
+def _peak_rss_mb(client) -> dict:
+    """Peak resident memory of the driver and of each worker (MiB)."""
+    out = {"master": round(_peak_mib(), 1)}
     try:
-        out["workers"] = {k: round(v, 1) for k, v in client.run(peak).items()}
+        out["workers"] = {k: round(v, 1) for k, v in client.run(_peak_mib).items()}
     except Exception:  # a worker that died has no figure
         pass
     return out

@@ -109,16 +109,19 @@ def ours(mesh, workers, accuracy=None, smax=None, warm=True, repeat=1):
                                 progress=False)
         wall = np.inf
         for k in range(repeat):
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             res = compute_viewfactors(mesh, os.path.join(d, f"run{k}"), client, accuracy=accuracy,
                                       progress=False)
-            wall = min(wall, time.perf_counter() - t)
+            if time.perf_counter() - t < wall:
+                wall = time.perf_counter() - t
+                # CPU seconds: the tasks' on the workers plus the driver's (load-independent)
+                res.figures["cpu_s"] = round(res.figures["task_cpu_s"] + time.process_time() - c, 2)
     return res, wall
 
 
 def pyviewfactor_matrix(V, F, repeat=1):
-    """pyviewfactor's matrix as ours (row i: from facet i), and its best wall time of `repeat`
-    runs (warmed)."""
+    """pyviewfactor's matrix as ours (row i: from facet i), its best wall time of `repeat` runs
+    (warmed) and the CPU seconds of that run."""
     import pyvista as pv
     import pyviewfactor as pvf
     import scipy.sparse as sp
@@ -130,12 +133,13 @@ def pyviewfactor_matrix(V, F, repeat=1):
 
     Vw, Fw = urban(1, block=5, street=5)
     run(Vw, Fw)                                      # numba compiles
-    wall = np.inf
+    wall, cpu = np.inf, None
     for _ in range(repeat):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         M = run(V, F)
-        wall = min(wall, time.perf_counter() - t)
-    return sp.csr_matrix(M.T), wall                  # pyviewfactor: F[i, j] = F(j -> i)
+        if time.perf_counter() - t < wall:
+            wall, cpu = time.perf_counter() - t, time.process_time() - c   # all its threads
+    return sp.csr_matrix(M.T), wall, round(cpu, 2)   # pyviewfactor: F[i, j] = F(j -> i)
 
 
 def errors(M, ref, area) -> dict:
@@ -224,12 +228,13 @@ def compare(nb: int, workers: int, repeat: int) -> list:
         res, wall = ours((V, F), workers, accuracy=acc, repeat=repeat)
         f = res.figures
         rows.append({"part": "compare", "tool": f"radiosity (accuracy {acc:g})", "facets": len(F),
-                     "time_s": round(wall, 2), "nonzeros": f["nonzeros"], "rays": f["rays"],
+                     "time_s": round(wall, 2), "cpu_s": f["cpu_s"],
+                     "nonzeros": f["nonzeros"], "rays": f["rays"],
                      "peak_worker_MiB": max(f["peak_rss_mb"].get("workers", {0: 0}).values()),
                      **errors(res.matrix, ref.matrix, fac.area)})
-    M, wall = pyviewfactor_matrix(V, F, repeat)
+    M, wall, cpu = pyviewfactor_matrix(V, F, repeat)
     rows.append({"part": "compare", "tool": "pyviewfactor 1.1 (centroid ray)", "facets": len(F),
-                 "time_s": round(wall, 2), "nonzeros": int(M.nnz), "rays": None,
+                 "time_s": round(wall, 2), "cpu_s": cpu, "nonzeros": int(M.nnz), "rays": None,
                  **errors(M, ref.matrix, fac.area)})
     rows.append({"part": "compare", "tool": "reference (accuracy 1e-4, s <= 32)", "facets": len(F),
                  "time_s": round(t_ref, 2), "nonzeros": ref.figures["nonzeros"],
@@ -244,7 +249,8 @@ def big(nb: int, workers: int) -> list:
     f = res.figures
     workers_mib = f["peak_rss_mb"].get("workers", {})
     return [{"part": "urban", "tool": "radiosity (accuracy 1e-3)", "facets": len(F),
-             "time_s": round(wall, 1), "nonzeros": f["nonzeros"], "rays": f["rays"],
+             "time_s": round(wall, 1), "cpu_s": f["cpu_s"], "nonzeros": f["nonzeros"],
+             "rays": f["rays"],
              "peak_worker_MiB": max(workers_mib.values()) if workers_mib else None,
              "peak_master_MiB": f["peak_rss_mb"]["master"],
              "row_sum_min": f["row_sum_min"], "row_sum_max": f["row_sum_max"],
@@ -253,7 +259,8 @@ def big(nb: int, workers: int) -> list:
              "task_time_by_stage_s": f["task_time_by_stage_s"],
              "busy_s_per_worker": f["busy_s_per_worker"],
              "view3d_s_on_8_threads": 1280.0,
-             "view3d_core_s_per_our_core_s": round(1280.0 * 8 / (wall * workers), 1)}]
+             # its thread-seconds per our CPU-second (other hardware: an order of magnitude)
+             "view3d_thread_s_per_our_cpu_s": round(1280.0 * 8 / f["cpu_s"], 1)}]
 
 
 def main():
@@ -265,15 +272,25 @@ def main():
     ap.add_argument("--repeat", type=int, default=2, help="compare: best of this many timed runs")
     a = ap.parse_args()
     rows = []
-    load = [os.getloadavg()[0]]
-    if a.part in ("compare", "both"):
-        rows += compare(a.blocks_small, a.workers, a.repeat)
-    if a.part in ("urban", "both"):
-        rows += big(a.blocks, a.workers)
-    load.append(os.getloadavg()[0])
-    fn = write("viewfactors", rows, {"workers": a.workers, "repeat": a.repeat,
-                                     "load_average_1min_before_after": load})
-    print(table(rows, ["part", "tool", "facets", "time_s", "nonzeros", "rays", "peak_worker_MiB",
+    for part, fn in (("compare", lambda: compare(a.blocks_small, a.workers, a.repeat)),
+                     ("urban", lambda: big(a.blocks, a.workers))):
+        if a.part in (part, "both"):
+            before = os.getloadavg()[0]
+            got = fn()
+            for r in got:   # the machine is shared: how busy it was
+                r["load_average_1min_before_after"] = [before, os.getloadavg()[0]]
+            rows += got
+    # a run of one part keeps the other part's rows from the last JSON
+    import json
+
+    from common import RESULTS
+
+    old = os.path.join(RESULTS, "viewfactors.json")
+    if a.part != "both" and os.path.exists(old):
+        with open(old) as f:
+            rows = [r for r in json.load(f)["rows"] if r["part"] != a.part] + rows
+    fn = write("viewfactors", rows, {"workers": a.workers, "repeat": a.repeat})
+    print(table(rows, ["part", "tool", "facets", "time_s", "cpu_s", "nonzeros", "rays", "peak_worker_MiB",
                        "row_l1_median", "row_l1_p99", "row_l1_max", "row_sum_err_max",
                        "factor_err_max"]))
     for r in rows:

@@ -352,6 +352,108 @@ def test_facets_load_as_the_scene_loader_would(recwarn):
         _polygons(flat, "flat.obj")
 
 
+def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
+    """Two groups of small squares 40 apart, facing each other: with a cut-off above their
+    cluster bound the far pairs are dropped (and only they), and the per-row bound reported
+    for the dropped pairs is at least what each row lost."""
+    near = [square(0.0, size=0.1, x0=0.2 * k, y0=0.0) for k in range(4)] + \
+           [square(0.5, up=False, size=0.1, x0=0.2 * k, y0=0.3) for k in range(4)]
+    far = [square(40.0, up=False, size=0.1, x0=0.2 * k, y0=0.0) for k in range(4)]
+    mesh = mesh_of(*near, *far)
+    with dask.config.set({"radiosity.viewfactors.leaf-size": 4}):
+        full = run(client, tmp_path, mesh, "full")
+        cut = run(client, tmp_path, mesh, "cut", cutoff=1e-4)
+    F0, F1 = full.matrix.toarray(), cut.matrix.toarray()
+    assert cut.figures["pairs_dropped_cutoff"] > 0
+    lost = F0 - F1
+    assert (lost >= 0).all() and lost[:8, :8].max() == 0           # near pairs untouched
+    assert lost[:4, 8:].min() > 0                                  # the floor no longer sees the far group
+    from app.store import RunStore
+    from app.viewfactor import assemble, make_inputs
+
+    fac = load_facets(mesh)
+    tree, _ = make_inputs(fac, 4)
+    lines = (tmp_path / "cut" / "viewfactors.manifest.jsonl").read_text().splitlines()[1:]
+    entries = {e["task"]: e for e in map(json.loads, lines)}
+    asm = assemble(RunStore(str(tmp_path / "cut")), fac, tree, entries)
+    assert (asm.dropped_bound >= lost.sum(axis=1) - 1e-15).all()
+    assert cut.figures["dropped_row_bound_max"] == pytest.approx(asm.dropped_bound.max())
+
+
+def test_tree_and_task_plan_cover_every_facet_once(rng):
+    """The facet tree's leaves tile the facets, node boxes hold their facets, every facet normal
+    lies in its nodes' cones; the task plan takes every leaf once, in order, within the pair
+    budget (a single leaf may exceed it), with at least the requested number of tasks."""
+    from app.bvh import build_tree
+    from app.viewfactor import plan_tasks
+
+    n = 3000
+    center = rng.random((n, 3)) * [100, 100, 20]
+    normal = rng.normal(size=(n, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    lo, hi = center - rng.random((n, 3)), center + rng.random((n, 3))
+    t = build_tree(lo, hi, center, normal, rng.random(n) + 0.1, 16)
+    assert sorted(t.perm.tolist()) == list(range(n))
+    assert t.start[t.leaves][0] == 0 and t.end[t.leaves][-1] == n
+    assert (t.start[t.leaves][1:] == t.end[t.leaves][:-1]).all()
+    assert (t.end[t.leaves] - t.start[t.leaves]).max() <= 16
+    for v in range(len(t)):
+        idx = t.perm[t.start[v]:t.end[v]]
+        assert (lo[idx] >= t.lo[v]).all() and (hi[idx] <= t.hi[v]).all()
+        assert (np.linalg.norm(normal[idx] - t.axis[v], axis=1) <= t.spread[v] + 1e-12).all()
+    for budget, least in ((1, 1), (20000, 4), (10 ** 9, 8)):
+        tasks = plan_tasks(t, n, budget, least)
+        assert np.array_equal(np.concatenate(tasks), t.leaves)
+        na = t.end - t.start
+        for task in tasks:
+            c = sum(int(na[a] * (na[a] - 1) // 2 + na[a] * (n - t.end[a])) for a in task)
+            assert len(task) == 1 or c <= budget
+        assert len(tasks) >= least
+
+
+def test_jittered_points_lie_on_their_facets_and_integrate(rng):
+    """sample_facets: every point on its facet (a triangle, a trapezoid); the weighted sums
+    integrate 1, x and x^2 over the facet to the stratified-sampling accuracy (the trapezoid's
+    weights are the bilinear map's Jacobian), and the same (seed, facet, level) gives the same
+    points."""
+    from app.geometry import polygon_properties
+    from app.vfkernels import sample_facets
+
+    tri = [[0, 0, 0], [2, 0, 0], [0.5, 1.5, 0], [0.5, 1.5, 0]]
+    trap = [[0, 0, 0], [3, 0, 0], [2, 1, 0], [1, 1, 0]]
+    V = np.array([tri, trap], float)
+    nv = np.array([3, 4])
+    area, _, center = polygon_properties(V, nv)
+    # E[x^2]: over a triangle with vertex abscissae a, b, c, (a^2 + b^2 + c^2 + ab + bc + ca) / 6;
+    # over the trapezoid, row by row (y in [0, 1], x in [y, 3 - y]): (1/A) int ((3-y)^3 - y^3)/3
+    a, b, c = 0.0, 2.0, 0.5
+    y = np.linspace(0, 1, 200001)
+    exact_x2 = [(a * a + b * b + c * c + a * b + b * c + c * a) / 6,
+                np.trapezoid(((3 - y) ** 3 - y ** 3) / 3, y) / area[1]]
+    uniform_error = None
+    for s in (4, 16):
+        pts, w = np.empty((2 * s * s, 3)), np.empty(2 * s * s)
+        sample_facets(np.array([0, 1]), np.array([7, 8]), s, 3, V, nv, center, area, pts, w)
+        again = pts.copy()
+        sample_facets(np.array([0, 1]), np.array([7, 8]), s, 3, V, nv, center, area, pts, w)
+        assert np.array_equal(pts, again)
+        for k in range(2):
+            p, wk = pts[k * s * s:(k + 1) * s * s], w[k * s * s:(k + 1) * s * s]
+            # jittered strata: standard error about size / (3.5 s^2) for a linear function
+            assert abs(wk.sum() - 1) < 4.0 / s ** 2
+            assert np.allclose(wk @ p / wk.sum(), center[k], atol=6.0 / s ** 2)
+            assert abs(wk @ p[:, 0] ** 2 / wk.sum() - exact_x2[k]) < 20.0 / s ** 2
+            if k == 1 and s == 16:   # without the Jacobian the trapezoid's centroid is off
+                uniform_error = abs(p[:, 1].mean() - center[1, 1])
+            if k == 0:   # inside the triangle: barycentric coordinates >= 0
+                assert (p[:, 1] >= -1e-12).all() and (p[:, 1] <= 3 * p[:, 0] + 1e-12).all()
+                assert (p[:, 1] <= 1.5 * (2 - p[:, 0]) / 1.5 + 1e-12).all()
+            else:        # inside the trapezoid
+                assert ((p[:, 1] >= 0) & (p[:, 1] <= 1) & (p[:, 0] >= p[:, 1] - 1e-12)
+                        & (p[:, 0] <= 3 - p[:, 1] + 1e-12)).all()
+    assert uniform_error > 6.0 / 16 ** 2                 # the weights matter: the test can fail
+
+
 # ----------------------------------------------------------------------------- enclosures
 
 def test_cube_enclosure_rows_and_reciprocity(client, tmp_path):

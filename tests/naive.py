@@ -200,3 +200,25 @@ def power_balance(part, elements, L: np.ndarray, rays: int, rng):
     emitted = np.pi * np.einsum("m,mc->c", part.area, Le[:, 0] + np.where(
         elements.two_sided[part.orig][:, None], Le[:, 1], 0.0))
     return emitted, absorbed, escaped
+
+
+def near_field_matrix(part, elements, V, kernel: str, factor: float) -> np.ndarray:
+    """Dense F (2m, 2m) of a near-field kernel (point-nf, disc-nf) by brute force: the base
+    kernel everywhere, and for each visible pair of different originals closer than `factor`
+    element sizes (|c_a - c_b| < factor max(sqrt A_a, sqrt A_b)) the exact form factor of the two
+    polygons (exact.polygon_form_factor, one pair at a time, the sides facing each other)."""
+    from radiosity.exact import polygon_form_factor
+
+    m = len(part)
+    F = form_factor_matrix(part, elements, V, kernel.removesuffix("-nf"))
+    size = np.sqrt(part.area)
+    d = np.linalg.norm(part.center[:, None] - part.center[None], axis=2)
+    near = (d < factor * np.maximum(size[:, None], size[None])) & V
+    near &= part.orig[:, None] != part.orig[None, :]
+    for a, b in zip(*np.nonzero(near)):
+        dv = part.center[b] - part.center[a]
+        sa, sb = int(part.normal[a] @ dv <= 0), int(-part.normal[b] @ dv <= 0)
+        P = part.verts[a][:part.nverts[a]]
+        Q = part.verts[b][:part.nverts[b]]
+        F[sa * m + a, sb * m + b] = polygon_form_factor(P, Q, two_sided=True)
+    return F

@@ -168,3 +168,39 @@ def test_cluster_flags_reach_the_config(tmp_path):
     finally:
         dask.config.config.clear()
         dask.config.config.update(saved)
+
+
+@pytest.mark.parametrize("change", ["toml", "mesh"])
+def test_render_resume_refuses_a_run_whose_scene_changed(client, tmp_path, change):
+    """`render --resume` reuses a partition only for the same scene: same scene file contents
+    and the same meshes, not only the same path, camera and sub-pixel factor. After a material
+    (TOML) or a vertex (mesh file) changes, the run is made again and shows the change."""
+    import shutil
+
+    src = os.path.dirname(scene_path("three-rectangles"))
+    d = tmp_path / "scene"
+    shutil.copytree(src, d)
+    toml, obj = d / "scene.toml", d / "three-rectangles.obj"
+    out = tmp_path / "run"
+    cmd = ["render", str(toml), "--out", str(out), "--resolution", "12", "--no-preview",
+           "--scheduler", client.scheduler.address]
+    r = CliRunner().invoke(main, cmd)
+    assert r.exit_code == 0, r.output
+    before = read_exr(str(out / "image.exr"))
+    r = CliRunner().invoke(main, cmd + ["--resume"])  # unchanged: reused
+    assert r.exit_code == 0 and "reusing the partition" in r.output
+    if change == "toml":  # the screen reflects less
+        toml.write_text(toml.read_text().replace("reflectance = [0.7, 0.7, 0.7]", "reflectance = [0.35, 0.35, 0.35]"))
+    else:  # the occluder moves up by 0.3 (its vertices are the only ones at y = 1)
+        obj.write_text(obj.read_text().replace(" 1.0 ", " 1.3 "))
+    r = CliRunner().invoke(main, cmd + ["--resume"])
+    assert r.exit_code == 0, r.output
+    assert "reusing the partition" not in r.output
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["visibility"]["tasks_reused"] == 0
+    after = read_exr(str(out / "image.exr"))
+    assert np.abs(after - before).max() > 0.01 * before.max()
+    # and what the fresh run computed is what a new directory gives
+    r = CliRunner().invoke(main, cmd[:3] + [str(tmp_path / "fresh")] + cmd[4:])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_allclose(after, read_exr(str(tmp_path / "fresh" / "image.exr")), rtol=1e-9, atol=0)

@@ -229,6 +229,38 @@ def test_render_through_slurm_jobs_equals_local_render(client, tmp_path):
 
 
 @pytest.mark.needs("slurm")
+def test_tls_with_slurm_workers_runs_the_stages(small_scene, client, tmp_path):
+    """TLS with jobqueue workers: the temporary certificate reaches the Slurm jobs through the
+    shared temporary directory; scheduler and worker speak tls:// only, and the stages give the
+    answer of the plain-TCP LocalCluster."""
+    from radiosity.preprocess import preprocess
+    from radiosity.scene import load_scene
+    from radiosity.visibility import compute_visibility
+
+    sc = load_scene(small_scene)
+    certs = tmp_path / "certs"
+    certs.mkdir()
+    with dask.config.set({"radiosity.cluster.tls": "temporary"}), \
+            open_client(1, kind="slurm", quiet=True, cores=1, processes=1, memory="1GB",
+                        walltime="00:10:00", timeout=120, job_name=f"radiosity-test-{os.getpid()}",
+                        log_directory=str(tmp_path), shared_temp_directory=str(certs),
+                        scheduler_options=LOOPBACK_SCHEDULER,
+                        worker_extra_args=["--host", "127.0.0.1"]) as c:
+        assert c.scheduler.address.startswith("tls://127.0.0.1:")
+        workers = c.scheduler_info()["workers"]
+        assert len(workers) == 1 and all(w.startswith("tls://127.0.0.1:") for w in workers)
+        assert c.security.require_encryption and len(_squeue()) == 1  # the worker is a Slurm job
+        preprocess(sc, str(tmp_path / "tls"), c, progress=False)
+        fig = compute_visibility(str(tmp_path / "tls"), c, progress=False)
+    left = _wait_queue_empty()
+    assert not left, f"jobs left in the queue: {left}"
+    preprocess(sc, str(tmp_path / "tcp"), client, progress=False)
+    ref = compute_visibility(str(tmp_path / "tcp"), client, progress=False)
+    for k in ("sub_elements", "pairs_facing", "pairs_visible", "rays"):
+        assert fig[k] == ref[k], k
+
+
+@pytest.mark.needs("slurm")
 def test_unsatisfiable_slurm_jobs_fail_with_what_to_check(tmp_path):
     with pytest.raises(RadiosityError) as e:
         with open_client(1, kind="slurm", quiet=True, cores=1, processes=1, memory="1GB",

@@ -214,3 +214,26 @@ def test_registry_errors_list_the_valid_names(client, tmp_path):
         run_solve(out, client, kernel="exactish", progress=False)
     with pytest.raises(RadiosityError, match="cg solver needs a reciprocal kernel"):
         run_solve(out, client, solver="cg", kernel="disc", progress=False)
+
+
+def test_progressive_ambient_term_makes_every_preview_right_on_average(client, tmp_path):
+    """Progressive refinement's previews add rho x ambient, the unshot radiance spread evenly
+    and reflected with the mean reflectance. In a closed scene with rows balanced to 1 and one
+    reflectance (the furnace cube: rho = 0.5, Le = 1) that estimate is exact on average: every
+    shot returns rho of its power to the scene, so what is still to come is rho S(dL) / (1 -
+    rho), S the area-weighted sum. So every preview's area-weighted mean is the exact 2, while
+    its elements are not (early on) and the answer without the term is short of 2."""
+    out = prepared(client, tmp_path, scene_path("furnace-cube"), 8)
+    A = RunStore(out).load_partition().area
+    previews = []
+    fig = run_solve(out, client, solver="progressive", tol=1e-5, progress=False,
+                    callback=lambda k, r, L: previews.append(L[0, 0].copy()))
+    assert fig["row_sums"]["mode"] == "closed" and fig["converged"]
+    assert len(previews) == fig["iterations"] > 3
+    means = np.array([(A * p).sum() / A.sum() for p in previews])
+    np.testing.assert_allclose(means, 2.0, rtol=1e-9)  # balancing error 1e-12, x rho/(1-rho)
+    assert np.abs(previews[0] - 2.0).max() > 0.05      # pointwise only an estimate at first
+    L = radiance(out)[:, 0, 0]
+    np.testing.assert_allclose(L, 2.0, rtol=1e-4)      # the answer itself (unshot <= 1e-5)
+    ambient = np.array(fig["ambient"])
+    assert np.all(ambient >= 0) and ambient.max() < 1e-4  # little left unshot at the end

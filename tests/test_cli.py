@@ -74,8 +74,9 @@ def test_render_end_to_end_on_every_builtin_scene(client, tmp_path, name):
     otherwise the stored coarse reference tests/data/render16-<scene>.npy (made by
     tests/data/make_references.py with this very command)."""
     out = tmp_path / "run"
+    # --tol 1e-6: the tolerance the stored references were made with (the default is 1e-5)
     r = CliRunner().invoke(main, ["render", scene_path(name), "--out", str(out), "--resolution", "16",
-                                  "--scheduler", client.scheduler.address])
+                                  "--tol", "1e-6", "--scheduler", client.scheduler.address])
     assert r.exit_code == 0, r.output
     for f in ("image.exr", "image.png", "preview.png", "mesh.glb", "mesh.ply", "viewer.html", "report.json"):
         assert (out / f).stat().st_size > 0, f

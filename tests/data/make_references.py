@@ -1,6 +1,6 @@
 """Regenerate the stored coarse references of tests/test_cli.py: the image of each built-in
 scene without an exact answer, rendered exactly as the test renders it (`radiosity render SCENE
---resolution 16` with the defaults, on a LocalCluster of 2 single-threaded worker processes).
+--resolution 16 --tol 1e-6` with the other defaults, on a LocalCluster of 2 single-threaded worker processes).
 
     PYTHONPATH=$PWD/.shim python tests/data/make_references.py [scene ...]
 
@@ -43,7 +43,8 @@ def main(names):
             with tempfile.TemporaryDirectory() as d:
                 scene = os.path.join("scenes", name, "scene.toml")
                 args = ["render", os.path.join(ROOT, scene), "--out", d,
-                        "--resolution", str(RESOLUTION), "--scheduler", c.scheduler.address]
+                        "--resolution", str(RESOLUTION), "--tol", "1e-6",
+                        "--scheduler", c.scheduler.address]
                 r = CliRunner().invoke(cli, args)
                 if r.exit_code != 0:
                     sys.exit(f"{name}: render failed:\n{r.output}")

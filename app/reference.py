@@ -113,7 +113,7 @@ def load_mitsuba(variant: str | None = None, echo=None):
             raise ReferenceError(f"Mitsuba variant llvm_ad_rgb: {why}; install libllvm19 "
                                  "(apt-get install libllvm19) or set DRJIT_LIBLLVM_PATH")
         if why and echo:
-            echo(f"Mitsuba: {why}; using scalar_rgb (about 10x slower; apt-get install libllvm19 "
+            echo(f"Mitsuba: {why}; using scalar_rgb (slower; apt-get install libllvm19 "
                  "or set DRJIT_LIBLLVM_PATH for llvm_ad_rgb)")
     mi.set_variant(chosen)
     mi.set_log_level(mi.LogLevel.Warn)

@@ -113,7 +113,7 @@ def load_mitsuba(variant: str | None = None, echo=None):
             raise ReferenceError(f"Mitsuba variant llvm_ad_rgb: {why}; install libllvm19 "
                                  "(apt-get install libllvm19) or set DRJIT_LIBLLVM_PATH")
         if why and echo:
-            echo(f"Mitsuba: {why}; using scalar_rgb (about 10x slower; apt-get install libllvm19 "
+            echo(f"Mitsuba: {why}; using scalar_rgb (slower; apt-get install libllvm19 "
                  "or set DRJIT_LIBLLVM_PATH for llvm_ad_rgb)")
     mi.set_variant(chosen)
     mi.set_log_level(mi.LogLevel.Warn)
@@ -418,7 +418,7 @@ def make_reference(scene: Scene, out: str, spp: int | None = None, passes: int |
 
 def reusable(out: str, scene: Scene, spp: int, passes: int) -> dict | None:
     """The figures of an existing reference in `out` made of this scene file at this camera with
-    at least `spp` samples and these passes, or None."""
+    at least `spp` samples and these passes, newer than the scene and its meshes, or None."""
     fn = os.path.join(out, "reference.json")
     if not (os.path.isfile(fn) and os.path.isfile(os.path.join(out, "reference.exr"))
             and os.path.isfile(os.path.join(out, "reference-stderr.exr"))):
@@ -431,7 +431,8 @@ def reusable(out: str, scene: Scene, spp: int, passes: int) -> dict | None:
     same_cam = fig.get("camera") == json.loads(json.dumps(scene.camera.to_dict()))
     if (fig.get("scene") == scene.path and same_cam and fig.get("spp", 0) >= spp
             and fig.get("passes") == passes and fig.get("variant") is not None
-            and os.path.getmtime(fn) >= os.path.getmtime(scene.path)):
+            and all(os.path.getmtime(fn) >= os.path.getmtime(src)
+                    for src in (scene.path, *scene.elements.sources) if os.path.isfile(src))):
         return fig
     return None
 

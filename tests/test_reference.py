@@ -374,3 +374,15 @@ def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
                                   str(tmp_path / "st3"), "--reference", "auto", "--scheduler",
                                   client.scheduler.address])
     assert r.exit_code == 2 and "[validation]" in r.output
+
+
+def test_render_calls_split_into_equal_chunks():
+    from app.reference import _chunks
+
+    assert _chunks(32, 128 * 128, 4_194_304) == [32]
+    assert _chunks(2048, 64 * 64, 4_194_304) == [1024, 1024]
+    assert _chunks(3, 10, 15) == [1, 1, 1]
+    assert _chunks(7, 1, 1) == [1] * 7
+    for spp, px, cap in ((2048, 4096, 1 << 22), (96, 1000, 20_000), (5, 10, 25)):
+        c = _chunks(spp, px, cap)
+        assert sum(c) == spp and len(set(c)) == 1 and (c[0] * px <= cap or c[0] == 1)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import sys
 import time
 import warnings
@@ -524,6 +525,133 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
         sys.exit(NOT_CONVERGED)
 
 
+@main.command()
+@click.argument("scene", type=click.Path())
+@click.option("--out", "-o", required=True, type=click.Path(), help="Directory for reference.exr, "
+              "reference-stderr.exr and reference.json.")
+@click.option("--spp", type=click.IntRange(min=1), default=None,
+              help="Samples per pixel in all (default: radiosity.reference.spp).")
+@click.option("--passes", type=POSITIVE_INT, default=None,
+              help="Independent passes the samples are split into, for the standard error "
+                   "(default: radiosity.reference.passes).")
+@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+              help="Override the camera resolution.")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="Seed of the first pass.")
+@click.option("--variant", type=click.Choice(["auto", "llvm_ad_rgb", "scalar_rgb"]), default=None,
+              help="Mitsuba variant (default: radiosity.reference.variant, auto).")
+@_friendly
+def reference(scene, out, spp, passes, resolution, seed, variant):
+    """Ground truth: SCENE path-traced by Mitsuba 3 (the same elements, materials, sides and
+    camera); mean radiance, per-pixel standard error and figures into OUT."""
+    from .preflight import check_new_run_dir
+    from .reference import make_reference
+    from .scene import load_scene
+
+    sc = load_scene(scene, resolution=resolution)
+    check_new_run_dir(out)
+    fig = make_reference(sc, out, spp=spp, passes=passes, seed=seed, variant=variant, echo=click.echo)
+    click.echo(_table([
+        ("samples", f"{fig['spp']} spp in {fig['passes']} passes ({fig['variant']}, Mitsuba "
+                    f"{fig['mitsuba_version']})"),
+        ("path depth", f"{fig['max_depth']} (max reflectance {fig['max_reflectance']:.3g}: light "
+                       f"dropped <= {fig['truncation_bound']:.2g} of the largest radiance)"),
+        ("relative std. error", f"median {fig['rel_stderr_median']:.3g}, 99th percentile "
+                                f"{fig['rel_stderr_p99']:.3g}"),
+        ("time", f"{fig['time_s']:.1f} s")]))
+    click.echo(f"wrote {out}/reference.exr, reference-stderr.exr, reference.json")
+
+
+@main.command()
+@click.argument("a", type=click.Path())
+@click.argument("b", type=click.Path())
+@click.option("--out", "-o", default=None, type=click.Path(),
+              help="Directory for compare.png (false-colour relative difference) and compare.json.")
+@_friendly
+def compare(a, b, out):
+    """Error of image A against reference B (EXR, linear RGB): mean absolute relative error,
+    max, per channel; B's noise when B-stderr.exr lies beside it."""
+    from .compare import compare_files
+    from .preflight import check_new_run_dir
+
+    if out:
+        check_new_run_dir(out)
+    fig = compare_files(a, b, out)
+    pc = fig["per_channel"]
+    rows = [("pixels", f"{fig['pixels']} of {fig['width']}x{fig['height']} (where B > 0)"),
+            ("mean abs. relative error", f"{fig['mare']:.4g}"),
+            ("max relative error", f"{fig['max']:.4g}"),
+            ("per channel R, G, B", f"{pc['R']:.4g}, {pc['G']:.4g}, {pc['B']:.4g}")]
+    if "noise_floor" in fig:
+        rows.append(("B's own noise", f"{fig['noise_floor']:.4g} (the error an exact image would show)"))
+    click.echo(_table(rows))
+    if out:
+        click.echo(f"wrote {out}/compare.png (scale +-{fig['scale']:.3g}), {out}/compare.json")
+
+
+@main.command()
+@click.argument("mesh", type=click.Path())
+@click.option("--out", "-o", required=True, type=click.Path(), help="Run directory to create.")
+@click.option("--accuracy", type=POSITIVE, default=None,
+              help="Target absolute error of each factor (default: radiosity.viewfactors.accuracy).")
+@click.option("--enclosure", type=click.Choice(["auto", "on", "off"]), default=None,
+              help="Balance rows to 1 keeping reciprocity: auto (closed meshes with inward "
+                   "normals), on, off (default: radiosity.viewfactors.enclosure).")
+@click.option("--format", "fmt", type=click.Choice(["npz", "csv"]), default="npz", show_default=True,
+              help="viewfactors.npz always; csv adds viewfactors.csv (small meshes).")
+@click.option("--cutoff", type=_Finite(min=0.0), default=None,
+              help="Drop cluster pairs whose form-factor bound is at most this (default 0: none).")
+@click.option("--resume", is_flag=True, help="Keep the finished tasks of an interrupted run in OUT.")
+@cluster_options
+@_friendly
+def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, workers, scheduler, cluster_kind):
+    """View factors between the facets of MESH (OBJ, glTF, PLY or a scene TOML): sparse,
+    obstructed, reciprocal; rows balanced to 1 for enclosures."""
+    from .cluster import open_client
+    from .viewfactor import compute_viewfactors, load_facets, resolve_params
+
+    from .preflight import check_new_run_dir
+    from .runlock import run_lock
+
+    resolve_params(accuracy, cutoff)  # bad values fail before the cluster starts
+    fac = load_facets(mesh)
+    check_new_run_dir(out)
+    _started(out)
+    click.echo(f"{len(fac)} facets from {', '.join(fac.sources)}")
+    with run_lock(out, _command_line()), open_client(workers, scheduler, cluster_kind,
+                                                     echo=click.echo) as client:
+        res = compute_viewfactors(fac, out, client, accuracy=accuracy, enclosure=enclosure,
+                                  fmt=fmt, cutoff=cutoff, resume=resume)
+    click.echo(_viewfactors_summary(res.figures))
+    click.echo(f"wrote {out}/" + f", {out}/".join(res.figures["files"] + ["report.json"]))
+
+
+def _viewfactors_summary(fig: dict) -> str:
+    pt = max(1, fig["pairs_total"])
+
+    def part(k):
+        return f"{fig[k]} ({fig[k] / pt:.1%})"
+
+    hist = fig["row_sum_final_histogram"]
+    rows = [("facets", fig["facets"]), ("pairs", fig["pairs_total"]),
+            ("culled (face away)", f"{fig['pairs_culled_cluster'] + fig['pairs_facing_away']} "
+                                   f"({(fig['pairs_culled_cluster'] + fig['pairs_facing_away']) / pt:.1%})"),
+            ("dropped by cut-off", part("pairs_dropped_cutoff")),
+            ("unobstructed, proven by shafts", part("pairs_proven_unobstructed")),
+            ("sampled with rays", f"{part('pairs_sampled')}, {fig['rays']} rays"),
+            ("exact / cheap kernel", f"{fig['pairs_exact_kernel']} / {fig['pairs_cheap_kernel']}"),
+            ("nonzeros", fig["nonzeros"]),
+            ("enclosure", ("balanced" if fig["balanced"] else "not balanced")
+             + ("" if fig["enclosure"] else f" ({fig['not_enclosure_because']})")),
+            ("row sums", f"{fig['row_sum_min']:.12g} .. {fig['row_sum_max']:.12g}"
+             + (f", balanced: {fig['row_sum_final_min']:.15g} .. {fig['row_sum_final_max']:.15g}"
+                if fig["balanced"] else "")),
+            ("row sum histogram", ", ".join(f"{k}: {v}" for k, v in hist.items() if v)),
+            ("reciprocity residual", f"{fig['reciprocity_residual_max']:.3g}"),
+            ("obstructed > unobstructed", fig["obstructed_over_unobstructed"]),
+            ("time", f"{fig['time_s']:.2f} s")]
+    return _table(rows)
+
+
 @main.group()
 def study():
     """Studies: what accuracy costs in time."""
@@ -544,13 +672,20 @@ def _floats(s: str, kind=float):
               help="Form-factor kernels; the sampled ones may name their sample count: nxm:16, mc:64.")
 @click.option("--tols", default="1e-6", show_default=True, help="Solver tolerances.",
               callback=_number_list(float, 0.0, "tolerances > 0"))
-@click.option("--reference", type=click.Path(exists=True), default=None,
-              help="A reference image (EXR) to measure the error against.")
+@click.option("--reference", default=None, metavar="auto|PATH.exr",
+              help="auto: ground truth path-traced by Mitsuba 3 (made once in OUT/reference, "
+                   "reused), and the path tracer itself in the sweep; or a reference image (EXR).")
+@click.option("--reference-spp", type=click.IntRange(min=1), default=None,
+              help="--reference auto: samples per pixel of the reference "
+                   "(default: radiosity.reference.study-spp).")
+@click.option("--path-tracer-spp", default=None, metavar="N,N,...",
+              help="--reference auto: the path tracer's sample counts (default: 1, 4, 16, ... "
+                   "up to the reference's / 16).")
 @click.option("--solver", default=None, help="Solver (default: radiosity.solve.solver).")
 @cluster_options
 @_friendly
-def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, solver, workers,
-                   scheduler, cluster_kind):
+def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, reference_spp,
+                   path_tracer_spp, solver, workers, scheduler, cluster_kind):
     """Sweep resolution x sub-pixel x kernel x tolerance on SCENE; time every stage, measure the
     error; write results.csv, results.md and accuracy.png (error against time, Pareto front)."""
     from .cluster import open_client
@@ -559,9 +694,17 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
     ks = [k for k in kernels.split(",") if k]
     for k in ks:
         kernel_setting(k)  # a bad name or count fails before the cluster starts
+    if reference == "auto":
+        from .reference import load_mitsuba
+
+        load_mitsuba(echo=click.echo)  # Mitsuba missing fails before the sweep
+    elif reference is not None and not os.path.isfile(reference):
+        raise RadiosityError(f"--reference {reference}: no such file (give an EXR image, or auto)")
+    pts = _floats(path_tracer_spp, int) if path_tracer_spp else None
     with open_client(workers, scheduler, cluster_kind, echo=click.echo) as client:
         rows = accuracy(scene, out, client, _floats(resolutions, int), _floats(subpixels, int), ks,
-                        _floats(tols), reference=reference, solver=solver, echo=click.echo)
+                        _floats(tols), reference=reference, solver=solver, echo=click.echo,
+                        reference_spp=reference_spp, path_tracer_spp=pts)
     best = [r for r in rows if r["pareto"]]
     click.echo(f"wrote {out}/results.csv, results.md, accuracy.png; {len(best)} settings on the Pareto front")
 

@@ -316,7 +316,8 @@ class LocalOperator(_Base):
 class DaskOperator(_Base):
     """The task functions as Dask tasks over groups of visibility tasks. Each group is pinned to
     one worker (its tile cache stays warm across passes); a group that fails is resubmitted
-    anywhere, up to `retries` times."""
+    anywhere, up to `retries` times, and a pass whose scattered data died with a worker is
+    scattered again and rerun."""
 
     def __init__(self, client, inp: SolveInputs, kernel: str, groups: int | None = None,
                  retries: int = 3):
@@ -329,20 +330,42 @@ class DaskOperator(_Base):
         [self.inp_f] = client.scatter([inp], broadcast=True, hash=False)
         self._gs_fixed = None  # (Le, [futures of Le, rho]) scattered once for Gauss-Seidel
 
+    def _lost_data_retried(self, run):
+        """run() one pass; if a worker died holding the only copy of scattered data (the vector,
+        or the inputs it was given), the pass's futures are cancelled (scattered data has no
+        lineage to recompute it from): scatter again to the workers alive now and rerun, up to
+        `retries` times. Errors of the tasks themselves (a corrupted store) pass through."""
+        from concurrent.futures import CancelledError
+
+        for attempt in range(self.retries + 1):
+            try:
+                return run()
+            except (CancelledError, OSError) as e:  # FutureCancelledError, CommClosedError
+                if attempt == self.retries:
+                    raise RadiosityError(f"a solver pass failed {attempt + 1} times: workers were "
+                                         f"lost ({type(e).__name__}: {e})") from None
+                workers = sorted(self.client.scheduler_info()["workers"])
+                self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
+                [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
+                self._gs_fixed = None
+
     def _run_groups(self, L, live_orig, use_need) -> list:
-        Lf = self.client.scatter([L], broadcast=False, hash=False)
-        workers = self.workers or [None] * len(self.groups)
+        def run():
+            Lf = self.client.scatter([L], broadcast=False, hash=False)
+            workers = self.workers or [None] * len(self.groups)
 
-        def submit(i, attempt):
-            if attempt and Lf[0].status != "finished":  # its only copy died with a worker
-                Lf[:] = self.client.scatter([L], broadcast=False, hash=False)
-            return self.client.submit(task_apply, self.inp_f, self.groups[i], Lf[0], self.kid,
-                                      live_orig, use_need, pure=False,
-                                      workers=[workers[i]] if workers[i] else None,
-                                      allow_other_workers=True)
+            def submit(i, attempt):
+                if attempt and Lf[0].status != "finished":  # its only copy died with a worker
+                    Lf[:] = self.client.scatter([L], broadcast=False, hash=False)
+                return self.client.submit(task_apply, self.inp_f, self.groups[i], Lf[0], self.kid,
+                                          live_orig, use_need, pure=False,
+                                          workers=[workers[i]] if workers[i] else None,
+                                          allow_other_workers=True)
 
-        return gather_retrying(self.client, submit, len(self.groups), self.retries,
-                               name="solve group")
+            return gather_retrying(self.client, submit, len(self.groups), self.retries,
+                                   name="solve group")
+
+        return self._lost_data_retried(run)
 
     def configure(self, **arrays) -> None:
         """Replace input arrays and re-scatter the inputs to the workers (one scatter)."""
@@ -350,24 +373,28 @@ class DaskOperator(_Base):
         [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
 
     def gs_sweep(self, L, Le, rho) -> np.ndarray:
-        w = self.workers[0] if self.workers else None
-        if self._gs_fixed is None or self._gs_fixed[0] is not Le:
-            self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
-        Lf = self.client.scatter([L], hash=False)
+        def run():
+            w = self.workers[0] if self.workers else None
+            if self._gs_fixed is None or self._gs_fixed[0] is not Le:
+                self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
+            Lf = self.client.scatter([L], hash=False)
 
-        def submit(i, attempt):
-            if attempt:  # scattered inputs whose only copy died with a worker: again
-                if Lf[0].status != "finished":
-                    Lf[:] = self.client.scatter([L], hash=False)
-                if any(f.status != "finished" for f in self._gs_fixed[1]):
-                    self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
-            Lef, rhof = self._gs_fixed[1]
-            return self.client.submit(task_gs_sweep, self.inp_f, Lf[0], Lef, rhof, self.kid,
-                                      pure=False, workers=[w] if w else None,
-                                      allow_other_workers=True)
+            def submit(i, attempt):
+                if attempt:  # scattered inputs whose only copy died with a worker: again
+                    if Lf[0].status != "finished":
+                        Lf[:] = self.client.scatter([L], hash=False)
+                    if any(f.status != "finished" for f in self._gs_fixed[1]):
+                        self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
+                Lef, rhof = self._gs_fixed[1]
+                return self.client.submit(task_gs_sweep, self.inp_f, Lf[0], Lef, rhof, self.kid,
+                                          pure=False, workers=[w] if w else None,
+                                          allow_other_workers=True)
 
-        [(new, terms)] = gather_retrying(self.client, submit, 1, self.retries,
-                                         name="Gauss-Seidel sweep")
+            [out] = gather_retrying(self.client, submit, 1, self.retries,
+                                    name="Gauss-Seidel sweep")
+            return out
+
+        new, terms = self._lost_data_retried(run)
         self.terms += terms
         self.passes += 1
         return new

@@ -5,6 +5,7 @@ visibility.py, solve.py, render.py) do the work; this module only strings them t
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import time
@@ -103,6 +104,21 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
                        int(sizes.sum()), estimated=run_dir is None)
 
 
+def scene_digest(scene: Scene) -> str:
+    """sha256 of what a run is made from: the bytes of the scene file and of every mesh file,
+    and the element arrays they resolved to (so materials from an MTL file or a glTF buffer
+    count too). `render --resume` reuses a run only with the same digest."""
+    h = hashlib.sha256()
+    for fn in (scene.path, *scene.elements.sources):
+        if fn and os.path.isfile(fn):
+            with open(fn, "rb") as f:
+                h.update(f.read())
+    el = scene.elements
+    for a in (el.verts, el.nverts, el.reflectance, el.emission, el.two_sided):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
 def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None, unit=None,
                  solver=None, kernel=None, tol=None, filter=None, sigma=None, exposure=None,
                  resume=False, preview=True, progress=True, echo=print,
@@ -110,16 +126,19 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     """plan -> preprocess -> visibility -> solve -> image (+ the preview from the originals).
 
     The effects plan (effects.py) decides what is simulated; `full` forces every effect on.
-    With `resume`, a run directory whose preprocessing matches (same scene file, camera and
-    subpixel) keeps its partition and the finished visibility tasks."""
+    With `resume`, a run directory whose preprocessing matches (the same scene: file, contents
+    and meshes by scene_digest; the same camera and subpixel) keeps its partition and the
+    finished visibility tasks."""
     t0 = time.perf_counter()
     stages = {}
     reuse = False
+    digest = scene_digest(scene)
     if resume and os.path.exists(os.path.join(out, "store.zarr")):
         try:
             rs = RunStore(out)
             at = rs.attrs
-            reuse = (at.get("scene") == scene.path and at.get("camera") == scene.camera.to_dict()
+            reuse = (at.get("scene") == scene.path and at.get("scene_digest") == digest
+                     and at.get("camera") == scene.camera.to_dict()
                      and at.get("subpixel") == int(config.get("subdivide.subpixel", subpixel))
                      and rs.has("raster"))
         except Exception:
@@ -128,7 +147,11 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     if reuse:
         echo("preprocess: reusing the partition in the run directory")
     else:
+        if resume:
+            echo("preprocess: nothing to reuse (no run, or another scene, camera or sub-pixel "
+                 "factor): starting again")
         preprocess(scene, out, client, subpixel=subpixel, variant=variant, progress=progress)
+        RunStore(out, "r+").set_attrs(scene_digest=digest)
     stages["preprocess_s"] = time.perf_counter() - t
     # decide the effects before the heavy stages, from the partition just made
     planned = scene_plan(scene, subpixel, tol, full, run_dir=out)

@@ -145,6 +145,8 @@ def gather_retrying(client, submit, count: int, retries: int = 3, name: str = "t
     TaskFailed with the worker's traceback. (A dead worker's tasks are rescheduled by the
     scheduler itself and cost no attempt; a task cancelled because a scattered input died with
     its worker costs one, and `submit` should scatter that input again when attempt > 0.)"""
+    from concurrent.futures import CancelledError
+
     from distributed import wait
 
     pending = {i: submit(i, 0) for i in range(count)}
@@ -171,6 +173,8 @@ def gather_retrying(client, submit, count: int, retries: int = 3, name: str = "t
                 for g in pending.values():
                     g.cancel()
                 if deterministic(exc):
+                    raise exc
+                if isinstance(exc, CancelledError):  # lost inputs: the caller scatters again
                     raise exc
                 summary, text = _describe(exc, trace)
                 raise TaskFailed(f"{name} {i} failed {attempts[i]} times: {summary}"

@@ -171,12 +171,15 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
     except Exception as e:  # trimesh raises many types for corrupt files
         raise SceneError(f"cannot read mesh file {fn}: {e}") from None
     gmats = {}
+    gltf, gnames = [], []
     if fn.lower().endswith((".gltf", ".glb")):
         try:
             doc = _gltf_json(fn)
         except Exception as e:
             raise SceneError(f"cannot parse glTF JSON of {fn}: {e}") from None
-        for m in doc.get("materials", []):
+        gltf = doc.get("materials", [])
+        gnames = _gltf_material_names(gltf, fn)
+        for name, m in zip(gnames, gltf):
             pbr = m.get("pbrMetallicRoughness", {})
             props = {"reflectance": list(pbr.get("baseColorFactor", [1, 1, 1, 1]))[:3]}
             strength = m.get("extensions", {}).get("KHR_materials_emissive_strength", {})
@@ -184,7 +187,7 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
                 strength.get("emissiveStrength", 1.0))
             props["emission"] = e.tolist()
             props["two_sided"] = bool(m.get("doubleSided", False))
-            gmats[m.get("name", "")] = props
+            gmats[name] = props
     verts, faces, fmat = [], [], []
     base = 0
     for node in loaded.graph.nodes_geometry:
@@ -195,8 +198,10 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
         v = trimesh.transformations.transform_points(np.asarray(mesh.vertices, float), transform)
         name = default_material
         mat = getattr(getattr(mesh, "visual", None), "material", None)
-        if fn.lower().endswith((".gltf", ".glb")) and mat is not None and getattr(mat, "name", None):
-            name = mat.name
+        if gltf and mat is not None:
+            idx = _gltf_material_of(mat, gltf, fn)
+            if idx is not None:
+                name = gnames[idx]
         verts.append(v)
         for f in np.asarray(mesh.faces):
             faces.append([int(k) + base for k in f])
@@ -204,6 +209,53 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
         base += len(v)
     v = np.concatenate(verts) if verts else np.zeros((0, 3))
     return RawMesh(v, faces, fmat, gmats)
+
+
+def _gltf_material_names(gltf: list, fn: str) -> list[str]:
+    """A distinct name per glTF material (by index): its own name; `unnamed-<i>` for one without
+    a name; `<name>#<i>` for a later material that reuses a name with other properties (said,
+    with a warning: the TOML overrides materials by these names)."""
+    names, first = [], {}
+    for i, m in enumerate(gltf):
+        name = m.get("name") or f"unnamed-{i}"
+        props = {k: v for k, v in m.items() if k != "name"}
+        if name in first and first[name] != props:
+            new = f"{name}#{i}"
+            _warn(f"{fn}: glTF material {i} reuses the name '{name}' with other properties; "
+                  f"it is called '{new}' here (override it as [material.\"{new}\"])")
+            name = new
+        first.setdefault(name, props)
+        names.append(name)
+    return names
+
+
+def _gltf_material_of(mat, gltf: list, fn: str) -> int | None:
+    """The index of the glTF material trimesh made `mat` (a PBRMaterial) from: the one of that
+    name (or of no name), and among several of the same name the one whose factors match
+    (trimesh keeps baseColorFactor to 8 bits only). None if no glTF material matches."""
+    name = getattr(mat, "name", None) or None
+    cands = [i for i, m in enumerate(gltf) if (m.get("name") or None) == name]
+    if len(cands) <= 1:
+        return cands[0] if cands else None
+
+    def distance(i):
+        m = gltf[i]
+        want = np.asarray(m.get("pbrMetallicRoughness", {}).get("baseColorFactor", [1, 1, 1, 1]), float)
+        got = getattr(mat, "baseColorFactor", None)
+        got = np.ones(4) if got is None else np.asarray(got, float) / (
+            255.0 if np.asarray(got).dtype.kind in "ui" else 1.0)
+        e_want = np.asarray(m.get("emissiveFactor", [0, 0, 0]), float)
+        e_got = getattr(mat, "emissiveFactor", None)
+        e_got = np.zeros(3) if e_got is None else np.asarray(e_got, float)[:3]
+        return (float(np.abs(want - got).max() + np.abs(e_want - e_got).max())
+                + (0.0 if bool(m.get("doubleSided", False)) == bool(getattr(mat, "doubleSided", False)) else 10.0))
+
+    d = np.array([distance(i) for i in cands])
+    tied = [cands[k] for k in np.nonzero(d <= d.min() + 1.0 / 255)[0]]
+    if any(gltf[t] != gltf[tied[0]] for t in tied[1:]):
+        raise SceneError(f"{fn}: glTF materials {', '.join(map(str, tied))} are all named "
+                         f"'{name}' and differ by less than 1/255: give them distinct names")
+    return tied[0]
 
 
 def load_mesh(fn: str, default_material: str = "default") -> RawMesh:
@@ -231,10 +283,12 @@ def _is_convex(q: np.ndarray, n: np.ndarray) -> bool:
     return all(x > 0 for x in s)
 
 
-def polygons_from_raw(raw: RawMesh, fn: str):
+def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True):
     """Validate faces and turn them into polygons: (verts (n,4,3), nverts (n,), face (n,), material names).
 
     Non-planar or non-convex quads become two triangles, n-gons a triangle fan; each with a warning.
+    merge=False keeps triangle pairs that form parallelograms apart (view factors between the
+    user's own facets).
     """
     tol = config.get("scene.planarity-tolerance")
     out_v, out_n, out_f, out_m = [], [], [], []
@@ -289,7 +343,8 @@ def polygons_from_raw(raw: RawMesh, fn: str):
     verts = np.array(out_v, float)
     nverts = np.array(out_n, np.int8)
     face = np.array(out_f, np.int32)
-    verts, nverts, face, out_m = merge_parallelograms(verts, nverts, face, out_m)
+    if merge:
+        verts, nverts, face, out_m = merge_parallelograms(verts, nverts, face, out_m)
     area, _, _ = polygon_properties(verts, nverts)
     diam = diameter(verts, nverts)
     bad = np.nonzero(~(area > config.get("scene.min-relative-area") * diam ** 2))[0]

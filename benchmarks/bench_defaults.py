@@ -28,6 +28,8 @@ from radiosity.render import read_exr, render_outputs
 from radiosity.scene import load_scene
 from radiosity.solve import run_solve
 from radiosity.study import form_factor_of_run
+from radiosity.visibility import compute_visibility
+from radiosity import config
 
 SCENES = ["furnace-cube", "furnace-sphere", "parallel-squares", "perpendicular-squares",
           "coaxial-discs", "unseen-emitter", "cornell-box-inside", "three-rectangles",
@@ -48,6 +50,8 @@ def error_of(name: str, sc, out: str, client, img, kernel: str) -> tuple[str, fl
         exact = el.emission[0, 0, 0] / (1 - el.reflectance[0, 0, 0])
         return "L = Le / (1 - rho), max over pixels", float(np.abs(img[seen][:, 0] / exact - 1).max())
     if "form_factor" in val:
+        # nothing reflects, so the render skipped visibility: make it for the default kernel
+        compute_visibility(out, client, progress=False, kernel=kernel)
         f = form_factor_of_run(out, client, kernel, val["from"], val["to"])
         return "F (Howell), relative", abs(f / val["form_factor"] - 1)
     if val.get("kind") == "point-to-polygon":
@@ -76,7 +80,8 @@ def main(quick: bool = False) -> None:
             rep = render_scene(sc, out, client, preview=False, progress=False)
             wall = time.perf_counter() - t
             img = read_exr(f"{out}/image.exr")
-            against, err = error_of(name, sc, out, client, img, rep["solve"]["kernel"])
+            kernel = config.get("solve.kernel")
+            against, err = error_of(name, sc, out, client, img, kernel)
             if name == "cornell-box-inside":
                 ref = load_scene(os.path.join(ROOT, "scenes", name, "reference.toml"))
                 import dask.config
@@ -89,11 +94,14 @@ def main(quick: bool = False) -> None:
             sol = rep["solve"]
             rows.append({"scene": name, "sub_elements": rep["preprocess"]["sub_elements"],
                          "unseen_refined": rep["preprocess"]["unseen_refined"],
-                         "closure": "closed" if sol["closure"]["closed"] else "open",
-                         "rows": sol["row_sums"]["mode"], "solver": sol["solver"],
-                         "kernel": sol["kernel"], "passes": sol["iterations"],
+                         "closure": "closed" if rep["plan"]["closure"]["closed"] else "open",
+                         "rows": (sol.get("row_sums") or {}).get("mode", "-"), "solver": sol["solver"],
+                         "kernel": kernel if sol["kernel"] == "-" else sol["kernel"],
+                         "passes": sol["iterations"],
                          "error": err, "against": against, "time_s": round(wall, 2)})
             print(table(rows[-1:], list(rows[-1])), flush=True)
+            if rep["visibility"].get("skipped"):
+                continue  # nothing reflects: no solve to stop early
             # the tolerance trade-off on the same visibility
             images = {}
             for tol in TOLS:

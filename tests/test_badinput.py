@@ -60,6 +60,14 @@ CASES = [
     (["study", "accuracy", S, *OUT, "--tols", "1e-3,-1"], ["--tols"]),
     (["study", "accuracy", S, *OUT, "--resolutions", "8,0"], ["--resolutions"]),
     (["study", "seed", S, *OUT, "--max-workers", "0"], ["--max-workers"]),
+    (["reference", S, *OUT, "--spp", "0"], ["--spp"]),
+    (["reference", S, *OUT, "--passes", "0"], ["--passes"]),
+    (["reference", S, *OUT, "--seed", "-1"], ["--seed"]),
+    (["reference", S, *OUT, "--resolution", "0"], ["--resolution"]),
+    (["viewfactors", S, *OUT, "--accuracy", "-1"], ["--accuracy"]),
+    (["viewfactors", S, *OUT, "--accuracy", "nan"], ["--accuracy"]),
+    (["viewfactors", S, *OUT, "--cutoff", "-1"], ["--cutoff"]),
+    (["viewfactors", S, *OUT, "--workers", "0"], ["--workers"]),
 ]
 
 

@@ -16,9 +16,8 @@ import time
 
 import pytest
 
-from conftest import ROOT, scene_path
+from conftest import CHROMIUM, ROOT, scene_path
 
-CHROMIUM = os.environ.get("RADIOSITY_CHROMIUM", "/usr/bin/chromium")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",
          "--hide-scrollbars", "--remote-debugging-address=127.0.0.1", "--remote-debugging-port=0"]
@@ -152,8 +151,7 @@ async def _browse(port: int, url: str, publish_later) -> tuple[dict, dict, bytes
 
 
 @pytest.mark.filterwarnings("ignore::radiosity.scene.SceneWarning")  # the published red wall
-@pytest.mark.skipif(not os.path.exists(CHROMIUM),
-                    reason=f"headless Chromium not found at {CHROMIUM} (apt-get install chromium)")
+@pytest.mark.needs("chromium")
 def test_dashboard_page_in_chromium(tmp_path):
     import dask
 
@@ -214,6 +212,6 @@ def test_dashboard_page_in_chromium(tmp_path):
     assert state["visibility_title"].startswith("Visibility blocks done")
     done, total = state["visibility_title"].split(": ", 1)[1].split(" tasks")[0].split(" / ")
     assert done == total and int(total) >= 1, state["visibility_title"]
-    assert state["residual_title"].startswith("Solver residual (cg, point kernel), pass ")
+    assert state["residual_title"].startswith("Solver residual (cg, point-nf kernel), pass ")
     assert "solve" in state["run_html"]
     assert os.path.basename(out) in live["run_html"] and "image" in live["run_html"]

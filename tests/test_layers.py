@@ -15,15 +15,16 @@ APP = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 
 LAYERS = [
     {"cli"},
     {"pipeline", "study"},
-    {"preprocess", "visibility", "solve", "render", "dashboard", "cluster"},
+    {"preprocess", "visibility", "solve", "render", "dashboard", "cluster", "reference", "compare",
+     "viewfactor"},
     {"operator", "solvers", "runner", "monitor", "settings", "nearfield", "effects", "closure",
-     "preflight", "runlock", "faults"},
+     "enclosure", "preflight", "runlock", "faults"},
     {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "scene", "camera", "rays",
-     "originals"},
+     "bvh", "vfkernels", "originals"},
     {"types", "geometry", "config", "errors"},
 ]
 # modules whose code runs on workers (or is pure): no configuration, no Client
-WORKER_SIDE = {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "camera",
+WORKER_SIDE = {"bvh", "vfkernels", "store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "camera",
                "rays", "types", "geometry", "errors", "originals"}
 
 

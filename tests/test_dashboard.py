@@ -212,6 +212,6 @@ def test_dashboard_page_in_chromium(tmp_path):
     assert state["visibility_title"].startswith("Visibility blocks done")
     done, total = state["visibility_title"].split(": ", 1)[1].split(" tasks")[0].split(" / ")
     assert done == total and int(total) >= 1, state["visibility_title"]
-    assert state["residual_title"].startswith("Solver residual (cg, point kernel), pass ")
+    assert state["residual_title"].startswith("Solver residual (cg, point-nf kernel), pass ")
     assert "solve" in state["run_html"]
     assert os.path.basename(out) in live["run_html"] and "image" in live["run_html"]

@@ -164,6 +164,20 @@ class OneLineGroup(click.Group):
     exit status 2, like every other user error, instead of click's usage block."""
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """The flags write dask.config; what they wrote is undone when the command ends, so a
+        command run in-process (tests, notebooks) leaves no setting behind for the next one."""
+        import copy
+
+        import dask.config
+
+        saved = copy.deepcopy(dask.config.config)
+        try:
+            return self._main(args, prog_name, complete_var, standalone_mode, **extra)
+        finally:
+            dask.config.config.clear()
+            dask.config.config.update(saved)
+
+    def _main(self, args, prog_name, complete_var, standalone_mode, **extra):
         _ARGV[:] = list(sys.argv[1:] if args is None else args)
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, False, **extra)

@@ -176,6 +176,8 @@ class OneLineGroup(click.Group):
         finally:
             dask.config.config.clear()
             dask.config.config.update(saved)
+            for d in dask.config.defaults:  # defaults registered meanwhile (a first import of distributed)
+                dask.config.update(dask.config.config, copy.deepcopy(d), priority="old")
 
     def _main(self, args, prog_name, complete_var, standalone_mode, **extra):
         _ARGV[:] = list(sys.argv[1:] if args is None else args)

@@ -205,6 +205,22 @@ class OneLineGroup(click.Group):
     exit status 2, like every other user error, instead of click's usage block."""
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """The flags write dask.config; what they wrote is undone when the command ends, so a
+        command run in-process (tests, notebooks) leaves no setting behind for the next one."""
+        import copy
+
+        import dask.config
+
+        saved = copy.deepcopy(dask.config.config)
+        try:
+            return self._main(args, prog_name, complete_var, standalone_mode, **extra)
+        finally:
+            dask.config.config.clear()
+            dask.config.config.update(saved)
+            for d in dask.config.defaults:  # defaults registered meanwhile (a first import of distributed)
+                dask.config.update(dask.config.config, copy.deepcopy(d), priority="old")
+
+    def _main(self, args, prog_name, complete_var, standalone_mode, **extra):
         _ARGV[:] = list(sys.argv[1:] if args is None else args)
         _T0[0] = time.time()
         if args is None:  # a real command: count the interpreter's start and imports too

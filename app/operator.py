@@ -344,8 +344,9 @@ class DaskOperator(_Base):
                 if attempt == self.retries:
                     raise RadiosityError(f"a solver pass failed {attempt + 1} times: workers were "
                                          f"lost ({type(e).__name__}: {e})") from None
-                workers = sorted(self.client.scheduler_info()["workers"])
-                self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
+                alive = sorted(self.client.scheduler_info()["workers"])
+                self.workers = ([alive[g % len(alive)] for g in range(len(self.groups))]
+                                if alive else None)
                 [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
                 self._gs_fixed = None
 

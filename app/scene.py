@@ -240,15 +240,16 @@ def _gltf_material_of(mat, gltf: list, fn: str) -> int | None:
 
     def distance(i):
         m = gltf[i]
-        want = np.asarray(m.get("pbrMetallicRoughness", {}).get("baseColorFactor", [1, 1, 1, 1]), float)
+        pbr = m.get("pbrMetallicRoughness", {})
+        want = np.asarray(pbr.get("baseColorFactor", [1, 1, 1, 1]), float)
         got = getattr(mat, "baseColorFactor", None)
         got = np.ones(4) if got is None else np.asarray(got, float) / (
             255.0 if np.asarray(got).dtype.kind in "ui" else 1.0)
         e_want = np.asarray(m.get("emissiveFactor", [0, 0, 0]), float)
         e_got = getattr(mat, "emissiveFactor", None)
         e_got = np.zeros(3) if e_got is None else np.asarray(e_got, float)[:3]
-        return (float(np.abs(want - got).max() + np.abs(e_want - e_got).max())
-                + (0.0 if bool(m.get("doubleSided", False)) == bool(getattr(mat, "doubleSided", False)) else 10.0))
+        sided = bool(m.get("doubleSided", False)) == bool(getattr(mat, "doubleSided", False))
+        return float(np.abs(want - got).max() + np.abs(e_want - e_got).max()) + (0.0 if sided else 10.0)
 
     d = np.array([distance(i) for i in cands])
     tied = [cands[k] for k in np.nonzero(d <= d.min() + 1.0 / 255)[0]]

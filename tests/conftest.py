@@ -34,7 +34,9 @@ def missing(component: str) -> str | None:
         from radiosity.cluster import slurm_unavailable
 
         why = slurm_unavailable()
-        return None if why is None else f"Slurm is not running here: start it with bash deploy/slurm-up.sh ({why})"
+        if why is None:
+            return None
+        return f"Slurm is not running here: start it with bash deploy/slurm-up.sh ({why})"
     if component == "mitsuba":
         try:
             import mitsuba  # noqa: F401

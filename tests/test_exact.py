@@ -11,7 +11,8 @@ from radiosity.exact import (coaxial_discs, differential_to_rectangle, pair_form
                        polygon_form_factor, polygon_point_form_factor)
 from radiosity.kernels import pair_form_factors
 
-# 40-digit evaluations (mpmath) of the catalogue's formulas
+# 40-digit evaluations (mpmath) of the catalogue's formulas, written to 20 digits; regenerated and
+# checked by tests/data/exact_constants.py
 OPPOSED_UNIT = 0.19982489569838738304   # C-11, unit squares at distance 1
 ADJACENT_UNIT = 0.20004377607540315424  # C-14, unit squares sharing an edge
 DISCS_UNIT = 0.38196601125010515180     # C-41, r1 = r2 = h: (3 - sqrt 5) / 2

@@ -237,3 +237,20 @@ def test_progressive_ambient_term_makes_every_preview_right_on_average(client, t
     np.testing.assert_allclose(L, 2.0, rtol=1e-4)      # the answer itself (unshot <= 1e-5)
     ambient = np.array(fig["ambient"])
     assert np.all(ambient >= 0) and ambient.max() < 1e-4  # little left unshot at the end
+
+
+def test_pair_terms_per_second_counts_only_the_solvers_passes(client, tmp_path):
+    """pair_terms_per_s is the solver's pair terms over the time of its own passes: a callback
+    that sleeps 1 s after each pass (as a slow preview would) must not enter it."""
+    import time
+
+    out = prepared(client, tmp_path, scene_path("cornell-box"), 8)
+    with pytest.warns(UserWarning, match="did not reach tol=1e-30 in 3 passes"):
+        fig = run_solve(out, client, solver="jacobi", kernel="point", tol=1e-30, max_iter=3,
+                        progress=False, callback=lambda k, r, L: time.sleep(1.0))
+    assert fig["iterations"] == 3 and fig["time_s"] > 3.0
+    # pair_terms also counts the row-sum and the final residual pass (5 passes' terms against
+    # the throughput's 3): pair_terms / rate bounds the passes' time from above, 5/3 of it; with
+    # the callbacks counted it would be over 5 s
+    bound = fig["pair_terms"] / fig["pair_terms_per_s"]
+    assert bound < 2.0, bound

@@ -15,24 +15,6 @@ from conftest import scene_path
 S = scene_path("three-rectangles")
 
 
-@pytest.fixture(autouse=True)
-def _config_restored():
-    """The CLI's flags write the process's dask.config (as they should for a real command);
-    in-process invocations here must not leak them into other tests."""
-    import copy
-
-    import dask.config
-    import dask_jobqueue  # noqa: F401  both register their defaults on import: snapshot after them
-    import distributed  # noqa: F401
-
-    saved = copy.deepcopy(dask.config.config)
-    try:
-        yield
-    finally:
-        dask.config.config.clear()
-        dask.config.config.update(saved)
-
-
 def one_line_error(r, *fragments):
     assert r.exit_code == 2, r.output
     lines = [ln for ln in r.output.splitlines() if ln.strip()]
@@ -197,3 +179,19 @@ def test_plan_dead_rows_add_up_on_coaxial_discs():
     assert m, line
     dropped, total, a, b, c = map(int, m.groups())
     assert dropped == a + b + c and total == 128 and dropped > 0
+
+
+def test_a_command_run_in_process_leaves_dask_config_as_it_found_it():
+    """The flags write dask.config for the command's own run; an in-process invocation (a test,
+    a notebook) must not leave them behind for the next command (a leaked --nxm-points 5 once
+    failed every later nxm test), and defaults registered during the command (the first import
+    of radiosity.config) stay registered."""
+    import dask.config
+
+    r = CliRunner().invoke(main, ["render", S, "--out", "unused-dir", "--kernel", "nxm", "--nxm-points", "5",
+                                  "--max-iterations", "1"])
+    assert r.exit_code == 2, r.output
+    from radiosity.config import default
+
+    assert dask.config.get("radiosity.solve.nxm-points") == default("solve.nxm-points") != 5
+    assert dask.config.get("radiosity.solve.max-iterations") == default("solve.max-iterations") != 1

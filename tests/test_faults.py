@@ -21,24 +21,6 @@ S = scene_path("three-rectangles")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-@pytest.fixture(autouse=True)
-def _config_restored():
-    """The CLI's flags write the process's dask.config (as they should for a real command);
-    in-process invocations here must not leak them into other tests."""
-    import copy
-
-    import dask.config
-    import dask_jobqueue  # noqa: F401  both register their defaults on import: snapshot after them
-    import distributed  # noqa: F401
-
-    saved = copy.deepcopy(dask.config.config)
-    try:
-        yield
-    finally:
-        dask.config.config.clear()
-        dask.config.config.update(saved)
-
-
 def env():
     e = dict(os.environ)
     e.setdefault("PYTHONPATH", "")

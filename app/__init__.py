@@ -1,3 +1,12 @@
 """Radiosity with simplified form factors (Debelov & Sattarov), as a Dask application."""
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    """`viewfactors` is imported on first use, so that `import radiosity` stays cheap."""
+    if name == "viewfactors":
+        from .viewfactor import viewfactors
+
+        return viewfactors
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

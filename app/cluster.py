@@ -179,8 +179,8 @@ def jobqueue_kwargs(kind: str, threads_per_worker: int | None = None, security=N
     # the engine's dashboard page on the batch cluster's scheduler too (merged with the config's
     # scheduler options, which an explicit scheduler_options would otherwise replace)
     so = dict(kw.get("scheduler_options") or dask.config.get(f"{section}.scheduler-options", default={}) or {})
-    if "app.dashboard" not in so.get("preload", []):
-        so["preload"] = [*so.get("preload", []), "app.dashboard"]
+    if "radiosity.dashboard" not in so.get("preload", []):
+        so["preload"] = [*so.get("preload", []), "radiosity.dashboard"]
     kw["scheduler_options"] = so
     return kw
 
@@ -219,8 +219,10 @@ def local_cluster(n: int, threads_per_worker: int | None = None, security=None, 
                         threads_per_worker=config.get("cluster.threads-per-worker", threads_per_worker),
                         processes=processes,
                         dashboard_address=config.get("cluster.dashboard-address"),
-                        silence_logs=40, scheduler_kwargs={"preload": [  # the page of dashboard.py
-                            *dask.config.get("distributed.scheduler.preload"), "app.dashboard"]},
+                        # a failed task's traceback goes to the run's log file (faults.py), not
+                        # to the terminal from every worker that tried it
+                        silence_logs=50, scheduler_kwargs={"preload": [  # the page of dashboard.py
+                            *dask.config.get("distributed.scheduler.preload"), "radiosity.dashboard"]},
                         **kw)
 
 
@@ -263,7 +265,8 @@ def open_client(workers: int | None = None, scheduler: str | None = None, kind: 
         if given:
             warnings.warn(f"{', '.join(sorted(given))} only apply to batch-system clusters "
                           f"(--cluster slurm|pbs|sge|lsf); ignored for the local cluster")
-        cluster = local_cluster(0 if bounds else n, threads_per_worker, security)
+        with _sigint_ignored():  # the worker processes inherit it: Ctrl-C reaches the driver only
+            cluster = local_cluster(0 if bounds else n, threads_per_worker, security)
     elif kind in JOBQUEUE_KINDS:
         submit = SUBMIT_COMMANDS[kind]
         if shutil.which(submit) is None:
@@ -293,7 +296,43 @@ def open_client(workers: int | None = None, scheduler: str | None = None, kind: 
                  f"worker(s), {job.worker_processes} per job ({job.worker_process_threads} thread(s) "
                  f"each, {job.worker_process_memory}), scheduler {cluster.scheduler_address}")
         _wait_for_workers(client, cluster, kind, need, wait_s, echo=None if quiet else echo)
-        yield client
+        try:
+            yield client
+        finally:
+            if kind == "local":
+                _retire_workers(cluster)
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while the local worker processes are spawned (they keep the disposition:
+    Python leaves an ignored SIGINT alone), so that Ctrl-C in a terminal, which signals the
+    whole process group, stops the driver only, and the driver shuts the workers down, instead
+    of every worker printing its own KeyboardInterrupt traceback."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _retire_workers(cluster, timeout: float = 10.0) -> None:
+    """Close the workers before the client and the scheduler: a worker's heartbeat can then no
+    longer meet a scheduler that is closing (the intermittent CommClosedError traceback at
+    the end of a successful run)."""
+    try:
+        cluster.scale(0)
+        t0 = time.monotonic()
+        while cluster.workers and time.monotonic() - t0 < timeout:
+            time.sleep(0.02)
+    except Exception:  # shutting down: nothing here may turn a finished run into a failure
+        pass
 
 
 def slurm_unavailable(partition_idle: bool = True) -> str | None:
@@ -353,7 +392,7 @@ def _no_workers_message(cluster, kind: str, have: int, n: int, timeout: float, e
              "Check: (1) are the jobs still pending (queue, partition, account, walltime, cores or memory "
              f"larger than a node)? see `{STATUS_COMMANDS[kind][0]}`;",
              f"(2) the worker job logs in {logdir} (e.g. python {python} missing on the compute nodes, "
-             "`app` not importable, out of memory);",
+             "`radiosity` not importable, out of memory);",
              f"(3) can the compute nodes reach the scheduler at {addr}? set `interface:` (e.g. ib0) in "
              "jobqueue.yaml, check firewalls;"]
     if getattr(getattr(cluster, "security", None), "tls_ca_file", None):

@@ -18,13 +18,13 @@ application in turn). It must run in the scheduler's process, on its event loop,
 scheduler has started its dashboard, which is exactly when a scheduler preload's `dask_setup`
 runs. So:
 
-- `radiosity` itself: `app.cluster.open_client` creates its LocalCluster with
-  `scheduler_kwargs={"preload": ["app.dashboard"]}` and prints the page's URL;
-- a scheduler of your own: `dask scheduler --preload app.dashboard` (the `app` package must be
-  importable by the scheduler's Python), or `DASK_DISTRIBUTED__SCHEDULER__PRELOAD=app.dashboard`;
-- dask-jobqueue: `SLURMCluster(..., scheduler_options={"preload": ["app.dashboard"]})` (or in the
-  jobqueue YAML, `scheduler-options: {preload: [app.dashboard]}`);
-- a scheduler that is already running: `client.run_on_scheduler(app.dashboard.register)`.
+- `radiosity` itself: `radiosity.cluster.open_client` creates its LocalCluster with
+  `scheduler_kwargs={"preload": ["radiosity.dashboard"]}` and prints the page's URL;
+- a scheduler of your own: `dask scheduler --preload radiosity.dashboard` (the `radiosity` package must be
+  importable by the scheduler's Python), or `DASK_DISTRIBUTED__SCHEDULER__PRELOAD=radiosity.dashboard`;
+- dask-jobqueue: `SLURMCluster(..., scheduler_options={"preload": ["radiosity.dashboard"]})` (or in the
+  jobqueue YAML, `scheduler-options: {preload: [radiosity.dashboard]}`);
+- a scheduler that is already running: `client.run_on_scheduler(radiosity.dashboard.register)`.
 
 Then open `page_url(client)`, e.g. http://127.0.0.1:8787/radiosity. A scheduler started without a
 dashboard (or without bokeh) gets no page; `register` logs why and returns False. Behind a proxy
@@ -95,7 +95,7 @@ def register(scheduler) -> bool:
 
 
 def dask_setup(scheduler) -> None:
-    """Scheduler preload hook: `dask scheduler --preload app.dashboard`."""
+    """Scheduler preload hook: `dask scheduler --preload radiosity.dashboard`."""
     register(scheduler)
 
 

@@ -39,3 +39,9 @@ def diameter(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
     """Largest vertex-to-vertex distance of each polygon, (n,)."""
     d = np.linalg.norm(verts[:, :, None, :] - verts[:, None, :, :], axis=-1)
     return d.reshape(len(verts), -1).max(axis=1)
+
+
+# |cos| below this (relative to the segment length) counts as coplanar: exactly zero, not noise.
+# One value for every stage that asks "do these two elements face each other?" (visibility,
+# shafts, near field), so that they all agree on which pairs exist.
+COS_TOL = 1e-9

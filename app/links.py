@@ -3,7 +3,7 @@ refine the link of their roots down the split trees until each link carries litt
 
 A link p <- q between nodes of two originals (hierarchy.py) carries the unoccluded form
 factors F_pq, F_qp (A_p F_pq = A_q F_qp) and the visible fraction v. One task per pair of
-originals I < J that face each other (plan.facing_blocks), or per stripe of pairs, run by the
+originals I < J that face each other (originals.facing_pairs: nothing n x n), or per stripe of pairs, run by the
 same kind of dynamic master as the visibility matrix: bounded window, most expensive first,
 retries, a manifest with a crc per task, resume.
 
@@ -11,7 +11,7 @@ Refinement of a link (p, q), depth first:
 
 1. orientation (exact, from the vertices): q behind p's plane (or p behind q's) -> no link;
    a node straddling the other's plane is split while it can be;
-2. shafts (Haines & Wallace, visibility.py's kernels): the occluders that may cut a segment
+2. shafts (Haines & Wallace, shafts.py's kernels): the occluders that may cut a segment
    between the boxes of p and q, filtered from the parent link's list; none left -> v = 1 with
    no ray (for the children too); one occluder whose plane separates p from q and that contains
    every crossing point of the segments between their vertices (the convex hull of all crossing
@@ -43,10 +43,10 @@ import numpy as np
 from . import config
 from .errors import RadiosityError
 from .exact import _point_ff, _polygon_ff
+from .geometry import COS_TOL
 from .hierarchy import MAX_DEPTH, _bit, polygon_area_center, split_one
-# the shaft-culling kernels are numba functions called from numba code here, so they are
-# imported at module level (issue 11 moves them to shafts.py)
-from .visibility import COS_TOL, _faces, _same_side, _shaft_excludes, block_candidates
+from .runner import run_tasks
+from .shafts import _faces, _same_side, _shaft_excludes, block_candidates, occluders
 
 # counters of a link task
 COUNTERS = ("pairs", "links", "evaluated", "refined", "dropped_orientation", "shaft_visible",
@@ -114,11 +114,12 @@ class LinkInputs:
     t_depth (k,), t_path (k,) uint64. Per original (n): normal (n, 3), two_sided, ext (may be
     split below its one sub-element: unseen), root (partition node), wrho (n, 2) and lhat
     (n, 2) the oracle's weights per side, elo / ehi / enormal / eoffset / pad: padded
-    occluder boxes and planes (visibility.VisInputs), verts / nverts: polygons (occluders and
+    occluder boxes and planes (shafts.occluders), verts / nverts: polygons (occluders and
     Embree), key: the Embree cache key; lref: the reference radiance of the weights.
     """
 
-    def __init__(self, tree, part, elements, seen, params: LinkParams, weight: str, key: str):
+    def __init__(self, tree, part, elements, seen, params: LinkParams, weight: str, key: str,
+                 epsilon: float):
         self.t_verts = tree.verts
         self.t_nverts = tree.nverts.astype(np.int64)
         self.t_area = tree.area
@@ -136,26 +137,14 @@ class LinkInputs:
         self.ext = (~np.asarray(seen, bool)) & (np.diff(part.offsets) == 1)
         self.root = part.root.astype(np.int64)
         self.wrho, self.lhat, self.lref = oracle_weights(elements, weight)
-        self.elo, self.ehi, self.enormal, self.eoffset, self.pad = _occluders(elements)
+        self.elo, self.ehi, self.enormal, self.eoffset, self.pad = occluders(elements)
         self.verts = elements.verts
         self.nverts = elements.nverts
         self.envert = elements.nverts.astype(np.int64)
         self.key = key
+        self.epsilon = float(epsilon)  # the rays' self-intersection offset (rays.caster_for)
         self.params = params
         self.n = n
-
-
-def _occluders(elements):
-    """Padded occluder boxes and planes as the visibility stage makes them (VisInputs):
-    elo, ehi (n, 3), enormal (n, 3), eoffset (n,), and the plane tolerance pad."""
-    from .visibility import BOX_PAD
-
-    ev = elements.verts
-    lo, hi = ev.min(axis=1), ev.max(axis=1)
-    pad = BOX_PAD * float(np.linalg.norm(ev.reshape(-1, 3).max(0) - ev.reshape(-1, 3).min(0)))
-    eoffset = np.einsum("ic,ic->i", elements.normal, elements.center)
-    dev = np.abs(np.einsum("ic,ikc->ik", elements.normal, ev) - eoffset[:, None]).max(1)
-    return lo - pad, hi + pad, elements.normal, eoffset, pad + float(dev.max(initial=0.0))
 
 
 def oracle_weights(elements, weight: str):
@@ -672,7 +661,7 @@ def roots(pairs, root, pmap, t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_
           t_depth, t_path, ext, min_size, Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan,
           cnt, elo, ehi, enormal, eoffset, pad, occlusion):
     """The first entries of a task: the root link of each pair (I, J) with the occluders that
-    may cut a segment between the two originals (visibility.block_candidates). Returns the
+    may cut a segment between the two originals (shafts.block_candidates). Returns the
     entries (p, q, c0, c1), the pool, and the count of local nodes."""
     t = pairs.shape[0]
     e_p = np.empty(t, np.int64)
@@ -935,7 +924,7 @@ def task_links(inp: LinkInputs, pairs: np.ndarray, store_path: str, task: int) -
     from .store import write_links
 
     t0 = time.time()
-    caster = caster_for(inp.key, inp.verts, inp.nverts)
+    caster = caster_for(inp.key, inp.verts, inp.nverts, inp.epsilon)
     links, nodes, counts = refine_pairs(inp, pairs, caster)
     out = write_links(store_path, task, links, nodes)
     out.update({"counts": counts, "start": t0, "stop": time.time(), "pid": os.getpid()})
@@ -944,17 +933,14 @@ def task_links(inp: LinkInputs, pairs: np.ndarray, store_path: str, task: int) -
 
 # ----------------------------------------------------------------------------- the plan (pure)
 
-def link_plan(offsets: np.ndarray, facing: np.ndarray, unit: str, max_task_cost: int):
-    """The link tasks: pairs I < J that face each other both ways (plan.facing_blocks), in
-    I-major order; unit 'block': one task per pair; 'stripe': the pairs of one I, cut so that no
-    task costs more than max_task_cost (estimated cost of a pair: the sub-elements of both).
-    Returns pairs (t, 2) int64, first (k + 1,) int64 (task k holds pairs first[k]:first[k+1]),
-    cost (k,) int64."""
-    n = len(offsets) - 1
+def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, max_task_cost: int):
+    """The link tasks: the pairs I < J that face each other both ways (bi, bj sorted by (I, J),
+    originals.facing_pairs), in I-major order; unit 'block': one task per pair; 'stripe': the
+    pairs of one I, cut so that no task costs more than max_task_cost (estimated cost of a pair:
+    the sub-elements of both). Returns pairs (t, 2) int64, first (k + 1,) int64 (task k holds
+    pairs first[k]:first[k+1]), cost (k,) int64."""
     size = np.diff(offsets)
-    iu, ju = np.triu_indices(n, 1)
-    both = facing[iu, ju] & facing[ju, iu]
-    pairs = np.stack([iu[both], ju[both]], 1).astype(np.int64).reshape(-1, 2)
+    pairs = np.stack([np.asarray(bi, np.int64), np.asarray(bj, np.int64)], 1).reshape(-1, 2)
     pc = size[pairs[:, 0]] + size[pairs[:, 1]]
     if unit == "block":
         first = np.arange(len(pairs) + 1, dtype=np.int64)
@@ -1003,7 +989,7 @@ def resolve_params(elements, kernel: str | None = None, epsilon: float | None = 
                      near=float(config.get("solve.near-field-factor")),
                      min_size=float(config.get("hierarchy.min-node-size")) * diag, rays=k,
                      kid=0 if base_kernel(kernel) == "point" else 1,
-                     exact=bool(KERNELS[kernel][3]), plane_tol=COS_TOL * diag,
+                     exact=bool(KERNELS[kernel].near_field), plane_tol=COS_TOL * diag,
                      occlusion=bool(occlusion),
                      oracle=_oracle_id(config.get("hierarchy.oracle")),
                      gauss_gap=float(config.get("hierarchy.near-gauss-gap")),
@@ -1012,20 +998,33 @@ def resolve_params(elements, kernel: str | None = None, epsilon: float | None = 
     return prm, weight
 
 
+def links_rows(fig: dict) -> list[tuple[str, object]]:
+    """The CLI summary rows of the link stage's figures (report.json section "links")."""
+    return [("sub-elements", f"{fig['sub_elements']} ({fig['leaves']} leaves, "
+                             f"{fig['split_off_nodes']} nodes split off unseen originals)"),
+            ("links", f"{fig['links']} ({fig['links_per_leaf']:.1f} per leaf, "
+                      f"{fig['bytes_per_link']} bytes each)"),
+            ("proven by shafts", f"{fig['shaft_visible']} visible, {fig['shaft_blocked']} "
+                                 "blocked (no ray)"),
+            ("rays cast", f"{fig['rays']} ({fig['link_rays']} per link on {fig['ray_links']} links)"),
+            ("tasks", f"{fig['tasks']} ({fig['task_unit']}), {fig['tasks_reused']} reused"),
+            ("time", f"{fig['time_s']:.2f} s")]
+
+
 def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: float | None = None,
                   rays: int | None = None, unit: str | None = None, resume: bool = False,
                   progress: bool = True, on_done=None, occlusion: bool = True) -> dict:
-    """The link stage: the dynamic master over the link tasks (bounded window per worker thread,
-    most expensive first, failed tasks resubmitted), every finished task recorded with its crc so
-    `resume` recomputes only what is missing or corrupted; then the node table of the union
-    tree. Writes section "links" of report.json and returns its figures."""
+    """The link stage through the one runner (runner.py): a bounded window of link tasks per
+    worker thread, most expensive first, failed tasks resubmitted, every finished task recorded
+    with its crc so `resume` recomputes only what is missing or corrupted; then the node table
+    of the union tree. Writes section "links" of report.json and returns its figures."""
     from dask.base import tokenize
-    from distributed import as_completed
-    from tqdm.auto import tqdm
 
     from .hierarchy import node_table, seen_originals, tree_nodes
-    from .plan import choose_unit, facing_blocks
-    from .store import LinkStore, RunStore, read_links, update_report
+    from .monitor import peak_rss_mb
+    from .originals import pairs_within_budget, tree_of
+    from .plan import choose_unit
+    from .store import LINK_DTYPE, LinkStore, RunStore, read_links, update_report
 
     t_start = time.perf_counter()
     rs = RunStore(run_dir, "r+")
@@ -1034,8 +1033,10 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
     prm, weight = resolve_params(el, kernel, epsilon, rays, occlusion)
     unit = choose_unit(config.get("visibility.task-unit", unit), len(el),
                        int(config.get("visibility.stripe-threshold")))
-    facing = facing_blocks(el.verts, el.nverts, el.normal, el.center, el.two_sided)
-    pairs, first, cost = link_plan(part.offsets, facing, unit,
+    otree = tree_of(el, int(config.get("plan.leaf-size")))
+    bi, bj, _ = pairs_within_budget(otree, int(float(config.get("plan.max-facing-pairs"))),
+                                    rs.attrs.get("scene") or run_dir)
+    pairs, first, cost = link_plan(part.offsets, bi, bj, unit,
                                    int(config.get("hierarchy.max-task-cost")))
     seen = seen_originals(rs.read_arrays("raster")["orig"], len(el))
     token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,
@@ -1047,70 +1048,44 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
         good = {t: e for t, e in done.items() if ls.verify(t, e)}
         corrupted = len(done) - len(good)
         done = good
-        if corrupted:
-            ls.rewrite_manifest(token, done)
+        ls.rewrite_manifest(token, done)  # a torn or corrupted line is never trusted again
     else:
+        rs.drop_after("raster")
         ls.create(pairs, first, token, {"params": prm.to_dict(), "weight": weight,
                                         "kernel": config.get("hierarchy.kernel", kernel),
                                         "unit": unit})
     tree = tree_nodes(part, el)
     key = tokenize(el.verts, el.nverts)
-    inp = LinkInputs(tree, part, el, seen, prm, weight, key)
+    inp = LinkInputs(tree, part, el, seen, prm, weight, key, float(config.get("rays.epsilon")))
     ntasks = len(first) - 1
-    order = [t for t in np.lexsort((np.arange(ntasks), -cost)).tolist() if t not in done]
+    todo = [t for t in range(ntasks) if t not in done]
     threads = sum(client.nthreads().values()) or 1
-    window = max(1, int(config.get("visibility.window-per-worker")) * threads)
-    retries = int(config.get("visibility.retries"))
     counts = np.zeros(len(COUNTERS), np.int64)
     for e in done.values():
         counts += np.asarray(e["counts"], np.int64)
-    busy, attempts, computed = {}, {}, 0
+    busy: dict = {}
+    computed = [0]
+
+    def finished(task, res):
+        nonlocal counts
+        ls.record(task, res)  # in the manifest only after its bytes were written
+        done[task] = res
+        computed[0] += 1
+        counts += res["counts"]
+        busy[res["pid"]] = busy.get(res["pid"], 0.0) + (res["stop"] - res["start"])
+        if on_done is not None:
+            on_done(computed[0])
+
     t_loop = time.perf_counter()
-    if order:
+    if todo:
         [inp_f] = client.scatter([inp], broadcast=True, hash=False)
-        pending = iter(order)
-        ac = as_completed()
-        futs = {}
-
-        def submit(task: int):
-            a = attempts.get(task, 0)
-            f = client.submit(task_links, inp_f, pairs[first[task]:first[task + 1]], rs.path,
-                              task, key=f"links-{token[:12]}-{task}-{a}", retries=0)
-            futs[f.key] = task
-            ac.add(f)
-
-        for task in pending:
-            submit(task)
-            if len(futs) >= window:
-                break
-        bar = tqdm(total=ntasks, initial=len(done), desc="links", unit="task",
-                   disable=not progress, leave=False)
-        for fut in ac:
-            task = futs.pop(fut.key)
-            try:
-                res = fut.result()
-            except Exception as e:  # a worker died or the task failed: resubmit
-                attempts[task] = attempts.get(task, 0) + 1
-                if attempts[task] > retries:
-                    bar.close()
-                    raise RadiosityError(f"link task {task} failed {attempts[task]} times: {e!r}; "
-                                         "the finished tasks are kept: rerun with --resume") from None
-                submit(task)
-                continue
-            finally:
-                fut.release()
-            ls.record(task, res)
-            done[task] = res
-            computed += 1
-            counts += res["counts"]
-            busy[res["pid"]] = busy.get(res["pid"], 0.0) + (res["stop"] - res["start"])
-            bar.update()
-            if on_done is not None:
-                on_done(computed)
-            nxt = next(pending, None)
-            if nxt is not None:
-                submit(nxt)
-        bar.close()
+        run_tasks(client, task_links, todo,
+                  lambda task: (inp_f, pairs[first[task]:first[task + 1]], rs.path, task),
+                  name="links", token=tokenize(token, rs.path), cost=cost,
+                  window=max(1, int(config.get("visibility.window-per-worker")) * threads),
+                  retries=int(config.get("visibility.retries")), on_result=finished,
+                  progress=progress, done=len(done),
+                  repair=f"rerun with: radiosity visibility {run_dir} --method hierarchical --resume")
     wall = time.perf_counter() - t_loop
     # the node table: the partition's trees and every node split off an unseen original
     t_nodes = time.perf_counter()
@@ -1121,11 +1096,9 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
     t_nodes = time.perf_counter() - t_nodes
     c = dict(zip(COUNTERS, counts.tolist()))
     nworkers = len(client.scheduler_info()["workers"]) or 1
-    from .store import LINK_DTYPE
-
     figures = {
         "method": "hierarchical", "task_unit": unit, "tasks": int(ntasks),
-        "tasks_computed": computed, "tasks_reused": int(ntasks - computed),
+        "tasks_computed": computed[0], "tasks_reused": int(ntasks - computed[0]),
         "tasks_corrupted_recomputed": corrupted, "sub_elements": len(part),
         "nodes": len(table), "leaves": table.leaves,
         "split_off_nodes": int(np.count_nonzero(table.pnode < 0)),
@@ -1139,10 +1112,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
         "rays_per_s": c["rays"] / wall if wall > 0 else 0.0,
         "busy_s_per_worker": {str(k): round(v, 4) for k, v in busy.items()},
         "idle_fraction": (1.0 - sum(busy.values()) / (nworkers * wall)) if wall > 0 and busy else None,
-        "workers": nworkers, "occlusion": occlusion,
+        "workers": nworkers, "occlusion": occlusion, "peak_rss_mb": peak_rss_mb(client),
     }
-    from .pipeline import peak_rss_mb
-
-    figures["peak_rss_mb"] = peak_rss_mb(client)
     update_report(run_dir, "links", figures)
     return figures

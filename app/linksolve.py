@@ -11,13 +11,14 @@ A_p F_pq = A_q F_qp (A: the sum of the leaf areas below a node), x . diag(A) K y
 sum_links A_p F_pq v (xbar_p ybar_q + xbar_q ybar_p) is symmetric: CG works.
 
 Vectors are (2, C, M) float64 [side, channel, leaf], as in solve.py. Links are read from the
-store task by task on the workers and kept in the worker's bounded cache (solve._cached); a
+store task by task on the workers and kept in the worker's bounded cache (operator.CACHE); a
 pass is one Dask task per group of link tasks, each pinned to a worker. `LocalLinkOperator` runs
 the same task functions in-process (tests).
 
-Row normalisation (solve.normalise_rows) works through `configure(cap=...)`: positive caps scale
-a link by min(cap over the leaves of p, cap over the leaves of q) (the pairs' min(cap_a, cap_b)
-at leaf links); negative caps (closed-scene balancing) scale by d_a d_b, i.e. K -> D K D.
+Row normalisation (solve.normalise_rows) works through `configure(cap=..., cmode=...)`: with
+passes.CAP_MIN a link is scaled by min(cap over the leaves of p, cap over the leaves of q) (the
+pairs' min(cap_a, cap_b) at leaf links); with CAP_PRODUCT (closed-scene balancing) by d_a d_b,
+i.e. K -> D K D.
 """
 
 from __future__ import annotations
@@ -28,8 +29,11 @@ import numba
 import numpy as np
 
 from . import config
-from .exact import _point_ff
 from .errors import RadiosityError, StoreError
+from .exact import _point_ff
+from .monitor import progress_bar
+from .operator import CACHE
+from .passes import CAP_MIN, CAP_PRODUCT
 
 LINK_CACHE_KEY = "links"
 
@@ -380,6 +384,8 @@ class LinkSolveInputs:
         self.store_path = store_path
         self.token = token
         self.cap = np.ones(len(self.leaf_node))
+        self.cmode = CAP_MIN
+        self.cache_bytes = 1 << 31  # the worker cache's bound (radiosity.solve.cache-bytes)
         self.need = np.zeros(0, np.bool_)
         self.sided = np.zeros(len(self.leaf_node), np.bool_)
         self._ncap = None
@@ -387,8 +393,8 @@ class LinkSolveInputs:
     def cap_args(self):
         """(mode, node caps (N,), leaf scaling d (M,) or empty) of the current cap."""
         cap = self.cap
-        if len(cap) and cap[0] < 0:  # closed balancing: K -> D K D
-            return 2, np.ones(1), -cap
+        if self.cmode == CAP_PRODUCT:  # closed balancing: K -> D K D
+            return 2, np.ones(1), cap
         if np.all(cap == 1.0):
             return 0, np.ones(1), np.zeros(0)
         return 1, node_min(cap, self.lo, self.hi), np.zeros(0)
@@ -430,8 +436,6 @@ def task_link_arrays(inp: LinkSolveInputs, task: int):
     """The links of one link task as node indices and weights, verified, from this worker's
     cache or the store: p, q (k,) int64; wpq = F_pq v, wqp = F_qp v (k,); sp, sq (k,) int64;
     v (k,) the visible fractions."""
-    from .solve import _cached
-
     def load():
         from .hierarchy import find_codes
         from .store import read_links
@@ -453,8 +457,8 @@ def task_link_arrays(inp: LinkSolveInputs, task: int):
         return (p, q, links["fpq"] * v, links["fqp"] * v, links["sp"].astype(np.int64),
                 links["sq"].astype(np.int64), v)
 
-    return _cached((inp.store_path, inp.token, LINK_CACHE_KEY, task), load,
-                   lambda a: sum(x.nbytes for x in a))
+    return CACHE.get((inp.store_path, inp.token, LINK_CACHE_KEY, task), load,
+                     lambda a: sum(x.nbytes for x in a), inp.cache_bytes)
 
 
 def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = True):
@@ -477,8 +481,6 @@ def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = T
 def _directed(inp: LinkSolveInputs):
     """Every link end as a directed entry grouped by the original of its target (for
     Gauss-Seidel), from all link tasks; cached on the worker."""
-    from .solve import _cached
-
     def load():
         got = [task_link_arrays(inp, t) for t in range(len(inp.entries))]
         p, q, wpq, wqp, sp, sq, v = (np.concatenate([g[k] for g in got]) if got else
@@ -496,8 +498,8 @@ def _directed(inp: LinkSolveInputs):
         ptr = np.concatenate([[0], np.cumsum(np.bincount(to, minlength=n))]).astype(np.int64)
         return tp[order], ts[order], sn[order], ss[order], w[order], ptr, vv[order]
 
-    return _cached((inp.store_path, inp.token, LINK_CACHE_KEY, "directed"), load,
-                   lambda a: sum(x.nbytes for x in a))
+    return CACHE.get((inp.store_path, inp.token, LINK_CACHE_KEY, "directed"), load,
+                     lambda a: sum(x.nbytes for x in a), inp.cache_bytes)
 
 
 def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
@@ -693,8 +695,9 @@ def solve_inputs(rs, elements) -> tuple:
     table = ls.read_nodes()
     entries = np.array([[done[t]["crc"], done[t]["n"], done[t]["nx"]] for t in range(ntasks)],
                        np.int64).reshape(-1, 3)
-    return (LinkSolveInputs(table, entries, rs.path, token, elements.normal), table,
-            ls.attrs().get("kernel"))
+    inp = LinkSolveInputs(table, entries, rs.path, token, elements.normal)
+    inp.cache_bytes = int(config.get("solve.cache-bytes"))
+    return inp, table, ls.attrs().get("kernel")
 
 
 def memory_inputs(table: dict, tasks: list, normal: np.ndarray) -> LinkSolveInputs:
@@ -743,28 +746,37 @@ def open_link_operator(rs, client=None):
 
 def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float | None = None,
                     max_iter: int | None = None, progress: bool = True, callback=None,
-                    normalise=None, effects=None) -> dict:
+                    normalise=None, effects=None, closure=None, keep_unconverged: bool = False):
     """Solve a hierarchical run (after the link stage) on its leaves; then, with
     radiosity.hierarchy.final-gather, one final gather that re-evaluates every link into a node
     above the leaves at each of its leaves (the uniform push leaves a saw-tooth over coarse
     receivers). Writes solution/radiance (m, 2, 3) per sub-element (to_sub_elements of the
     final gather), solution/leaf_radiance (M, 2, 3) (the solver's fixed point L = Le + rho K L)
-    and the report's "solve" section. client None: in-process."""
-    from tqdm.auto import tqdm
+    and the report's "solve" section; returns solve.SolveFigures. Closure, row normalisation
+    and an unconverged solve are handled as by solve.run_solve. client None: in-process."""
+    import dataclasses
+    import warnings
 
-    from .solve import anorm, get_solver, normalise_rows
-    from .store import RunStore, update_report
+    from .solve import SolveFigures, normalise_rows, resolve_closure, row_mode
+    from .solvers import anorm, choose_solver, get_solver
+    from .store import RunStore
 
-    solver = config.get("solve.solver", solver)
     tol = float(config.get("solve.tol", tol))
     max_iter = int(config.get("solve.max-iterations", max_iter))
-    fn = get_solver(solver)
     t0 = time.perf_counter()
     rs = RunStore(run_dir, "r+")
     op, table, el, part = open_link_operator(rs, client)
+    solver = choose_solver(config.get("solve.solver", solver), op.kernel)
+    fn = get_solver(solver)
+    if solver == "progressive":
+        import functools
+
+        fn = functools.partial(fn, shoot_fraction=float(config.get("solve.shoot-fraction")))
     Le, rho, area = leaf_vectors(table, el)
-    rows, cap = normalise_rows(op, config.get("solve.normalise-rows", normalise))
-    changes = {} if cap is None else {"cap": cap}
+    mode = config.get("solve.normalise-rows", normalise)
+    if mode in ("auto", None) and closure is None:
+        closure = resolve_closure(config.get("solve.closure"), el)
+    rows, changes = normalise_rows(op, row_mode(mode, closure))
     channels = 3
     if effects is not None:
         changes["sided"] = effects.two_sided[table["orig"][table["leaf_node"]]]
@@ -774,8 +786,7 @@ def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float 
             Le, rho = Le[:, :1].copy(), rho[:, :1].copy()
     if changes:
         op.configure(**changes)
-    bar = tqdm(total=None, desc=f"solve ({solver}, links)", unit="pass", disable=not progress,
-               leave=False)
+    bar = progress_bar(None, f"solve ({solver}, links)", progress, unit="pass")
     history = []
 
     def cb(k, r, L):
@@ -799,39 +810,56 @@ def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float 
     t_fg = time.perf_counter()
     fg = config.get("hierarchy.final-gather")
     gather_final = fg not in (False, None, "none")
+    Lf = res.radiance
     if gather_final:
         if fg not in ("exact", "linear"):
             raise RadiosityError(f"radiosity.hierarchy.final-gather must be none, linear or exact, "
                                  f"got {fg!r}")
-        op.configure(fg_levels=int(config.get("hierarchy.final-gather-levels")), fg_mode=fg)
-    Lf = Le + rho * op.final_gather(res.radiance) if gather_final else res.radiance
+        # the final gather evaluates form factors afresh (from each leaf's centroid): the rows'
+        # caps and balancing of the solve do not apply to them; in a closed scene its rows are
+        # balanced to 1 in turn (every leaf sees the whole enclosure), else rho -> 1 turns the
+        # kernel's residual row error into the answer's
+        closed = rows.get("mode") == "closed"
+        op.configure(fg_levels=int(config.get("hierarchy.final-gather-levels")), fg_mode=fg,
+                     cap=np.ones(M), cmode=CAP_MIN)
+        G = op.final_gather(res.radiance)
+        if closed:
+            r = op.final_gather(np.ones_like(res.radiance[:, :1]))
+            G = G / np.where(r > 0, r, 1.0)
+        Lf = Le + rho * G
     t_fg = time.perf_counter() - t_fg
     L3 = np.broadcast_to(res.radiance, (2, 3, M)) if channels == 1 else res.radiance
     F3 = np.broadcast_to(Lf, (2, 3, M)) if channels == 1 else Lf
     radiance = to_sub_elements(F3, table, len(part))
-    figures = {
-        "method": "hierarchical", "solver": solver, "kernel": op.kernel, "tol": tol,
-        "iterations": res.iterations, "converged": bool(res.converged),
-        "residuals": [float(r) for r in res.residuals], "final_residual": final,
-        "passes": op.passes, "pair_terms": int(op.terms), "link_terms": int(op.terms),
-        "pair_terms_per_s": iter_terms / max(t_iter, 1e-9), "time_s": round(t_solve, 4),
-        "sub_elements": len(part), "leaves": M, "row_sums": rows, "channels": channels,
-        "near_field": None, "partial_visibility": None,
-        "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(el),
-        "channel_terms": int(op.terms) * channels,
-        "final_gather": fg if gather_final else "none", "final_gather_evaluations": int(getattr(op, "evals", 0)),
-        "time_final_gather_s": round(t_fg, 4),
-    }
-    if res.ambient is not None:
-        figures["ambient"] = res.ambient.tolist()
-    rs.drop_after("nearfield")
-    rs.write_arrays("solution", {"radiance": radiance,
-                                 "leaf_radiance": np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))},
-                    {k: v for k, v in figures.items() if k != "residuals"})
-    update_report(run_dir, "solve", figures)
+    fig = SolveFigures(
+        solver=solver, kernel=op.kernel, tol=tol, iterations=res.iterations,
+        converged=bool(res.converged), residuals=[float(r) for r in res.residuals],
+        final_residual=final, passes=op.passes, pair_terms=int(op.terms),
+        pair_terms_per_s=iter_terms / max(t_iter, 1e-9), time_s=round(t_solve, 4),
+        sub_elements=len(part), row_sums=rows, channels=channels,
+        gathering_elements=int(op.inp.need.sum()) if len(op.inp.need) else len(el),
+        channel_terms=int(op.terms) * channels,
+        ambient=None if res.ambient is None else res.ambient.tolist(),
+        closure=None if closure is None else closure.to_dict(), method="hierarchical",
+        hierarchy={"leaves": M, "link_terms": int(op.terms),
+                   "final_gather": fg if gather_final else "none",
+                   "final_gather_evaluations": int(getattr(op, "evals", 0)),
+                   "time_final_gather_s": round(t_fg, 4)})
+    previous = rs.group_attrs("solution") if rs.has("solution") else {}
+    keep = not res.converged and not keep_unconverged and previous.get("converged") is True
     if not res.converged:
-        import warnings
-
+        fig = dataclasses.replace(fig, solution=(
+            "kept the previous converged solution; --keep-unconverged replaces it" if keep
+            else "written, NOT converged"))
+    if not keep:
+        rs.drop_after("nearfield")
+        rs.write_arrays("solution", {"radiance": radiance,
+                                     "leaf_radiance": np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))},
+                        {k: v for k, v in fig.to_dict().items() if k != "residuals"})
+    fig.write(run_dir)
+    if not res.converged:
         warnings.warn(f"{solver} did not reach tol={tol:g} in {max_iter} passes (residual "
-                      f"{res.residuals[-1] if res.residuals else float('nan'):.3g})", stacklevel=2)
-    return figures
+                      f"{res.residuals[-1] if res.residuals else float('nan'):.3g}): "
+                      + ("the previous converged solution is kept" if keep else
+                         "its solution is written, marked not converged"), stacklevel=2)
+    return fig

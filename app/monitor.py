@@ -24,6 +24,97 @@ import numpy as np
 BINS = 64
 
 
+def progress_bar(total, desc: str, enabled: bool = True, initial: int = 0, unit: str = "task",
+                 stream=None):
+    """Progress of long work on stderr: a tqdm bar on a terminal; where stderr is a file or a
+    pipe (logs, batch jobs), one plain line when the work starts and one when it ends, with
+    its figures (`PlainProgress`), instead of carriage returns. Nothing when `enabled` is
+    False."""
+    import sys
+
+    stream = sys.stderr if stream is None else stream
+    if enabled and not _isatty(stream):
+        return PlainProgress(total, desc, initial, unit, stream)
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc=desc, unit=unit, disable=not enabled,
+                leave=False, file=stream)
+
+
+def _isatty(stream) -> bool:
+    try:
+        return bool(stream.isatty())
+    except Exception:
+        return False
+
+
+def _plural(unit: str, n) -> str:
+    return unit if n == 1 else unit + ("es" if unit.endswith("s") else "s")
+
+
+class PlainProgress:
+    """The part of tqdm's interface the engine uses (update, set_postfix, close, with), as two
+    plain lines: `NAME: started (TOTAL UNITs)` and `NAME: done, N UNITs in T s (figures)`."""
+
+    def __init__(self, total, desc: str, initial: int = 0, unit: str = "task", stream=None):
+        self.total, self.desc, self.unit, self.stream = total, desc, unit, stream
+        self.n, self.initial = initial, initial
+        self.postfix: dict = {}
+        self.t0 = time.perf_counter()
+        self.closed = False
+        what = f" ({total - initial} {_plural(unit, total - initial)} to run" + (
+            f", {initial} done before" if initial else "") + ")" if total is not None else ""
+        self._say(f"{desc}: started{what}")
+
+    def _say(self, line: str) -> None:
+        try:
+            print(line, file=self.stream, flush=True)
+        except (OSError, ValueError):  # a closed or broken stream: progress is never fatal
+            pass
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+
+    def set_postfix(self, **kw) -> None:
+        self.postfix.update(kw)
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        dt = time.perf_counter() - self.t0
+        ran = self.n - self.initial
+        figs = "".join(f", {k} {v}" for k, v in self.postfix.items())
+        rate = f", {ran / dt:.3g} {self.unit}/s" if dt > 0 and ran else ""
+        self._say(f"{self.desc}: done, {ran} {_plural(self.unit, ran)} in {dt:.2f} s{rate}{figs}")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if exc[0] is None:
+            self.close()
+        self.closed = True  # stopped early: the error line says why
+        return False
+
+
+def peak_rss_mb(client) -> dict:
+    """Peak resident memory (MiB) of the driver ("master") and of each worker, keyed by the
+    worker's address."""
+    import resource
+
+    def peak():  # runs on each worker
+        import resource as r
+        return r.getrusage(r.RUSAGE_SELF).ru_maxrss / 1024.0
+
+    out = {"master": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    try:
+        out["workers"] = {k: round(v, 1) for k, v in client.run(peak).items()}
+    except Exception:  # a worker that died mid-run has no figure
+        pass
+    return out
+
+
 def heat_map(tiles_ij: np.ndarray, task_of_tile: np.ndarray, done: np.ndarray, n: int,
              bins: int = BINS) -> np.ndarray:
     """Fraction of visibility tiles done per bin of original-element pairs, (b, b) float64.
@@ -78,8 +169,7 @@ class Monitor:
             return
         done = np.zeros(len(plan.tasks), bool)
         done[list(done_tasks)] = True
-        task_of = np.repeat(np.arange(len(plan.tasks)), plan.tasks[:, 1] - plan.tasks[:, 0])
-        hm = heat_map(plan.tiles[:, :2], task_of, done, n)
+        hm = heat_map(plan.tiles[:, :2], plan.task_of_tile(), done, n)
         self._set("visibility", {"n": int(n), "bins": int(hm.shape[0]),
                                  "done": np.where(np.isnan(hm), -1.0, hm).round(3).tolist(),
                                  "tasks_done": int(done.sum()), "tasks": int(len(done))})

@@ -16,8 +16,11 @@ import time
 
 import numpy as np
 
-from .plan import END, FIRST, NCOLS, R0, R1, START, TSTART
-from .visibility import COS_TOL  # facing means what it means to the visibility stage
+from .exact import pair_form_factors_exact
+from .geometry import COS_TOL  # facing means what it means to the visibility stage
+from .kernels import pair_form_factors
+from .passes import CAP_MIN
+from .store import RunStore, VisibilityStore
 
 
 def near_pairs(center: np.ndarray, area: np.ndarray, orig: np.ndarray, factor: float):
@@ -36,50 +39,13 @@ def near_pairs(center: np.ndarray, area: np.ndarray, orig: np.ndarray, factor: f
     return key // len(center), key % len(center)
 
 
-def pair_bits(rs, orig: np.ndarray, offsets: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
-    """The stored visibility bit of each pair (a, b) (any order), (k,) bool; reads each
-    visibility task that holds one of the pairs once (plan.py gives the bit order)."""
-    from .store import VisibilityStore
-
-    vs = VisibilityStore(rs)
-    _, plan, _ = vs.require()
-    a = np.where(orig[ia] < orig[ib], ia, ib)
-    b = np.where(orig[ia] < orig[ib], ib, ia)
-    I, J = orig[a], orig[b]
-    r = a - offsets[I]
-    tiles = plan.tiles
-    # the tile of each pair: the last tile of block (I, J) whose first row is <= r
-    n = len(offsets)
-    stride = int(offsets[-1]) + 1
-    tkey = (tiles[:, 0] * n + tiles[:, 1]) * stride + tiles[:, R0]
-    order = np.argsort(tkey, kind="stable")
-    t = order[np.maximum(np.searchsorted(tkey[order], (I * n + J) * stride + r, side="right") - 1, 0)]
-    # pairs of a block that was culled whole have no tile: their bit is 0
-    found = (tiles[t, 0] == I) & (tiles[t, 1] == J) & (tiles[t, R0] <= r) & (r < tiles[t, R1])
-    a, b, I, J, r, t = a[found], b[found], I[found], J[found], r[found], t[found]
-    bit = (r - tiles[t, R0]) * tiles[t, NCOLS] + (b - offsets[J])
-    pos = tiles[t, START] + (bit >> 3)  # byte in the whole bits array
-    task_of = np.repeat(np.arange(len(plan.tasks)), plan.tasks[:, END] - plan.tasks[:, FIRST])
-    got = np.zeros(len(a), bool)
-    for task in np.unique(task_of[t]):
-        k = task_of[t] == task
-        data = vs.read_task(plan, int(task))
-        got[k] = ((data[pos[k] - plan.tasks[task, TSTART]] >> (bit[k] & 7)) & 1).astype(bool)
-    out = np.zeros(len(found), bool)
-    out[found] = got
-    return out
-
-
 def corrections(rs, kernel: str, factor: float) -> dict:
     """The sparse near-field corrections of a run (computed once, kept in the store).
 
     Returns arrays ia, ib (k,) int64; sa, sb (k,) int8 the facing sides; dab, dba (k,) float64:
     exact - kernel for F_ab and F_ba (0 where the pair's bit is 0); and figures."""
-    from .exact import pair_form_factors_exact
-    from .kernels import pair_form_factors
-    from .store import VisibilityStore
-
-    token = f"{VisibilityStore(rs).token()}-{kernel}-{factor}"
+    vs = VisibilityStore(rs)
+    token = f"{vs.token()}-{kernel}-{factor}"
     if rs.has("nearfield") and rs.group_attrs("nearfield").get("token") == token:
         arr = rs.read_arrays("nearfield")
         return {**arr, "figures": rs.group_attrs("nearfield")["figures"]}
@@ -95,7 +61,7 @@ def corrections(rs, kernel: str, factor: float) -> dict:
     t = COS_TOL * length
     face = ((ca > t) | (ts[ia] & (ca < -t))) & ((cb > t) | (ts[ib] & (cb < -t)))
     ia, ib, ca, cb = ia[face], ib[face], ca[face], cb[face]
-    vis = pair_bits(rs, part.orig, part.offsets, ia, ib) if len(ia) else np.zeros(0, bool)
+    vis = vs.pair_bits(part.offsets, ia, ib) if len(ia) else np.zeros(0, bool)
     ia, ib, ca, cb = ia[vis], ib[vis], ca[vis], cb[vis]
     fe = pair_form_factors_exact(part.verts[ia], part.nverts[ia], part.verts[ib], part.nverts[ib])
     fe_ba = fe * part.area[ia] / part.area[ib]
@@ -105,8 +71,6 @@ def corrections(rs, kernel: str, factor: float) -> dict:
            "dab": fe - fk_ab, "dba": fe_ba - fk_ba}
     figures = {"pairs": int(len(ia)), "factor": factor, "time_s": round(time.perf_counter() - t0, 4),
                "max_kernel_over_exact": float((fk_ab / np.maximum(fe, 1e-300)).max(initial=0.0))}
-    from .store import RunStore
-
     try:  # keep them for the next solve of this run (the caller may hold a read-only handle)
         RunStore(rs.run_dir, "r+").write_arrays("nearfield", arr, {"token": token, "figures": figures})
     except Exception:
@@ -114,13 +78,15 @@ def corrections(rs, kernel: str, factor: float) -> dict:
     return {**arr, "figures": figures}
 
 
-def apply(near: dict, L: np.ndarray, y: np.ndarray, cap: np.ndarray, need_sub=None) -> int:
-    """y += (F_exact - F_kernel) L over the near pairs, scaled like the tiles by min(cap); rows
-    that do not gather (need_sub False) are left alone. Returns the number of pair terms."""
+def apply(near: dict, L: np.ndarray, y: np.ndarray, cap: np.ndarray, cmode: int,
+          need_sub=None) -> int:
+    """y += (F_exact - F_kernel) L over the near pairs, scaled like the tiles (cap, cmode as in
+    passes.py); rows that do not gather (need_sub False) are left alone. Returns the number of
+    pair terms."""
     ia, ib, sa, sb = near["ia"], near["ib"], near["sa"], near["sb"]
     if len(ia) == 0:
         return 0
-    w = np.minimum(cap[ia], cap[ib]) if cap[0] > 0 else cap[ia] * cap[ib]
+    w = np.minimum(cap[ia], cap[ib]) if cmode == CAP_MIN else cap[ia] * cap[ib]
     ra = (w * near["dab"])[None, :] * L[sb, :, ib].T     # (C, k)
     rb = (w * near["dba"])[None, :] * L[sa, :, ia].T
     ga = np.ones(len(ia), bool) if need_sub is None else need_sub[ia]

@@ -1,4 +1,7 @@
-"""The visibility task plan: pure integer arithmetic on numpy, no Dask (decide first, then run).
+"""Pure planning of the Dask work: integer arithmetic on numpy, no Dask (decide first, then run).
+
+The visibility task plan (below), the subscene ranges of the preprocessing tasks and the
+packing of visibility tasks into the solver's worker groups.
 
 The visibility matrix V (m x m bits, symmetric) is cut along the original elements: the block
 (I, J), I < J, holds the bits between the sub-elements of I (rows) and of J (columns). Diagonal
@@ -30,10 +33,15 @@ FIRST, END, TSTART, TBYTES = range(4)
 
 @dataclass(frozen=True)
 class VisibilityPlan:
-    """tiles : (t, 7) int64 [I, J, r0, r1, ncols, byte start, nbytes], in task order
-    tasks : (k, 4) int64 [first tile, end tile, byte start, padded nbytes]
-    culled : (c, 2) int64 block pairs (I, J) skipped whole (they cannot face each other)
+    """tiles : (t, 7) int64 [I, J, r0, r1, ncols, byte start, nbytes], in task order (columns
+        named by the module constants I, J, R0, R1, NCOLS, START, NBYTES, which the numba pass
+        loops index directly)
+    tasks : (k, 4) int64 [first tile, end tile, byte start, padded nbytes] (FIRST, END, TSTART,
+        TBYTES)
+    culled : (0, 2) int64, kept for the store's layout: the block pairs skipped whole are no
+        longer listed (there can be n^2 of them), only counted in `blocks_culled`
     chunk : bytes per Zarr chunk; total : bytes of the array; unit : 'block' or 'stripe'
+    blocks_culled : block pairs I < J skipped whole (they cannot face each other)
     """
 
     tiles: np.ndarray
@@ -42,12 +50,55 @@ class VisibilityPlan:
     chunk: int
     total: int
     unit: str
+    blocks_culled: int = 0
+
+    def __len__(self) -> int:
+        return len(self.tasks)
+
+    def tiles_of(self, task: int) -> np.ndarray:
+        """The tiles of one task, (t_k, 7) int64 (a view)."""
+        t = self.tasks[task]
+        return self.tiles[t[FIRST]:t[END]]
+
+    def tile_bits(self) -> np.ndarray:
+        """Pairs (bits) in each tile, (t,) int64."""
+        return (self.tiles[:, R1] - self.tiles[:, R0]) * self.tiles[:, NCOLS]
+
+    def task_of_tile(self) -> np.ndarray:
+        """The task each tile belongs to, (t,) int64."""
+        return np.repeat(np.arange(len(self.tasks)), self.tasks[:, END] - self.tasks[:, FIRST])
 
     def task_bits(self) -> np.ndarray:
         """Estimated cost of each task: the number of pairs (bits) it holds, (k,) int64."""
-        bits = (self.tiles[:, R1] - self.tiles[:, R0]) * self.tiles[:, NCOLS]
-        c = np.concatenate([[0], np.cumsum(bits)])
+        c = np.concatenate([[0], np.cumsum(self.tile_bits())])
         return c[self.tasks[:, END]] - c[self.tasks[:, FIRST]]
+
+    def tile_of_pairs(self, offsets: np.ndarray, a: np.ndarray, b: np.ndarray):
+        """Where the bits of pairs (a, b) of sub-elements lie (any order).
+
+        offsets (n + 1,) sub-element offsets of the originals. Returns found (k,) bool (False
+        for pairs of one original or of a block culled whole: their bit is 0), and for the
+        found pairs the tile (k_f,) and the bit index within the tile (k_f,), both int64."""
+        orig = np.searchsorted(offsets, np.concatenate([a, b]), side="right") - 1
+        oa, ob = orig[:len(a)], orig[len(a):]
+        lo = np.where(oa < ob, a, b)
+        hi = np.where(oa < ob, b, a)
+        I_, J_ = np.minimum(oa, ob), np.maximum(oa, ob)
+        r = lo - offsets[I_]
+        tiles = self.tiles
+        n = len(offsets)
+        stride = int(offsets[-1]) + 1
+        tkey = (tiles[:, I] * n + tiles[:, J]) * stride + tiles[:, R0]
+        order = np.argsort(tkey, kind="stable")
+        pos = np.searchsorted(tkey[order], (I_ * n + J_) * stride + r, side="right") - 1
+        t = order[np.maximum(pos, 0)] if len(order) else np.zeros(len(a), np.int64)
+        if len(order) == 0:
+            return np.zeros(len(a), bool), t[:0], t[:0]
+        found = ((I_ != J_) & (tiles[t, I] == I_) & (tiles[t, J] == J_) & (tiles[t, R0] <= r)
+                 & (r < tiles[t, R1]))
+        t, r, hi, J_ = t[found], r[found], hi[found], J_[found]
+        bit = (r - tiles[t, R0]) * tiles[t, NCOLS] + (hi - offsets[J_])
+        return found, t, bit
 
     def cost_order(self) -> np.ndarray:
         """Task ids, most expensive first (long tasks start early); ties by id (deterministic)."""
@@ -70,50 +121,47 @@ def facing_blocks(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, cen
     return front | (two_sided[:, None] & back)
 
 
-def make_plan(offsets: np.ndarray, facing: np.ndarray, unit: str = "block",
+def make_plan(offsets: np.ndarray, facing, unit: str = "block",
               max_task_bits: int = 1 << 26, chunk: int | None = None,
               min_task_bits: int = 0) -> VisibilityPlan:
     """Tiles and tasks for the blocks I < J that face each other both ways.
 
-    offsets : (n + 1,) sub-element offsets of the originals; facing : (n, n) bool (facing_blocks).
-    In stripe mode, consecutive stripes share a task until it holds `min_task_bits` (many small
-    originals would otherwise cost more in scheduling than in work).
+    offsets : (n + 1,) sub-element offsets of the originals; facing : the pairs (bi, bj)
+    (p,) int64, I < J, sorted by (I, J) (originals.facing_pairs: no n x n array), or for small
+    scenes and tests an (n, n) bool facing_blocks matrix. In stripe mode, consecutive stripes
+    share a task until it holds `min_task_bits` (many small originals would otherwise cost
+    more in scheduling than in work). Memory and time are linear in the tiles.
     """
     if unit not in ("block", "stripe"):
         raise ValueError(f"task unit must be block or stripe, got {unit!r}")
     n = len(offsets) - 1
-    size = np.diff(offsets)
-    iu, ju = np.triu_indices(n, 1)
-    both = facing[iu, ju] & facing[ju, iu]
-    culled = np.stack([iu[~both], ju[~both]], 1).astype(np.int64)
-    bi, bj = iu[both], ju[both]
+    size = np.diff(offsets).astype(np.int64)
+    if isinstance(facing, tuple):
+        bi, bj = (np.asarray(x, np.int64) for x in facing)
+    else:
+        iu, ju = np.triu_indices(n, 1)
+        both = facing[iu, ju] & facing[ju, iu]
+        bi, bj = iu[both].astype(np.int64), ju[both].astype(np.int64)
+    culled = n * (n - 1) // 2 - len(bi)
     # never fewer than ~64 tasks because of the merging: the master needs work to balance
     min_task_bits = min(min_task_bits, int((size[bi] * size[bj]).sum()) // 64)
-    tiles = []  # [I, J, r0, r1]
-    task_of = []  # task id of each tile
-    task = -1
-    cur_bits = 0
-    cur_key = None
-    for a, b in zip(bi.tolist(), bj.tolist()):
-        ni, nj = int(size[a]), int(size[b])
-        rows = max(1, max_task_bits // max(nj, 1))
-        key = a if unit == "stripe" else (a, b)
-        for r0 in range(0, ni, rows):
-            r1 = min(ni, r0 + rows)
-            bits = (r1 - r0) * nj
-            new_key = key != cur_key and (unit == "block" or cur_bits >= min_task_bits)
-            if task < 0 or new_key or cur_bits + bits > max_task_bits or r0 > 0 and unit == "block":
-                task += 1
-                cur_bits = 0
-                cur_key = key
-            tiles.append((a, b, r0, r1))
-            task_of.append(task)
-            cur_key = key
-            cur_bits += bits
-    t = np.array(tiles, np.int64).reshape(-1, 4)
-    task_of = np.array(task_of, np.int64)
+    # the row bands of every block: `rows` rows each, so that none holds more than max_task_bits
+    ni, nj = size[bi], size[bj]
+    rows = np.maximum(1, max_task_bits // np.maximum(nj, 1))
+    nband = -(-ni // rows)
+    tb = np.repeat(np.arange(len(bi)), nband)                  # block of each tile
+    first = np.concatenate([[0], np.cumsum(nband)[:-1]]) if len(bi) else np.zeros(0, np.int64)
+    r0 = (np.arange(len(tb)) - first[tb]) * rows[tb]
+    r1 = np.minimum(ni[tb], r0 + rows[tb])
+    t = np.column_stack([bi[tb], bj[tb], r0, r1]).astype(np.int64).reshape(-1, 4)
+    bits = (r1 - r0) * nj[tb]
+    if unit == "block":  # one task per tile
+        task_of = np.arange(len(t), dtype=np.int64)
+    else:  # stripes, merged greedily up to min_task_bits, cut at max_task_bits
+        task_of = _stripe_tasks(bi[tb].tolist(), bits.tolist(), int(min_task_bits),
+                                int(max_task_bits))
     nbytes = ((t[:, 3] - t[:, 2]) * size[t[:, 1]] + 7) // 8
-    ntasks = task + 1
+    ntasks = int(task_of[-1]) + 1 if len(task_of) else 0
     # task boundaries and sizes
     first = np.searchsorted(task_of, np.arange(ntasks), side="left")
     end = np.searchsorted(task_of, np.arange(ntasks), side="right")
@@ -129,8 +177,24 @@ def make_plan(offsets: np.ndarray, facing: np.ndarray, unit: str = "block",
     ncols = size[t[:, 1]] if len(t) else np.zeros(0, np.int64)
     tiles7 = np.column_stack([t, ncols, start, nbytes]).astype(np.int64).reshape(-1, 7)
     tasks = np.column_stack([first, end, tstart, padded]).astype(np.int64).reshape(-1, 4)
-    return VisibilityPlan(tiles=tiles7, tasks=tasks, culled=culled, chunk=int(chunk),
-                          total=int(padded.sum()), unit=unit)
+    return VisibilityPlan(tiles=tiles7, tasks=tasks, culled=np.zeros((0, 2), np.int64),
+                          chunk=int(chunk), total=int(padded.sum()), unit=unit,
+                          blocks_culled=int(culled))
+
+
+def _stripe_tasks(keys: list, bits: list, min_task_bits: int, max_task_bits: int) -> np.ndarray:
+    """Task of each tile in stripe mode: a new task when the stripe (row element) changes and
+    the current task holds min_task_bits, or when the tile would take it past max_task_bits."""
+    out = np.empty(len(keys), np.int64)
+    task, cur, key0 = -1, 0, None
+    for k, (key, b) in enumerate(zip(keys, bits)):
+        if task < 0 or (key != key0 and cur >= min_task_bits) or cur + b > max_task_bits:
+            task += 1
+            cur = 0
+        out[k] = task
+        key0 = key
+        cur += b
+    return out
 
 
 def choose_chunk(task_bytes: np.ndarray) -> int:
@@ -149,3 +213,29 @@ def choose_unit(unit: str, n_originals: int, threshold: int) -> str:
     if unit not in ("block", "stripe"):
         raise ValueError(f"--task-unit must be block, stripe or auto, got {unit!r}")
     return unit
+
+
+def subscene_ranges(weights: np.ndarray, ntasks: int) -> list[tuple[int, int]]:
+    """Cut 0..n into at most `ntasks` contiguous ranges of about equal total weight (the
+    preprocessing's subscene tasks, seed §4.2)."""
+    n = len(weights)
+    ntasks = max(1, min(ntasks, n))
+    cum = np.cumsum(weights, dtype=float)
+    total = cum[-1] if n else 0.0
+    cuts = np.searchsorted(cum, total * np.arange(1, ntasks) / ntasks, side="left") + 1
+    bounds = np.unique(np.concatenate([[0], np.clip(cuts, 1, n), [n]]))
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
+def pack_groups(cost: np.ndarray, ngroups: int) -> list[np.ndarray]:
+    """Tasks with estimated `cost` (k,) packed into at most `ngroups` groups of about equal
+    total cost (longest first onto the least loaded group); each group's task ids sorted.
+    The solver pins one group to one worker, whose cache keeps the group's tiles."""
+    order = np.argsort(-np.asarray(cost), kind="stable")
+    load = np.zeros(max(1, ngroups))
+    members = [[] for _ in range(len(load))]
+    for t in order:
+        g = int(np.argmin(load))
+        members[g].append(int(t))
+        load[g] += cost[t]
+    return [np.array(sorted(m), np.int64) for m in members if m]

@@ -14,7 +14,8 @@ from collections import OrderedDict
 import numba
 import numpy as np
 
-from . import config
+from .camera import hit_points, ray_directions32
+from .config import default
 from .geometry import polygon_properties
 
 BATCH = 1 << 20  # rays per Embree call: bounds the temporary float32 buffers
@@ -40,12 +41,14 @@ class RayCaster:
     """Embree scene of a set of polygons (verts (n, 4, 3), nverts (n,)), queried in world units."""
 
     def __init__(self, verts: np.ndarray, nverts: np.ndarray, epsilon: float | None = None):
+        """epsilon: ray offset in the normalised frame, resolved by the caller (the stage
+        masters pass radiosity.rays.epsilon); None takes the packaged default."""
         rtcore_scene, mesh_construction = _embree()
         tris, self.owner = element_triangles(np.asarray(verts, float), np.asarray(nverts))
         lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
         self.origin = 0.5 * (lo + hi)
         self.scale = float(np.linalg.norm(hi - lo)) or 1.0
-        self.epsilon = float(config.get("rays.epsilon", epsilon))  # in the normalised frame
+        self.epsilon = float(default("rays.epsilon") if epsilon is None else epsilon)
         self._local = threading.local()
         self.normal = polygon_properties(np.asarray(verts, float), np.asarray(nverts))[1]
         self._scene = rtcore_scene.EmbreeScene()
@@ -222,15 +225,38 @@ def _segments(pts, ia, ib, origin, scale, eps, normal, elem, has_e, grazing, o32
             graze[k] = False
 
 
-_CACHE: "OrderedDict[str, RayCaster]" = OrderedDict()
+_CACHE: "OrderedDict[tuple, RayCaster]" = OrderedDict()
 
 
-def caster_for(key: str, verts: np.ndarray, nverts: np.ndarray) -> RayCaster:
-    """A RayCaster memoised per process by `key` (build once per worker, then reuse)."""
-    rc = _CACHE.get(key)
-    if rc is None:
-        rc = RayCaster(verts, nverts)
-        _CACHE[key] = rc
+_CACHE_LOCK = threading.Lock()
+
+
+def caster_for(key: str, verts: np.ndarray, nverts: np.ndarray, epsilon: float) -> RayCaster:
+    """A RayCaster memoised per process by (key, epsilon) (built once per worker, then reused;
+    safe when a worker runs several tasks in threads)."""
+    k = (key, float(epsilon))
+    with _CACHE_LOCK:
+        rc = _CACHE.get(k)
+        if rc is not None:
+            _CACHE.move_to_end(k)
+            return rc
+    rc = RayCaster(verts, nverts, epsilon)
+    with _CACHE_LOCK:
+        _CACHE[k] = rc
         while len(_CACHE) > 4:
             _CACHE.popitem(last=False)
     return rc
+
+
+# ----------------------------------------------------------------------------- the camera raster
+
+def raster_band(caster, normal, center, camera, subpixel: int, rows: slice):
+    """First hits of the camera rays through the fine-raster rows `rows`, against the elements
+    the caster was built from (normal, center (n, 3): their planes, for the exact hit points).
+
+    Returns orig (p,) int32 (-1 where nothing is hit) and points (p, 3) float64.
+    """
+    dirs = ray_directions32(camera, subpixel, rows.start, rows.stop)
+    elem = caster.first_hit(camera.center, dirs, unit=True)
+    return elem, hit_points(camera, subpixel, rows.start, elem, normal, center)
+

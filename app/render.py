@@ -31,11 +31,14 @@ import math
 import os
 import struct
 import time
+import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import config
 from .errors import RadiosityError, StoreError
+from .store import StageFigures
 from .types import Camera, Elements, Partition
 
 #: Rec. 709 / sRGB luminance weights of linear RGB.
@@ -48,6 +51,38 @@ VIEWER_MAX_TRIANGLES = 2_000_000
 #: The viewer pushes each vertex this many screen pixels away from its sub-element's centre,
 #: which hides the cracks that T-junctions between sub-elements of different depth leave.
 VIEWER_GROW_PX = 0.6
+
+
+@dataclass(frozen=True)
+class ImageFigures(StageFigures):
+    """The image stage's figures (report.json, section "render"): outputs, exposure, sizes."""
+
+    SECTION = "render"
+    image_exr: str
+    image_png: str
+    mesh_glb: str
+    mesh_ply: str
+    viewer_html: str
+    exposure: float
+    exposure_auto: bool
+    width: int
+    height: int
+    subpixel: int
+    filter: str
+    sigma: float
+    mean_radiance: list
+    hit_fraction: float
+    sub_elements: int
+    triangles: int
+    mesh_faces: int
+    viewer_triangles: int
+    viewer_stride: int
+    time_image_s: float
+    time_s: float
+
+    def rows(self):
+        return [("outputs", "image.exr, image.png, mesh.glb, mesh.ply, viewer.html"),
+                ("image", f"{self.width}x{self.height}, exposure {self.exposure:.3g}")]
 
 
 class RenderError(RadiosityError):
@@ -619,7 +654,7 @@ def write_viewer(path_html: str, part: Partition, radiance: np.ndarray, exposure
 # ----------------------------------------------------------------------------- the stage
 
 def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None = None,
-                   exposure: float | str | None = None) -> dict:
+                   exposure: float | str | None = None) -> ImageFigures:
     """Image, meshes and viewer of a solved run: writes image.exr, image.png, mesh.glb,
     mesh.ply and viewer.html into `run_dir` and section "render" of report.json.
 
@@ -629,9 +664,10 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     subpixel, filter, sigma, mean_radiance (RGB mean over the image, black pixels included),
     hit_fraction (fine pixels that see an element), triangles, time_s.
     """
-    from .store import RunStore, update_report
+    from .store import RunStore
 
     t0 = time.perf_counter()
+    sigma_given = sigma is not None
     filter = config.get("render.filter", filter)
     sigma = float(config.get("render.sigma", sigma))
     exposure = config.get("render.exposure", exposure)
@@ -652,6 +688,13 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     k = int(rs.attrs.get("subpixel", 1))
     raster = rs.read_arrays("raster")["sub"]
     radiance = rs.read_arrays("solution")["radiance"]
+    if filter == "gaussian" and k == 1:
+        warnings.warn(f"{run_dir} has no sub-samples (preprocessed with --subpixel 1): the "
+                      f"Gaussian filter only blurs the image by sigma = {sigma:g} pixels; "
+                      "preprocess with --subpixel 2 or more, or use --filter box", stacklevel=2)
+    elif filter == "box" and sigma_given:
+        warnings.warn("--sigma is the Gaussian filter's width: ignored with --filter box",
+                      stacklevel=2)
     if raster.shape != (camera.height * k, camera.width * k):
         raise StoreError(f"{rs.path}: raster/sub has shape {raster.shape}, the camera and "
                          f"subpixel {k} need {(camera.height * k, camera.width * k)}: run "
@@ -672,7 +715,7 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     title = rs.attrs.get("scene_name") or os.path.basename(d)
     viewer = write_viewer(paths["viewer.html"], part, radiance, e, title, camera=camera,
                           two_sided=two)
-    figures = {
+    fig = ImageFigures(**{
         "image_exr": paths["image.exr"], "image_png": paths["image.png"],
         "mesh_glb": paths["mesh.glb"], "mesh_ply": paths["mesh.ply"],
         "viewer_html": paths["viewer.html"],
@@ -685,6 +728,27 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
         "viewer_triangles": viewer["triangles"], "viewer_stride": viewer["stride"],
         "time_image_s": round(t_image, 4),
         "time_s": round(time.perf_counter() - t0, 4),
-    }
-    update_report(d, "render", figures)
-    return figures
+    })
+    fig.write(d)
+    return fig
+
+
+def previewer(run_dir: str):
+    """A function (2, C, m) radiance -> small sRGB image (h, w, 3) uint8 of the run's camera
+    view, for the dashboard's live preview while the solver runs."""
+    from .store import RunStore
+
+    rs = RunStore(run_dir)
+    if not rs.has("raster"):
+        return lambda L: np.zeros((1, 1, 3), np.uint8)
+    part, el = rs.load_partition(), rs.load_elements()
+    sub = rs.read_arrays("raster")["sub"]
+    camera = rs.load_camera()
+    K = int(rs.attrs.get("subpixel", 1))
+
+    def make(L):
+        L = np.broadcast_to(L, (2, 3, L.shape[2]))
+        rad = np.ascontiguousarray(np.transpose(L, (2, 0, 1)))
+        return tonemap(downsample(pixel_radiance(part, el, camera, sub, rad), K, "box"))
+
+    return make

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import struct
 import tomllib
 import warnings
@@ -24,6 +25,15 @@ from .geometry import diameter, polygon_properties
 from .types import Camera, Elements, Scene
 
 MESH_FORMATS = (".obj", ".gltf", ".glb", ".ply")
+#: Largest vertex coordinate accepted: fourth powers of lengths (|cross product|^2, r^4 in
+#: the sampled kernels) must stay finite in float64 (1e75^4 = 1e300 < 1.8e308).
+MAX_COORD = 1e75
+#: Largest camera resolution a side (a raster of 65536^2 int32 is 16 GiB already).
+MAX_RESOLUTION = 65536
+#: Smallest length taken for a direction (camera vectors): below it squares underflow to 0.
+TINY = 1e-150
+_KEYWORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+_GARBLED = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ufffd]")
 DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
 
 _MESH_KEYS = {"path", "material", "two_sided"}
@@ -31,7 +41,7 @@ _MATERIAL_KEYS = {"reflectance", "emission", "two_sided", "back_reflectance", "b
 _LOOKAT_KEYS = {"position", "look_at", "up", "fov_y", "resolution"}
 _SEED_KEYS = {"center", "x", "y", "z", "focal_distance", "resolution"}
 _TOP_KEYS = {"name", "description", "mesh", "material", "camera", "validation"}
-_VALIDATION_KEYS = {"form_factor", "from", "to", "radiance"}
+_VALIDATION_KEYS = {"form_factor", "from", "to", "radiance", "kind", "emitter", "receiver"}
 
 
 class SceneWarning(UserWarning):
@@ -64,6 +74,14 @@ def _floats(parts, fn, lineno, n=3):
     return vals
 
 
+def _check_line(fn: str, lineno: int, line: str, key: str, kind: str) -> None:
+    """A text line of an OBJ or MTL file starts with a keyword and holds no binary bytes
+    (unknown keywords are skipped, as other readers do; garbage is not)."""
+    if _GARBLED.search(line) or not _KEYWORD.match(key):
+        raise SceneError(f"{fn} could not be parsed as {kind} (line {lineno}): "
+                         f"{line.strip()[:40]!r} is not an {kind} statement")
+
+
 def _read_text(fn: str) -> list[str]:
     try:
         with open(fn, encoding="utf-8", errors="replace") as f:
@@ -82,6 +100,7 @@ def _load_mtl(fn: str) -> dict:
         if not parts:
             continue
         key, args = parts[0], parts[1:]
+        _check_line(fn, lineno, line.split("#", 1)[0], key, "MTL")
         if key == "newmtl":
             cur = " ".join(args)
             mats[cur] = {}
@@ -105,6 +124,7 @@ def load_obj(fn: str) -> RawMesh:
         if not parts:
             continue
         key, args = parts[0], parts[1:]
+        _check_line(fn, lineno, line.split("#", 1)[0], key, "OBJ")
         if key == "v":
             verts.append(_floats(args, fn, lineno))
         elif key == "f":
@@ -151,12 +171,15 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
     except Exception as e:  # trimesh raises many types for corrupt files
         raise SceneError(f"cannot read mesh file {fn}: {e}") from None
     gmats = {}
+    gltf, gnames = [], []
     if fn.lower().endswith((".gltf", ".glb")):
         try:
             doc = _gltf_json(fn)
         except Exception as e:
             raise SceneError(f"cannot parse glTF JSON of {fn}: {e}") from None
-        for m in doc.get("materials", []):
+        gltf = doc.get("materials", [])
+        gnames = _gltf_material_names(gltf, fn)
+        for name, m in zip(gnames, gltf):
             pbr = m.get("pbrMetallicRoughness", {})
             props = {"reflectance": list(pbr.get("baseColorFactor", [1, 1, 1, 1]))[:3]}
             strength = m.get("extensions", {}).get("KHR_materials_emissive_strength", {})
@@ -164,7 +187,7 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
                 strength.get("emissiveStrength", 1.0))
             props["emission"] = e.tolist()
             props["two_sided"] = bool(m.get("doubleSided", False))
-            gmats[m.get("name", "")] = props
+            gmats[name] = props
     verts, faces, fmat = [], [], []
     base = 0
     for node in loaded.graph.nodes_geometry:
@@ -175,8 +198,10 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
         v = trimesh.transformations.transform_points(np.asarray(mesh.vertices, float), transform)
         name = default_material
         mat = getattr(getattr(mesh, "visual", None), "material", None)
-        if fn.lower().endswith((".gltf", ".glb")) and mat is not None and getattr(mat, "name", None):
-            name = mat.name
+        if gltf and mat is not None:
+            idx = _gltf_material_of(mat, gltf, fn)
+            if idx is not None:
+                name = gnames[idx]
         verts.append(v)
         for f in np.asarray(mesh.faces):
             faces.append([int(k) + base for k in f])
@@ -184,6 +209,54 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
         base += len(v)
     v = np.concatenate(verts) if verts else np.zeros((0, 3))
     return RawMesh(v, faces, fmat, gmats)
+
+
+def _gltf_material_names(gltf: list, fn: str) -> list[str]:
+    """A distinct name per glTF material (by index): its own name; `unnamed-<i>` for one without
+    a name; `<name>#<i>` for a later material that reuses a name with other properties (said,
+    with a warning: the TOML overrides materials by these names)."""
+    names, first = [], {}
+    for i, m in enumerate(gltf):
+        name = m.get("name") or f"unnamed-{i}"
+        props = {k: v for k, v in m.items() if k != "name"}
+        if name in first and first[name] != props:
+            new = f"{name}#{i}"
+            _warn(f"{fn}: glTF material {i} reuses the name '{name}' with other properties; "
+                  f"it is called '{new}' here (override it as [material.\"{new}\"])")
+            name = new
+        first.setdefault(name, props)
+        names.append(name)
+    return names
+
+
+def _gltf_material_of(mat, gltf: list, fn: str) -> int | None:
+    """The index of the glTF material trimesh made `mat` (a PBRMaterial) from: the one of that
+    name (or of no name), and among several of the same name the one whose factors match
+    (trimesh keeps baseColorFactor to 8 bits only). None if no glTF material matches."""
+    name = getattr(mat, "name", None) or None
+    cands = [i for i, m in enumerate(gltf) if (m.get("name") or None) == name]
+    if len(cands) <= 1:
+        return cands[0] if cands else None
+
+    def distance(i):
+        m = gltf[i]
+        pbr = m.get("pbrMetallicRoughness", {})
+        want = np.asarray(pbr.get("baseColorFactor", [1, 1, 1, 1]), float)
+        got = getattr(mat, "baseColorFactor", None)
+        got = np.ones(4) if got is None else np.asarray(got, float) / (
+            255.0 if np.asarray(got).dtype.kind in "ui" else 1.0)
+        e_want = np.asarray(m.get("emissiveFactor", [0, 0, 0]), float)
+        e_got = getattr(mat, "emissiveFactor", None)
+        e_got = np.zeros(3) if e_got is None else np.asarray(e_got, float)[:3]
+        sided = bool(m.get("doubleSided", False)) == bool(getattr(mat, "doubleSided", False))
+        return float(np.abs(want - got).max() + np.abs(e_want - e_got).max()) + (0.0 if sided else 10.0)
+
+    d = np.array([distance(i) for i in cands])
+    tied = [cands[k] for k in np.nonzero(d <= d.min() + 1.0 / 255)[0]]
+    if any(gltf[t] != gltf[tied[0]] for t in tied[1:]):
+        raise SceneError(f"{fn}: glTF materials {', '.join(map(str, tied))} are all named "
+                         f"'{name}' and differ by less than 1/255: give them distinct names")
+    return tied[0]
 
 
 def load_mesh(fn: str, default_material: str = "default") -> RawMesh:
@@ -211,18 +284,30 @@ def _is_convex(q: np.ndarray, n: np.ndarray) -> bool:
     return all(x > 0 for x in s)
 
 
-def polygons_from_raw(raw: RawMesh, fn: str):
+def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True):
     """Validate faces and turn them into polygons: (verts (n,4,3), nverts (n,), face (n,), material names).
 
     Non-planar or non-convex quads become two triangles, n-gons a triangle fan; each with a warning.
+    merge=False keeps triangle pairs that form parallelograms apart (view factors between the
+    user's own facets).
     """
     tol = config.get("scene.planarity-tolerance")
     out_v, out_n, out_f, out_m = [], [], [], []
     V = raw.vertices
     for fi, idx in enumerate(raw.faces):
+        bad = [k for k in idx if not 0 <= k < len(V)]
+        if bad:
+            raise SceneError(f"{fn}: face {fi + 1} refers to vertex {bad[0]}, which does not exist "
+                             f"({len(V)} vertices)")
+        if len(idx) < 3:
+            raise SceneError(f"{fn}: face {fi + 1} has {len(idx)} vertices; a face needs at least 3")
         p = V[idx]
         if not np.all(np.isfinite(p)):
             raise SceneError(f"{fn}: face {fi + 1} has a NaN or infinite vertex coordinate")
+        if np.abs(p).max() > MAX_COORD:
+            raise SceneError(f"{fn}: face {fi + 1} has a vertex coordinate of {np.abs(p).max():.3g}: "
+                             f"beyond {MAX_COORD:g}, lengths to the fourth power overflow; "
+                             "rescale the mesh")
         mat = raw.face_material[fi]
         polys = []
         if len(idx) == 3:
@@ -259,7 +344,8 @@ def polygons_from_raw(raw: RawMesh, fn: str):
     verts = np.array(out_v, float)
     nverts = np.array(out_n, np.int8)
     face = np.array(out_f, np.int32)
-    verts, nverts, face, out_m = merge_parallelograms(verts, nverts, face, out_m)
+    if merge:
+        verts, nverts, face, out_m = merge_parallelograms(verts, nverts, face, out_m)
     area, _, _ = polygon_properties(verts, nverts)
     diam = diameter(verts, nverts)
     bad = np.nonzero(~(area > config.get("scene.min-relative-area") * diam ** 2))[0]
@@ -338,6 +424,8 @@ def _vec(val, what: str, fn: str, n: int = 3) -> np.ndarray:
         raise SceneError(f"{fn}: {what} must be a list of {n} numbers, got {val!r}") from None
     if a.shape != (n,) or not np.all(np.isfinite(a)):
         raise SceneError(f"{fn}: {what} must be a list of {n} finite numbers, got {val!r}")
+    if np.abs(a).max(initial=0.0) > MAX_COORD:
+        raise SceneError(f"{fn}: {what} {val!r} is beyond {MAX_COORD:g}: rescale the scene")
     return a
 
 
@@ -353,10 +441,12 @@ def parse_resolution(val, where: str) -> tuple[int, int]:
             w, h = int(val[0]), int(val[1])
         else:
             w = h = int(val)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise SceneError(f"{where}: resolution must be N, [W, H] or 'WxH', got {val!r}") from None
     if w <= 0 or h <= 0:
         raise SceneError(f"{where}: resolution must be positive, got {w}x{h}")
+    if max(w, h) > MAX_RESOLUTION:
+        raise SceneError(f"{where}: resolution {w}x{h} is beyond {MAX_RESOLUTION} pixels a side")
     return w, h
 
 
@@ -379,15 +469,18 @@ def parse_camera(cam: dict, fn: str, resolution=None) -> Camera:
         pos = _vec(cam["position"], "camera.position", fn)
         at = _vec(cam["look_at"], "camera.look_at", fn)
         up = _vec(cam.get("up", [0, 1, 0]), "camera.up", fn)
-        fov = float(cam["fov_y"])
+        fov = _num(cam["fov_y"], "camera.fov_y", fn)
         if not 0 < fov < 180:
             raise SceneError(f"{fn}: camera.fov_y must be in (0, 180) degrees, got {fov}")
         z = at - pos
-        if np.linalg.norm(z) == 0:
+        if not np.linalg.norm(z) > TINY:
             raise SceneError(f"{fn}: camera.look_at equals camera.position")
         z /= np.linalg.norm(z)
+        if not np.linalg.norm(up) > TINY:
+            raise SceneError(f"{fn}: camera.up must be a non-zero vector, got {cam.get('up')!r}")
+        up = up / np.linalg.norm(up)
         x = np.cross(z, up)
-        if np.linalg.norm(x) < 1e-9 * np.linalg.norm(up):
+        if np.linalg.norm(x) < 1e-9:
             raise SceneError(f"{fn}: camera.up is parallel to the viewing direction")
         x /= np.linalg.norm(x)
         y = np.cross(x, z)
@@ -408,11 +501,22 @@ def parse_camera(cam: dict, fn: str, resolution=None) -> Camera:
             raise SceneError(f"{fn}: camera basis x, y, z is not orthonormal (x.y={x @ y:.3g}, "
                              f"y.z={y @ z:.3g}, x.z={x @ z:.3g}, |x|={np.linalg.norm(x):.6g}, "
                              f"|y|={np.linalg.norm(y):.6g}, |z|={np.linalg.norm(z):.6g})")
-        d = float(cam["focal_distance"])
+        d = _num(cam["focal_distance"], "camera.focal_distance", fn)
         if not d > 0:
             raise SceneError(f"{fn}: camera.focal_distance must be positive, got {d}")
         return Camera(r, x, y, z, d, res[0], res[1], 1.0, 1.0)
     raise SceneError(f"{fn}: [camera] needs either 'position' (look-at form) or 'center' (seed's form)")
+
+
+def _num(val, what: str, fn: str) -> float:
+    """A finite number within MAX_COORD, or a SceneError naming the key."""
+    try:
+        v = float(val)
+    except (TypeError, ValueError):
+        raise SceneError(f"{fn}: {what} must be a number, got {val!r}") from None
+    if not math.isfinite(v) or abs(v) > MAX_COORD:
+        raise SceneError(f"{fn}: {what} must be a finite number below {MAX_COORD:g}, got {val!r}")
+    return v
 
 
 def _rgb(val, what, fn) -> np.ndarray:
@@ -420,7 +524,9 @@ def _rgb(val, what, fn) -> np.ndarray:
 
 
 def load_scene(path: str, resolution=None) -> Scene:
-    """Read a scene TOML (or a bare mesh file, which then needs no camera) into a Scene."""
+    """Read a scene TOML (or a folder holding scene.toml) into a Scene: its meshes, material
+    overrides and camera. A bare mesh file is not a scene (it has no camera): write a TOML with
+    one [[mesh]] entry and a [camera] table."""
     path = os.path.abspath(path)
     if os.path.isdir(path) and os.path.exists(os.path.join(path, "scene.toml")):
         path = os.path.join(path, "scene.toml")
@@ -431,6 +537,8 @@ def load_scene(path: str, resolution=None) -> Scene:
             doc = tomllib.load(f)
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{path}: not valid TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{path}: not valid TOML: not UTF-8 text (byte {e.start})") from None
     except OSError as e:
         raise SceneError(f"cannot read scene file {path}: {e.strerror}") from None
     unknown = set(doc) - _TOP_KEYS
@@ -526,7 +634,7 @@ def load_scene(path: str, resolution=None) -> Scene:
     if unknown:
         raise SceneError(f"{path}: [validation] has unknown key(s) {sorted(unknown)}; allowed: "
                          f"{sorted(_VALIDATION_KEYS)}")
-    for k in ("from", "to"):
+    for k in ("from", "to", "emitter", "receiver"):
         if k in validation and validation[k] not in names:
             raise SceneError(f"{path}: [validation] {k} = {validation[k]!r} is not a material of "
                              f"the scene ({names})")

@@ -24,10 +24,12 @@ groups of the stages after it, so a store never mixes results of different input
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
 import zlib
+from typing import ClassVar
 
 import numpy as np
 
@@ -93,7 +95,11 @@ class RunStore:
 
     def read_arrays(self, group: str) -> dict:
         if group not in self.root:
-            raise StoreError(f"{self.path} has no '{group}' yet: run the stage that writes it first")
+            make = {"solution": f"radiosity solve {self.run_dir}",
+                    "visibility": f"radiosity visibility {self.run_dir}",
+                    "nearfield": f"radiosity solve {self.run_dir}"}.get(
+                group, f"radiosity preprocess SCENE --out {self.run_dir}")
+            raise StoreError(f"{self.run_dir} has no {group} yet: run {make} first")
         g = self.root[group]
         return {name: arr[...] for name, arr in g.arrays()}
 
@@ -162,6 +168,37 @@ def update_report(run_dir: str, section: str, data: dict) -> dict:
     return report
 
 
+@dataclasses.dataclass(frozen=True)
+class StageFigures:
+    """What a stage measured: a frozen dataclass that writes its section of report.json and the
+    rows of the CLI's summary. Reads like the report section too (fig["key"]), for callers that
+    hold a report key (studies, tests)."""
+
+    SECTION: ClassVar[str] = ""
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    def write(self, run_dir: str) -> dict:
+        """Merge these figures into report.json's section; returns the whole report."""
+        return update_report(run_dir, self.SECTION, self.to_dict())
+
+    def rows(self) -> list[tuple[str, object]]:
+        """(label, value) rows of the CLI's summary table."""
+        return []
+
+    def __getitem__(self, key: str):
+        if key not in self.__dataclass_fields__:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.__dataclass_fields__
+
+    def get(self, key: str, default=None):
+        return getattr(self, key, default) if key in self else default
+
+
 def _json_default(o):
     if isinstance(o, np.generic):
         return o.item()
@@ -177,10 +214,33 @@ def bits_path(store_path: str) -> str:
 
 
 def write_bits(store_path: str, start: int, buf: np.ndarray) -> None:
-    """Write a task's bytes at `start` (chunk-aligned, whole chunks): called on the workers."""
+    """Write a task's bytes at `start` (chunk-aligned, whole chunks) and make them durable
+    (fsync of its chunk files and their folder) before the task reports back: a task enters
+    the manifest only after its bytes are on disk. Called on the workers."""
     zarr = _zarr()
     arr = zarr.open_array(bits_path(store_path), mode="r+")
-    arr[start:start + len(buf)] = buf
+    try:
+        arr[start:start + len(buf)] = buf
+    except OSError as e:  # zarr's error names no file: name the array
+        raise OSError(e.errno, e.strerror, bits_path(store_path)) from None
+    if len(buf):
+        chunk = int(arr.chunks[0])
+        files = [os.path.join(bits_path(store_path), arr.metadata.encode_chunk_key((i,)))
+                 for i in range(start // chunk, (start + len(buf) - 1) // chunk + 1)]
+        fsync_paths(files + [os.path.dirname(files[0])])
+
+
+def fsync_paths(paths) -> None:
+    """fsync files and folders that exist (a chunk that equals the fill value is not written)."""
+    for p in paths:
+        try:
+            fd = os.open(p, os.O_RDONLY)
+        except FileNotFoundError:
+            continue
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def partial_path(store_path: str) -> str:
@@ -232,6 +292,25 @@ def read_bits(store_path: str, start: int, nbytes: int) -> np.ndarray:
     return arr[start:start + nbytes]
 
 
+def _corrupted(run_dir: str, task: int, why: str) -> StoreError:
+    return StoreError(f"visibility task {task} of {run_dir} is corrupted ({why}): run radiosity "
+                      f"visibility {run_dir} --resume to recompute it")
+
+
+def read_task_checked(store_path: str, task: int, start: int, nbytes: int, crc: int) -> np.ndarray:
+    """The bytes of one visibility task, checked against the crc32 recorded when it finished;
+    a mismatch or an unreadable (corrupted) chunk raises StoreError with the repair command.
+    Called on the workers."""
+    run_dir = os.path.dirname(store_path)
+    try:
+        data = read_bits(store_path, start, nbytes)
+    except Exception as e:  # a chunk that no longer decodes is corrupted like a bad checksum
+        raise _corrupted(run_dir, task, f"unreadable chunk: {type(e).__name__}") from None
+    if zlib.crc32(data.tobytes()) != int(crc):
+        raise _corrupted(run_dir, task, "checksum")
+    return data
+
+
 class VisibilityStore:
     """The visibility group of a run store: plan arrays, packed bits and the task manifest."""
 
@@ -252,7 +331,7 @@ class VisibilityStore:
             g.create_array(name, data=np.ascontiguousarray(a), chunks=_chunks(a))
         g.create_group("partial")
         g.attrs.update({"token": token, "chunk": plan.chunk, "total": plan.total,
-                        "unit": plan.unit, **attrs})
+                        "unit": plan.unit, "blocks_culled": plan.blocks_culled, **attrs})
         with open(self.manifest, "w") as f:
             f.write(json.dumps({"plan": token}) + "\n")
 
@@ -275,8 +354,10 @@ class VisibilityStore:
 
         g = self.rs.root["visibility"]
         at = g.attrs
-        return VisibilityPlan(tiles=g["tiles"][...], tasks=g["tasks"][...], culled=g["culled"][...],
-                              chunk=int(at["chunk"]), total=int(at["total"]), unit=at["unit"])
+        culled = g["culled"][...]
+        return VisibilityPlan(tiles=g["tiles"][...], tasks=g["tasks"][...], culled=culled,
+                              chunk=int(at["chunk"]), total=int(at["total"]), unit=at["unit"],
+                              blocks_culled=int(at.get("blocks_culled", len(culled))))
 
     def rewrite_manifest(self, token: str, entries: dict) -> None:
         """Keep only `entries` (task -> entry) in the manifest."""
@@ -338,12 +419,205 @@ class VisibilityStore:
             return False
         return zlib.crc32(data.tobytes()) == entry["crc"]
 
+    def task_bytes(self, plan, task: int, entry: dict | None) -> np.ndarray:
+        """The verified (unpadded) bytes of one finished task; a missing or corrupted task
+        raises StoreError naming the command that repairs it (never used silently)."""
+        if entry is None:
+            raise StoreError(f"visibility task {task} of {self.rs.run_dir} is missing: "
+                             f"run radiosity visibility {self.rs.run_dir} --resume")
+        from .plan import TSTART
+
+        return read_task_checked(self.rs.path, task, int(plan.tasks[task, TSTART]),
+                                 int(entry["nbytes"]), int(entry["crc"]))
+
+    def iter_tiles(self):
+        """Yield (I, J, r0, r1, bits (r1 - r0, nJ) bool) for every stored tile, task by task
+        (the bit layout is in plan.py; every task's bytes are verified first)."""
+        from .plan import I, J, NBYTES, NCOLS, R0, R1, START, TSTART
+
+        _, plan, done = self.require()
+        for task in range(len(plan.tasks)):
+            data = self.task_bytes(plan, task, done.get(task))
+            base = int(plan.tasks[task, TSTART])
+            for tile in plan.tiles_of(task):
+                off = int(tile[START]) - base
+                rows, cols = int(tile[R1] - tile[R0]), int(tile[NCOLS])
+                bits = np.unpackbits(data[off:off + int(tile[NBYTES])], count=rows * cols,
+                                     bitorder="little")
+                yield int(tile[I]), int(tile[J]), int(tile[R0]), int(tile[R1]), \
+                    bits.reshape(rows, cols).astype(bool)
+
+    def dense(self, offsets: np.ndarray) -> np.ndarray:
+        """The whole matrix as (m, m) bool, symmetric: for small scenes and tests only."""
+        m = int(offsets[-1])
+        V = np.zeros((m, m), bool)
+        for i, j, r0, r1, bits in self.iter_tiles():
+            V[offsets[i] + r0:offsets[i] + r1, offsets[j]:offsets[j + 1]] = bits
+        return V | V.T
+
+    def pair_bits(self, offsets: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+        """The stored bit of each pair (ia, ib) of sub-elements (any order), (k,) bool; reads
+        (and verifies) each task that holds one of the pairs once."""
+        from .plan import START, TSTART
+
+        _, plan, done = self.require()
+        found, t, bit = plan.tile_of_pairs(offsets, np.asarray(ia, np.int64),
+                                           np.asarray(ib, np.int64))
+        pos = plan.tiles[t, START] + (bit >> 3)  # byte in the whole bits array
+        task_of = plan.task_of_tile()[t]
+        got = np.zeros(len(t), bool)
+        for task in np.unique(task_of):
+            k = task_of == task
+            data = self.task_bytes(plan, int(task), done.get(int(task)))
+            got[k] = ((data[pos[k] - plan.tasks[task, TSTART]] >> (bit[k] & 7)) & 1).astype(bool)
+        out = np.zeros(len(found), bool)
+        out[found] = got
+        return out
+
     def sampling(self):
         """The kernels.Sampling the matrix was computed with (None: one ray between centres)."""
         from .kernels import Sampling
 
         d = self.rs.root["visibility"].attrs.get("sampling") if "visibility" in self.rs.root else None
         return None if d is None else Sampling(**d)
+
+
+# ----------------------------------------------------------------------------- view factors
+#
+#   viewfactors/tasks/<task>-ij  (k, 2) int32: facet pairs (i, j), original facet ids, i != j
+#   viewfactors/tasks/<task>-f   (k, 3) float64: [F_ij (obstructed), F_ij unobstructed, proven
+#                                bound of the cheap kernel's error on the unobstructed value (0
+#                                where the exact integral was used)]; F_ji = F_ij A_i / A_j
+#   viewfactors/tasks/<task>-drop (d, 4) float64: cluster pairs dropped by the cut-off: [node a,
+#                                node b, bound from any facet of a to b, from any facet of b to a]
+#   viewfactors/matrix/          indptr (n + 1,) int64, indices (nnz,) int32, data (nnz,) float64:
+#                                the CSR matrix F (row i: from facet i), balanced if an enclosure;
+#                                scale (n,) float64: the balancing factors d (F = d_i d_j F_raw)
+#   RUN_DIR/viewfactors.manifest.jsonl: one line per finished task (crc32, counts), after a head
+#                                line naming the inputs it belongs to
+
+
+def _vf_tasks(store_path: str) -> str:
+    return os.path.join(store_path, "viewfactors", "tasks")
+
+
+def _vf_crc(ij: np.ndarray, f: np.ndarray, drop: np.ndarray) -> int:
+    c = zlib.crc32(np.ascontiguousarray(ij, np.int32).tobytes())
+    c = zlib.crc32(np.ascontiguousarray(f, np.float64).tobytes(), c)
+    return zlib.crc32(np.ascontiguousarray(drop, np.float64).tobytes(), c)
+
+
+def write_vf_task(store_path: str, task: int, ij: np.ndarray, f: np.ndarray,
+                  drop: np.ndarray) -> dict:
+    """Write one view-factor task's pairs (called on the workers); returns {crc, n, nd} for the
+    manifest."""
+    zarr = _zarr()
+    ij = np.ascontiguousarray(ij, np.int32).reshape(-1, 2)
+    f = np.ascontiguousarray(f, np.float64).reshape(-1, 3)
+    drop = np.ascontiguousarray(drop, np.float64).reshape(-1, 4)
+    g = zarr.open_group(_vf_tasks(store_path), mode="a")
+    for name, a in (("ij", ij), ("f", f), ("drop", drop)):
+        g.create_array(f"{task}-{name}", data=a, chunks=_chunks(a) if a.size else (1,) + a.shape[1:],
+                       overwrite=True)
+    return {"crc": _vf_crc(ij, f, drop), "n": int(len(ij)), "nd": int(len(drop))}
+
+
+def read_vf_task(store_path: str, task: int, entry: dict):
+    """One task's (ij, f, drop), checked against its manifest entry; StoreError if missing or
+    corrupted."""
+    zarr = _zarr()
+    try:
+        g = zarr.open_group(_vf_tasks(store_path), mode="r")
+        ij, f, drop = (g[f"{task}-{k}"][...] for k in ("ij", "f", "drop"))
+    except Exception:  # missing or unreadable chunk
+        ij = None
+    if ij is None or len(ij) != entry["n"] or _vf_crc(ij, f, drop) != entry["crc"]:
+        run_dir = os.path.dirname(store_path)
+        raise StoreError(f"view-factor task {task} of {run_dir} is missing or corrupted "
+                         f"(checksum): run radiosity viewfactors again with --resume --out {run_dir}")
+    return ij, f, drop
+
+
+class Manifest:
+    """A JSON-lines record of finished tasks: a head line {"plan": token}, then one line per
+    task. The master is its only writer; a torn last line is ignored."""
+
+    def __init__(self, path: str):
+        self.path = path
+
+    def create(self, token: str) -> None:
+        with open(self.path, "w") as f:
+            f.write(json.dumps({"plan": token}) + "\n")
+
+    def record(self, entry: dict) -> None:
+        with open(self.path, "a") as f:
+            f.write(json.dumps(entry, default=_json_default) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    def finished(self, token: str) -> dict:
+        """task -> entry for the plan `token` ({} for another plan or none)."""
+        if not os.path.exists(self.path):
+            return {}
+        with open(self.path) as f:
+            lines = f.read().splitlines()
+        try:
+            if not lines or json.loads(lines[0]).get("plan") != token:
+                return {}
+        except json.JSONDecodeError:
+            return {}
+        done = {}
+        for line in lines[1:]:
+            try:
+                e = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            done[int(e["task"])] = e
+        return done
+
+    def rewrite(self, token: str, entries: dict) -> None:
+        tmp = self.path + ".tmp"
+        with open(tmp, "w") as f:
+            f.write(json.dumps({"plan": token}) + "\n")
+            for _, e in sorted(entries.items()):
+                f.write(json.dumps(e, default=_json_default) + "\n")
+        os.replace(tmp, self.path)
+
+
+def vf_manifest(run_dir: str) -> Manifest:
+    return Manifest(os.path.join(run_dir, "viewfactors.manifest.jsonl"))
+
+
+def vf_token(rs: RunStore) -> str | None:
+    """The inputs token of the view factors in this store (None: none started)."""
+    if "viewfactors" not in rs.root:
+        return None
+    return rs.root["viewfactors"].attrs.get("token")
+
+
+def create_vf(rs: RunStore, token: str, attrs: dict) -> None:
+    """A fresh viewfactors group (an old one and its manifest are dropped)."""
+    if "viewfactors" in rs.root:
+        del rs.root["viewfactors"]
+    g = rs.root.create_group("viewfactors")
+    g.create_group("tasks")
+    g.attrs.update({"token": token, **attrs})
+    vf_manifest(rs.run_dir).create(token)
+
+
+def write_vf_matrix(rs: RunStore, indptr, indices, data, scale, attrs: dict) -> None:
+    """The assembled CSR matrix (and balancing factors) into viewfactors/matrix."""
+    rs.write_arrays("viewfactors/matrix", {"indptr": np.asarray(indptr, np.int64),
+                                            "indices": np.asarray(indices, np.int32),
+                                            "data": np.asarray(data, np.float64),
+                                            "scale": np.asarray(scale, np.float64)}, attrs)
+
+
+def read_vf_matrix(rs: RunStore) -> dict:
+    """indptr, indices, data, scale of the stored matrix (StoreError if there is none)."""
+    if "viewfactors/matrix" not in rs.root:
+        raise StoreError(f"{rs.run_dir} has no view-factor matrix: run radiosity viewfactors")
+    return rs.read_arrays("viewfactors/matrix")
 
 
 # ----------------------------------------------------------------------------- hierarchical links
@@ -501,3 +775,4 @@ class LinkStore:
 
     def read_nodes(self) -> dict:
         return self.rs.read_arrays("hierarchy")
+

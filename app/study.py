@@ -11,7 +11,14 @@ and timed and the error is measured against a reference:
   camera rays hit (the two-level lookup into each run's own partition), so runs of different
   resolutions are compared at the same points, without aliasing; the relative RMS difference;
 - or a reference image the user gives (EXR): the relative RMS difference of the images, the
-  finer one box-filtered to the coarser grid.
+  finer one box-filtered to the coarser grid;
+- or, with `--reference auto`, ground truth path-traced by Mitsuba 3 (app/reference.py) at the
+  finest resolution (box-filtered to the coarser ones that divide it, rendered again at the
+  others), made once and reused: the mean absolute relative error per pixel over the pixels
+  wholly inside one original element (compare.interior), the mean per-surface error, and the
+  reference's own noise level. The path tracer itself joins the sweep at several sample counts
+  (its error against the higher-spp reference, its time), so the Pareto front shows where each
+  method wins.
 
 Outputs in OUT: results.csv, results.md (Markdown table) and accuracy.png (log-log error against
 time, the Pareto front marked: the settings no other setting beats in both).
@@ -30,10 +37,14 @@ import numpy as np
 
 from . import config
 from .errors import RadiosityError
-from .kernels import KERNELS, MC, NXM, kernel_id, sampling_of
+from .kernels import MC, NXM, get_kernel, kernel_id
+from .solvers import choose_solver
+from .settings import sampling_of
 
 COLUMNS = ["resolution", "subpixel", "kernel", "solver", "tol", "sub_elements", "passes", "time_preprocess_s",
-           "time_visibility_s", "time_solve_s", "time_image_s", "time_total_s", "error", "pareto"]
+           "time_visibility_s", "time_solve_s", "time_image_s", "time_total_s", "error", "pareto",
+           "spp", "error_surface", "noise_floor"]
+PATH_TRACER = "path tracer"
 
 
 def pareto(times, errors) -> np.ndarray:
@@ -100,14 +111,15 @@ def _visibility_key(spec: str) -> str:
 
 def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> float:
     """F from material `frm` to material `to` as the run's operator computes it (front sides)."""
-    from .solve import normalise_rows, open_operator
+    from .operator import open_operator
+    from .solve import normalise_rows
     from .store import RunStore
 
     rs = RunStore(run_dir)
     op, part, el = open_operator(rs, client, kernel)
-    _, cap = normalise_rows(op)
-    if cap is not None:
-        op.configure(cap=cap)
+    _, scaling = normalise_rows(op)
+    if scaling:
+        op.configure(**scaling)
     names = np.array(el.material_names)[el.material[part.orig]]
     x = np.zeros((2, 1, len(part)))
     x[0, 0, names == to] = 1.0
@@ -117,9 +129,11 @@ def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> 
 
 
 def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels, tols,
-             reference: str | None = None, solver: str | None = None, echo=print) -> list[dict]:
-    """Run the sweep; write results.csv, results.md and accuracy.png into `out`."""
-    from .pipeline import preprocess
+             reference: str | None = None, solver: str | None = None, echo=print,
+             reference_spp: int | None = None, path_tracer_spp=None) -> list[dict]:
+    """Run the sweep; write results.csv, results.md and accuracy.png into `out` (with
+    `reference="auto"` also surfaces.csv and the Mitsuba reference(s) in out/reference/)."""
+    from .preprocess import preprocess
     from .render import read_exr, render_outputs
     from .scene import load_scene
     from .solve import run_solve
@@ -129,6 +143,9 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
     os.makedirs(out, exist_ok=True)
     base = load_scene(scene_path)
     val = base.validation
+    if reference == "auto" and val:
+        raise RadiosityError(f"{scene_path}: the scene has a [validation] table, whose exact answer is "
+                             "the study's reference; --reference auto is for scenes without one")
     rows = []
     images = {}
     settings = sorted(itertools.product(resolutions, subpixels))
@@ -163,15 +180,16 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                 passes = 0
                 # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
                 solve_with = config.get("solve.solver", solver)
-                if solve_with == "cg" and not KERNELS[kernel][2]:
-                    solve_with = "gauss-seidel"
+                if solve_with == "cg" and not get_kernel(kernel).reciprocal:
+                    solve_with = "auto"
+                solve_with = choose_solver(solve_with, kernel)
                 if "form_factor" in val:
                     f = form_factor_of_run(run, client, kernel, val["from"], val["to"])
                     err = abs(f / val["form_factor"] - 1.0)
                     t_solve, t_img = time.perf_counter() - t, 0.0
                 else:
                     fig = run_solve(run, client, solver=solve_with, kernel=kernel, tol=tol, progress=False)
-                    passes = fig["iterations"]
+                    passes = fig.iterations
                     t_solve = time.perf_counter() - t
                     t = time.perf_counter()
                     render_outputs(run, exposure="auto")
@@ -192,20 +210,24 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                          "time_preprocess_s": t_pre, "time_visibility_s": t_vis[key],
                          "time_solve_s": t_solve, "time_image_s": t_img,
                          "time_total_s": t_pre + t_vis[key] + t_solve + t_img, "error": err})
-            echo(f"  {res}x{res} K={k} {label} tol={tol:g}: error {err:.3g}, "
+            echo(f"  {res}x{res} K={k} {label} tol={tol:g}: "
+                 f"{'error at the end' if np.isnan(err) else f'error {err:.3g}'}, "
                  f"{rows[-1]['time_total_s']:.2f} s")
-    if images and reference:  # against the user's EXR
+    if images and reference == "auto":  # against Mitsuba; the path tracer joins the sweep
+        rows += against_mitsuba(scene_path, out, rows, images, resolutions, reference_spp,
+                                path_tracer_spp, echo)
+    elif images and reference:  # against the user's EXR
         ref = read_exr(reference)
         for r in rows:
             r["error"] = image_error(images[(r["resolution"], r["subpixel"], r["kernel"], r["tol"])], ref)
     elif images:  # against the finest setting, at its camera rays' hit points
         from .rays import RayCaster
-        from .subdivide import raster_band
+        from .rays import raster_band
 
         key = max(images, key=lambda q: (q[0] * q[1], -q[3], q[2] == "point-nf", q[2] == "point"))
         echo(f"  reference: the finest setting {key[0]}x{key[0]} K={key[1]} {key[2]} tol={key[3]:g}")
         fine = load_scene(scene_path, resolution=key[0])
-        rc = RayCaster(fine.elements.verts, fine.elements.nverts)
+        rc = RayCaster(fine.elements.verts, fine.elements.nverts, float(config.get("rays.epsilon")))
         h = fine.camera.height * key[1]
         orig, pts = raster_band(rc, fine.elements.normal, fine.elements.center, fine.camera, key[1],
                                 slice(0, h))
@@ -221,15 +243,89 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         for r in rows:
             q = (r["resolution"], r["subpixel"], r["kernel"], r["tol"])
             r["error"] = float(np.sqrt(np.mean((sample(q) - ref) ** 2)) / norm)
-    ok = np.array([r["error"] > 0 for r in rows])
+    # against Mitsuba, images of one size compete (radiosity at every K and the path tracer at
+    # that resolution): a per-pixel error of a 16 x 16 image says nothing of a 64 x 64 one
+    group = [r["resolution"] if reference == "auto" else 0 for r in rows]
     front = np.zeros(len(rows), bool)
-    if ok.any():
-        idx = np.nonzero(ok)[0]
-        front[idx] = pareto([rows[i]["time_total_s"] for i in idx], [rows[i]["error"] for i in idx])
+    for g in set(group):
+        idx = np.array([i for i, r in enumerate(rows) if group[i] == g and r["error"] > 0], int)
+        if len(idx):
+            front[idx] = pareto([rows[i]["time_total_s"] for i in idx], [rows[i]["error"] for i in idx])
     for r, p in zip(rows, front):
         r["pareto"] = bool(p)
     write_results(out, rows, os.path.basename(os.path.dirname(os.path.abspath(scene_path))))
     return rows
+
+
+def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, resolutions,
+                    spp: int | None = None, path_tracer_spp=None, echo=print) -> list[dict]:
+    """Measure every row's image (images[(res, K, kernel, tol)], (res, res, 3)) against Mitsuba
+    ground truth, in place: `error` (mean absolute relative error over the pixels wholly inside
+    one element), `error_surface` (mean over the elements seen of their mean's relative error),
+    `noise_floor` (what an exact image would show against this reference). Renders the path
+    tracer at `path_tracer_spp` (default: 1, 4, 16, ... up to spp / 16) at every resolution of
+    the sweep and returns its rows; writes surfaces.csv (per element, per setting)."""
+    from .compare import box_down, box_down_stderr, element_raster, errors, interior, noise_floor, surface_errors
+    from .reference import path_tracer_runs, reference_at
+    from .scene import load_scene
+
+    spp = int(config.get("reference.study-spp", spp))
+    passes = int(config.get("reference.passes"))
+    finest = max(resolutions)
+    fine_scene = load_scene(scene_path, resolution=finest)
+    refs = {finest: reference_at(fine_scene, os.path.join(out, "reference", f"r{finest}"), spp, passes, echo)[:2]}
+    truth = {}
+    for res in sorted(set(resolutions)):
+        sc = load_scene(scene_path, resolution=res)
+        if res not in refs:
+            h, w = sc.camera.height, sc.camera.width
+            m, se = refs[finest]
+            if m.shape[0] % h == 0 and m.shape[1] % w == 0:  # a box-filtered pixel is the exact mean
+                refs[res] = box_down(m, h, w), box_down_stderr(se, h, w)
+            else:
+                refs[res] = reference_at(sc, os.path.join(out, "reference", f"r{res}"), spp, passes, echo)[:2]
+        raster = element_raster(sc)
+        mask = interior(raster)
+        truth[res] = (*refs[res], raster, mask, noise_floor(refs[res][0], refs[res][1], mask))
+    el = fine_scene.elements
+    surfaces = []
+
+    def measure(row, img):
+        ref, se, raster, mask, floor = truth[row["resolution"]]
+        row["error"] = errors(img, ref, mask)["mare"]
+        per = surface_errors(img, ref, raster, mask, se)
+        row["error_surface"] = float(np.mean([d["error"] for d in per.values()])) if per else float("nan")
+        row["noise_floor"] = floor
+        for e, d in per.items():
+            surfaces.append({"resolution": row["resolution"], "subpixel": row["subpixel"],
+                             "kernel": row["kernel"], "tol": row["tol"], "spp": row["spp"], "element": e,
+                             "material": el.material_names[el.material[e]], "pixels": d["pixels"],
+                             "error": d["error"], "reference_stderr": d["stderr"]})
+
+    for r in rows:
+        r["spp"] = 0
+        measure(r, images[(r["resolution"], r["subpixel"], r["kernel"], r["tol"])])
+        echo(f"  {r['resolution']}x{r['resolution']} K={r['subpixel']} {r['kernel']} tol={r['tol']:g}: "
+             f"error {r['error']:.3g} (per surface {r['error_surface']:.3g}), {r['time_total_s']:.2f} s")
+    if path_tracer_spp is None:
+        path_tracer_spp = [4 ** i for i in range(12) if 4 ** i <= max(1, spp // 16)]
+    pt = []
+    for res in sorted(set(resolutions)):  # at every resolution, so equal images are compared
+        for run in path_tracer_runs(load_scene(scene_path, resolution=res), path_tracer_spp,
+                                    echo=lambda *a: None):
+            r = {"resolution": res, "subpixel": 1, "kernel": PATH_TRACER, "solver": f"mitsuba {run['variant']}",
+                 "tol": float("nan"), "sub_elements": 0, "passes": 0, "time_preprocess_s": 0.0,
+                 "time_visibility_s": 0.0, "time_solve_s": run["time_s"], "time_image_s": 0.0,
+                 "time_total_s": run["time_s"], "spp": run["spp"]}
+            measure(r, run["image"])
+            pt.append(r)
+            echo(f"  path tracer {res}x{res} {run['spp']} spp: error {r['error']:.3g} (per surface "
+                 f"{r['error_surface']:.3g}), {run['time_s']:.2f} s")
+    with open(os.path.join(out, "surfaces.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(surfaces[0]) if surfaces else ["resolution"])
+        w.writeheader()
+        w.writerows(surfaces)
+    return pt
 
 
 def write_results(out: str, rows: list[dict], title: str) -> None:
@@ -237,27 +333,42 @@ def write_results(out: str, rows: list[dict], title: str) -> None:
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()
         for r in rows:
-            w.writerow({k: r[k] for k in COLUMNS})
+            w.writerow({k: r.get(k, "") for k in COLUMNS})
+    mitsuba = any("noise_floor" in r for r in rows)
     with open(os.path.join(out, "results.md"), "w") as f:
-        f.write("| resolution | K | kernel | solver | tol | sub-elements | passes | total s | error | Pareto |\n")
-        f.write("|---:|---:|---|---|---:|---:|---:|---:|---:|:---:|\n")
+        f.write("| resolution | K | kernel | solver | tol | sub-elements | passes | total s | error | "
+                + ("surface error | " if mitsuba else "") + "Pareto |\n")
+        f.write("|---:|---:|---|---|---:|---:|---:|---:|---:|" + ("---:|" if mitsuba else "") + ":---:|\n")
         for r in rows:
-            f.write(f"| {r['resolution']} | {r['subpixel']} | {r['kernel']} | {r['solver']} | {r['tol']:g} | "
-                    f"{r['sub_elements']} | {r['passes']} | {r['time_total_s']:.2f} | "
-                    f"{r['error']:.3g} | {'*' if r['pareto'] else ''} |\n")
+            pt = r["kernel"] == PATH_TRACER
+            f.write(f"| {r['resolution']} | {r['subpixel']} | "
+                    f"{r['kernel'] + (', ' + str(r['spp']) + ' spp' if pt else '')} | {r['solver']} | "
+                    f"{'-' if pt else format(r['tol'], 'g')} | {r['sub_elements'] if not pt else '-'} | "
+                    f"{r['passes'] if not pt else '-'} | {r['time_total_s']:.2f} | {r['error']:.3g} | "
+                    + (f"{r.get('error_surface', float('nan')):.3g} | " if mitsuba else "")
+                    + f"{'*' if r['pareto'] else ''} |\n")
+        if mitsuba:
+            floors = sorted({(r["resolution"], r["noise_floor"]) for r in rows})
+            f.write("\nerror: mean absolute relative error over the pixels wholly inside one element, "
+                    "against Mitsuba 3; surface error: the mean over the elements of their mean's "
+                    "relative error. The reference's own noise (the error an exact image would show): "
+                    + ", ".join(f"{res}x{res}: {fl:.3g}" for res, fl in floors) + ".\n")
     plot(os.path.join(out, "accuracy.png"), rows, title)
 
 
 def plot(path: str, rows: list[dict], title: str) -> None:
-    """Log-log error against total time, one marker per kernel, the Pareto front as a line."""
+    """Log-log error against total time, one marker per kernel, the path tracer as one line per
+    resolution (labels: samples per pixel), the reference's noise level per resolution as dashed lines, the
+    Pareto front (over every method; per resolution when the path tracer is there) as step
+    lines."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=110)
+    fig, ax = plt.subplots(figsize=(7.2, 4.8), dpi=110)
     markers = itertools.cycle("osD^v<>")
-    for kernel in sorted({r["kernel"] for r in rows}):
+    for kernel in sorted({r["kernel"] for r in rows} - {PATH_TRACER}):
         rr = [r for r in rows if r["kernel"] == kernel and r["error"] > 0]
         ax.scatter([r["time_total_s"] for r in rr], [r["error"] for r in rr], marker=next(markers),
                    label=kernel, zorder=3)
@@ -265,17 +376,41 @@ def plot(path: str, rows: list[dict], title: str) -> None:
             ax.annotate(f"{r['resolution']}" + (f"·{r['subpixel']}" if r["subpixel"] > 1 else ""),
                         (r["time_total_s"], r["error"]), fontsize=7, xytext=(3, 3),
                         textcoords="offset points")
-    front = sorted([r for r in rows if r.get("pareto")], key=lambda r: r["time_total_s"])
-    if front:
-        ax.step([r["time_total_s"] for r in front], [r["error"] for r in front], where="post",
-                color="k", lw=1, alpha=0.6, label="Pareto front", zorder=2)
+    pts = [r for r in rows if r["kernel"] == PATH_TRACER and r["error"] > 0]
+    shades = matplotlib.colormaps["Purples"]
+    res_pt = sorted({r["resolution"] for r in pts})
+    for i, res in enumerate(res_pt):
+        pt = sorted([r for r in pts if r["resolution"] == res], key=lambda r: r["spp"])
+        colour = shades(0.45 + 0.5 * (i + 1) / len(res_pt))
+        ax.plot([r["time_total_s"] for r in pt], [r["error"] for r in pt], "-x", color=colour, lw=1.2,
+                label=f"path tracer {res}² ({pt[0]['solver']})", zorder=3)
+        for r in pt:
+            ax.annotate(f"{r['spp']}", (r["time_total_s"], r["error"]), fontsize=6, xytext=(2, -8),
+                        textcoords="offset points", color=colour)
+    floors = sorted({(r["resolution"], r["noise_floor"]) for r in rows
+                     if np.isfinite(r.get("noise_floor", np.nan))})
+    for i, (res, fl) in enumerate(floors):
+        ax.axhline(fl, color="0.35", ls=(0, (4, 3)), lw=0.9, zorder=1,
+                   label="reference noise (per resolution)" if i == 0 else None)
+        ax.annotate(f"{res}²", (1.0, fl), xycoords=("axes fraction", "data"), fontsize=7,
+                    xytext=(-16, 2), textcoords="offset points", color="0.35")
+    groups = sorted({r["resolution"] for r in rows}) if pts else [None]  # see accuracy()
+    for i, g in enumerate(groups):
+        front = sorted([r for r in rows if r.get("pareto") and g in (None, r["resolution"])],
+                       key=lambda r: r["time_total_s"])
+        if front:
+            ax.step([r["time_total_s"] for r in front], [r["error"] for r in front], where="post",
+                    color="k", lw=1 if g in (None, groups[-1]) else 0.7, alpha=0.6 if g in (None, groups[-1]) else 0.3,
+                    label=("Pareto front" if g is None else "Pareto front per resolution") if i == 0 else None,
+                    zorder=2)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("time, all stages (s)")
-    ax.set_ylabel("relative error")
-    ax.set_title(f"{title}: what accuracy costs (labels: resolution·K)")
+    ax.set_ylabel("mean abs. relative error per pixel" if floors else "relative error")
+    ax.set_title(f"{title}: what accuracy costs (labels: resolution·K" + (", spp" if pts else "") + ")" +
+                 (" against Mitsuba 3" if floors else ""), fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -295,7 +430,8 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .pipeline import preprocess, render_preview, render_scene
+    from .pipeline import render_preview, render_scene
+    from .preprocess import preprocess
     from .scene import load_scene
     from .visibility import compute_visibility
 

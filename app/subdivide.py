@@ -19,7 +19,7 @@ import warnings
 import numba
 import numpy as np
 
-from .geometry import polygon_properties
+from .geometry import diameter, polygon_properties
 from .types import Partition
 
 TIE = 1e-9  # lengths within this relative difference count as equal: keeps splits scale-free
@@ -48,10 +48,11 @@ def sides(points, a, m):
 
 @numba.njit(cache=True)
 def locate(points, orig, root, child, split_a, split_m):
-    """Two-level lookup (seed §3.2): sub-element of each point, given its original element.
+    """Two-level lookup (seed §3.2): the leaf node of the split tree holding each point, given
+    its original element (`lookup` maps leaf nodes to sub-elements).
 
-    points (n, 3) float64 on the original's plane; orig (n,) int32 (-1: no element -> -1);
-    tree arrays of a Partition. O(depth) per point.
+    points (n, 3) float64 on the original's plane; orig (n,) int32 (-1: no element); tree
+    arrays of a Partition. Returns (n,) int32 node ids, -1 where orig is -1. O(depth) per point.
     """
     n = points.shape[0]
     out = np.full(n, -1, np.int32)
@@ -270,27 +271,14 @@ def merge_partitions(pieces: list, element_ranges: list, n_elements: int) -> Par
                      split_a=arr["split_a"], split_m=arr["split_m"])
 
 
-# ----------------------------------------------------------------------------- the raster
-
-def raster_band(caster, normal, center, camera, subpixel: int, rows: slice):
-    """First hits of the camera rays through the fine-raster rows `rows`, against the elements
-    the caster was built from (normal, center (n, 3): their planes, for the exact hit points).
-
-    Returns orig (p,) int32 (-1 where nothing is hit) and points (p, 3) float64.
-    """
-    from .camera import hit_points, ray_directions32
-
-    dirs = ray_directions32(camera, subpixel, rows.start, rows.stop)
-    elem = caster.first_hit(camera.center, dirs, unit=True)
-    return elem, hit_points(camera, subpixel, rows.start, elem, normal, center)
-
+# ----------------------------------------------------------------------------- the sequential stage
 
 def subdivide_scene(elements, camera, subpixel: int = 1, max_depth: int = 48, caster=None):
     """The sequential preprocessing: full raster, then every element in one call.
 
     Returns (Partition, raster_orig (H*K, W*K) int32, points (H*K*W*K, 3), figures).
     """
-    from .rays import RayCaster
+    from .rays import RayCaster, raster_band
 
     rc = caster or RayCaster(elements.verts, elements.nverts)
     h = camera.height * subpixel
@@ -307,3 +295,68 @@ def lookup(part: Partition, points: np.ndarray, orig: np.ndarray) -> np.ndarray:
     node = locate(np.ascontiguousarray(points, float), np.ascontiguousarray(orig, np.int32),
                   part.root, part.child, part.split_a, part.split_m)
     return np.where(node >= 0, part.leaf[np.maximum(node, 0)], -1).astype(np.int32)
+
+
+# ----------------------------------------------------------------------------- unseen elements
+
+def importance_points(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray,
+                      two_sided: np.ndarray, ids: np.ndarray, seen_points: np.ndarray,
+                      seen_normal: np.ndarray, factor: float, min_size: float, budget: int,
+                      max_depth: int = 48):
+    """Where to split the originals the camera does not see (they still send and reflect light).
+
+    A node of an unseen original is split by the seed's rule while its diameter exceeds
+    `factor` times its distance to the nearest seen surface point that faces it (camera hit
+    points `seen_points` (p, 3) with their elements' normals `seen_normal` (p, 3)) and exceeds
+    `min_size`; nodes no seen point faces stay whole. verts (n, 4, 3), nverts, normal (n, 3),
+    two_sided (n,) of the originals; ids (u,): the unseen ones. At most `budget` leaves in all
+    (the most important splits first, level by level).
+
+    Returns points (q, 3) and their originals (q,): one point per leaf (its centroid), to be
+    fed to `subdivide` with the camera's pixels, which then makes exactly these leaves (every
+    split separates the centroids of the children's leaves), so the partition keeps one kind of
+    split tree and its canonical order.
+    """
+    from scipy.spatial import cKDTree
+
+    if len(ids) == 0 or len(seen_points) == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    tree = cKDTree(seen_points)
+    k = min(16, len(seen_points))
+    node_v = np.asarray(verts, float)[ids]
+    node_n = np.asarray(nverts, np.int8)[ids]
+    node_o = np.asarray(ids, np.int64)
+    depth = 0
+    done_v, done_n, done_o = [], [], []
+    while len(node_o):
+        area, _, c = polygon_properties(node_v, node_n)
+        diam = diameter(node_v, node_n)
+        dist, idx = tree.query(c, k=k)
+        dist, idx = dist.reshape(len(c), k), idx.reshape(len(c), k)
+        d = seen_points[idx] - c[:, None, :]                           # (q, k, 3)
+        nq = normal[node_o][:, None, :]
+        side = np.einsum("qkc,qkc->qk", d, np.broadcast_to(nq, d.shape))
+        front = (side > 0) | (two_sided[node_o][:, None] & (side < 0))
+        back = np.einsum("qkc,qkc->qk", d, seen_normal[idx]) < 0       # the point's side faces c
+        facing = front & back
+        near = np.where(facing.any(axis=1), np.where(facing, dist, np.inf).min(axis=1), np.inf)
+        want = (diam > factor * near) & (diam > min_size) & (depth < max_depth)
+        room = budget - (sum(len(o) for o in done_o) + len(node_o))
+        if want.sum() > room:  # over budget: split the most important nodes only
+            order = np.argsort(-(diam / np.maximum(near, 1e-300)), kind="stable")
+            keep = np.zeros(len(want), bool)
+            keep[order[:max(room, 0)]] = True
+            want &= keep
+        done_v.append(node_v[~want])
+        done_n.append(node_n[~want])
+        done_o.append(node_o[~want])
+        if not want.any():
+            break
+        c0, c1, _, _ = split_polygons(node_v[want], node_n[want])
+        node_v = np.stack([c0, c1], 1).reshape(-1, 4, 3)
+        node_n = np.repeat(node_n[want], 2)
+        node_o = np.repeat(node_o[want], 2)
+        depth += 1
+    leaf_v, leaf_n = np.concatenate(done_v), np.concatenate(done_n)
+    _, _, centre = polygon_properties(leaf_v, leaf_n)
+    return centre, np.concatenate(done_o)

@@ -124,7 +124,7 @@ class Partition:
 
     The split tree, for the two-level lookup (seed §3.2), k nodes:
     root : (n,) int32, the root node of each original
-    child : (k,) int32, first of the two consecutive children, -1 at a leaf
+    child : (k, 2) int32, the node's two children [first, second], -1 at a leaf
     leaf : (k,) int32, sub-element index at a leaf, -1 elsewhere
     split_a : (k, 3) float64, a point on the node's split segment (0 at a leaf)
     split_m : (k, 3) float64, in-plane normal of the split segment; a point p goes to the second

@@ -20,10 +20,11 @@ import time
 
 from common import ROOT, table, write
 
-from app.cluster import open_client, slurm_unavailable
-from app.pipeline import preprocess, render_scene
-from app.scene import load_scene
-from app.visibility import compute_visibility
+from radiosity.cluster import open_client, slurm_unavailable
+from radiosity.pipeline import render_scene
+from radiosity.preprocess import preprocess
+from radiosity.scene import load_scene
+from radiosity.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 THREE = os.path.join(ROOT, "scenes", "three-rectangles", "scene.toml")

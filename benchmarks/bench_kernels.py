@@ -4,6 +4,11 @@ kernel in the same run; and the form-factor error each kernel reaches on the two
 scenes with exact answers (parallel and perpendicular unit squares), with its time.
 
     python benchmarks/bench_kernels.py [--res 32,64] [--kernels point,disc,point-nf,nxm:4,mc:16]
+        [--validation-res 8,16,32] [--skip-cost]
+
+README's accuracy table (errors at 8 / 16 / 32 and the order column, every row) and the cost
+ratios of the sampled kernels come from this script; tests/test_accuracy.py asserts the point,
+disc, point-nf, nxm N = 4 and mc k = 16 rows.
 """
 
 from __future__ import annotations
@@ -15,17 +20,19 @@ import time
 import warnings
 
 import dask.config
+import numpy as np
 
 from common import ROOT, table, write
 
-from app.cluster import open_client
-from app.kernels import KERNELS, sampling_of
-from app.pipeline import preprocess
-from app.scene import load_scene
-from app.solve import run_solve
-from app.store import RunStore
-from app.study import form_factor_of_run, kernel_setting
-from app.visibility import compute_visibility
+from radiosity.cluster import open_client
+from radiosity.kernels import KERNELS
+from radiosity.settings import sampling_of
+from radiosity.preprocess import preprocess
+from radiosity.scene import load_scene
+from radiosity.solve import run_solve
+from radiosity.store import RunStore
+from radiosity.study import form_factor_of_run, kernel_setting
+from radiosity.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 VALIDATION = ("parallel-squares", "perpendicular-squares")
@@ -64,7 +71,7 @@ def cost(client, res, settings, max_rays_per_pair):
                     t = time.perf_counter()
                     vis = compute_visibility(d, client, progress=False, kernel=kernel)
                     t_vis = min(t_vis, time.perf_counter() - t)
-                solver = "cg" if KERNELS[kernel][2] else "gauss-seidel"
+                solver = "cg" if KERNELS[kernel].reciprocal else "gauss-seidel"
                 t = time.perf_counter()
                 sol = run_solve(d, client, solver=solver, kernel=kernel, progress=False)
                 t_sol = time.perf_counter() - t
@@ -90,16 +97,33 @@ def errors(client, resolutions, settings):
             for res in resolutions:
                 run = os.path.join(d, f"{name}-{res}")
                 preprocess(load_scene(path, resolution=res), run, client, progress=False)
-                m = len(RunStore(run).load_partition())
+                part = RunStore(run).load_partition()
+                m, size = len(part), float(np.sqrt(part.area.mean()))
                 for label, kernel, cfg in settings:
                     with dask.config.set(cfg):
                         t = time.perf_counter()
                         compute_visibility(run, client, progress=False, kernel=kernel)
                         f = form_factor_of_run(run, client, kernel, "emitter", "receiver")
                         t = time.perf_counter() - t
-                    rows.append({"scene": name, "res": res, "sub_elements": m, "kernel": label,
-                                 "error": abs(f / exact - 1), "time_s": round(t, 3)})
+                    rows.append({"scene": name, "res": res, "sub_elements": m, "size": size,
+                                 "kernel": label, "error": abs(f / exact - 1), "time_s": round(t, 3)})
     return rows
+
+
+def orders(err_rows):
+    """The order of each kernel on each scene: the log-log slope of the error against the
+    element size (sqrt of the mean sub-element area) over the resolutions (README's column)."""
+    out = []
+    for name in dict.fromkeys(r["scene"] for r in err_rows):
+        for label in dict.fromkeys(r["kernel"] for r in err_rows):
+            rr = [r for r in err_rows if r["scene"] == name and r["kernel"] == label]
+            if len(rr) < 2:
+                continue
+            slope = np.polyfit(np.log([r["size"] for r in rr]),
+                               np.log([max(r["error"], 1e-16) for r in rr]), 1)[0]
+            out.append({"scene": name, "kernel": label, "order": round(float(slope), 2),
+                        "errors": " / ".join(f"{r['error']:.2g}" for r in rr)})
+    return out
 
 
 def main():
@@ -109,22 +133,30 @@ def main():
     ap.add_argument("--max-rays-per-pair", type=int, default=64,
                     help="Skip sampled settings above this on the Cornell box.")
     ap.add_argument("--validation-res", default="8,16,32")
+    ap.add_argument("--skip-cost", action="store_true", help="Only the validation scenes' errors.")
     args = ap.parse_args()
     settings = _settings(args.kernels.split(","))
     with open_client(2, None, "local", echo=lambda *a: None) as client:
-        # warm-up: numba caches, Embree, workers
-        cost(client, 8, settings, args.max_rays_per_pair)
         rows = []
-        for res in (int(r) for r in args.res.split(",")):
-            rows += cost(client, res, settings, args.max_rays_per_pair)
+        if not args.skip_cost:
+            # warm-up: numba caches, Embree, workers
+            cost(client, 8, settings, args.max_rays_per_pair)
+            for res in (int(r) for r in args.res.split(",")):
+                rows += cost(client, res, settings, args.max_rays_per_pair)
         err = errors(client, [int(r) for r in args.validation_res.split(",")], settings)
-    print("Cornell box: what each kernel costs (ratios to point in the same run)")
-    print(table(rows, ["res", "kernel", "sub_elements", "rays", "partial_pairs", "disk_MiB",
-                       "visibility_s", "visibility_x", "solver", "iterations", "products", "solve_s",
-                       "solve_x", "pair_terms_per_s"]))
+    if rows:
+        print("Cornell box: what each kernel costs (ratios to point in the same run)")
+        print(table(rows, ["res", "kernel", "sub_elements", "rays", "partial_pairs", "disk_MiB",
+                           "visibility_s", "visibility_x", "solver", "iterations", "products",
+                           "solve_s", "solve_x", "pair_terms_per_s"]))
     print("\nValidation scenes: form-factor error against the exact value")
     print(table(err, ["scene", "res", "sub_elements", "kernel", "error", "time_s"]))
-    print("wrote", write("kernels", rows, {"validation": err}))
+    order = orders(err)
+    print("\nOrder (log-log slope of the error against the element size): README's accuracy table")
+    print(table(order, ["scene", "kernel", "errors", "order"]))
+    # --skip-cost keeps the cost results of a full run (results/kernels.json) as they are
+    print("wrote", write("kernels-validation" if args.skip_cost else "kernels", rows,
+                         {"validation": err, "orders": order}))
 
 
 if __name__ == "__main__":

@@ -14,10 +14,11 @@ import numpy as np
 
 from common import best_of, table, write
 
-from app.camera import ray_directions32
-from app.rays import RayCaster, element_triangles
-from app.scene import load_scene
-from app.subdivide import raster_band, subdivide
+from radiosity.camera import ray_directions32
+from radiosity.rays import RayCaster, element_triangles
+from radiosity.scene import load_scene
+from radiosity.rays import raster_band
+from radiosity.subdivide import subdivide
 
 
 def raw_embree(el):
@@ -63,8 +64,8 @@ def main():
                      "ours_vs_raw": t_raw / t_ours, "raster_vs_raw": t_raw / t_band})
         res *= 2
     # the Dask pipeline at the largest resolution (includes cluster round trips)
-    from app.cluster import open_client
-    from app.pipeline import preprocess
+    from radiosity.cluster import open_client
+    from radiosity.preprocess import preprocess
     import tempfile
 
     with open_client(args.workers, quiet=True) as client:

@@ -18,12 +18,14 @@ import numpy as np
 
 from common import ROOT, best_of, table, write
 
-from app.cluster import open_client
-from app.pipeline import preprocess, render_scene
-from app.scene import load_scene
-from app.solve import all_task_bytes, open_operator, run_solve, side_vectors, task_apply
-from app.store import RunStore
-from app.visibility import compute_visibility
+from radiosity.cluster import open_client
+from radiosity.pipeline import render_scene
+from radiosity.preprocess import preprocess
+from radiosity.scene import load_scene
+from radiosity.operator import all_task_bytes, open_operator, task_apply
+from radiosity.solve import run_solve, side_vectors
+from radiosity.store import RunStore
+from radiosity.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 

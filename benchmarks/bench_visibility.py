@@ -17,11 +17,12 @@ import numpy as np
 
 from common import best_of, table, write
 
-from app.cluster import open_client
-from app.pipeline import preprocess
-from app.scene import load_scene
-from app.store import RunStore
-from app.visibility import VisInputs, block_candidates, classify, compute_visibility
+from radiosity.cluster import open_client
+from radiosity.preprocess import preprocess
+from radiosity.scene import load_scene
+from radiosity.store import RunStore
+from radiosity.shafts import block_candidates, classify
+from radiosity.visibility import compute_visibility, vis_inputs
 
 
 def run(scene, res, workers, unit=None):
@@ -38,7 +39,7 @@ def run(scene, res, workers, unit=None):
 
 def ray_throughput(scene, res):
     """Segments of the largest block that needed rays: our occluded() against raw embreex."""
-    from app.rays import RayCaster, element_triangles
+    from radiosity.rays import RayCaster, element_triangles
     from embreex import mesh_construction, rtcore_scene
 
     sc = load_scene(scene, resolution=res)
@@ -46,14 +47,14 @@ def ray_throughput(scene, res):
         preprocess(sc, d, client, progress=False)
         rs = RunStore(d)
         part, el = rs.load_partition(), rs.load_elements()
-    inp = VisInputs(part, el, "bench")
+    inp = vis_inputs(part, el, "bench", 1e-6)
     sizes = np.diff(part.offsets)
     i, j = np.argsort(sizes)[-2:]
     i, j = min(i, j), max(i, j)
     a0, a1, b0, b1 = part.offsets[i], part.offsets[i + 1], part.offsets[j], part.offsets[j + 1]
     A = np.array([inp.lo[a0:a1].min(0), inp.hi[a0:a1].max(0)])
     B = np.array([inp.lo[b0:b1].min(0), inp.hi[b0:b1].max(0)])
-    pad = inp.pad + float(inp.eoffset_pad.max())
+    pad = inp.pad
     cand = block_candidates(A, B, inp.elo, inp.ehi, inp.enormal, inp.eoffset, pad, i, j)
     code, _ = classify(inp.center[a0:a1], inp.normal[a0:a1], inp.two_sided[a0:a1], inp.lo[a0:a1],
                        inp.hi[a0:a1], inp.center[b0:b1], inp.normal[b0:b1], inp.two_sided[b0:b1],

@@ -5,14 +5,13 @@ from __future__ import annotations
 import json
 import os
 import platform
-import sys
 import time
 from importlib import metadata
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 RESULTS = os.path.join(HERE, "results")
-sys.path.insert(0, ROOT)
+
 
 
 def machine() -> dict:

@@ -1,9 +1,14 @@
 """Shared fixtures: a real LocalCluster (dashboard on a free loopback port), seeded rng, tiny
-scenes on disk, and a preprocessed run."""
+scenes on disk, a preprocessed run, and the external components some tests drive (Slurm,
+Chromium, Mitsuba): `@pytest.mark.needs("chromium")` skips a test, saying why, when the
+component is missing, except under CI (CI=true, as .ci/run sets it), where it fails: .ci/run
+provides them, so a missing one there means CI is broken, not that the test may pass."""
 
 from __future__ import annotations
 
+import functools
 import os
+import shutil
 import textwrap
 
 import numpy as np
@@ -11,6 +16,54 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENES = os.path.join(ROOT, "scenes")
+# the one place that says where headless Chromium is (viewer and dashboard tests)
+CHROMIUM = os.environ.get("RADIOSITY_CHROMIUM", "/usr/bin/chromium")
+IN_CI = os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
+
+
+@functools.lru_cache(maxsize=None)
+def missing(component: str) -> str | None:
+    """Why `component` cannot be used here (None: it can). Checked once per session: asking a
+    Slurm that does not run takes `sinfo` about 9 s."""
+    if component == "chromium":
+        if os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK):
+            return None
+        return (f"headless Chromium not found at {CHROMIUM} (apt-get install chromium, or point "
+                "RADIOSITY_CHROMIUM at it)")
+    if component == "slurm":
+        from radiosity.cluster import slurm_unavailable
+
+        why = slurm_unavailable()
+        if why is None:
+            return None
+        return f"Slurm is not running here: start it with bash deploy/slurm-up.sh ({why})"
+    if component == "mitsuba":
+        try:
+            import mitsuba  # noqa: F401
+        except ImportError as e:
+            return f"mitsuba is not installed ({e}): pip install mitsuba"
+        return None
+    if component in ("sbatch", "squeue"):
+        return None if shutil.which(component) else f"{component} is not on PATH"
+    raise ValueError(f"unknown component {component!r}")
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "needs(*components): the test drives chromium, slurm or "
+                            "mitsuba; skipped when missing, failed when missing under CI=true")
+
+
+@pytest.fixture(autouse=True)
+def _needs(request):
+    """The components of the test's `needs` marker: skip (outside CI) or fail (CI=true)."""
+    marker = request.node.get_closest_marker("needs")
+    for component in (marker.args if marker else ()):
+        why = missing(component)
+        if why is None:
+            continue
+        if IN_CI:
+            pytest.fail(f"CI=true and {component} is missing: {why}", pytrace=False)
+        pytest.skip(why)
 
 
 def scene_path(name: str) -> str:
@@ -37,9 +90,9 @@ def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibili
              **kw) -> str:
     """A run directory of `scene` (a TOML path) preprocessed at `res` (kw: preprocess options),
     with its one-ray visibility matrix unless `visibility` is False."""
-    from app.pipeline import preprocess
-    from app.scene import load_scene
-    from app.visibility import compute_visibility
+    from radiosity.preprocess import preprocess
+    from radiosity.scene import load_scene
+    from radiosity.visibility import compute_visibility
 
     out = str(tmp_path / name)
     preprocess(load_scene(scene, resolution=res), out, client, progress=False, **kw)
@@ -50,7 +103,7 @@ def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibili
 
 def radiance(out: str) -> np.ndarray:
     """The solved radiance (m, 2, 3) of a run directory."""
-    from app.store import RunStore
+    from radiosity.store import RunStore
 
     return RunStore(out).read_arrays("solution")["radiance"]
 

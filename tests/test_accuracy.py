@@ -10,15 +10,16 @@ import os
 import numpy as np
 import pytest
 
-from app.exact import parallel_rectangles, perpendicular_rectangles
-from app.geometry import polygon_properties
-from app.kernels import pair_form_factors
-from app.pipeline import preprocess
-from app.scene import load_scene
-from app.solve import open_operator, run_solve
-from app.store import RunStore
-from app.study import accuracy, form_factor_of_run, pareto
-from app.visibility import compute_visibility
+from radiosity.exact import parallel_rectangles, perpendicular_rectangles
+from radiosity.geometry import polygon_properties
+from radiosity.kernels import pair_form_factors
+from radiosity.preprocess import preprocess
+from radiosity.scene import load_scene
+from radiosity.operator import open_operator
+from radiosity.solve import run_solve
+from radiosity.store import RunStore
+from radiosity.study import accuracy, form_factor_of_run, pareto
+from radiosity.visibility import compute_visibility
 from conftest import prepared, radiance, scene_path, write_scene
 
 
@@ -34,8 +35,14 @@ def test_centre_kernel_error_at_a_right_angle_edge_is_the_documented_59_percent(
 @pytest.mark.parametrize("res", [8, 16, 32])
 def test_near_field_row_sums_in_a_closed_scene_stay_within_one_percent(client, tmp_path, res):
     """Furnace cube: every row of F must sum to 1. Measured max |sum - 1|: point 0.40,
-    point-nf 0.004 / 0.006 / 0.006 at 8 / 16 / 32 (every refinement level)."""
-    out = prepared(client, tmp_path, scene_path("furnace-cube"), res)
+    point-nf 0.004 / 0.006 / 0.006 at 8 / 16 / 32 (every refinement level). The partition is
+    the camera's alone (unseen elements whole, as measured then): refining the unseen ones to
+    other sizes next to the seen ones moves point-nf's worst row to 0.016 at 8^2, which the
+    closed-scene balancing of the default removes."""
+    import dask.config
+
+    with dask.config.set({"radiosity.subdivide.unseen": "keep"}):
+        out = prepared(client, tmp_path, scene_path("furnace-cube"), res)
     rs = RunStore(out)
     worst = {}
     for kernel in ("point", "point-nf"):
@@ -49,8 +56,10 @@ def test_near_field_row_sums_in_a_closed_scene_stay_within_one_percent(client, t
 @pytest.mark.parametrize("rho", [0.99, 0.999])
 def test_closed_scenes_with_rho_near_one_converge_to_le_over_one_minus_rho(client, tmp_path, rho):
     """With rows balanced to exactly 1 (normalise-rows=closed) the furnace reaches Le/(1-rho) to
-    1e-9 in a handful of CG passes; with rows only capped it is off by 3.5 % (0.99) and 26 %
-    (0.999) on average: the answer then hangs on the last percent of the row sums."""
+    1e-9 in a handful of CG passes; with rows only capped it is off by 11.6 % (0.99) and 57 %
+    (0.999) on average (measured at 12^2, the default partition: unseen faces refined): the
+    answer then hangs on the last percent of the row sums. The cube is convex (every bit 1), so
+    the figures are deterministic; the margin 0.01 is their rounding in README."""
     cube = scene_path("furnace-cube")
     src = open(cube).read().replace("reflectance = [0.5, 0.5, 0.5]", f"reflectance = [{rho}, {rho}, {rho}]")
     src = src.replace('path = "furnace-cube.obj"',
@@ -65,7 +74,7 @@ def test_closed_scenes_with_rho_near_one_converge_to_le_over_one_minus_rho(clien
     np.testing.assert_allclose(L, 1.0 / (1.0 - rho), rtol=1e-9)
     run_solve(out, client, solver="cg", kernel="point-nf", tol=1e-11, progress=False, normalise="cap")
     off = 1.0 - radiance(out)[:, 0, :].mean() * (1.0 - rho)
-    assert off == pytest.approx({0.99: 0.035, 0.999: 0.26}[rho], abs=0.01)
+    assert off == pytest.approx({0.99: 0.116, 0.999: 0.570}[rho], abs=0.01)
 
 
 def test_large_element_next_to_tiny_ones_does_not_diverge(client, tmp_path):
@@ -102,7 +111,13 @@ def test_large_element_next_to_tiny_ones_does_not_diverge(client, tmp_path):
     fov_y = 60.0
     resolution = [32, 32]
     """
-    out = prepared(client, tmp_path, write_scene(tmp_path, obj, extra, camera=cam), 32)
+    import dask.config
+
+    # the seed's rule for unseen elements: the wall stays one element (the default refines it
+    # by its distance to the floor, which removes the large element this test is about)
+    with dask.config.set({"radiosity.subdivide.unseen": "keep"}):
+        out = prepared(client, tmp_path, write_scene(tmp_path, obj, extra, camera=cam), 32)
+    assert np.diff(RunStore(out).load_partition().offsets)[1] == 1
     fig = run_solve(out, client, solver="jacobi", kernel="point", tol=1e-8, progress=False)
     rows = fig["row_sums"]
     assert rows["rows_over_1"] > 0 and rows["max_row_sum"] > 1 and rows["normalised"]
@@ -193,15 +208,20 @@ def test_thin_slivers_and_near_degenerate_triangles(client, tmp_path):
     out = prepared(client, tmp_path, write_scene(tmp_path, obj, extra, camera=cam), 24)
     fig = run_solve(out, client, solver="cg", kernel="point-nf", tol=1e-9, progress=False)
     L = radiance(out)
-    assert fig["converged"] and np.all(np.isfinite(L)) and L.max() < 1e3
+    # with rows of F summing to at most 1 (capped), no radiance exceeds Le_max / (1 - rho_max) =
+    # 5 / (1 - 0.9) = 50 (the maximum principle), and none is negative; the margin is the
+    # solver's tolerance
+    assert fig["converged"] and np.all(np.isfinite(L))
+    assert L.min() >= 0 and L.max() <= 50 * (1 + 1e-8), L.max()
 
 
 def test_pass_accumulates_1e5_elements_in_float64(rng):
     """One row against 10^5 columns whose form factors span 10 orders of magnitude: the
-    vectorised pass (kernels.tile_apply, fastmath reassociation included) must match an extended-
-    precision sum of the same form factors to 1e-12, where a float32 accumulation is off by more
-    than 1e-7 (measured here: the check below)."""
-    from app.kernels import BOTH, tile_apply
+    vectorised pass (passes.tile_apply, fastmath reassociation included) must match an extended-
+    precision (longdouble) sum of the same form factors to 1e-12. Summing these terms in float32
+    is off by 1.1e-4 (measured once, when the data were chosen): a pass that accumulated in float32
+    fails by eight orders of magnitude; float64 rounding over 10^5 terms stays below 1e-13."""
+    from radiosity.passes import BOTH, CAP_MIN, tile_apply
 
     C = 100_000
     m = C + 1
@@ -218,35 +238,38 @@ def test_pass_accumulates_1e5_elements_in_float64(rng):
     packed = np.packbits(np.ones(C, bool), bitorder="little")
     cx, cy, cz = (np.ascontiguousarray(c[:, k]) for k in range(3))
     nx, ny, nz = (np.ascontiguousarray(n[:, k]) for k in range(3))
-    tile_apply(0, packed, 1, C, 0, 1, cx, cy, cz, nx, ny, nz, area, np.ones(m), np.zeros(m, bool),
+    tile_apply(0, packed, 1, C, 0, 1, cx, cy, cz, nx, ny, nz, area, np.ones(m), CAP_MIN, np.zeros(m, bool),
                np.zeros((m, 0, 3)), np.zeros((m, 0)), L, y, BOTH, True, True)
     fab, _ = pair_form_factors("point", np.repeat(c[:1], C, 0), np.repeat(n[:1], C, 0),
                                np.repeat(area[:1], C), c[1:], n[1:], area[1:])
     terms = fab.astype(np.longdouble) * L[0, 0, 1:].astype(np.longdouble)
     exact = float(terms.sum())
     assert abs(y[0, 0, 0] / exact - 1) < 1e-12
-    f32 = np.float32(0)
-    for t in terms.astype(np.float32):
-        f32 += t
-    # the data are hard enough that float32 accumulation fails (measured 1.1e-4): the check above
-    # would catch a pass that accumulated in float32
-    assert abs(float(f32) / exact - 1) > 1e-7
+
+
+# README's accuracy table (form-factor error at camera resolutions 8 / 16 / 32, and the order:
+# log-log slope of the error against the element size), the rows this test regenerates; the
+# nxm N = 16 and mc k = 64 rows come from benchmarks/bench_kernels.py
+README_TABLE = {
+    "parallel-squares": {"point": ([2.7e-2, 1.3e-2, 2.9e-3], 1.8), "disc": ([6.0e-3, 1.3e-3, 1.1e-3], 1.3),
+                         "point-nf": ([1.2e-2, 7.8e-3, 2.9e-3], 1.1), "nxm": ([6.5e-3, 3.0e-3, 7.3e-4], 1.7),
+                         "mc": ([1.2e-2, 5.1e-3, 1.9e-3], 1.4)},
+    "perpendicular-squares": {"point": ([1.7e-1, 3.8e-2, 2.0e-2], 1.7), "disc": ([4.1e-2, 5.2e-2, 4.2e-2], 0.0),
+                              "point-nf": ([3.9e-3, 5.2e-3, 3.9e-3], 0.0), "nxm": ([8.6e-2, 2.0e-2, 1.0e-2], 1.7),
+                              "mc": ([3.5e-2, 8.0e-3, 7.7e-3], 1.2)},
+}
 
 
 @pytest.mark.parametrize("name, exact", [("parallel-squares", parallel_rectangles(1, 1, 1)),
                                          ("perpendicular-squares", perpendicular_rectangles(1, 1, 1))])
 def test_validation_scenes_and_convergence_order(client, tmp_path, name, exact):
-    """The form factor from the run's operator converges to Howell's value as elements shrink.
-    Measured at 8 / 16 / 32 (relative error; order = log-log slope against element size):
-    parallel squares: point 2.7e-2 / 1.3e-2 / 2.9e-3 (order 1.8), disc 6.0e-3 / 1.3e-3 / 1.1e-3
-    (1.3), point-nf = point once no pair is near (1.1); perpendicular squares (the concave
-    edge): point 1.7e-1 / 3.8e-2 / 2.0e-2 (1.7), disc 4.1e-2 / 5.2e-2 / 4.2e-2 (0: it stalls),
-    point-nf 3.9e-3 / 5.2e-3 / 3.9e-3 (already at the level the far field leaves).
-    Sampled kernels (their own visibility, a ray per sample pair): nxm with 4 points per element
-    parallel 6.5e-3 / 3.0e-3 / 7.3e-4 (order 1.7, a quarter of point's error at every level; 16
-    points: 1.6e-3 / 7.6e-4 / 1.8e-4), perpendicular 8.6e-2 / 2.0e-2 / 1.0e-2 (1.7); mc with 16
-    sample pairs parallel 1.2e-2 / 5.1e-3 / 1.9e-3 (1.4), perpendicular 3.5e-2 / 8.0e-3 /
-    7.7e-3 (1.2: the sampling noise, not the element size, is what is left)."""
+    """The form factor from the run's operator against Howell's value, at 8 / 16 / 32, for the
+    kernels point, disc, point-nf, nxm (4 points per element) and mc (16 sample pairs, seed 0):
+    every error and order of README's table, to the precision printed there. Neither scene has
+    an occluder (every bit is 1) and mc is seeded, so the figures are deterministic: the margins
+    are the table's rounding (two significant digits: 5 % of the error; one decimal: 0.05 of the
+    order), nothing more. Also what the table says in words: more sample points less error at
+    every level, and at the right-angle edge only the near field is accurate from the start."""
     sc = load_scene(scene_path(name))
     assert sc.validation["form_factor"] == pytest.approx(exact, rel=1e-12)
     errs = {k: [] for k in ("point", "disc", "point-nf", "nxm", "mc")}
@@ -262,14 +285,12 @@ def test_validation_scenes_and_convergence_order(client, tmp_path, name, exact):
             errs[k].append(abs(f / exact - 1))
     orders = {k: float(np.polyfit(np.log(sizes), np.log(np.maximum(v, 1e-16)), 1)[0]) for k, v in errs.items()}
     print(f"{name}: errors {errs}; orders {orders}")
-    assert errs["point-nf"][-1] <= errs["point"][-1]
+    for k, (want, order) in README_TABLE[name].items():
+        np.testing.assert_allclose(errs[k], want, rtol=0.05, err_msg=f"{name} {k}")
+        assert orders[k] == pytest.approx(order, abs=0.05), (name, k)
     assert all(n < 0.6 * p for n, p in zip(errs["nxm"], errs["point"]))  # more points: less error
-    assert orders["nxm"] > 1.0 and errs["mc"][-1] < 0.02
-    if name == "parallel-squares":
-        assert orders["point"] > 1.0 and errs["point"][-1] < 0.01
-    else:  # the right-angle edge: the near field is what makes it accurate early
+    if name == "perpendicular-squares":  # the right-angle edge: near field accurate early
         assert errs["point-nf"][0] < 0.01 < errs["point"][0]
-        assert errs["point-nf"][-1] < 0.5 * errs["point"][-1] and errs["disc"][-1] > 0.02
 
 
 def test_study_accuracy_writes_csv_table_and_plot(client, tmp_path):
@@ -281,10 +302,51 @@ def test_study_accuracy_writes_csv_table_and_plot(client, tmp_path):
     assert len(got) == 4 and {"time_total_s", "error", "pareto"} <= set(got[0])
     assert (tmp_path / "st" / "accuracy.png").stat().st_size > 10_000
     assert "| resolution |" in (tmp_path / "st" / "results.md").read_text()
-    # against the finest setting when there is no exact answer
+    # against the finest setting when there is no exact answer: the coarse run's error equals
+    # the same RMS difference found by brute force (every hit point located by testing it
+    # against every sub-element polygon of its original, not by the split trees' lookup)
     rows = accuracy(scene_path("three-rectangles"), str(tmp_path / "st2"), client, [8, 16], [1], ["point"],
                     [1e-6], echo=lambda *a: None)
-    assert rows[-1]["error"] == 0.0 and rows[0]["error"] > 0
+    coarse, fine = (str(tmp_path / "st2" / "runs" / f"r{r}-k1") for r in (8, 16))
+    pts, orig, cam = _camera_hit_points(fine)
+    a, b = _radiance_at(coarse, pts, orig, cam), _radiance_at(fine, pts, orig, cam)
+    want = np.sqrt(np.mean((a - b) ** 2)) / np.sqrt(np.mean(b ** 2))
+    assert want > 0.01  # 8^2 against 16^2 differ visibly (penumbra)
+    assert rows[0]["error"] == pytest.approx(want, rel=1e-9)
+
+
+def _camera_hit_points(run: str):
+    """Each pixel's hit point on the original element the run's raster says it sees, by
+    intersecting the pixel's ray with that element's plane: points (k, 3), orig (k,), camera."""
+    from radiosity.camera import pixel_directions
+
+    rs = RunStore(run)
+    el, cam = rs.load_elements(), rs.load_camera()
+    orig = rs.read_arrays("raster")["orig"].ravel()
+    d = pixel_directions(cam).reshape(-1, 3)
+    hit = orig >= 0
+    o, d = orig[hit], d[hit]
+    t = np.einsum("ij,ij->i", el.center[o] - cam.center, el.normal[o]) / np.einsum("ij,ij->i", d, el.normal[o])
+    return cam.center + t[:, None] * d, o, cam
+
+
+def _radiance_at(run: str, pts, orig, cam) -> np.ndarray:
+    """The run's radiance (k, 3) at points on originals `orig`, on the side facing the camera:
+    the sub-element containing each point found by testing every polygon of that original."""
+    rs = RunStore(run)
+    part = rs.load_partition()
+    L = rs.read_arrays("solution")["radiance"]
+    out = np.full((len(pts), 3), np.nan)
+    for k, (p, o) in enumerate(zip(pts, orig)):
+        for s in range(part.offsets[o], part.offsets[o + 1]):
+            v = part.verts[s][:part.nverts[s]]
+            edges = np.roll(v, -1, axis=0) - v
+            if np.all(np.cross(edges, p - v) @ part.normal[s] >= -1e-12):
+                side = 0 if part.normal[s] @ (cam.center - part.center[s]) > 0 else 1
+                out[k] = L[s, side]
+                break
+    assert np.isfinite(out).all()
+    return out
 
 
 def test_pareto_front():
@@ -292,17 +354,36 @@ def test_pareto_front():
     assert front.tolist() == [True, False, True, False]
 
 
-def test_study_seed_writes_its_plots(client, tmp_path):
+def test_study_seed_writes_its_plots_and_times_the_worker_counts_it_names(client, tmp_path):
+    """`study seed` opens a cluster per worker count of its speedup table: each must have that
+    many workers (the session's 2-worker cluster serves 2, a new LocalCluster 1). The speedup
+    itself is a timing (benchmarks, not tests); what is checked is that it was measured on the
+    clusters it names."""
     import contextlib
 
-    from app.study import seed
+    from distributed import Client, LocalCluster
+
+    from radiosity.study import seed
+
+    seen = []
 
     @contextlib.contextmanager
-    def same(n):
-        yield client
+    def clusters(n):
+        if n == 2:
+            seen.append(len(client.scheduler_info()["workers"]))
+            yield client
+            return
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address=None, silence_logs=40) as cl, Client(cl) as c:
+            c.wait_for_workers(n, timeout=60)
+            seen.append(len(c.scheduler_info()["workers"]))
+            yield c
 
-    res = seed(scene_path("three-rectangles"), str(tmp_path / "seed"), same, resolutions=[12, 16, 24],
+    res = seed(scene_path("three-rectangles"), str(tmp_path / "seed"), clusters, resolutions=[12, 16, 24],
                workers=[1, 2], speedup_res=16, echo=lambda *a: None)
+    assert seen == [2, 1, 2]  # the main runs on the largest, then one cluster per row
+    assert [s["workers"] for s in res["speedup"]] == [1, 2]
+    assert all(s["visibility_s"] > 0 for s in res["speedup"])
     for f in ("seed-fig3.png", "seed-fig4.png", "seed-speedup.png", "seed-images.png", "seed.md"):
         assert (tmp_path / "seed" / f).stat().st_size > 0, f
     assert [r["resolution"] for r in res["rows"]] == [12, 16, 24]
@@ -310,7 +391,7 @@ def test_study_seed_writes_its_plots(client, tmp_path):
 
 
 def test_coaxial_discs_validation_value_is_the_64_gon_contour_integral():
-    from app.exact import polygon_form_factor
+    from radiosity.exact import polygon_form_factor
 
     n = 64
     ring = np.array([[np.cos(2 * np.pi * k / n), np.sin(2 * np.pi * k / n), 0.0] for k in range(n)])

@@ -1,7 +1,7 @@
 """Where the work runs (app/cluster.py): loopback-only local clusters, TLS, adaptive scaling, the
 jobqueue configuration of deploy/jobqueue.yaml, and a render through a real Slurm whose workers
-are Slurm jobs (skipped, saying why, when no Slurm runs here: .ci/run starts one with
-deploy/slurm-up.sh)."""
+are Slurm jobs (`needs("slurm")`: skipped, saying why, when no Slurm runs here; failed under
+CI=true, where .ci/run starts one with deploy/slurm-up.sh)."""
 
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import yaml
 
-from app.cluster import (adaptive_bounds, jobqueue_cluster, jobqueue_kwargs, open_client,
-                         slurm_unavailable, tls_mode)
-from app.errors import RadiosityError
+from radiosity.cluster import (adaptive_bounds, jobqueue_cluster, jobqueue_kwargs, open_client,
+                               tls_mode)
+from radiosity.errors import RadiosityError
 
 from conftest import ROOT, scene_path
 
@@ -43,9 +43,9 @@ def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback():
 
 
 def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene, tmp_path, client):
-    from app.pipeline import preprocess
-    from app.scene import load_scene
-    from app.visibility import compute_visibility
+    from radiosity.preprocess import preprocess
+    from radiosity.scene import load_scene
+    from radiosity.visibility import compute_visibility
 
     sc = load_scene(small_scene)
     with dask.config.set({"radiosity.cluster.tls": "temporary"}), open_client(1, kind="local", quiet=True) as c:
@@ -62,9 +62,30 @@ def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene,
         assert fig[k] == ref[k], k
 
 
-def test_adaptive_local_cluster_keeps_the_minimum_and_works():
+def test_adaptive_local_cluster_scales_up_under_load_and_down_when_idle():
+    """adaptive (1, 2): one worker while idle; 40 half-second tasks (20 s of work, beyond
+    the scheduler's 5 s target per worker) bring the second; once idle again the cluster
+    retires back to one."""
     with open_client(2, kind="local", quiet=True, adaptive=(1, 2), timeout=60) as c:
-        assert len(c.scheduler_info()["workers"]) >= 1
+        def workers():
+            return len(c.scheduler_info()["workers"])
+
+        def wait_for(pred, timeout, what):
+            t = time.perf_counter()
+            while not pred():
+                assert time.perf_counter() - t < timeout, f"{what}: {workers()} worker(s) after {timeout} s"
+                time.sleep(0.2)
+
+        wait_for(lambda: workers() == 1, 60, "at the minimum when idle")
+        futs = c.map(time.sleep, [0.5] * 40, pure=False)
+        peak = 1
+        t = time.perf_counter()
+        while not all(f.done() for f in futs) and time.perf_counter() - t < 120:
+            peak = max(peak, workers())
+            time.sleep(0.2)
+        c.gather(futs)
+        assert peak == 2, "never scaled up under load"
+        wait_for(lambda: workers() == 1, 60, "back to the minimum once idle")
         assert c.submit(lambda: 41 + 1).result() == 42
 
 
@@ -160,19 +181,6 @@ def test_jobqueue_kwargs_python_threads_and_account_mapping():
 
 # ----------------------------------------------------------------------------- a real Slurm
 
-@pytest.fixture(scope="module")
-def slurm_state():
-    """Checked once: `sinfo` needs ~9 s to give up when no controller runs."""
-    return slurm_unavailable()
-
-
-@pytest.fixture
-def slurm(slurm_state):
-    why = slurm_state
-    if why:
-        pytest.skip(f"slurm is not running here: start it with bash deploy/slurm-up.sh ({why})")
-
-
 def _squeue() -> list[str]:
     return subprocess.run(["squeue", "-h", "-o", "%i"], capture_output=True, text=True, timeout=15).stdout.split()
 
@@ -186,10 +194,11 @@ def _wait_queue_empty(timeout=30.0) -> list[str]:
     return left
 
 
-def test_render_through_slurm_jobs_equals_local_render(slurm, client, tmp_path):
-    from app.pipeline import render_scene
-    from app.scene import load_scene
-    from app.store import RunStore
+@pytest.mark.needs("slurm")
+def test_render_through_slurm_jobs_equals_local_render(client, tmp_path):
+    from radiosity.pipeline import render_scene
+    from radiosity.scene import load_scene
+    from radiosity.store import RunStore
 
     sc = load_scene(scene_path("three-rectangles"), resolution=12)
     logs = tmp_path / "slurm-logs"
@@ -219,7 +228,40 @@ def test_render_through_slurm_jobs_equals_local_render(slurm, client, tmp_path):
     print(f"slurm: workers up {t_up:.1f} s, render {t_render:.1f} s")
 
 
-def test_unsatisfiable_slurm_jobs_fail_with_what_to_check(slurm, tmp_path):
+@pytest.mark.needs("slurm")
+def test_tls_with_slurm_workers_runs_the_stages(small_scene, client, tmp_path):
+    """TLS with jobqueue workers: the temporary certificate reaches the Slurm jobs through the
+    shared temporary directory; scheduler and worker speak tls:// only, and the stages give the
+    answer of the plain-TCP LocalCluster."""
+    from radiosity.preprocess import preprocess
+    from radiosity.scene import load_scene
+    from radiosity.visibility import compute_visibility
+
+    sc = load_scene(small_scene)
+    certs = tmp_path / "certs"
+    certs.mkdir()
+    with dask.config.set({"radiosity.cluster.tls": "temporary"}), \
+            open_client(1, kind="slurm", quiet=True, cores=1, processes=1, memory="1GB",
+                        walltime="00:10:00", timeout=120, job_name=f"radiosity-test-{os.getpid()}",
+                        log_directory=str(tmp_path), shared_temp_directory=str(certs),
+                        scheduler_options=LOOPBACK_SCHEDULER,
+                        worker_extra_args=["--host", "127.0.0.1"]) as c:
+        assert c.scheduler.address.startswith("tls://127.0.0.1:")
+        workers = c.scheduler_info()["workers"]
+        assert len(workers) == 1 and all(w.startswith("tls://127.0.0.1:") for w in workers)
+        assert c.security.require_encryption and len(_squeue()) == 1  # the worker is a Slurm job
+        preprocess(sc, str(tmp_path / "tls"), c, progress=False)
+        fig = compute_visibility(str(tmp_path / "tls"), c, progress=False)
+    left = _wait_queue_empty()
+    assert not left, f"jobs left in the queue: {left}"
+    preprocess(sc, str(tmp_path / "tcp"), client, progress=False)
+    ref = compute_visibility(str(tmp_path / "tcp"), client, progress=False)
+    for k in ("sub_elements", "pairs_facing", "pairs_visible", "rays"):
+        assert fig[k] == ref[k], k
+
+
+@pytest.mark.needs("slurm")
+def test_unsatisfiable_slurm_jobs_fail_with_what_to_check(tmp_path):
     with pytest.raises(RadiosityError) as e:
         with open_client(1, kind="slurm", quiet=True, cores=1, processes=1, memory="1GB",
                          walltime="00:05:00", timeout=4, log_directory=str(tmp_path),

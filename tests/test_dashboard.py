@@ -1,4 +1,4 @@
-"""The radiosity page on the Dask dashboard, end to end: a LocalCluster from app.cluster (dashboard
+"""The radiosity page on the Dask dashboard, end to end: a LocalCluster from radiosity.cluster (dashboard
 on 127.0.0.1, port 0, page added by the scheduler preload), a tiny real run publishing its
 progress, and the page loaded and screenshotted in headless Chromium over the DevTools protocol
 (plain `chromium --screenshot` would catch the page before Bokeh has drawn anything)."""
@@ -16,9 +16,8 @@ import time
 
 import pytest
 
-from conftest import ROOT, scene_path
+from conftest import CHROMIUM, ROOT, scene_path
 
-CHROMIUM = os.environ.get("RADIOSITY_CHROMIUM", "/usr/bin/chromium")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",
          "--hide-scrollbars", "--remote-debugging-address=127.0.0.1", "--remote-debugging-port=0"]
@@ -151,19 +150,18 @@ async def _browse(port: int, url: str, publish_later) -> tuple[dict, dict, bytes
         ws.close()
 
 
-@pytest.mark.filterwarnings("ignore::app.scene.SceneWarning")  # the published red wall
-@pytest.mark.skipif(not os.path.exists(CHROMIUM),
-                    reason=f"headless Chromium not found at {CHROMIUM} (apt-get install chromium)")
+@pytest.mark.filterwarnings("ignore::radiosity.scene.SceneWarning")  # the published red wall
+@pytest.mark.needs("chromium")
 def test_dashboard_page_in_chromium(tmp_path):
     import dask
 
-    from app.cluster import open_client
-    from app.dashboard import PATH, page_url
-    from app.monitor import Monitor
-    from app.pipeline import preprocess
-    from app.scene import load_scene
-    from app.solve import run_solve
-    from app.visibility import compute_visibility
+    from radiosity.cluster import open_client
+    from radiosity.dashboard import PATH, page_url
+    from radiosity.monitor import Monitor
+    from radiosity.preprocess import preprocess
+    from radiosity.scene import load_scene
+    from radiosity.solve import run_solve
+    from radiosity.visibility import compute_visibility
 
     t0 = time.perf_counter()
     out = str(tmp_path / "run")
@@ -214,6 +212,6 @@ def test_dashboard_page_in_chromium(tmp_path):
     assert state["visibility_title"].startswith("Visibility blocks done")
     done, total = state["visibility_title"].split(": ", 1)[1].split(" tasks")[0].split(" / ")
     assert done == total and int(total) >= 1, state["visibility_title"]
-    assert state["residual_title"].startswith("Solver residual (cg, point kernel), pass ")
+    assert state["residual_title"].startswith("Solver residual (cg, point-nf kernel), pass ")
     assert "solve" in state["run_html"]
     assert os.path.basename(out) in live["run_html"] and "image" in live["run_html"]

@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.exact import (coaxial_discs, differential_to_rectangle, pair_form_factors_exact,
+from radiosity.exact import (coaxial_discs, differential_to_rectangle, pair_form_factors_exact,
                        parallel_rectangles, perpendicular_rectangles, polygon_area,
                        polygon_form_factor, polygon_point_form_factor)
-from app.kernels import pair_form_factors
+from radiosity.kernels import pair_form_factors
 
-# 40-digit evaluations (mpmath) of the catalogue's formulas
+# 40-digit evaluations (mpmath) of the catalogue's formulas, written to 20 digits; regenerated and
+# checked by tests/data/exact_constants.py
 OPPOSED_UNIT = 0.19982489569838738304   # C-11, unit squares at distance 1
 ADJACENT_UNIT = 0.20004377607540315424  # C-14, unit squares sharing an edge
 DISCS_UNIT = 0.38196601125010515180     # C-41, r1 = r2 = h: (3 - sqrt 5) / 2

@@ -17,13 +17,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from app import render
-from app.pipeline import preprocess
-from app.scene import load_scene
-from app.store import RunStore
-from conftest import scene_path, write_scene
-
-CHROMIUM = "/usr/bin/chromium"
+from radiosity import render
+from radiosity.preprocess import preprocess
+from radiosity.scene import load_scene
+from radiosity.store import RunStore
+from conftest import CHROMIUM, scene_path, write_scene
 
 # Three vertical unit panels in the plane z = 0, the camera in front at z = -3 looking +z.
 # "twosided" (left) and "onesided" (right) face +z, away from the camera: we see their backs.
@@ -184,7 +182,7 @@ def test_gaussian_preserves_the_mean_and_is_centred(rng):
 
 
 def test_gaussian_with_k1_equals_scipy_reflect_filter(rng):
-    ndimage = pytest.importorskip("scipy.ndimage")
+    from scipy import ndimage  # a dependency: never skipped
     img = rng.random((17, 23, 3))
     for sigma in (0.8, 1.5, 3.0):
         ours = render.downsample(img, 1, "gaussian", sigma=sigma)
@@ -354,8 +352,7 @@ def test_viewer_page_is_self_contained(cornell_run, tmp_path):
     assert "large mesh: showing every" in page
 
 
-@pytest.mark.skipif(not os.path.exists(CHROMIUM),
-                    reason=f"{CHROMIUM} is missing: apt-get install -y chromium (.ci/run does)")
+@pytest.mark.needs("chromium")
 def test_viewer_draws_in_headless_chromium(cornell_run, tmp_path):
     figures = render.render_outputs(cornell_run)
     shot = tmp_path / "shot.png"

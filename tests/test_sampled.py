@@ -11,12 +11,14 @@ import pytest
 from click.testing import CliRunner
 
 import naive
-from app.cli import main
-from app.errors import RadiosityError, StoreError
-from app.kernels import Sampling, sample_points, sampling_of
-from app.solve import open_operator, run_solve
-from app.store import RunStore, VisibilityStore, read_partial
-from app.visibility import compute_visibility
+from radiosity.cli import main
+from radiosity.errors import RadiosityError, StoreError
+from radiosity.kernels import Sampling, sample_points
+from radiosity.settings import sampling_of
+from radiosity.operator import open_operator
+from radiosity.solve import run_solve
+from radiosity.store import RunStore, VisibilityStore, read_partial
+from radiosity.visibility import compute_visibility
 from conftest import prepared, scene_path
 
 
@@ -45,7 +47,7 @@ def _inside(p, verts, nv):
 
 @pytest.mark.parametrize("n", [1, 4, 9, 16])
 def test_nxm_points_are_cell_centres_with_area_weights(rng, n):
-    from app.geometry import polygon_properties
+    from radiosity.geometry import polygon_properties
 
     v, nv = _polys(rng)
     _, _, centre = polygon_properties(v, nv)
@@ -63,7 +65,7 @@ def test_nxm_points_are_cell_centres_with_area_weights(rng, n):
 
 
 def test_mc_points_are_seeded_uniform_samples(rng):
-    from app.geometry import polygon_properties
+    from radiosity.geometry import polygon_properties
 
     v, nv = _polys(rng)
     _, _, centre = polygon_properties(v, nv)
@@ -203,7 +205,7 @@ def test_render_with_the_nxm_kernel_from_the_cli(client, tmp_path):
 
 
 def test_study_sweeps_sample_counts(client, tmp_path):
-    from app.study import accuracy, kernel_setting
+    from radiosity.study import accuracy, kernel_setting
 
     assert kernel_setting("nxm:16") == ("nxm", {"radiosity.solve.nxm-points": 16})
     assert kernel_setting("point") == ("point", {})

@@ -8,8 +8,8 @@ import os
 import numpy as np
 import pytest
 
-from app.errors import SceneError
-from app.scene import SceneWarning, load_scene, merge_parallelograms, parse_camera
+from radiosity.errors import SceneError
+from radiosity.scene import SceneWarning, load_scene, merge_parallelograms, parse_camera
 from conftest import FLOOR_AND_TRIANGLE, write_scene
 
 QUAD = """
@@ -107,7 +107,7 @@ def test_non_convex_quad_is_split_with_warning(tmp_path):
 
 
 def test_gltf_materials_emissive_strength_and_double_sided(tmp_path):
-    trimesh = pytest.importorskip("trimesh")
+    import trimesh  # a dependency: never skipped
     box = trimesh.creation.box(extents=[1, 1, 1])
     box.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(
         name="glow", baseColorFactor=[0.2, 0.4, 0.6, 1.0], emissiveFactor=[1.0, 0.5, 0.25],
@@ -133,7 +133,7 @@ def test_gltf_materials_emissive_strength_and_double_sided(tmp_path):
 
 
 def test_ply_with_mesh_material(tmp_path):
-    trimesh = pytest.importorskip("trimesh")
+    import trimesh  # a dependency: never skipped
     tri = trimesh.Trimesh(vertices=[[0, 0, 1], [1, 0, 1], [0, 1, 1]], faces=[[0, 1, 2]], process=False)
     tri.export(tmp_path / "t.ply")
     (tmp_path / "scene.toml").write_text(
@@ -149,7 +149,7 @@ def test_both_camera_forms_agree():
                       "resolution": [16, 16]}, "x.toml")
     b = parse_camera({"center": [0, 0, 0], "x": a.x.tolist(), "y": [0, 1, 0], "z": [0, 0, 1],
                       "focal_distance": 1.0, "resolution": [16, 16]}, "x.toml")
-    from app.camera import pixel_directions
+    from radiosity.camera import pixel_directions
     np.testing.assert_allclose(pixel_directions(a), pixel_directions(b), atol=1e-12)
 
 
@@ -210,7 +210,7 @@ def test_missing_unreadable_and_unknown_files(tmp_path):
 
 
 def test_camera_that_sees_nothing(tmp_path, client):
-    from app.pipeline import preprocess
+    from radiosity.preprocess import preprocess
 
     cam = CAM.replace("look_at = [0.5, 0.0, 0.5]", "look_at = [0.5, 4.0, -5.0]")
     sc = load_scene(write_scene(tmp_path, FLOOR_AND_TRIANGLE, camera=cam))

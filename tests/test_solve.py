@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 
 import naive
-from app.errors import RadiosityError
-from app.kernels import pair_form_factors
-from app.solve import SOLVERS, open_operator, run_solve, side_vectors
-from app.store import RunStore
-from app.visibility import dense_visibility
+from radiosity.errors import RadiosityError
+from radiosity.kernels import pair_form_factors
+from radiosity.operator import open_operator
+from radiosity.solve import run_solve, side_vectors
+from radiosity.solvers import SOLVERS
+from radiosity.store import RunStore
+from radiosity.visibility import dense_visibility
 from conftest import prepared, radiance, scene_path, write_scene
 
 ALL = list(SOLVERS)
@@ -20,7 +22,8 @@ def test_sphere_interior_reaches_the_exact_answer(client, tmp_path):
     """On a true sphere the point kernel is exact: F_ij = A_j / S. Put the sub-elements' centres
     on the sphere with radial normals and give every original element the area S / n. A planar
     original does not see itself, so each row sums to 1 - 1/n and L = Le / (1 - rho (1 - 1/n))
-    exactly, for every solver."""
+    exactly, for every solver. (The point kernel: the exact near field of point-nf would see the
+    polygons, not the moved centres.)"""
     out = prepared(client, tmp_path, scene_path("furnace-sphere"), 8)
     rs = RunStore(out, "r+")
     part = rs.load_partition()
@@ -39,18 +42,28 @@ def test_sphere_interior_reaches_the_exact_answer(client, tmp_path):
     rho, Le = el.reflectance[0, 0, 0], el.emission[0, 0, 0]
     exact = Le / (1 - rho * (1 - 1 / n))
     for solver in ALL:
-        fig = run_solve(out, client, solver=solver, tol=1e-10, progress=False)
+        # rows as the kernel makes them (1 - 1/n here): the closed-scene balancing that the
+        # default applies to this enclosure would move them to 1
+        fig = run_solve(out, client, solver=solver, kernel="point", tol=1e-10, progress=False,
+                        normalise="cap")
         L = radiance(out)[:, 0, 0]
         assert fig["converged"], solver
         np.testing.assert_allclose(L, exact, rtol=1e-8, err_msg=solver)
 
 
-@pytest.mark.parametrize("kernel, normalise, bound", [("point", False, 0.25), ("point", True, 0.08),
-                                                     ("disc", True, 0.06)])
-def test_furnace_cube_converges_and_states_its_error(client, tmp_path, kernel, normalise, bound):
+@pytest.mark.parametrize("kernel, normalise, mean_err, worst", [("point", False, 0.0417, 0.2928),
+                                                                 ("point", True, -0.0388, 0.2811),
+                                                                 ("disc", True, -0.0479, 0.3049)])
+def test_furnace_cube_converges_and_states_its_error(client, tmp_path, kernel, normalise, mean_err,
+                                                     worst):
     """Closed cube, uniform Le = 1, rho = 0.5: exact L = 2. The centre-to-centre kernels are
-    biased near the cube's concave edges (the accuracy issue corrects the near field). Measured
-    area-weighted mean error at 16^2: point +21 % raw, -3.3 % with rows normalised; disc -4.2 %."""
+    biased near the cube's concave edges (the near field corrects it, test_accuracy.py), and
+    without the closed-scene balancing (normalise-rows closed, the default here) that bias is the
+    answer's error. Measured at 16^2 (the default partition, unseen faces refined): area-weighted
+    mean error point +4.17 % raw, -3.88 % with rows capped, disc -4.79 %; worst element
+    |L / 2 - 1| 0.293, 0.281, 0.305 (at the edges). The cube is convex: every bit is 1 and the
+    figures are deterministic to the solver's tolerance (1e-9); margins 1e-3 (mean) and 5e-3
+    (worst element) only absorb summation order."""
     out = prepared(client, tmp_path, scene_path("furnace-cube"), 16)
     fig = run_solve(out, client, solver="cg" if kernel == "point" else "jacobi", kernel=kernel,
                     tol=1e-9, progress=False, normalise=normalise)
@@ -61,10 +74,10 @@ def test_furnace_cube_converges_and_states_its_error(client, tmp_path, kernel, n
     A = RunStore(out).load_partition().area
     mean = (A * L).sum() / A.sum()
     err = mean / 2.0 - 1.0
-    print(f"furnace cube, {kernel} kernel, normalise={normalise}: area-weighted mean {mean:.5f}, error {err:+.2%}, "
-          f"range {L.min():.4f}..{L.max():.4f}")
-    assert abs(err) < bound
-    assert np.all(np.isfinite(L)) and L.min() > 1.0
+    print(f"furnace cube, {kernel} kernel, normalise={normalise}: area-weighted mean {mean:.5f}, "
+          f"error {err:+.2%}, range {L.min():.4f}..{L.max():.4f}")
+    assert err == pytest.approx(mean_err, abs=1e-3)
+    assert np.abs(L / 2.0 - 1.0).max() == pytest.approx(worst, abs=5e-3)
 
 
 def test_point_kernel_is_reciprocal_and_disc_is_not(client, tmp_path, rng):
@@ -93,23 +106,39 @@ def test_point_kernel_is_reciprocal_and_disc_is_not(client, tmp_path, rng):
     np.testing.assert_allclose(aa * fab, ab * fba, rtol=1e-14)
 
 
-def test_energy_balance_in_an_open_scene(client, tmp_path):
-    """three-rectangles is open: emitted power = absorbed + escaped, for the discrete system."""
+def test_energy_balance_in_an_open_scene_by_monte_carlo(client, tmp_path):
+    """three-rectangles is open: the emitted power must equal what the surfaces absorb plus what
+    escapes, both found by brute-force Monte Carlo over the geometry (tests/naive.py: Embree
+    first hits from stratified points and cosine-weighted directions; no form factor, no
+    visibility bit of the engine). A solution whose F is wrong in aggregate (rows past 1, a
+    reciprocal kernel with the wrong scale) breaks it: the same run with every pair scaled by
+    1.1 (still reciprocal) is off by 4.2 %.
+
+    Measured at 16^2 (339 sub-elements, 4096 rays per sub-element): -0.12 % with point-nf
+    (point -0.03 %, disc -0.09 %: the discretisation), seed-to-seed spread 1.5e-5. Bound:
+    2.5e-3, twice the discretisation error."""
+    from radiosity.passes import CAP_PRODUCT
+
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 16)
-    run_solve(out, client, solver="gauss-seidel", tol=1e-12, progress=False)
+    fig = run_solve(out, client, tol=1e-10, progress=False)  # the defaults: point-nf, cg
+    assert fig["kernel"] == "point-nf" and fig["converged"]
     rs = RunStore(out)
-    op, part, el = open_operator(rs, client, "point")
+    part, el = rs.load_partition(), rs.load_elements()
+    emitted, absorbed, escaped = naive.power_balance(part, el, radiance(out), 4096,
+                                                     np.random.default_rng(7))
+    assert np.all(escaped > 0.1 * emitted) and np.all(absorbed > 0.1 * emitted)  # both matter
+    off = (absorbed + escaped) / emitted - 1
+    assert np.all(np.abs(off) < 2.5e-3), off
+    # the check can fail: the same kernel with every pair scaled by 1.1 (reciprocal, rows within
+    # 1 here) solves its own equation exactly, and breaks the balance
+    op, part, el = open_operator(rs, client, "point-nf")
+    op.configure(cap=np.full(len(part), np.sqrt(1.1)), cmode=CAP_PRODUCT)  # pairs x d_a d_b
     Le, rho, A = side_vectors(part, el)
-    L = np.transpose(radiance(out), (1, 2, 0))
-    H = op.apply(L)                         # gathered radiance (irradiance / pi)
-    rowsum = op.apply(np.ones_like(L))      # sum_b F_ab per side
-    emitted = np.pi * np.sum(A * Le)
-    absorbed = np.pi * np.sum(A * (1 - rho) * H)
-    escaped = np.pi * np.sum(A * L * (1 - rowsum) * (rowsum > 0))
-    # sides that see nothing (rowsum 0) send everything away
-    escaped += np.pi * np.sum(A * L * (rowsum == 0))
-    assert emitted > 0 and escaped > 0.01 * emitted
-    assert absorbed + escaped == pytest.approx(emitted, rel=1e-9)
+    res = SOLVERS["cg"](op, Le, rho, A, 1e-10, 500)
+    assert res.converged
+    emitted, absorbed, escaped = naive.power_balance(
+        part, el, np.transpose(res.radiance, (2, 0, 1)), 4096, np.random.default_rng(7))
+    assert np.all((absorbed + escaped) / emitted - 1 > 10 * 2.5e-3)
 
 
 @pytest.mark.parametrize("scene, res", [("cornell-box", 8), ("construction-in-wood", 8)])
@@ -185,3 +214,43 @@ def test_registry_errors_list_the_valid_names(client, tmp_path):
         run_solve(out, client, kernel="exactish", progress=False)
     with pytest.raises(RadiosityError, match="cg solver needs a reciprocal kernel"):
         run_solve(out, client, solver="cg", kernel="disc", progress=False)
+
+
+def test_progressive_ambient_term_makes_every_preview_right_on_average(client, tmp_path):
+    """Progressive refinement's previews add rho x ambient, the unshot radiance spread evenly
+    and reflected with the mean reflectance. In a closed scene with rows balanced to 1 and one
+    reflectance (the furnace cube: rho = 0.5, Le = 1) that estimate is exact on average: every
+    shot returns rho of its power to the scene, so what is still to come is rho S(dL) / (1 -
+    rho), S the area-weighted sum. So every preview's area-weighted mean is the exact 2, while
+    its elements are not (early on) and the answer without the term is short of 2."""
+    out = prepared(client, tmp_path, scene_path("furnace-cube"), 8)
+    A = RunStore(out).load_partition().area
+    previews = []
+    fig = run_solve(out, client, solver="progressive", tol=1e-5, progress=False,
+                    callback=lambda k, r, L: previews.append(L[0, 0].copy()))
+    assert fig["row_sums"]["mode"] == "closed" and fig["converged"]
+    assert len(previews) == fig["iterations"] > 3
+    means = np.array([(A * p).sum() / A.sum() for p in previews])
+    np.testing.assert_allclose(means, 2.0, rtol=1e-9)  # balancing error 1e-12, x rho/(1-rho)
+    assert np.abs(previews[0] - 2.0).max() > 0.05      # pointwise only an estimate at first
+    L = radiance(out)[:, 0, 0]
+    np.testing.assert_allclose(L, 2.0, rtol=1e-4)      # the answer itself (unshot <= 1e-5)
+    ambient = np.array(fig["ambient"])
+    assert np.all(ambient >= 0) and ambient.max() < 1e-4  # little left unshot at the end
+
+
+def test_pair_terms_per_second_counts_only_the_solvers_passes(client, tmp_path):
+    """pair_terms_per_s is the solver's pair terms over the time of its own passes: a callback
+    that sleeps 1 s after each pass (as a slow preview would) must not enter it."""
+    import time
+
+    out = prepared(client, tmp_path, scene_path("cornell-box"), 8)
+    with pytest.warns(UserWarning, match="did not reach tol=1e-30 in 3 passes"):
+        fig = run_solve(out, client, solver="jacobi", kernel="point", tol=1e-30, max_iter=3,
+                        progress=False, callback=lambda k, r, L: time.sleep(1.0))
+    assert fig["iterations"] == 3 and fig["time_s"] > 3.0
+    # pair_terms also counts the row-sum and the final residual pass (5 passes' terms against
+    # the throughput's 3): pair_terms / rate bounds the passes' time from above, 5/3 of it; with
+    # the callbacks counted it would be over 5 s
+    bound = fig["pair_terms"] / fig["pair_terms_per_s"]
+    assert bound < 2.0, bound

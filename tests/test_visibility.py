@@ -11,12 +11,13 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import naive
-from app.errors import StoreError
-from app.pipeline import preprocess
-from app.plan import END, FIRST, NBYTES, START, TBYTES, TSTART, choose_chunk, make_plan
-from app.scene import load_scene
-from app.store import RunStore, VisibilityStore
-from app.visibility import _shaft_excludes, compute_visibility, dense_visibility
+from radiosity.errors import StoreError
+from radiosity.preprocess import preprocess
+from radiosity.plan import END, FIRST, NBYTES, START, TBYTES, TSTART, choose_chunk, make_plan
+from radiosity.scene import load_scene
+from radiosity.store import RunStore, VisibilityStore
+from radiosity.shafts import _shaft_excludes
+from radiosity.visibility import compute_visibility, dense_visibility
 from conftest import scene_path
 
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .plan import facing_blocks
+from .originals import LEAF, behind_any, pairs_within_budget, tree_of
 from .types import Elements
 
 EPS = 1e-9
@@ -67,7 +67,8 @@ class EffectsPlan:
 
 
 def _behind(elements: Elements) -> np.ndarray:
-    """(n, n) bool: does any vertex of J lie strictly behind the plane of I?"""
+    """(n, n) bool: does any vertex of J lie strictly behind the plane of I? Dense: for tests
+    of originals.behind_any (which plan_effects uses), small scenes only."""
     v = elements.verts
     d = np.einsum("ic,jkc->ijk", elements.normal, v) - \
         np.einsum("ic,ic->i", elements.normal, elements.center)[:, None, None]
@@ -75,41 +76,50 @@ def _behind(elements: Elements) -> np.ndarray:
     return (d < -EPS * scale).any(axis=2)
 
 
-def _reachable(facing: np.ndarray, emitter: np.ndarray, reflects: np.ndarray) -> np.ndarray:
-    """Elements light can reach: BFS from the emitters over pairs that face each other; light
-    travels on from an element only if it reflects."""
-    both = facing & facing.T
-    np.fill_diagonal(both, False)
+def _reachable(bi: np.ndarray, bj: np.ndarray, emitter: np.ndarray,
+               reflects: np.ndarray) -> np.ndarray:
+    """Elements light can reach: BFS from the emitters over the pairs (bi, bj) that face each
+    other (a sparse graph, O(pairs)); light travels on from an element only if it reflects."""
+    from scipy.sparse import csr_matrix
+
+    n = len(emitter)
+    adj = csr_matrix((np.ones(2 * len(bi), np.float32),
+                      (np.concatenate([bi, bj]), np.concatenate([bj, bi]))), shape=(n, n))
     seen = emitter.copy()
     frontier = emitter.copy()
     while frontier.any():
-        nxt = both[frontier].any(axis=0) & ~seen
+        nxt = (adj @ frontier.astype(np.float32) > 0) & ~seen
         seen |= nxt
         frontier = nxt & reflects
     return seen
 
 
 def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
-                 sizes: np.ndarray | None = None) -> EffectsPlan:
+                 sizes: np.ndarray | None = None, max_pairs: int | None = None,
+                 leaf: int = LEAF, where: str = "the scene") -> EffectsPlan:
     """The effects plan of a scene. `sizes` (n,): expected sub-elements per original, for the
-    estimates (1 each if not given). `full` forces every effect on (the reference run)."""
+    estimates (1 each if not given). `full` forces every effect on (the reference run).
+
+    Nothing n x n: the pairs that face each other and whatever lies behind each element come
+    from the hierarchy over the originals (originals.py), at most `max_pairs` pairs (refused
+    beyond, originals.FacingPairsError naming radiosity.plan.max-facing-pairs)."""
     n = len(elements)
     rho = elements.reflectance          # (n, 2, 3)
     Le = elements.emission
     ts = elements.two_sided
     s = np.ones(n) if sizes is None else np.asarray(sizes, float)
-    facing = facing_blocks(elements.verts, elements.nverts, elements.normal, elements.center, ts)
-    behind = _behind(elements)
+    tree = tree_of(elements, leaf)
+    bi, bj, _ = pairs_within_budget(tree, max_pairs, where)
+    back_any = behind_any(tree)   # the rows of the (n, n) "behind" relation, or-ed
     reasons = {}
     est = {}
-    iu, ju = np.triu_indices(n, 1)
-    both = facing[iu, ju] & facing[ju, iu]
-    pairs = float((s[iu] * s[ju])[both].sum())
+    pairs = float((s[bi] * s[bj]).sum())
     est["facing_block_pairs"] = pairs
+    est["facing_original_pairs"] = int(len(bi))
 
     # occlusion: if every element is in front of (or on) every other's plane, the elements
     # bound a convex region and a segment between two of them stays inside it: nothing blocks
-    blocker_possible = bool(behind.any())
+    blocker_possible = bool(back_any.any())
     occlusion = full or blocker_possible
     if not blocker_possible:
         reasons["occlusion"] = ("off: every element lies in front of every other (a convex "
@@ -139,30 +149,34 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
         est["channels"] = 1
 
     # two-sided elements whose back sees nothing are one-sided in effect
-    back_used = behind.any(axis=1)
+    back_used = back_any
     eff_two = ts & (back_used | full)
     dropped = int((ts & ~eff_two).sum())
     reasons["two_sided"] = (f"{int(eff_two.sum())} of {int(ts.sum())} two-sided elements are reached "
                             f"from both sides" + (f"; {dropped} solved as one-sided" if dropped else ""))
 
     emitter = Le.max(axis=(1, 2)) > 0
-    reach = _reachable(facing, emitter, reflect)
+    reach = _reachable(bi, bj, emitter, reflect)
     gather = np.ones(n, bool) if full else (reflect & reach)
+    # three disjoint kinds that add up to the rows dropped: ~(reflect & reach)
     dead_emit = int((emitter & ~reflect).sum())
-    dead_dark = int((~reach).sum())
+    dead_black = int((~emitter & ~reflect).sum())
+    dead_dark = int((reflect & ~reach).sum())
     reasons["dead_rows"] = (f"{int((~gather).sum())} of {n} elements drop out of the iteration "
-                            f"({dead_emit} emitters that reflect nothing, {dead_dark} that no light "
-                            "can reach)" if not full else "off (--full)")
+                            f"({dead_emit} emitters that reflect nothing, {dead_black} other "
+                            f"elements that reflect nothing, {dead_dark} that no light can reach)"
+                            if not full else "off (--full)")
     dead = ~gather
     est["pair_terms_saved_per_pass"] = est.get("pair_terms_saved_per_pass", 0.0) + float(
-        ((s[iu] * s[ju]) * both * (dead[iu].astype(float) + dead[ju])).sum())
+        ((s[bi] * s[bj]) * (dead[bi].astype(float) + dead[bj])).sum())
     return EffectsPlan(occlusion=occlusion, interreflection=interreflection, colour=colour,
                        two_sided=eff_two, gather=gather, passes_bound=passes, reasons=reasons,
                        estimates=est, full=full)
 
 
-def describe(plan: EffectsPlan, unseen: int | None = None, sub_elements: int | None = None) -> str:
-    """The plan as the `radiosity plan` command prints it."""
+def describe(plan: EffectsPlan, unseen: int | None = None, sub_elements: int | None = None,
+             closure=None) -> str:
+    """The plan as the `radiosity plan` command prints it (closure: a closure.Closure)."""
     lines = ["effect             on/off  why"]
     rows = [("occlusion", plan.occlusion), ("interreflection", plan.interreflection),
             ("colour", plan.colour)]
@@ -170,11 +184,19 @@ def describe(plan: EffectsPlan, unseen: int | None = None, sub_elements: int | N
         lines.append(f"{name:<18} {'on' if on else 'OFF':<7} {plan.reasons[name].split(': ', 1)[-1]}")
     lines.append(f"{'two-sided':<18} {'':<7} {plan.reasons['two_sided']}")
     lines.append(f"{'dead rows':<18} {'':<7} {plan.reasons['dead_rows']}")
+    if closure is not None:
+        lines.append(f"{'closure':<18} {'on' if closure.closed else 'OFF':<7} "
+                     f"{closure.reason.split(': ', 1)[-1]}")
     if unseen is not None:
         lines.append(f"{'subdivision':<18} {'':<7} only where the camera sees: {unseen} elements "
                      "stay unsplit" + (f", about {sub_elements} sub-elements" if sub_elements else ""))
     e = plan.estimates
     lines.append("")
+    if "facing_original_pairs" in e:
+        from .originals import BYTES_PER_PAIR
+
+        lines.append(f"pairs of facing original elements: {e['facing_original_pairs']} (visibility "
+                     f"plan about {e['facing_original_pairs'] * BYTES_PER_PAIR / 2 ** 20:.3g} MiB)")
     lines.append(f"estimated pairs of facing sub-elements: {e['facing_block_pairs']:.3g}")
     if "rays_saved_at_most" in e:
         lines.append(f"rays saved: up to {e['rays_saved_at_most']:.3g} (no visibility test at all)")

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
-from app.cli import main
-from app.pipeline import render_scene
-from app.planner import plan_effects
-from app.scene import load_scene
-from app.store import RunStore
+from radiosity.cli import main
+from radiosity.pipeline import render_scene
+from radiosity.effects import plan_effects
+from radiosity.scene import load_scene
+from radiosity.store import RunStore
 from conftest import scene_path, write_scene
 
 CAM_ABOVE = """
@@ -162,3 +163,21 @@ def test_render_records_the_plan(client, tmp_path):
     rep = json.loads((tmp_path / "r" / "report.json").read_text())
     assert rep["plan"]["colour"] is False and "reasons" in rep["plan"]
     assert rep["solve"]["channels"] == 1
+
+
+@pytest.mark.parametrize("solver", ["jacobi", "gauss-seidel", "progressive"])
+def test_every_skip_gives_the_full_answer_with_the_other_solvers(client, tmp_path, solver):
+    """The planned skips change the operator each solver sees (one channel for a grey scene,
+    rows that do not gather, a two-sided wall solved one-sided): Jacobi, Gauss-Seidel (its own
+    sweep honours `need`) and progressive must reach the full run's answer too."""
+    mats = COLOURED.replace("[0.6, 0.5, 0.4]", "[0.6, 0.6, 0.6]").replace("[4.0, 3.0, 2.0]", "[3.0, 3.0, 3.0]") \
+        .replace("[0.3, 0.7, 0.3]", "[0.4, 0.4, 0.4]").replace("[material.wall]", "[material.wall]\ntwo_sided = true")
+    path = _scene(tmp_path, mats)
+    p = plan_effects(load_scene(path).elements)
+    assert not p.colour and p.two_sided.sum() == 0 and not p.gather.all()
+    plan_rep, L, full_rep, Lf = _both(client, tmp_path, path, solver=solver)
+    assert plan_rep["solve"]["solver"] == full_rep["solve"]["solver"] == solver
+    assert plan_rep["solve"]["channels"] == 1 and plan_rep["solve"]["two_sided_sub_elements"] == 0
+    assert plan_rep["solve"]["gathering_elements"] == 2
+    assert plan_rep["solve"]["channel_terms"] < full_rep["solve"]["channel_terms"] / 2
+    _same(L, Lf)

@@ -1,0 +1,183 @@
+"""Mesh loaders: the cases README promises (glTF doubleSided, binary .glb, duplicate and unnamed
+glTF materials, back_emission, n-gons as fans, PLY without a material), each read back element
+by element."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+from radiosity.scene import SceneWarning, load_scene
+from conftest import prepared, radiance, write_scene
+
+CAMERA = ('[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nup = [0, 1, 0]\nfov_y = 60\n'
+          'resolution = 8\n')
+
+
+def _box(name, colour, double_sided, x, emissive=(0.0, 0.0, 0.0)):
+    b = trimesh.creation.box(extents=[1, 1, 1])
+    b.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(
+        name=name, baseColorFactor=colour, emissiveFactor=list(emissive), doubleSided=double_sided))
+    return b, trimesh.transformations.translation_matrix([x, 0, 5])
+
+
+def _glb(tmp_path, boxes) -> str:
+    s = trimesh.Scene()
+    for k, (b, t) in enumerate(boxes):
+        s.add_geometry(b, node_name=f"n{k}", transform=t)
+    (tmp_path / "m.glb").write_bytes(s.export(file_type="glb"))
+    (tmp_path / "scene.toml").write_text('[[mesh]]\npath = "m.glb"\n' + CAMERA)
+    return str(tmp_path / "scene.toml")
+
+
+def _by_box(el):
+    """Element indices of each box (by the centre's x: -2, 0, 2)."""
+    return {x: np.nonzero(np.abs(el.center[:, 0] - x) <= 0.5 + 1e-9)[0] for x in (-2, 0, 2)}
+
+
+def test_glb_double_sided_duplicate_and_unnamed_materials(tmp_path):
+    """A binary glTF with three boxes: 'paint' (grey, doubleSided false), another 'paint' (red,
+    doubleSided true, emissive with KHR strength) and an unnamed green one. Each box keeps its
+    own material at full precision (the JSON chunk, not trimesh's 8-bit colours); the second
+    'paint' gets a name of its own, with a warning; the unnamed one keeps its colour."""
+    path = _glb(tmp_path, [_box("paint", [0.2, 0.2, 0.2, 1.0], False, 0),
+                           _box("paint", [0.8, 0.1, 0.1, 1.0], True, 2, emissive=(1.0, 0.5, 0.25)),
+                           _box(None, [0.1, 0.7, 0.1, 1.0], False, -2)])
+    import json
+    import struct
+
+    # the JSON chunk rewritten: full-precision factors (trimesh wrote them rounded to 8 bits)
+    # and the emissive strength
+    data = bytearray((tmp_path / "m.glb").read_bytes())
+    n = struct.unpack("<I", data[12:16])[0]
+    doc = json.loads(data[20:20 + n])
+    for m, c in zip(doc["materials"], ([0.2, 0.2, 0.2, 1.0], [0.8, 0.1, 0.1, 1.0], [0.1, 0.7, 0.1, 1.0])):
+        m["pbrMetallicRoughness"]["baseColorFactor"] = c
+    doc["materials"][1]["extensions"] = {"KHR_materials_emissive_strength": {"emissiveStrength": 4.0}}
+    body = json.dumps(doc).encode()
+    body += b" " * (-len(body) % 4)
+    rest = data[20 + n:]
+    out = data[:12] + struct.pack("<I", len(body)) + data[16:20] + body + rest
+    out[8:12] = struct.pack("<I", len(out))
+    (tmp_path / "m.glb").write_bytes(bytes(out))
+
+    with pytest.warns(SceneWarning, match="glTF material 1 reuses the name 'paint'.*'paint#1'"):
+        el = load_scene(path).elements
+    assert len(el) == 18 and np.all(el.nverts == 4)  # 3 boxes x 6 quads (triangles merged)
+    names = np.array(el.material_names)[el.material]
+    box = _by_box(el)
+    assert set(names[box[0]]) == {"paint"} and set(names[box[2]]) == {"paint#1"}
+    assert set(names[box[-2]]) == {"unnamed-2"}
+    np.testing.assert_array_equal(el.reflectance[box[0], 0], [[0.2, 0.2, 0.2]] * 6)
+    np.testing.assert_array_equal(el.reflectance[box[2], 0], [[0.8, 0.1, 0.1]] * 6)
+    np.testing.assert_array_equal(el.reflectance[box[-2], 0], [[0.1, 0.7, 0.1]] * 6)
+    np.testing.assert_allclose(el.emission[box[2], 0], [[4.0, 2.0, 1.0]] * 6)
+    assert not el.two_sided[box[0]].any() and el.two_sided[box[2]].all()
+    assert not el.two_sided[box[-2]].any()
+    assert np.all(el.reflectance[box[0], 1] == 0)  # one-sided: nothing on the back
+
+
+def test_gltf_same_name_same_material_is_one_material(tmp_path):
+    """Two glTF materials with the same name and the same properties are one material."""
+    path = _glb(tmp_path, [_box("wood", [0.5, 0.4, 0.3, 1.0], False, 0),
+                           _box("wood", [0.5, 0.4, 0.3, 1.0], False, 2)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SceneWarning)
+        el = load_scene(path).elements
+    assert el.material_names == ("wood",)
+
+
+def test_back_emission_of_two_sided_elements(client, tmp_path):
+    """back_emission gives a two-sided element's back its own emitted radiance (default: the
+    front's); a one-sided element has no back at all. Solved: the back of a panel that emits
+    only on its back shows exactly that radiance (it reflects nothing), and lights the floor
+    its back faces."""
+    obj = """
+    v -1 0 -1
+    v 1 0 -1
+    v 1 0 1
+    v -1 0 1
+    v -0.3 1 -0.3
+    v 0.3 1 -0.3
+    v 0.3 1 0.3
+    v -0.3 1 0.3
+    v -0.3 1.5 -0.3
+    v 0.3 1.5 -0.3
+    v 0.3 1.5 0.3
+    usemtl floor
+    f 1 4 3 2
+    usemtl panel
+    f 5 8 7 6
+    usemtl twin
+    f 9 11 10
+    """
+    extra = """
+    [material.floor]
+    reflectance = [0.5, 0.5, 0.5]
+    [material.panel]
+    reflectance = [0.0, 0.0, 0.0]
+    two_sided = true
+    emission = [0.0, 0.0, 0.0]
+    back_emission = [5.0, 4.0, 3.0]
+    [material.twin]
+    reflectance = [0.0, 0.0, 0.0]
+    two_sided = true
+    emission = [1.0, 1.0, 1.0]
+    """
+    cam = ("[camera]\nposition = [0.2, 3.0, -3.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n"
+           "fov_y = 50.0\nresolution = [12, 12]\n")
+    path = write_scene(tmp_path, obj, extra, camera=cam)
+    el = load_scene(path).elements
+    names = list(np.array(el.material_names)[el.material])
+    panel, twin, floor = names.index("panel"), names.index("twin"), names.index("floor")
+    np.testing.assert_array_equal(el.emission[panel], [[0, 0, 0], [5, 4, 3]])
+    np.testing.assert_array_equal(el.emission[twin], [[1, 1, 1], [1, 1, 1]])  # back = front
+    assert el.normal[panel] @ [0, 1, 0] > 0.99  # the front faces up: its back faces the floor
+    from radiosity.solve import run_solve
+
+    out = prepared(client, tmp_path, path, 12)
+    run_solve(out, client, tol=1e-10, progress=False)
+    from radiosity.store import RunStore
+
+    part = RunStore(out).load_partition()
+    L = radiance(out)
+    on_panel = part.orig == panel
+    np.testing.assert_array_equal(L[on_panel, 1], np.broadcast_to([5.0, 4.0, 3.0], (on_panel.sum(), 3)))
+    np.testing.assert_array_equal(L[on_panel, 0], 0.0)
+    lit = L[part.orig == floor, 0]
+    assert lit.min() > 0 and np.all(lit[:, 0] > lit[:, 2])  # the back's warm light, reflected
+
+
+def test_ngon_becomes_a_fan_of_triangles_with_a_warning(tmp_path):
+    """A planar convex hexagon (one OBJ face of 6 vertices): 4 triangles from vertex 0, said
+    with a warning, covering the hexagon's area (3 sqrt(3) / 2 for unit sides) facing one way."""
+    ang = np.arange(6) * np.pi / 3
+    verts = "\n".join(f"v {np.cos(a):.17g} 0 {np.sin(a):.17g}" for a in ang)
+    path = write_scene(tmp_path, verts + "\nf 6 5 4 3 2 1\n")
+    with pytest.warns(SceneWarning, match="face 1 has 6 vertices; triangulated as a fan"):
+        el = load_scene(path).elements
+    assert len(el) == 4 and np.all(el.nverts == 3)
+    assert el.area.sum() == pytest.approx(3 * np.sqrt(3) / 2, rel=1e-14)
+    np.testing.assert_allclose(el.normal, np.broadcast_to([0, 1.0, 0], (4, 3)), atol=1e-15)
+    assert np.all(el.face == 0)
+    np.testing.assert_allclose(el.verts[:, 0], np.broadcast_to(el.verts[0, 0], (4, 3)))  # a fan
+
+
+def test_ply_without_material_is_default_grey_and_takes_the_default_override(tmp_path):
+    tri = trimesh.Trimesh(vertices=[[0, 0, 1], [1, 0, 1], [0, 1, 1]], faces=[[0, 1, 2]], process=False)
+    tri.export(tmp_path / "t.ply")
+    cam = ('[camera]\nposition = [0.2, 0.2, 3]\nlook_at = [0.2, 0.2, 0]\nup = [0, 1, 0]\nfov_y = 40\n'
+           'resolution = 8\n')
+    (tmp_path / "a.toml").write_text('[[mesh]]\npath = "t.ply"\n' + cam)
+    el = load_scene(str(tmp_path / "a.toml")).elements
+    assert el.material_names == ("default",)
+    np.testing.assert_array_equal(el.reflectance[0], [[0.5, 0.5, 0.5], [0, 0, 0]])
+    np.testing.assert_array_equal(el.emission[0], 0.0)
+    assert not el.two_sided[0]
+    (tmp_path / "b.toml").write_text('[[mesh]]\npath = "t.ply"\n[material.default]\n'
+                                     'reflectance = [0.1, 0.2, 0.3]\n' + cam)
+    el = load_scene(str(tmp_path / "b.toml")).elements
+    np.testing.assert_array_equal(el.reflectance[0, 0], [0.1, 0.2, 0.3])

@@ -149,26 +149,30 @@ def test_solve_and_image_commands_and_resume(client, tmp_path):
     assert r.exit_code == 2 and "needs a reciprocal kernel" in r.output
 
 
-def test_cluster_flags_reach_the_config(tmp_path):
-    """--tls and the batch-job flags write dask.config; a local TLS run works end to end."""
-    import copy
-
+def test_cluster_flags_reach_the_config(tmp_path, monkeypatch):
+    """--tls and the batch-job flags write dask.config for the command (seen where it opens its
+    cluster); a local TLS run works end to end; afterwards the process's config is as before."""
     import dask.config
-    import dask_jobqueue  # noqa: F401  both register their defaults on import: snapshot after them
-    import distributed  # noqa: F401
 
-    saved = copy.deepcopy(dask.config.config)  # the flags set the process's config: restore it
-    try:
-        r = CliRunner().invoke(main, ["preprocess", scene_path("three-rectangles"), "--out", str(tmp_path / "r"),
-                                      "--resolution", "8", "--workers", "1", "--tls", "--cores", "4",
-                                      "--account", "proj1"])
-        assert r.exit_code == 0, r.output
-        assert dask.config.get("radiosity.cluster.tls") == "temporary"
-        assert dask.config.get("jobqueue.slurm.cores") == 4
-        assert dask.config.get("jobqueue.sge.project") == "proj1"
-    finally:
-        dask.config.config.clear()
-        dask.config.config.update(saved)
+    from radiosity import cluster
+
+    seen = {}
+    real = cluster.open_client
+
+    def spy(*a, **kw):
+        seen.update(tls=dask.config.get("radiosity.cluster.tls"),
+                    cores=dask.config.get("jobqueue.slurm.cores"),
+                    project=dask.config.get("jobqueue.sge.project"))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(cluster, "open_client", spy)
+    before = dask.config.get("radiosity.cluster.tls", None)
+    r = CliRunner().invoke(main, ["preprocess", scene_path("three-rectangles"), "--out", str(tmp_path / "r"),
+                                  "--resolution", "8", "--workers", "1", "--tls", "--cores", "4",
+                                  "--account", "proj1"])
+    assert r.exit_code == 0, r.output
+    assert seen == {"tls": "temporary", "cores": 4, "project": "proj1"}
+    assert dask.config.get("radiosity.cluster.tls", None) == before != "temporary"
 
 
 @pytest.mark.parametrize("change", ["toml", "mesh"])

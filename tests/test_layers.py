@@ -125,3 +125,18 @@ def test_readme_layout_names_every_module():
     section = section[:section.index("\n## ", 5)] if "\n## " in section[5:] else section
     missing = [m for m in _modules() if f"`{m}`" not in section]
     assert not missing, f"README's Layout misses {missing}"
+
+
+def test_tests_and_benchmarks_import_radiosity_not_app():
+    """`app` is only the folder: importing it from the source tree loads a second copy of every
+    module, so a monkeypatch on `app.x` never reaches the `radiosity.x` the code runs."""
+    import re
+
+    root = os.path.dirname(APP)
+    bad = []
+    for d in ("tests", "benchmarks"):
+        for f in sorted(os.listdir(os.path.join(root, d))):
+            if f.endswith(".py"):
+                src = open(os.path.join(root, d, f)).read()
+                bad += [f"{d}/{f}" for _ in re.findall(r"^\s*(?:from app\b|import app\b)", src, re.M)][:1]
+    assert not bad, f"import app in {bad}"

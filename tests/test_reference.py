@@ -306,7 +306,7 @@ def test_without_llvm_it_falls_back_to_scalar_and_says_so(mitsuba, tmp_path):
 
 
 def test_without_mitsuba_the_command_says_how_to_install(monkeypatch, tmp_path):
-    from app import reference
+    from radiosity import reference
     from radiosity.cli import main
 
     monkeypatch.setattr(reference, "_LOADED", {})
@@ -318,7 +318,7 @@ def test_without_mitsuba_the_command_says_how_to_install(monkeypatch, tmp_path):
 
 
 def test_find_libllvm_takes_the_newest_recent_one(monkeypatch, tmp_path):
-    from app import reference
+    from radiosity import reference
 
     for name in ("libLLVM-14.so.1", "libLLVM-15.so", "libLLVM.so.19.1", "libLLVM-17.so", "libLLVMCore.a"):
         (tmp_path / name).write_bytes(b"")
@@ -365,7 +365,7 @@ def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
     md = (out / "results.md").read_text()
     assert "path tracer, 16 spp" in md and "reference's own noise" in md
     # a second study reuses the reference (same scene file, camera, spp and passes)
-    from app.reference import reference_at
+    from radiosity.reference import reference_at
 
     said = []
     again, _, fig = reference_at(_scene("cornell-box", 24), str(out / "reference" / "r24"), 256, 8, said.append)
@@ -383,7 +383,7 @@ def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
 
 
 def test_render_calls_split_into_equal_chunks():
-    from app.reference import _chunks
+    from radiosity.reference import _chunks
 
     assert _chunks(32, 128 * 128, 4_194_304) == [32]
     assert _chunks(2048, 64 * 64, 4_194_304) == [1024, 1024]

@@ -368,8 +368,8 @@ def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
     lost = F0 - F1
     assert (lost >= 0).all() and lost[:8, :8].max() == 0           # near pairs untouched
     assert lost[:4, 8:].min() > 0                                  # the floor no longer sees the far group
-    from app.store import RunStore
-    from app.viewfactor import assemble, make_inputs
+    from radiosity.store import RunStore
+    from radiosity.viewfactor import assemble, make_inputs
 
     fac = load_facets(mesh)
     tree, _ = make_inputs(fac, 4)
@@ -384,8 +384,8 @@ def test_tree_and_task_plan_cover_every_facet_once(rng):
     """The facet tree's leaves tile the facets, node boxes hold their facets, every facet normal
     lies in its nodes' cones; the task plan takes every leaf once, in order, within the pair
     budget (a single leaf may exceed it), with at least the requested number of tasks."""
-    from app.bvh import build_tree
-    from app.viewfactor import plan_tasks
+    from radiosity.bvh import build_tree
+    from radiosity.viewfactor import plan_tasks
 
     n = 3000
     center = rng.random((n, 3)) * [100, 100, 20]
@@ -416,8 +416,8 @@ def test_jittered_points_lie_on_their_facets_and_integrate(rng):
     integrate 1, x and x^2 over the facet to the stratified-sampling accuracy (the trapezoid's
     weights are the bilinear map's Jacobian), and the same (seed, facet, level) gives the same
     points."""
-    from app.geometry import polygon_properties
-    from app.vfkernels import sample_facets
+    from radiosity.geometry import polygon_properties
+    from radiosity.vfkernels import sample_facets
 
     tri = [[0, 0, 0], [2, 0, 0], [0.5, 1.5, 0], [0.5, 1.5, 0]]
     trap = [[0, 0, 0], [3, 0, 0], [2, 1, 0], [1, 1, 0]]

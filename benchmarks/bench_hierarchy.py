@@ -1,0 +1,179 @@
+"""Hierarchical radiosity (--method hierarchical) against the seed's all-pairs matrix (--method
+pairs), both in the same run, on the Cornell box at growing resolutions.
+
+Per (method, resolution): sub-elements, nodes, links, links per leaf, rays, the time of every
+stage (the whole `render_scene` on a warm 2-worker LocalCluster, not the process start), peak
+memory per worker, and the error of the image against a Mitsuba 3 path-traced reference of the
+same view (64x64, high spp: every image is box-filtered to 64x64 first, which is exact because
+the pixels nest; the reference's own noise floor is printed with it). The link stage's whole
+throughput (its rays over its wall time on all workers) is set against raw embreex casting the
+same rays (one thread, times the worker count) in the same run.
+
+    python benchmarks/bench_hierarchy.py [--sizes 64,128,256,512] [--pairs 64,128]
+                                         [--spp 4096] [--room 256]
+
+Writes benchmarks/results/hierarchy.json and prints the tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+
+import numpy as np
+
+from common import ROOT, best_of, table, write
+from radiosity.cluster import open_client
+from radiosity.compare import box_down, box_down_stderr, errors, noise_floor
+from radiosity.pipeline import render_scene
+from radiosity.render import read_exr
+from radiosity.scene import load_scene
+
+CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
+ROOM = os.path.join(ROOT, "scenes", "room-2400", "scene.toml")
+GRID = 64
+
+
+def reference(spp: int, out: str) -> dict:
+    """The Mitsuba reference of the Cornell box at GRID x GRID: mean, stderr, figures."""
+    from radiosity.reference import make_reference
+
+    fig = make_reference(load_scene(CORNELL, resolution=GRID), out, spp=spp, passes=8,
+                         echo=lambda *a: None)
+    return {"mean": read_exr(os.path.join(out, "reference.exr")),
+            "stderr": read_exr(os.path.join(out, "reference-stderr.exr")), "figures": fig}
+
+
+def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dict:
+    """The rays of a few link tasks, re-made in-process (refine_pairs keeps them), cast by raw
+    embreex: its rays/s on one thread times `workers`, against the whole stage's."""
+    from embreex import mesh_construction, rtcore_scene
+
+    from radiosity import config
+    from radiosity.hierarchy import seen_originals, tree_nodes
+    from radiosity.links import LinkInputs, refine_pairs, resolve_params
+    from radiosity.rays import RayCaster, element_triangles
+    from radiosity.store import LinkStore, RunStore
+
+    rs = RunStore(run_dir)
+    part, el = rs.load_partition(), rs.load_elements()
+    prm, weight = resolve_params(el)
+    seen = seen_originals(rs.read_arrays("raster")["orig"], len(el))
+    inp = LinkInputs(tree_nodes(part, el), part, el, seen, prm, weight, "bench",
+                     float(config.get("rays.epsilon")))
+    pairs, first = LinkStore(rs).plan()
+    rc = RayCaster(el.verts, el.nverts)
+    kept: list = []
+    refine_pairs(inp, pairs[: min(len(pairs), 40)], rc, kept)
+    pts = np.concatenate([k[0] for k in kept])
+    segs = []
+    for p, _ in kept:  # each batch: n ray starts, then n ray ends
+        n = len(p) // 2
+        segs.append((p[:n], p[n:]))
+    a = np.concatenate([s[0] for s in segs])
+    b = np.concatenate([s[1] for s in segs])
+    tris, _ = element_triangles(el.verts, el.nverts)
+    raw = rtcore_scene.EmbreeScene()
+    mesh_construction.TriangleMesh(raw, ((tris - rc.origin) / rc.scale).astype(np.float32))
+    a1 = (a - rc.origin) / rc.scale
+    dv = (b - rc.origin) / rc.scale - a1
+    L = np.linalg.norm(dv, axis=1)
+    ok = L > 2 * rc.epsilon
+    a1, dv, L = a1[ok], dv[ok], L[ok]
+    dv /= L[:, None]
+    o32 = (a1 + rc.epsilon * dv).astype(np.float32)
+    d32 = dv.astype(np.float32)
+    f32 = (L - 2 * rc.epsilon).astype(np.float32)
+    t_raw = best_of(lambda: raw.run(o32, d32, dists=f32, query="OCCLUDED"), 3)
+    raw_rate = len(o32) / t_raw
+    return {"sample_rays": int(len(o32)), "raw_Mrays_s_1thread": raw_rate / 1e6,
+            "stage_Mrays_s": stage_rays_per_s / 1e6,
+            "stage_vs_raw": stage_rays_per_s / (raw_rate * workers), "points": int(len(pts))}
+
+
+def run_one(client, scene_file: str, res: int, method: str, d: str, ref=None) -> dict:
+    sc = load_scene(scene_file, resolution=res)
+    out = os.path.join(d, f"{os.path.basename(os.path.dirname(scene_file))}-{method}-{res}")
+    t = time.perf_counter()
+    rep = render_scene(sc, out, client, preview=False, progress=False, method=method)
+    wall = time.perf_counter() - t
+    st = rep.stages
+    row = {"scene": os.path.basename(os.path.dirname(scene_file)), "method": method, "res": res,
+           "sub_elements": rep["preprocess"]["sub_elements"],
+           "preprocess_s": st["preprocess_s"], "visibility_s": st["visibility_s"],
+           "solve_s": st["solve_s"], "image_s": st["image_s"], "total_s": wall,
+           "vis_plus_solve_s": st["visibility_s"] + st["solve_s"],
+           "peak_worker_mib": max((v for v in (st.get("peak_rss_mb") or {}).values()), default=None),
+           "passes": rep["solve"]["iterations"], "kernel": rep["solve"]["kernel"]}
+    if method == "hierarchical":
+        lk = rep["links"]
+        row.update(nodes=lk["nodes"], leaves=lk["leaves"], links=lk["links"],
+                   links_per_leaf=lk["links_per_leaf"], rays=lk["rays"],
+                   split_off=lk["split_off_nodes"], link_stage_Mrays_s=lk["rays_per_s"] / 1e6,
+                   link_bytes_mib=lk["link_bytes"] / 2**20)
+        row["_run"] = out
+    else:
+        row.update(rays=rep["visibility"]["rays"], pairs=rep["visibility"]["pairs_total"])
+    if ref is not None:
+        img = box_down(read_exr(os.path.join(out, "image.exr")), GRID, GRID)
+        e = errors(img, ref["mean"])
+        row.update(mare=e["mare"], max_rel=e["max"])
+    return row
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sizes", default="64,128,256,512")
+    ap.add_argument("--pairs", default="64,128", help="resolutions for --method pairs too")
+    ap.add_argument("--spp", type=int, default=4096, help="reference samples per pixel (64x64)")
+    ap.add_argument("--room", type=int, default=256, help="room-2400 hierarchical at this (0: skip)")
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",") if s]
+    pairs_sizes = [int(s) for s in args.pairs.split(",") if s]
+    rows = []
+    with tempfile.TemporaryDirectory() as d, open_client(args.workers, quiet=True) as client:
+        t = time.perf_counter()
+        ref = reference(args.spp, os.path.join(d, "reference"))
+        ref_fig = {**ref["figures"], "wall_s": time.perf_counter() - t,
+                   "noise_floor": noise_floor(ref["mean"], ref["stderr"])}
+        print(f"reference: Mitsuba {ref_fig['variant']}, {ref_fig['spp']} spp at {GRID}x{GRID} in "
+              f"{ref_fig['time_s']:.1f} s, noise floor (mean abs. rel. error of an exact image) "
+              f"{ref_fig['noise_floor']:.2e}")
+        # warm numba caches and the workers
+        run_one(client, CORNELL, 16, "hierarchical", d)
+        run_one(client, CORNELL, 16, "pairs", d)
+        for res in sizes:
+            for method in (["pairs"] if res in pairs_sizes else []) + ["hierarchical"]:
+                row = run_one(client, CORNELL, res, method, d, ref)
+                rows.append(row)
+                print(f"  {method:12s} {res:4d}^2: {row['sub_elements']} sub-elements, total "
+                      f"{row['total_s']:.1f} s, error {row['mare']:.4f}", flush=True)
+        if args.room:
+            rows.append(run_one(client, ROOM, args.room, "hierarchical", d))
+        h = [r for r in rows if r["method"] == "hierarchical" and r["scene"] == "cornell-box"]
+        ratio = link_rays_vs_raw(h[min(1, len(h) - 1)]["_run"], args.workers,
+                                 h[min(1, len(h) - 1)]["link_stage_Mrays_s"] * 1e6) if h else None
+    for r in rows:
+        r.pop("_run", None)
+    for a in pairs_sizes:
+        p = [r for r in rows if r["res"] == a and r["method"] == "pairs" and r["scene"] == "cornell-box"]
+        q = [r for r in rows if r["res"] == a and r["method"] == "hierarchical" and r["scene"] == "cornell-box"]
+        if p and q:
+            q[0]["speedup_vis_solve"] = p[0]["vis_plus_solve_s"] / q[0]["vis_plus_solve_s"]
+            q[0]["speedup_total"] = p[0]["total_s"] / q[0]["total_s"]
+    fn = write("hierarchy", rows, {"reference": {k: v for k, v in ref_fig.items() if k != "camera"},
+                                   "link_rays_vs_raw": ratio})
+    print(table(rows, ["scene", "method", "res", "sub_elements", "nodes", "links", "links_per_leaf",
+                       "rays", "visibility_s", "solve_s", "total_s", "peak_worker_mib", "mare",
+                       "speedup_vis_solve", "speedup_total"]))
+    if ratio:
+        print("\nlink stage rays/s against raw embreex on the same rays (x workers):")
+        print(table([ratio], ["sample_rays", "raw_Mrays_s_1thread", "stage_Mrays_s", "stage_vs_raw"]))
+    print(f"wrote {fn}")
+
+
+if __name__ == "__main__":
+    main()

@@ -240,7 +240,7 @@ class RadiosityPage:
             self.heat.y_range.update(start=n, end=0)
         td, tt = int(vis.get("tasks_done") or 0), int(vis.get("tasks") or 0)
         pct = f" ({100.0 * td / tt:.0f} %)" if tt else ""
-        self.heat.title.text = f"Visibility blocks done: {td} / {tt} tasks{pct}, {n} originals"
+        self.heat.title.text = vis.get("title") or f"Visibility blocks done: {td} / {tt} tasks{pct}, {n} originals"
 
     def _update_solve(self, sol: dict) -> None:
         res = [float(r) for r in sol.get("residuals") or []]

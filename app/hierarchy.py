@@ -376,7 +376,7 @@ def node_table(tree: TreeNodes, part: Partition, extra_orig: np.ndarray,
     is_leaf = np.zeros(N, np.bool_)
     noff = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(o, minlength=n), out=noff[1:])
-    M = _table_walk(o, d, p, noff, verts, nverts, parent, lo, hi, is_leaf)
+    _table_walk(o, d, p, noff, verts, nverts, parent, lo, hi, is_leaf)
     area, _, _ = polygon_properties(verts, nverts)
     leaf_node = np.nonzero(is_leaf)[0]
     lp = pnode[leaf_node]

@@ -33,7 +33,6 @@ cannot call Embree): each round refines until every open link is kept or waits f
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass
 
@@ -45,6 +44,7 @@ from .errors import RadiosityError
 from .exact import _point_ff, _polygon_ff
 from .geometry import COS_TOL
 from .hierarchy import MAX_DEPTH, _bit, polygon_area_center, split_one
+from .monitor import Monitor, worker_address
 from .runner import run_tasks
 from .shafts import _faces, _same_side, _shaft_excludes, block_candidates, occluders
 
@@ -919,7 +919,7 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
 
 def task_links(inp: LinkInputs, pairs: np.ndarray, store_path: str, task: int) -> dict:
     """One link task: refine the pairs, write the links and split-off nodes into the store,
-    return {crc, n, nx, counts, start, stop, pid}."""
+    return {crc, n, nx, counts, start, stop, worker}."""
     from .rays import caster_for
     from .store import write_links
 
@@ -927,7 +927,7 @@ def task_links(inp: LinkInputs, pairs: np.ndarray, store_path: str, task: int) -
     caster = caster_for(inp.key, inp.verts, inp.nverts, inp.epsilon)
     links, nodes, counts = refine_pairs(inp, pairs, caster)
     out = write_links(store_path, task, links, nodes)
-    out.update({"counts": counts, "start": t0, "stop": time.time(), "pid": os.getpid()})
+    out.update({"counts": counts, "start": t0, "stop": time.time(), "worker": worker_address()})
     return out
 
 
@@ -1065,14 +1065,18 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
         counts += np.asarray(e["counts"], np.int64)
     busy: dict = {}
     computed = [0]
+    mon = Monitor(client)
+    mon.stage("links", run_dir)
+    mon.links(pairs, first, done, len(el), force=True)
 
     def finished(task, res):
         nonlocal counts
         ls.record(task, res)  # in the manifest only after its bytes were written
         done[task] = res
+        mon.links(pairs, first, done, len(el))
         computed[0] += 1
         counts += res["counts"]
-        busy[res["pid"]] = busy.get(res["pid"], 0.0) + (res["stop"] - res["start"])
+        busy[res["worker"]] = busy.get(res["worker"], 0.0) + (res["stop"] - res["start"])
         if on_done is not None:
             on_done(computed[0])
 
@@ -1086,6 +1090,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
                   retries=int(config.get("visibility.retries")), on_result=finished,
                   progress=progress, done=len(done),
                   repair=f"rerun with: radiosity visibility {run_dir} --method hierarchical --resume")
+    mon.links(pairs, first, done, len(el), force=True)
     wall = time.perf_counter() - t_loop
     # the node table: the partition's trees and every node split off an unseen original
     t_nodes = time.perf_counter()

@@ -98,21 +98,44 @@ class PlainProgress:
         return False
 
 
+def peak_rss_mib() -> float:
+    """This process's own peak resident memory (MiB): VmHWM of /proc/self/status, which a
+    spawned worker does not inherit from its parent (getrusage's ru_maxrss survives exec and
+    would report the driver's peak for a fresh worker); ru_maxrss where /proc is missing."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def peak_rss_mb(client) -> dict:
     """Peak resident memory (MiB) of the driver ("master") and of each worker, keyed by the
     worker's address."""
-    import resource
-
-    def peak():  # runs on each worker
-        import resource as r
-        return r.getrusage(r.RUSAGE_SELF).ru_maxrss / 1024.0
-
-    out = {"master": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    out = {"master": round(peak_rss_mib(), 1)}
     try:
-        out["workers"] = {k: round(v, 1) for k, v in client.run(peak).items()}
+        out["workers"] = {k: round(v, 1) for k, v in client.run(peak_rss_mib).items()}
     except Exception:  # a worker that died mid-run has no figure
         pass
     return out
+
+
+def worker_address() -> str:
+    """The address of the Dask worker running this task (the pid outside a worker): how every
+    per-worker figure is keyed."""
+    import os
+
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except Exception:
+        return f"pid {os.getpid()}"
 
 
 def heat_map(tiles_ij: np.ndarray, task_of_tile: np.ndarray, done: np.ndarray, n: int,
@@ -130,6 +153,28 @@ def heat_map(tiles_ij: np.ndarray, task_of_tile: np.ndarray, done: np.ndarray, n
     np.add.at(tot, (bi, bj), 1.0)
     np.add.at(fin, (bi, bj), done[task_of_tile].astype(float))
     return np.where(tot > 0, fin / np.maximum(tot, 1), np.nan)
+
+
+def link_heat(pairs: np.ndarray, first: np.ndarray, done_tasks: dict, n: int,
+              bins: int = BINS):
+    """(heat map (b, b), title or None) of the link stage: the fraction of link tasks done per
+    bin of original pairs while it runs; once all are done, the links per bin on a log scale
+    (log(1 + links) / log(1 + the busiest bin's); a stripe task's links shared evenly by its
+    pairs), with a title that says so."""
+    k = len(first) - 1
+    task_of_pair = np.repeat(np.arange(k), np.diff(first))
+    done = np.zeros(k, bool)
+    done[list(done_tasks)] = True
+    if not (k and done.all()):
+        return heat_map(pairs, task_of_pair, done, n, bins), None
+    b = max(1, min(bins, n))
+    per_pair = np.array([done_tasks[t]["n"] for t in range(k)], float) / np.maximum(np.diff(first), 1)
+    heat = np.zeros((b, b))
+    np.add.at(heat, (pairs[:, 0] * b // n, pairs[:, 1] * b // n), per_pair[task_of_pair])
+    top = float(heat.max(initial=0.0))
+    hm = np.where(heat > 0, np.log1p(heat) / np.log1p(max(top, 1.0)), np.nan)
+    total = int(sum(e["n"] for e in done_tasks.values()))
+    return hm, f"Links per pair of originals: {total} links (log scale; busiest bin {top:.0f})"
 
 
 def png_base64(img8: np.ndarray) -> str:
@@ -173,6 +218,19 @@ class Monitor:
         self._set("visibility", {"n": int(n), "bins": int(hm.shape[0]),
                                  "done": np.where(np.isnan(hm), -1.0, hm).round(3).tolist(),
                                  "tasks_done": int(done.sum()), "tasks": int(len(done))})
+
+    def links(self, pairs: np.ndarray, first: np.ndarray, done_tasks: dict, n: int,
+              force: bool = False) -> None:
+        """The link stage on the same heat map: link tasks done per pair of originals while
+        it runs; when every task is done, the links per pair of originals (log scale: a pair's
+        links over the busiest bin's), where the hierarchy spent its refinement."""
+        if not self._due("visibility", force):
+            return
+        hm, title = link_heat(pairs, first, done_tasks, n)
+        self._set("visibility", {"n": int(n), "bins": int(hm.shape[0]),
+                                 "done": np.where(np.isnan(hm), -1.0, hm).round(3).tolist(),
+                                 "tasks_done": len(done_tasks), "tasks": len(first) - 1,
+                                 **({"title": title} if title else {})})
 
     def solve(self, solver: str, kernel: str, residuals: list, force: bool = False) -> None:
         if self._due("solve", force):

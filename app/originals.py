@@ -22,7 +22,6 @@ from `estimate_facing_pairs`, a sample of rows counted exactly, made before any 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np

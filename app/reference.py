@@ -39,7 +39,7 @@ import time
 import numpy as np
 
 from . import config
-from .errors import RadiosityError, SceneError
+from .errors import RadiosityError
 from .types import Camera, Scene
 
 INSTALL = "pip install -e '.[reference]'"

@@ -54,6 +54,7 @@ import numpy as np
 
 from . import config
 from .errors import RadiosityError, SceneError
+from .monitor import worker_address
 
 COUNTERS = ("pairs_total", "pairs_culled_cluster", "pairs_dropped_cutoff", "pairs_facing_away",
             "pairs_facing", "pairs_zero_unobstructed", "pairs_cheap_kernel", "pairs_exact_kernel",
@@ -371,7 +372,7 @@ def task_viewfactors(inp: Inputs, prm: Params, leaves: np.ndarray, store_path: s
     counts[_STORED] = len(ij)
     res = write_vf_task(store_path, task, ij, f, drop)
     res.update(task=int(task), counts=counts.tolist(), times=times.tolist(), start=t0,
-               stop=time.time(), cpu=time.process_time() - c0, pid=os.getpid())
+               stop=time.time(), cpu=time.process_time() - c0, worker=worker_address())
     return res
 
 
@@ -613,7 +614,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     def record(task, res):
         man.record({k: res[k] for k in ("task", "crc", "n", "nd", "counts", "times", "cpu")})
         done[task] = res
-        busy[res["pid"]] = busy.get(res["pid"], 0.0) + res["stop"] - res["start"]
+        busy[res["worker"]] = busy.get(res["worker"], 0.0) + res["stop"] - res["start"]
 
     t_tasks = time.perf_counter()
     computed = 0

@@ -23,7 +23,6 @@ number of visible sample rays and the kernel-weighted visible fraction phi, stor
 
 from __future__ import annotations
 
-import os
 import time
 import zlib
 from dataclasses import dataclass
@@ -32,9 +31,8 @@ import numpy as np
 from dask.base import tokenize
 
 from . import config
-from .errors import RadiosityError
 from .kernels import MC, NXM, Sampling, sample_points, sample_rays
-from .monitor import Monitor, peak_rss_mb
+from .monitor import Monitor, peak_rss_mb, worker_address
 from .plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, choose_unit, make_plan
 from .rays import caster_for
 from .runner import run_tasks
@@ -222,16 +220,6 @@ def sampled_visibility(inp: VisInputs, caster, ia: np.ndarray, ib: np.ndarray):
 
 # ----------------------------------------------------------------------------- the task
 
-def _worker_address() -> str:
-    """The address of the Dask worker running this task (the pid outside a worker)."""
-    try:
-        from distributed import get_worker
-
-        return get_worker().address
-    except Exception:
-        return f"pid {os.getpid()}"
-
-
 def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: int, tbytes: int,
                     task: int = 0):
     """Compute the tiles of one task, write their packed bits as whole chunks (and, for sampled
@@ -274,7 +262,7 @@ def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: 
         partials.append(part)
     write_bits(store_path, tstart, buf)
     out = {"crc": zlib.crc32(buf[:used].tobytes()), "nbytes": used, "counts": counts,
-           "start": t0, "stop": time.time(), "worker": _worker_address()}
+           "start": t0, "stop": time.time(), "worker": worker_address()}
     if inp.sampling is not None:
         part = tuple(np.concatenate(x) for x in zip(*partials)) if partials else _NO_PARTIAL
         out["partial"] = write_partial(store_path, task, *part)

@@ -26,7 +26,7 @@ import numpy as np
 
 from common import ROOT, best_of, table, write
 from radiosity.cluster import open_client
-from radiosity.compare import box_down, box_down_stderr, errors, noise_floor
+from radiosity.compare import box_down, errors, noise_floor
 from radiosity.pipeline import render_scene
 from radiosity.render import read_exr
 from radiosity.scene import load_scene
@@ -105,7 +105,7 @@ def run_one(client, scene_file: str, res: int, method: str, d: str, ref=None) ->
            "preprocess_s": st["preprocess_s"], "visibility_s": st["visibility_s"],
            "solve_s": st["solve_s"], "image_s": st["image_s"], "total_s": wall,
            "vis_plus_solve_s": st["visibility_s"] + st["solve_s"],
-           "peak_worker_mib": max((v for v in (st.get("peak_rss_mb") or {}).values()), default=None),
+           "peak_worker_mib": max((st.get("peak_rss_mb") or {}).get("workers", {}).values(), default=None),
            "passes": rep["solve"]["iterations"], "kernel": rep["solve"]["kernel"]}
     if method == "hierarchical":
         lk = rep["links"]

@@ -400,21 +400,7 @@ def test_corrupted_link_task_is_detected_and_recomputed_on_resume(client, tmp_pa
     assert fig2["links"] == fig["links"]
 
 
-@pytest.fixture
-def restore_config():
-    """The CLI's flags set the process's dask.config: put it back afterwards."""
-    import copy
-
-    import dask_jobqueue  # noqa: F401  registers its defaults on import: snapshot after it
-    import distributed  # noqa: F401
-
-    saved = copy.deepcopy(dask.config.config)
-    yield
-    dask.config.config.clear()
-    dask.config.config.update(saved)
-
-
-def test_render_with_the_hierarchical_method_from_the_cli(client, tmp_path, restore_config):
+def test_render_with_the_hierarchical_method_from_the_cli(client, tmp_path):
     from click.testing import CliRunner
 
     from radiosity.cli import main
@@ -435,3 +421,20 @@ def test_render_with_the_hierarchical_method_from_the_cli(client, tmp_path, rest
                                     "--link-rays", "5", "--scheduler", addr])
     assert bad.exit_code == 2 and "square" in bad.output
     shutil.rmtree(out)
+
+
+def test_dashboard_heat_map_shows_link_progress_then_links_per_pair():
+    """While link tasks run the heat map is the fraction done per bin of original pairs; once
+    all are done it is the links per pair on a log scale (the busiest bin 1, an empty bin -1
+    on the page), titled with the total."""
+    from radiosity.monitor import link_heat
+
+    pairs = np.array([[0, 1], [0, 2], [1, 2]])
+    first = np.array([0, 2, 3])  # task 0 holds pairs (0,1), (0,2); task 1 holds (1,2)
+    hm, title = link_heat(pairs, first, {0: {"n": 10}}, 3)
+    assert title is None and hm[0, 1] == hm[0, 2] == 1.0 and hm[1, 2] == 0.0
+    hm, title = link_heat(pairs, first, {0: {"n": 10}, 1: {"n": 99}}, 3)
+    assert "109 links" in title
+    np.testing.assert_allclose(hm[1, 2], 1.0)
+    np.testing.assert_allclose(hm[0, 1], np.log1p(5) / np.log1p(99))
+    assert np.isnan(hm[2, 0]) and np.isnan(hm[0, 0])

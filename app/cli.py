@@ -188,6 +188,8 @@ def _number_list(kind, lo, what):
     """A callback for comma-separated lists (study accuracy): every item a `kind` > lo."""
 
     def cb(ctx, param, value):
+        if value is None:  # an optional list not given
+            return None
         try:
             items = [kind(x) for x in value.split(",") if x.strip()]
         except ValueError:
@@ -323,18 +325,32 @@ def method_options(fn, links: bool = True):
         fn = click.option("--epsilon", type=click.FloatRange(min=0.0), default=None, expose_value=False,
                           help="hierarchical: refine links while their error estimate exceeds this.",
                           callback=_set_config(lambda v: {"radiosity.hierarchy.epsilon": v}))(fn)
-    return click.option("--method", type=click.Choice(["pairs", "hierarchical"]), default=None,
+    return click.option("--method", type=click.Choice(["auto", "pairs", "hierarchical"]), default=None,
                         expose_value=False,
                         help="pairs: one visibility bit per pair of sub-elements (the seed's); "
-                             "hierarchical: links between nodes of the split trees (default: "
-                             "radiosity.visibility.method).",
+                             "hierarchical: links between nodes of the split trees; auto (the "
+                             "default, radiosity.visibility.method): hierarchical above "
+                             "radiosity.visibility.hierarchical-above sub-elements.",
                         callback=_set_config(lambda v: {"radiosity.visibility.method": v}))(fn)
 
 
-def _hierarchical() -> bool:
-    from . import config
+def _method(rs, kernel: str | None = None) -> tuple[str, str]:
+    """(method, why) of a run: --method / radiosity.visibility.method, auto by its size."""
+    from .settings import choose_method
 
-    return config.get("visibility.method") == "hierarchical"
+    return choose_method(len(rs.load_partition()), kernel=kernel)
+
+
+def _solved_method(rs) -> str:
+    """The method a solve takes: the stated one, else the one whose stage ran (each stage
+    drops the other's output, so a run holds links or a visibility matrix, not both)."""
+    from . import config
+    from .store import LinkStore
+
+    stated = config.get("visibility.method")
+    if stated in ("pairs", "hierarchical"):
+        return stated
+    return "hierarchical" if LinkStore(rs).token() is not None else "pairs"
 
 
 def _table(rows: list[tuple[str, object]]) -> str:
@@ -404,8 +420,9 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     from .visibility import compute_visibility
 
     check_run_dir(run_dir)
-    RunStore(run_dir).load_partition()  # fail before starting a cluster
-    if _hierarchical():
+    method, why = _method(RunStore(run_dir), kernel)  # fails before starting a cluster
+    click.echo(f"method: {why}")
+    if method == "hierarchical":
         from .links import compute_links, links_rows, resolve_params
 
         resolve_params(RunStore(run_dir).load_elements(), kernel)  # bad settings fail here
@@ -477,7 +494,7 @@ def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, worker
     check_run_dir(run_dir)
     rs = RunStore(run_dir)
     rs.load_partition()
-    hierarchical = _hierarchical()
+    hierarchical = _solved_method(rs) == "hierarchical"
     if hierarchical:
         from .linksolve import run_solve_links
         from .store import LinkStore
@@ -542,6 +559,15 @@ def plan(scene, resolution, subpixel, tol):
                f"{sc.camera.width}x{sc.camera.height}")
     click.echo(describe(planned.effects, planned.unseen_unsplit, planned.sub_elements,
                         planned.closure))
+    from .hierarchy import LINKS_PER_LEAF
+    from .settings import choose_method
+    from .store import LINK_DTYPE
+
+    method, why = choose_method(planned.sub_elements)
+    lo, hi = (k * planned.sub_elements for k in LINKS_PER_LEAF)
+    click.echo(f"method: {why}; the hierarchical method would keep {lo:.2g} to {hi:.2g} links "
+               f"({LINKS_PER_LEAF[0]:g}-{LINKS_PER_LEAF[1]:g} per sub-element as measured, "
+               f"{LINK_DTYPE.itemsize} bytes each), where pairs needs one bit per facing pair")
 
 
 @main.command()
@@ -749,17 +775,26 @@ def _floats(s: str, kind=float):
 @click.option("--path-tracer-spp", default=None, metavar="N,N,...",
               help="--reference auto: the path tracer's sample counts (default: 1, 4, 16, ... "
                    "up to the reference's / 16).")
+@click.option("--epsilons", default=None, metavar="E,E,...",
+              callback=_number_list(float, -1e-300, "numbers >= 0"),
+              help="Also sweep --method hierarchical at these epsilons (x --link-rays).")
+@click.option("--link-rays", "link_rays", default="16", show_default=True, metavar="K,K,...",
+              callback=_number_list(int, 0, "positive integers"),
+              help="With --epsilons: the hierarchical method's rays per link (squares).")
 @click.option("--solver", default=None, help="Solver (default: radiosity.solve.solver).")
 @cluster_options
 @_friendly
 def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, reference_spp,
-                   path_tracer_spp, solver, workers, scheduler, cluster_kind):
-    """Sweep resolution x sub-pixel x kernel x tolerance on SCENE; time every stage, measure the
-    error; write results.csv, results.md and accuracy.png (error against time, Pareto front)."""
+                   path_tracer_spp, epsilons, link_rays, solver, workers, scheduler, cluster_kind):
+    """Sweep resolution x sub-pixel x kernel x tolerance on SCENE (and, with --epsilons, the
+    hierarchical method's epsilon x link rays); time every stage, measure the error; write
+    results.csv, results.md and accuracy.png (error against time, Pareto front)."""
     from .cluster import open_client
-    from .study import accuracy, kernel_setting
+    from .study import HIER, accuracy, kernel_setting
 
     ks = [k for k in kernels.split(",") if k]
+    if epsilons:
+        ks += [f"{HIER}:{e:g}:{k}" for e in _floats(epsilons) for k in _floats(link_rays, int)]
     for k in ks:
         kernel_setting(k)  # a bad name or count fails before the cluster starts
     if reference == "auto":

@@ -3,9 +3,9 @@ refine the link of their roots down the split trees until each link carries litt
 
 A link p <- q between nodes of two originals (hierarchy.py) carries the unoccluded form
 factors F_pq, F_qp (A_p F_pq = A_q F_qp) and the visible fraction v. One task per pair of
-originals I < J that face each other (originals.facing_pairs: nothing n x n), or per stripe of pairs, run by the
-same kind of dynamic master as the visibility matrix: bounded window, most expensive first,
-retries, a manifest with a crc per task, resume.
+originals I < J that face each other (originals.facing_pairs: nothing n x n), or per stripe
+of pairs, run through the one runner (runner.run_tasks) like the visibility matrix: bounded
+window, most expensive first, retries, a manifest with a crc per task, resume.
 
 Refinement of a link (p, q), depth first:
 
@@ -16,19 +16,26 @@ Refinement of a link (p, q), depth first:
    no ray (for the children too); one occluder whose plane separates p from q and that contains
    every crossing point of the segments between their vertices (the convex hull of all crossing
    points) -> v = 0 exactly, the link is dropped;
-3. the oracle: the disc estimates of F_pq, F_qp between centroids, weighted by reflectance and
-   an a-priori radiance (`weight: bf`) or not (`none`); above epsilon, or near (centroids
-   closer than `near-field-factor` node sizes, size = sqrt(area)), the node that looks larger
-   from the other (the larger area) is split, if it can be (seen originals down to their camera
-   sub-elements, unseen ones down to the size limit);
+3. the oracle (radiosity.hierarchy.oracle): `ff` compares the centroid estimates of F_pq,
+   F_qp with epsilon (Hanrahan et al. 1991); `gradient` weighs them by the nodes' size over
+   their distance; `spread` (the default) by how much the estimate changes between a node's
+   centroid and its vertices. Weighted (`weight: bf`) by the receiver's reflectance and an
+   a-priori radiance of the source (emission plus an ambient estimate), or not (`none`). Above
+   epsilon, or near (centroids closer than `near-field-factor` node sizes, size = sqrt(area)),
+   the node that looks larger from the other is split, if it can be (seen originals down to
+   their camera sub-elements, unseen ones down to `min-node-size`);
 4. a kept link not proven visible gets k stratified sample rays (`link-rays`; k = 1: one ray
-   between centroids, the seed's) -> v = visible rays / k; a partly visible link (0 < v < 1)
-   with error above `shadow-factor * epsilon` is split further while it can be.
+   between centroids, the seed's) -> v = the visible rays' share, each ray weighted by the
+   point kernel between its end points (`kernel-weighted-rays`); a partly visible link
+   (0 < v < 1) with error above `shadow-factor * epsilon` is split further while it can be.
 
-Kept links carry the point kernel between centroids (reciprocal, so CG applies), the disc kernel
-with --kernel disc, and the exact polygon form factor (exact.py) for near leaf links with the
--nf kernels. Rays are cast in batches between rounds of the depth-first refinement (numba
-cannot call Embree): each round refines until every open link is kept or waits for rays.
+Kept far links carry the exact form factor from the smaller node's centroid to the larger
+node's polygon (`far-kernel: polygon`; or the point / disc kernel between centroids:
+`centroid`); near leaf links with the -nf kernels the exact polygon-to-polygon form factor
+(exact.py: Gauss points over the smaller node when it lies `near-gauss-gap` of its sizes away,
+else the double contour integral). Rays are cast in batches between rounds of the depth-first
+refinement (numba cannot call Embree): each round refines until every open link is kept or
+waits for rays.
 """
 
 from __future__ import annotations

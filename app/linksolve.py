@@ -815,13 +815,14 @@ def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float 
         if fg not in ("exact", "linear"):
             raise RadiosityError(f"radiosity.hierarchy.final-gather must be none, linear or exact, "
                                  f"got {fg!r}")
-        # the final gather evaluates form factors afresh (from each leaf's centroid): the rows'
-        # caps and balancing of the solve do not apply to them; in a closed scene its rows are
-        # balanced to 1 in turn (every leaf sees the whole enclosure), else rho -> 1 turns the
-        # kernel's residual row error into the answer's
+        # the final gather evaluates form factors afresh (from each leaf's centroid): in a
+        # closed scene the solve's balancing D K D does not fit them, so its rows are balanced
+        # to 1 in turn (every leaf sees the whole enclosure; else rho -> 1 turns their row
+        # error into the answer's); an open scene's row caps stay as in the solve
         closed = rows.get("mode") == "closed"
+        settings = {"cap": np.ones(M), "cmode": CAP_MIN} if closed else {}
         op.configure(fg_levels=int(config.get("hierarchy.final-gather-levels")), fg_mode=fg,
-                     cap=np.ones(M), cmode=CAP_MIN)
+                     **settings)
         G = op.final_gather(res.radiance)
         if closed:
             r = op.final_gather(np.ones_like(res.radiance[:, :1]))

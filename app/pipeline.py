@@ -15,12 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import config
-from .errors import SceneError
 from .effects import plan_effects
 from .monitor import peak_rss_mb
 from .preprocess import preprocess
 from .rays import RayCaster, raster_band
 from .render import previewer, render_outputs
+from .settings import choose_method
 from .solve import resolve_closure, run_solve, write_direct_solution
 from .store import RunStore, StageFigures, update_report
 from .types import Scene
@@ -130,9 +130,9 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
                  link_rays=None) -> RenderFigures:
     """plan -> preprocess -> visibility -> solve -> image (+ the preview from the originals).
 
-    method: "pairs" (the seed's visibility matrix) or "hierarchical" (links between nodes of
-    the split trees, links.py; epsilon and link_rays are its settings); default
-    radiosity.visibility.method.
+    method: "pairs" (the seed's visibility matrix), "hierarchical" (links between nodes of
+    the split trees, links.py; epsilon and link_rays are its settings) or "auto" (by the
+    number of sub-elements, settings.choose_method); default radiosity.visibility.method.
 
     The effects plan (effects.py) decides what is simulated; `full` forces every effect on.
     With `resume`, a run directory whose preprocessing matches (the same scene: file, contents
@@ -166,9 +166,9 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     planned = scene_plan(scene, subpixel, tol, full, run_dir=out)
     planned.write(out)
     effects = planned.effects
-    method = config.get("visibility.method", method)
-    if method not in ("pairs", "hierarchical"):
-        raise SceneError(f"--method must be pairs or hierarchical, got {method!r}")
+    method, why = choose_method(len(RunStore(out).load_partition()), method, kernel)
+    echo(f"method: {why}")
+    update_report(out, "plan", {"method": method, "method_reason": why})
     t = time.perf_counter()
     if effects.interreflection and method == "hierarchical":
         from .links import compute_links

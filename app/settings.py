@@ -16,3 +16,31 @@ def sampling_of(kernel: str, points: int | None = None, samples: int | None = No
     radiosity.solve.nxm-points / mc-samples / mc-seed unless given."""
     return make_sampling(kernel, config.get("solve.nxm-points", points),
                          config.get("solve.mc-samples", samples), config.get("solve.mc-seed", seed))
+
+
+METHODS = ("auto", "pairs", "hierarchical")
+
+
+def choose_method(sub_elements: int, setting: str | None = None,
+                  kernel: str | None = None) -> tuple[str, str]:
+    """(method, why) for a run of `sub_elements`: radiosity.visibility.method unless given;
+    auto takes hierarchical above radiosity.visibility.hierarchical-above sub-elements, where it
+    measured faster at the same error (bench_hierarchy: 2.6x at 128^2, 19x at 256^2 on the
+    Cornell box), and the seed's pairs below, where both cost the same and pairs is the exact
+    all-pairs limit. A sampled kernel (nxm, mc) is the pairs method's (links sample their
+    own rays): auto takes pairs for it."""
+    from .errors import RadiosityError
+
+    method = config.get("visibility.method", setting)
+    if method not in METHODS:
+        raise RadiosityError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    if method != "auto":
+        return method, f"{method}: stated (method: {method})"
+    above = int(config.get("visibility.hierarchical-above"))
+    kernel = config.get("solve.kernel", kernel)
+    if kernel not in ("point", "disc", "point-nf", "disc-nf"):
+        return "pairs", f"pairs: auto, the {kernel} kernel samples the pairs' own rays"
+    if sub_elements > above:
+        return "hierarchical", (f"hierarchical: auto, {sub_elements} sub-elements > {above} "
+                                "(links grow at most like m, pairs like m^2)")
+    return "pairs", f"pairs: auto, {sub_elements} sub-elements <= {above} (all pairs cost no more)"

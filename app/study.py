@@ -89,10 +89,27 @@ def sampled_radiance(part, L: np.ndarray, orig: np.ndarray, points: np.ndarray, 
     return out
 
 
+HIER = "hier"  # a sweep label hier:EPSILON:RAYS is --method hierarchical with those settings
+
+
 def kernel_setting(spec: str):
     """A kernel of a sweep: "point", or a sampled kernel with its sample count, "nxm:16"
-    (points per element) or "mc:64" (sample pairs). Returns (kernel, dask.config overrides)."""
+    (points per element) or "mc:64" (sample pairs), or the hierarchical method with its
+    epsilon and link rays, "hier:1e-3:16" (kernel radiosity.hierarchy.kernel). Returns (kernel,
+    dask.config overrides)."""
     name, _, n = spec.partition(":")
+    if name == HIER:
+        eps, _, k = n.partition(":")
+        try:
+            eps, k = float(eps), int(k)
+        except ValueError:
+            raise RadiosityError(f"setting {spec!r}: the hierarchical method is hier:EPSILON:RAYS, "
+                                 "e.g. hier:1e-3:16") from None
+        if not (eps >= 0 and k >= 1 and int(round(k ** 0.5)) ** 2 == k):
+            raise RadiosityError(f"setting {spec!r}: epsilon >= 0 and a square number of link rays")
+        return config.get("hierarchy.kernel"), {"radiosity.visibility.method": "hierarchical",
+                                                "radiosity.hierarchy.epsilon": eps,
+                                                "radiosity.hierarchy.link-rays": k}
     kid = kernel_id(name)
     if not n:
         return name, {}
@@ -102,7 +119,9 @@ def kernel_setting(spec: str):
 
 
 def _visibility_key(spec: str) -> str:
-    """Which visibility matrix kernel `spec` needs ("" for one ray between centres)."""
+    """Which visibility matrix (or link set) `spec` needs ("" for one ray between centres)."""
+    if spec.startswith(HIER + ":"):
+        return spec
     kernel, settings = kernel_setting(spec)
     with dask.config.set(settings):
         smp = sampling_of(kernel)
@@ -136,6 +155,8 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
     from .preprocess import preprocess
     from .render import read_exr, render_outputs
     from .scene import load_scene
+    from .links import compute_links
+    from .linksolve import run_solve_links
     from .solve import run_solve
     from .store import RunStore
     from .visibility import compute_visibility
@@ -169,11 +190,14 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         for label, tol in itertools.product(specs, tols):
             kernel, settings = kernel_setting(label)
             with dask.config.set(settings):  # the sample count of nxm:N / mc:k, for this row
-                smp = sampling_of(kernel)
-                key = str(None if smp is None else smp.to_dict())
+                hier = label.startswith(HIER + ":")
+                key = _visibility_key(label)
                 if key != current:
                     t = time.perf_counter()
-                    compute_visibility(run, client, progress=False, kernel=kernel)
+                    if hier:
+                        compute_links(run, client, progress=False)
+                    else:
+                        compute_visibility(run, client, progress=False, kernel=kernel)
                     t_vis[key] = time.perf_counter() - t
                     current = key
                 t = time.perf_counter()
@@ -183,12 +207,18 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                 if solve_with == "cg" and not get_kernel(kernel).reciprocal:
                     solve_with = "auto"
                 solve_with = choose_solver(solve_with, kernel)
+                if "form_factor" in val and hier:
+                    raise RadiosityError(f"{scene_path}: a form-factor validation scene has no "
+                                         "solve to compare; sweep the hierarchical method on a "
+                                         "scene with a radiance answer or an image reference")
                 if "form_factor" in val:
                     f = form_factor_of_run(run, client, kernel, val["from"], val["to"])
                     err = abs(f / val["form_factor"] - 1.0)
                     t_solve, t_img = time.perf_counter() - t, 0.0
                 else:
-                    fig = run_solve(run, client, solver=solve_with, kernel=kernel, tol=tol, progress=False)
+                    fig = (run_solve_links(run, client, solver=solve_with, tol=tol, progress=False)
+                           if hier else
+                           run_solve(run, client, solver=solve_with, kernel=kernel, tol=tol, progress=False))
                     passes = fig.iterations
                     t_solve = time.perf_counter() - t
                     t = time.perf_counter()

@@ -4,13 +4,15 @@ pairs), both in the same run, on the Cornell box at growing resolutions.
 Per (method, resolution): sub-elements, nodes, links, links per leaf, rays, the time of every
 stage (the whole `render_scene` on a warm 2-worker LocalCluster, not the process start), peak
 memory per worker, and the error of the image against a Mitsuba 3 path-traced reference of the
-same view (64x64, high spp: every image is box-filtered to 64x64 first, which is exact because
-the pixels nest; the reference's own noise floor is printed with it). The link stage's whole
+same view (rendered at 64x64 with high spp; it and every image are box-filtered to --grid
+(32x32) before comparing, exact because the pixels nest, so that the reference's own noise,
+printed as its noise floor, stays well below the methods' errors). Peak memory is each
+worker's high-water mark within the run (VmHWM, reset before each run). The link stage's whole
 throughput (its rays over its wall time on all workers) is set against raw embreex casting the
 same rays (one thread, times the worker count) in the same run.
 
     python benchmarks/bench_hierarchy.py [--sizes 64,128,256,512] [--pairs 64,128]
-                                         [--spp 4096] [--room 256]
+                                         [--spp 8192] [--grid 32] [--room 256]
 
 Writes benchmarks/results/hierarchy.json and prints the tables.
 """
@@ -26,7 +28,7 @@ import numpy as np
 
 from common import ROOT, best_of, table, write
 from radiosity.cluster import open_client
-from radiosity.compare import box_down, errors, noise_floor
+from radiosity.compare import box_down, box_down_stderr, errors, noise_floor
 from radiosity.pipeline import render_scene
 from radiosity.render import read_exr
 from radiosity.scene import load_scene
@@ -93,8 +95,18 @@ def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dic
             "stage_vs_raw": stage_rays_per_s / (raw_rate * workers), "points": int(len(pts))}
 
 
-def run_one(client, scene_file: str, res: int, method: str, d: str, ref=None) -> dict:
+def _reset_peak() -> None:
+    """Reset this process's VmHWM to its current RSS (Linux: clear_refs 5)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass
+
+
+def run_one(client, scene_file: str, res: int, method: str, d: str, ref=None, grid: int = 32) -> dict:
     sc = load_scene(scene_file, resolution=res)
+    client.run(_reset_peak)
     out = os.path.join(d, f"{os.path.basename(os.path.dirname(scene_file))}-{method}-{res}")
     t = time.perf_counter()
     rep = render_scene(sc, out, client, preview=False, progress=False, method=method)
@@ -117,8 +129,8 @@ def run_one(client, scene_file: str, res: int, method: str, d: str, ref=None) ->
     else:
         row.update(rays=rep["visibility"]["rays"], pairs=rep["visibility"]["pairs_total"])
     if ref is not None:
-        img = box_down(read_exr(os.path.join(out, "image.exr")), GRID, GRID)
-        e = errors(img, ref["mean"])
+        img = box_down(read_exr(os.path.join(out, "image.exr")), grid, grid)
+        e = errors(img, box_down(ref["mean"], grid, grid))
         row.update(mare=e["mare"], max_rel=e["max"])
     return row
 
@@ -126,8 +138,9 @@ def run_one(client, scene_file: str, res: int, method: str, d: str, ref=None) ->
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", default="64,128,256,512")
-    ap.add_argument("--pairs", default="64,128", help="resolutions for --method pairs too")
-    ap.add_argument("--spp", type=int, default=4096, help="reference samples per pixel (64x64)")
+    ap.add_argument("--pairs", default="64,128,256", help="resolutions for --method pairs too")
+    ap.add_argument("--spp", type=int, default=8192, help="reference samples per pixel (64x64)")
+    ap.add_argument("--grid", type=int, default=32, help="errors on this grid (box filter)")
     ap.add_argument("--room", type=int, default=256, help="room-2400 hierarchical at this (0: skip)")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
@@ -137,17 +150,18 @@ def main():
     with tempfile.TemporaryDirectory() as d, open_client(args.workers, quiet=True) as client:
         t = time.perf_counter()
         ref = reference(args.spp, os.path.join(d, "reference"))
-        ref_fig = {**ref["figures"], "wall_s": time.perf_counter() - t,
-                   "noise_floor": noise_floor(ref["mean"], ref["stderr"])}
+        ref_fig = {**ref["figures"], "wall_s": time.perf_counter() - t, "grid": args.grid,
+                   "noise_floor": noise_floor(box_down(ref["mean"], args.grid, args.grid),
+                                              box_down_stderr(ref["stderr"], args.grid, args.grid))}
         print(f"reference: Mitsuba {ref_fig['variant']}, {ref_fig['spp']} spp at {GRID}x{GRID} in "
-              f"{ref_fig['time_s']:.1f} s, noise floor (mean abs. rel. error of an exact image) "
-              f"{ref_fig['noise_floor']:.2e}")
+              f"{ref_fig['time_s']:.1f} s; errors on {args.grid}x{args.grid}, where its noise floor "
+              f"(mean abs. rel. error of an exact image) is {ref_fig['noise_floor']:.2e}")
         # warm numba caches and the workers
         run_one(client, CORNELL, 16, "hierarchical", d)
         run_one(client, CORNELL, 16, "pairs", d)
         for res in sizes:
             for method in (["pairs"] if res in pairs_sizes else []) + ["hierarchical"]:
-                row = run_one(client, CORNELL, res, method, d, ref)
+                row = run_one(client, CORNELL, res, method, d, ref, args.grid)
                 rows.append(row)
                 print(f"  {method:12s} {res:4d}^2: {row['sub_elements']} sub-elements, total "
                       f"{row['total_s']:.1f} s, error {row['mare']:.4f}", flush=True)

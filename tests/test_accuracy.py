@@ -10,6 +10,7 @@ import os
 import numpy as np
 import pytest
 
+from radiosity.errors import RadiosityError
 from radiosity.exact import parallel_rectangles, perpendicular_rectangles
 from radiosity.geometry import polygon_properties
 from radiosity.kernels import pair_form_factors
@@ -398,3 +399,17 @@ def test_coaxial_discs_validation_value_is_the_64_gon_contour_integral():
     top = (ring + [0, 0, 1.0])[::-1]
     f = polygon_form_factor(ring, top)
     assert load_scene(scene_path("coaxial-discs")).validation["form_factor"] == pytest.approx(f, rel=1e-12)
+
+
+def test_study_accuracy_sweeps_the_hierarchical_method(client, tmp_path):
+    """hier:EPSILON:RAYS settings (the CLI's --epsilons x --link-rays) run the link stage and
+    its solve inside the sweep, each its own row, timed and measured like the kernels: on the
+    furnace cube (closed, exact radiance Le / (1 - rho)) both methods are exact to the
+    closure's balancing (1e-6: the solver's tolerance)."""
+    rows = accuracy(scene_path("furnace-cube"), str(tmp_path / "st"), client, [8], [1],
+                    ["point", "hier:1e-3:4", "hier:1e-2:1"], [1e-9], echo=lambda *a: None)
+    assert [r["kernel"] for r in rows] == ["point", "hier:1e-2:1", "hier:1e-3:4"]
+    for r in rows:
+        assert r["error"] < 1e-6 and r["time_visibility_s"] > 0 and r["passes"] > 0, r
+    with pytest.raises(RadiosityError, match="hier:EPSILON:RAYS"):
+        accuracy(scene_path("furnace-cube"), str(tmp_path / "x"), client, [8], [1], ["hier:x"], [1e-6])

@@ -438,3 +438,24 @@ def test_dashboard_heat_map_shows_link_progress_then_links_per_pair():
     np.testing.assert_allclose(hm[1, 2], 1.0)
     np.testing.assert_allclose(hm[0, 1], np.log1p(5) / np.log1p(99))
     assert np.isnan(hm[2, 0]) and np.isnan(hm[0, 0])
+
+
+def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_path):
+    """auto (the default): pairs up to radiosity.visibility.hierarchical-above sub-elements,
+    hierarchical beyond; a sampled kernel keeps pairs (its rays are the pairs'); a stated method
+    is kept. `radiosity plan` prints the choice and the links it would keep."""
+    from click.testing import CliRunner
+
+    from radiosity.cli import main
+    from radiosity.settings import choose_method
+
+    with dask.config.set({"radiosity.visibility.method": "auto",
+                          "radiosity.visibility.hierarchical-above": 1000}):
+        assert choose_method(1000)[0] == "pairs" and choose_method(1001)[0] == "hierarchical"
+        assert "1001 sub-elements > 1000" in choose_method(1001)[1]
+        assert choose_method(10 ** 6, kernel="nxm")[0] == "pairs"
+        assert choose_method(10, "hierarchical")[0] == "hierarchical"
+        r = CliRunner().invoke(main, ["plan", scene_path("three-rectangles"), "--resolution", "64"])
+    assert r.exit_code == 0, r.output
+    line = [ln for ln in r.output.splitlines() if ln.startswith("method: ")]
+    assert len(line) == 1 and "hierarchical: auto" in line[0] and "links" in line[0], r.output

@@ -32,7 +32,7 @@ def run(scene, res, workers, unit=None):
         # warm-up: numba kernels load from cache, Embree scenes build on every worker
         compute_visibility(d, client, progress=False, unit=unit)
         t = time.perf_counter()
-        fig = compute_visibility(d, client, progress=False, unit=unit)
+        fig = compute_visibility(d, client, progress=False, unit=unit).to_dict()
         fig["wall_s"] = time.perf_counter() - t
         return fig
 
@@ -114,7 +114,8 @@ def main():
     print("visibility time against sub-elements (seed Fig. 4)")
     print(table(rows, ["resolution", "sub_elements", "pairs", "facing", "rays_frac", "rays", "time_s",
                        "Mpairs_s", "idle", "peak_worker_MiB", "tasks"]))
-    print(f"growth order (log-log slope of time against sub-elements, upper half): {order:.2f}")
+    if order is not None:
+        print(f"growth order (log-log slope of time against sub-elements, upper half): {order:.2f}")
     print(f"\nspeedup at {args.speedup_res}x{args.speedup_res} (seed §5.2)")
     print(table(speed, ["workers", "time_s", "speedup", "efficiency", "idle"]))
     print("\nocclusion rays: ours against raw embreex on the same segments")

@@ -1038,8 +1038,10 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
     part = rs.load_partition()
     el = rs.load_elements()
     prm, weight = resolve_params(el, kernel, epsilon, rays, occlusion)
-    unit = choose_unit(config.get("visibility.task-unit", unit), len(el),
-                       int(config.get("visibility.stripe-threshold")))
+    unit = config.get("hierarchy.task-unit", unit)
+    if unit == "auto":
+        unit = choose_unit(config.get("visibility.task-unit"), len(el),
+                           int(config.get("visibility.stripe-threshold")))
     otree = tree_of(el, int(config.get("plan.leaf-size")))
     bi, bj, _ = pairs_within_budget(otree, int(float(config.get("plan.max-facing-pairs"))),
                                     rs.attrs.get("scene") or run_dir)

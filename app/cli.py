@@ -338,7 +338,8 @@ def _method(rs, kernel: str | None = None) -> tuple[str, str]:
     """(method, why) of a run: --method / radiosity.visibility.method, auto by its size."""
     from .settings import choose_method
 
-    return choose_method(len(rs.load_partition()), kernel=kernel)
+    part = rs.load_partition()
+    return choose_method(len(part), kernel=kernel, originals=len(part.offsets) - 1)
 
 
 def _solved_method(rs) -> str:
@@ -563,7 +564,7 @@ def plan(scene, resolution, subpixel, tol):
     from .settings import choose_method
     from .store import LINK_DTYPE
 
-    method, why = choose_method(planned.sub_elements)
+    method, why = choose_method(planned.sub_elements, originals=len(sc.elements))
     lo, hi = (k * planned.sub_elements for k in LINKS_PER_LEAF)
     click.echo(f"method: {why}; the hierarchical method would keep {lo:.2g} to {hi:.2g} links "
                f"({LINKS_PER_LEAF[0]:g}-{LINKS_PER_LEAF[1]:g} per sub-element as measured, "

@@ -940,11 +940,12 @@ def task_links(inp: LinkInputs, pairs: np.ndarray, store_path: str, task: int) -
 
 # ----------------------------------------------------------------------------- the plan (pure)
 
-def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, max_task_cost: int):
+def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, max_task_cost: int,
+              min_tasks: int = 16):
     """The link tasks: the pairs I < J that face each other both ways (bi, bj sorted by (I, J),
-    originals.facing_pairs), in I-major order; unit 'block': one task per pair; 'stripe': the
-    pairs of one I, cut so that no task costs more than max_task_cost (estimated cost of a pair:
-    the sub-elements of both). Returns pairs (t, 2) int64, first (k + 1,) int64 (task k holds
+    originals.facing_pairs), in I-major order; unit 'block': one task per pair; 'stripe':
+    consecutive pairs, cut so that no task costs more than max_task_cost nor more than 1 /
+    min_tasks of the whole (estimated cost of a pair: the sub-elements of both). Returns pairs (t, 2) int64, first (k + 1,) int64 (task k holds
     pairs first[k]:first[k+1]), cost (k,) int64."""
     size = np.diff(offsets)
     pairs = np.stack([np.asarray(bi, np.int64), np.asarray(bj, np.int64)], 1).reshape(-1, 2)
@@ -952,10 +953,14 @@ def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, ma
     if unit == "block":
         first = np.arange(len(pairs) + 1, dtype=np.int64)
     elif unit == "stripe":
+        # consecutive pairs share a task up to the cost cap, across originals too (thousands
+        # of small originals would otherwise be thousands of tasks at ~50 ms each), and the cap
+        # leaves at least `min_tasks` tasks for the master to balance
+        cap = max(1, min(max_task_cost, int(pc.sum()) // max(1, min_tasks)))
         starts = [0]
         acc = 0
         for k in range(len(pairs)):
-            if k > 0 and (pairs[k, 0] != pairs[k - 1, 0] or acc + pc[k] > max_task_cost):
+            if k > 0 and acc + pc[k] > cap:
                 starts.append(k)
                 acc = 0
             acc += int(pc[k])

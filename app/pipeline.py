@@ -166,7 +166,8 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     planned = scene_plan(scene, subpixel, tol, full, run_dir=out)
     planned.write(out)
     effects = planned.effects
-    method, why = choose_method(len(RunStore(out).load_partition()), method, kernel)
+    method, why = choose_method(len(RunStore(out).load_partition()), method, kernel,
+                                originals=len(scene.elements))
     echo(f"method: {why}")
     update_report(out, "plan", {"method": method, "method_reason": why})
     t = time.perf_counter()

@@ -457,6 +457,10 @@ def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_pat
         assert "1001 sub-elements > 1000" in choose_method(1001)[1]
         assert choose_method(10 ** 6, kernel="nxm")[0] == "pairs"
         assert choose_method(10, "hierarchical")[0] == "hierarchical"
+        # many originals of about one sub-element each: nothing for links to coarsen
+        assert choose_method(20016, originals=20001)[0] == "pairs"
+        assert "under 4 each" in choose_method(20016, originals=20001)[1]
+        assert choose_method(21208, originals=20)[0] == "hierarchical"
         r = CliRunner().invoke(main, ["plan", scene_path("three-rectangles"), "--resolution", "64"])
     assert r.exit_code == 0, r.output
     line = [ln for ln in r.output.splitlines() if ln.startswith("method: ")]

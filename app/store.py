@@ -702,8 +702,7 @@ class LinkStore:
             a = np.ascontiguousarray(a, np.int64)
             g.create_array(name, data=a, chunks=_chunks(a) if a.size else a.shape or (1,))
         g.attrs.update({"token": token, **attrs})
-        with open(self.manifest, "w") as f:
-            f.write(json.dumps({"plan": token}) + "\n")
+        Manifest(self.manifest).create(token)
 
     def token(self) -> str | None:
         if "links" not in self.rs.root:
@@ -718,44 +717,21 @@ class LinkStore:
         g = self.rs.root["links"]
         return g["pairs"][...], g["first"][...]
 
+    @staticmethod
+    def _line(task: int, e: dict) -> dict:
+        return {"task": int(task), "crc": int(e["crc"]), "n": int(e["n"]), "nx": int(e["nx"]),
+                "counts": [int(c) for c in e["counts"]]}
+
     def record(self, task: int, result: dict) -> None:
         """Append one finished task to the manifest (the master is its only writer)."""
-        line = {"task": int(task), "crc": int(result["crc"]), "n": int(result["n"]),
-                "nx": int(result["nx"]), "counts": [int(c) for c in result["counts"]]}
-        with open(self.manifest, "a") as f:
-            f.write(json.dumps(line) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        Manifest(self.manifest).record(self._line(task, result))
 
     def rewrite_manifest(self, token: str, entries: dict) -> None:
-        tmp = self.manifest + ".tmp"
-        with open(tmp, "w") as f:
-            f.write(json.dumps({"plan": token}) + "\n")
-            for task, e in sorted(entries.items()):
-                f.write(json.dumps({"task": int(task), "crc": int(e["crc"]), "n": int(e["n"]),
-                                    "nx": int(e["nx"]),
-                                    "counts": [int(c) for c in e["counts"]]}) + "\n")
-        os.replace(tmp, self.manifest)
+        Manifest(self.manifest).rewrite(token, {t: self._line(t, e) for t, e in entries.items()})
 
     def finished(self, token: str) -> dict:
         """task -> manifest entry, for the plan `token` (a torn last line is ignored)."""
-        if not os.path.exists(self.manifest):
-            return {}
-        with open(self.manifest) as f:
-            lines = f.read().splitlines()
-        try:
-            if not lines or json.loads(lines[0]).get("plan") != token:
-                return {}
-        except json.JSONDecodeError:
-            return {}
-        done = {}
-        for line in lines[1:]:
-            try:
-                e = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            done[int(e["task"])] = e
-        return done
+        return Manifest(self.manifest).finished(token)
 
     def verify(self, task: int, entry: dict) -> bool:
         try:

@@ -754,10 +754,7 @@ def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float 
     final gather), solution/leaf_radiance (M, 2, 3) (the solver's fixed point L = Le + rho K L)
     and the report's "solve" section; returns solve.SolveFigures. Closure, row normalisation
     and an unconverged solve are handled as by solve.run_solve. client None: in-process."""
-    import dataclasses
-    import warnings
-
-    from .solve import SolveFigures, normalise_rows, resolve_closure, row_mode
+    from .solve import SolveFigures, normalise_rows, resolve_closure, row_mode, store_solution
     from .solvers import anorm, choose_solver, get_solver
     from .store import RunStore
 
@@ -847,21 +844,6 @@ def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float 
                    "final_gather": fg if gather_final else "none",
                    "final_gather_evaluations": int(getattr(op, "evals", 0)),
                    "time_final_gather_s": round(t_fg, 4)})
-    previous = rs.group_attrs("solution") if rs.has("solution") else {}
-    keep = not res.converged and not keep_unconverged and previous.get("converged") is True
-    if not res.converged:
-        fig = dataclasses.replace(fig, solution=(
-            "kept the previous converged solution; --keep-unconverged replaces it" if keep
-            else "written, NOT converged"))
-    if not keep:
-        rs.drop_after("nearfield")
-        rs.write_arrays("solution", {"radiance": radiance,
-                                     "leaf_radiance": np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))},
-                        {k: v for k, v in fig.to_dict().items() if k != "residuals"})
-    fig.write(run_dir)
-    if not res.converged:
-        warnings.warn(f"{solver} did not reach tol={tol:g} in {max_iter} passes (residual "
-                      f"{res.residuals[-1] if res.residuals else float('nan'):.3g}): "
-                      + ("the previous converged solution is kept" if keep else
-                         "its solution is written, marked not converged"), stacklevel=2)
-    return fig
+    leaf = np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))
+    return store_solution(rs, fig, res, {"radiance": radiance, "leaf_radiance": leaf},
+                          keep_unconverged, max_iter)

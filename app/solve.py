@@ -268,6 +268,15 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
         "ambient": None if res.ambient is None else res.ambient.tolist(),
         "closure": None if closure is None else closure.to_dict(),
     })
+    return store_solution(rs, fig, res, {"radiance": radiance}, keep_unconverged, max_iter)
+
+
+def store_solution(rs, fig: SolveFigures, res, arrays: dict, keep_unconverged: bool,
+                   max_iter: int) -> SolveFigures:
+    """Write a solve's arrays into solution/ and its figures into report.json, unless it did
+    not converge and a converged solution is already there (kept, unless keep_unconverged);
+    an unconverged solve is said in fig.solution and in a warning. Both methods' stages end
+    here. Returns the figures as written."""
     previous = rs.group_attrs("solution") if rs.has("solution") else {}
     keep = not res.converged and not keep_unconverged and previous.get("converged") is True
     if not res.converged:
@@ -277,12 +286,11 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
             "--keep-unconverged replaces it" if keep else "written, NOT converged"))
     if not keep:
         rs.drop_after("nearfield")
-        rs.write_arrays("solution", {"radiance": radiance},
-                        {k: v for k, v in fig.to_dict().items() if k != "residuals"})
-    fig.write(run_dir)
+        rs.write_arrays("solution", arrays, {k: v for k, v in fig.to_dict().items() if k != "residuals"})
+    fig.write(rs.run_dir)
     if not res.converged:
-        warnings.warn(f"{solver} did not reach tol={tol:g} in {max_iter} passes (residual "
+        warnings.warn(f"{fig.solver} did not reach tol={fig.tol:g} in {max_iter} passes (residual "
                       f"{res.residuals[-1] if res.residuals else float('nan'):.3g}): "
                       + ("the previous converged solution is kept" if keep else
-                         "its solution is written, marked not converged"), stacklevel=2)
+                         "its solution is written, marked not converged"), stacklevel=3)
     return fig

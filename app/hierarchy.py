@@ -280,10 +280,13 @@ def closure(orig: np.ndarray, code: np.ndarray):
     if not o_all:
         return np.zeros(0, np.int32), np.zeros(0, np.uint64), np.zeros(0, np.int32)
     o = np.concatenate(o_all).astype(np.int64)
-    p = np.concatenate(p_all)
-    d = np.concatenate(d_all).astype(np.int64)
-    u = np.unique(np.stack([o.astype(np.uint64), p, d.astype(np.uint64)], 1), axis=0)
-    return u[:, 0].astype(np.int32), u[:, 1], u[:, 2].astype(np.int32)
+    c = heap_code(np.concatenate(p_all), np.concatenate(d_all))
+    order = np.lexsort((c, o))  # unique (orig, code): a row-wise np.unique took 0.2 s here
+    o, c = o[order], c[order]
+    first = np.ones(len(o), bool)
+    first[1:] = (o[1:] != o[:-1]) | (c[1:] != c[:-1])
+    path, depth = decode(c[first])
+    return o[first].astype(np.int32), path, depth.astype(np.int32)
 
 
 @numba.njit(cache=True)

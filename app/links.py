@@ -926,7 +926,7 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
 
 def task_links(inp: LinkInputs, pairs: np.ndarray, store_path: str, task: int) -> dict:
     """One link task: refine the pairs, write the links and split-off nodes into the store,
-    return {crc, n, nx, counts, start, stop, worker}."""
+    return {crc, n, nx, counts, start, stop, worker, nodes}."""
     from .rays import caster_for
     from .store import write_links
 
@@ -934,7 +934,8 @@ def task_links(inp: LinkInputs, pairs: np.ndarray, store_path: str, task: int) -
     caster = caster_for(inp.key, inp.verts, inp.nverts, inp.epsilon)
     links, nodes, counts = refine_pairs(inp, pairs, caster)
     out = write_links(store_path, task, links, nodes)
-    out.update({"counts": counts, "start": t0, "stop": time.time(), "worker": worker_address()})
+    out.update({"counts": counts, "start": t0, "stop": time.time(), "worker": worker_address(),
+                "nodes": nodes})  # for the node table, without reading them back
     return out
 
 
@@ -1108,7 +1109,8 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
     wall = time.perf_counter() - t_loop
     # the node table: the partition's trees and every node split off an unseen original
     t_nodes = time.perf_counter()
-    xs = [read_links(rs.path, t, done[t])[1] for t in range(ntasks) if done[t]["nx"]]
+    xs = [done[t]["nodes"] if "nodes" in done[t] else read_links(rs.path, t, done[t])[1]
+          for t in range(ntasks) if done[t]["nx"]]
     xn = np.concatenate(xs) if xs else np.zeros(0, [("o", "<i4"), ("c", "<u8")])
     table = node_table(tree, part, xn["o"], xn["c"])
     ls.write_nodes(table.arrays(), {"token": token})

@@ -13,7 +13,8 @@ sum_links A_p F_pq v (xbar_p ybar_q + xbar_q ybar_p) is symmetric: CG works.
 Vectors are (2, C, M) float64 [side, channel, leaf], as in solve.py. Links are read from the
 store task by task on the workers and kept in the worker's bounded cache (operator.CACHE); a
 pass is one Dask task per group of link tasks, each pinned to a worker. `LocalLinkOperator` runs
-the same task functions in-process (tests).
+the same task functions in the driver, which is faster up to hierarchy.driver-solve-links links
+(no round trips, links read once).
 
 Row normalisation (solve.normalise_rows) works through `configure(cap=..., cmode=...)`: with
 passes.CAP_MIN a link is scaled by min(cap over the leaves of p, cap over the leaves of q) (the
@@ -23,6 +24,7 @@ i.e. K -> D K D.
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numba
@@ -41,12 +43,12 @@ LINK_CACHE_KEY = "links"
 # ----------------------------------------------------------------------------- kernels
 
 @numba.njit(cache=True)
-def pull(L, leaf_node, leaf_area, parent, node_area, d):
-    """Area-weighted means of L (2, C, M) over every node's leaves, (2, C, N): leaves' A L summed
-    up the tree (children follow their parents in the table), divided by the node's leaf area.
-    d (M,): leaf scaling (closed-scene balancing), empty for none."""
+def pull(L, leaf_node, leaf_area, parent, node_area, d, S):
+    """Area-weighted means of L (2, C, M) over every node's leaves into S (2, C, N), returned:
+    leaves' A L summed up the tree (children follow their parents in the table), divided by the
+    node's leaf area. d (M,): leaf scaling (closed-scene balancing), empty for none."""
     N = parent.shape[0]
-    S = np.zeros((L.shape[0], L.shape[1], N))
+    S[...] = 0.0
     use_d = d.shape[0] > 0
     for l in range(leaf_node.shape[0]):
         w = leaf_area[l] * (d[l] if use_d else 1.0)
@@ -461,12 +463,27 @@ def task_link_arrays(inp: LinkSolveInputs, task: int):
                      lambda a: sum(x.nbytes for x in a), inp.cache_bytes)
 
 
+_SCRATCH = threading.local()
+
+
+def scratch(shape: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Two (2, C, N) node arrays per thread, kept across passes (a fresh array of tens of MiB
+    costs more in page faults than the pass's arithmetic: measured 48 ms per array at 512^2,
+    2.1 s of a 12 s solve)."""
+    got = getattr(_SCRATCH, "arrays", None)
+    if got is None or got[0].shape != shape:
+        got = (np.empty(shape), np.empty(shape))
+        _SCRATCH.arrays = got
+    return got
+
+
 def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = True):
     """y = K L over the links of these link tasks (pull, gather, push), (2, C, M); rows of
     originals that do not gather (inp.need, with use_need) stay 0. Returns (y, link terms)."""
     mode, ncap, d = inp.cap_args()
-    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d)
-    G = np.zeros_like(Lbar)
+    S, G = scratch((L.shape[0], L.shape[1], len(inp.parent)))
+    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d, S)
+    G[...] = 0.0
     terms = 0
     for t in task_ids:
         p, q, wpq, wqp, sp, sq, _ = task_link_arrays(inp, int(t))
@@ -480,26 +497,49 @@ def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = T
 
 def _directed(inp: LinkSolveInputs):
     """Every link end as a directed entry grouped by the original of its target (for
-    Gauss-Seidel), from all link tasks; cached on the worker."""
+    Gauss-Seidel and the final gather), from all link tasks, by a counting sort (no
+    concatenated copies: each costs page faults); cached on the worker. Returns tp, ts, sn, ss,
+    w, ptr, v: target node and side, source node and side, weight, (n + 1,) offsets per target
+    original, visible fraction."""
     def load():
-        got = [task_link_arrays(inp, t) for t in range(len(inp.entries))]
-        p, q, wpq, wqp, sp, sq, v = (np.concatenate([g[k] for g in got]) if got else
-                                     np.zeros(0, np.int64 if k in (0, 1, 4, 5) else np.float64)
-                                     for k in range(7))
-        tp = np.concatenate([p, q])
-        sn = np.concatenate([q, p])
-        ts = np.concatenate([sp, sq])
-        ss = np.concatenate([sq, sp])
-        w = np.concatenate([wpq, wqp])
-        vv = np.concatenate([v, v])
-        to = inp.orig[tp]
-        order = np.argsort(to, kind="stable")
         n = len(inp.noff) - 1
-        ptr = np.concatenate([[0], np.cumsum(np.bincount(to, minlength=n))]).astype(np.int64)
-        return tp[order], ts[order], sn[order], ss[order], w[order], ptr, vv[order]
+        cnt = np.zeros(n + 1, np.int64)
+        for t in range(len(inp.entries)):
+            p, q = task_link_arrays(inp, t)[:2]
+            _count_ends(p, q, inp.orig, cnt)
+        ptr = np.zeros(n + 1, np.int64)
+        np.cumsum(cnt[:n], out=ptr[1:])
+        total = int(ptr[-1])
+        tp, sn = np.empty(total, np.int64), np.empty(total, np.int64)
+        ts, ss = np.empty(total, np.int64), np.empty(total, np.int64)
+        w, v = np.empty(total), np.empty(total)
+        cur = ptr[:-1].copy()
+        for t in range(len(inp.entries)):
+            _fill_ends(*task_link_arrays(inp, t), inp.orig, cur, tp, ts, sn, ss, w, v)
+        return tp, ts, sn, ss, w, ptr, v
 
     return CACHE.get((inp.store_path, inp.token, LINK_CACHE_KEY, "directed"), load,
                      lambda a: sum(x.nbytes for x in a), inp.cache_bytes)
+
+
+@numba.njit(cache=True)
+def _count_ends(p, q, orig, cnt):
+    for k in range(p.shape[0]):
+        cnt[orig[p[k]]] += 1
+        cnt[orig[q[k]]] += 1
+
+
+@numba.njit(cache=True)
+def _fill_ends(p, q, wpq, wqp, sp, sq, v, orig, cur, tp, ts, sn, ss, w, vv):
+    """Both ends of links (p, q) into their target originals' slots (cur: next free slot)."""
+    for k in range(p.shape[0]):
+        a, b = p[k], q[k]
+        i = cur[orig[a]]
+        cur[orig[a]] = i + 1
+        tp[i], sn[i], ts[i], ss[i], w[i], vv[i] = a, b, sp[k], sq[k], wpq[k], v[k]
+        j = cur[orig[b]]
+        cur[orig[b]] = j + 1
+        tp[j], sn[j], ts[j], ss[j], w[j], vv[j] = b, a, sq[k], sp[k], wqp[k], v[k]
 
 
 def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
@@ -507,7 +547,8 @@ def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
     L (2, C, M): (y (2, C, M) nonzero on those leaves only, leaf evaluations)."""
     tp, ts, sn, ss, w, ptr, v = _directed(inp)
     mode, ncap, d = inp.cap_args()
-    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d)
+    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d,
+                scratch((L.shape[0], L.shape[1], len(inp.parent)))[0])
     y = np.zeros_like(L)
     if inp.fg_mode == "linear":
         evals = linear_gather(Lbar, tp, ts, sn, ss, w, ptr, np.asarray(origs, np.int64),
@@ -532,7 +573,8 @@ def task_gs_sweep(inp: LinkSolveInputs, L, Le, rho):
     if mode == 1:
         w = w * np.minimum(ncap[tp], ncap[sn])
     L = L.copy()
-    S = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d)
+    S = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d,
+             np.empty((L.shape[0], L.shape[1], len(inp.parent))))
     S *= inp.node_area  # pull returns means; the sweep keeps sums
     terms = gs_sweep(L, Le, rho, S, tp, ts, sn, ss, w, ptr, inp.noff, inp.parent, inp.node_area,
                      inp.leaf_node, inp.leaf_area, inp.node_leaf, inp.lo, inp.hi, d, inp.need)
@@ -583,15 +625,17 @@ class _Base:
 class LocalLinkOperator(_Base):
     """K in this process (the same task functions, no cluster): for tests and small runs."""
 
-    def __init__(self, inp: LinkSolveInputs, kernel: str, groups: int = 2):
+    def __init__(self, inp: LinkSolveInputs, kernel: str, groups: int = 1):
         super().__init__(inp, kernel, groups)
 
     def apply(self, L, live=None, use_need: bool = True):
-        y = np.zeros_like(L)
+        y = None
         for g in self.groups:
             yp, t = task_apply(self.inp, g, L, use_need)
-            y += yp
+            y = yp if y is None else y + yp
             self.terms += t
+        if y is None:
+            y = np.zeros_like(L)
         self.passes += 1
         return y
 
@@ -731,12 +775,20 @@ def to_sub_elements(L: np.ndarray, table: dict, m: int) -> np.ndarray:
     return out
 
 
-def open_link_operator(rs, client=None):
-    """The operator of a run's links: a LinkOperator over `client`, or in-process (None).
-    Returns (op, table, elements, partition)."""
+def open_link_operator(rs, client=None, where: str = "auto"):
+    """The operator of a run's links: in this process (client None, or where "driver", or
+    "auto" with at most radiosity.hierarchy.driver-solve-links links: no round trips per pass)
+    or a LinkOperator over `client` (where "cluster", or "auto" above that). Returns (op, table,
+    elements, partition)."""
     el = rs.load_elements()
     inp, table, kernel = solve_inputs(rs, el)
-    if client is None:
+    links = int(inp.entries[:, 1].sum()) if len(inp.entries) else 0
+    if where not in ("auto", "driver", "cluster"):
+        raise ValueError(f"where must be auto, driver or cluster, got {where!r}")
+    if where == "auto":
+        where = "driver" if links <= int(float(config.get("hierarchy.driver-solve-links"))) \
+            else "cluster"
+    if client is None or where == "driver":
         op = LocalLinkOperator(inp, kernel)
     else:
         [inp_f] = client.scatter([inp], broadcast=True, hash=False)
@@ -746,14 +798,16 @@ def open_link_operator(rs, client=None):
 
 def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float | None = None,
                     max_iter: int | None = None, progress: bool = True, callback=None,
-                    normalise=None, effects=None, closure=None, keep_unconverged: bool = False):
+                    normalise=None, effects=None, closure=None, keep_unconverged: bool = False,
+                    where: str = "auto"):
     """Solve a hierarchical run (after the link stage) on its leaves; then, with
     radiosity.hierarchy.final-gather, one final gather that re-evaluates every link into a node
     above the leaves at each of its leaves (the uniform push leaves a saw-tooth over coarse
     receivers). Writes solution/radiance (m, 2, 3) per sub-element (to_sub_elements of the
     final gather), solution/leaf_radiance (M, 2, 3) (the solver's fixed point L = Le + rho K L)
     and the report's "solve" section; returns solve.SolveFigures. Closure, row normalisation
-    and an unconverged solve are handled as by solve.run_solve. client None: in-process."""
+    and an unconverged solve are handled as by solve.run_solve. client None: in-process; where:
+    open_link_operator's choice of driver or cluster."""
     from .solve import SolveFigures, normalise_rows, resolve_closure, row_mode, store_solution
     from .solvers import anorm, choose_solver, get_solver
     from .store import RunStore
@@ -762,7 +816,7 @@ def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float 
     max_iter = int(config.get("solve.max-iterations", max_iter))
     t0 = time.perf_counter()
     rs = RunStore(run_dir, "r+")
-    op, table, el, part = open_link_operator(rs, client)
+    op, table, el, part = open_link_operator(rs, client, where)
     solver = choose_solver(config.get("solve.solver", solver), op.kernel)
     fn = get_solver(solver)
     if solver == "progressive":

@@ -13,8 +13,8 @@ import pytest
 from radiosity.exact import differential_to_rectangle, pair_form_factors_exact
 from radiosity.hierarchy import decode, node_table, seen_originals, tree_nodes
 from radiosity.links import COUNTERS, LinkInputs, compute_links, refine_pairs, resolve_params
-from radiosity.linksolve import (leaf_vectors, open_link_operator, run_solve_links,
-                           task_link_arrays)
+from radiosity.linksolve import (LinkOperator, LocalLinkOperator, leaf_vectors,
+                                  open_link_operator, run_solve_links, task_link_arrays)
 from radiosity.rays import RayCaster
 from radiosity.scene import load_scene
 from radiosity.store import RunStore
@@ -292,10 +292,12 @@ def test_push_pull_conserves_energy_in_an_open_scene(client, tmp_path):
 
 def test_symmetric_form_and_every_solver_agree(client, tmp_path):
     """With both directions on every link, x . A K z = z . A K x (to 1e-12); Jacobi,
-    Gauss-Seidel, progressive refinement and CG reach the same answer on the links."""
+    Gauss-Seidel, progressive refinement and CG reach the same answer on the links, and the
+    passes on the workers give the driver's answer."""
     out = prepared(client, tmp_path, scene_path("cornell-box"), 12, visibility=False)
     compute_links(out, client, progress=False)
-    op, table, el, part = open_link_operator(RunStore(out), client)
+    op, table, el, part = open_link_operator(RunStore(out), client, "cluster")
+    assert isinstance(op, LinkOperator)
     A = table["leaf_area"]
     rng = np.random.default_rng(5)
     x, z = rng.random((2, 2, 3, len(A)))
@@ -309,6 +311,10 @@ def test_symmetric_form_and_every_solver_agree(client, tmp_path):
     ref = sols["cg"]
     for s, L in sols.items():
         assert np.abs(L - ref).max() <= 1e-7 * np.abs(ref).max(), s
+    for solver in ("gauss-seidel", "cg"):  # the same passes on the workers
+        run_solve_links(out, client, solver=solver, tol=1e-10, progress=False, where="cluster")
+        assert np.abs(radiance(out) - sols[solver]).max() <= 1e-12 * np.abs(ref).max(), solver
+    assert isinstance(open_link_operator(RunStore(out), client)[0], LocalLinkOperator)
 
 
 # ----------------------------------------------------------------------------- link visibility

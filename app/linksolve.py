@@ -162,7 +162,7 @@ def gs_sweep(L, Le, rho, S, tp, ts, sn, ss, w, ptr, noff, parent, node_area, lea
     return terms
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def final_gather(Lbar, tp, ts, sn, ss, w, v, ptr, origs, node_leaf, lo, hi, leaf_center, normal,
                  node_orig, verts, nverts, child, levels, ncap, mode, d, y):
     """y (2, C, M) += the irradiance of the leaves of originals `origs`, gathered over the
@@ -238,7 +238,7 @@ def final_gather(Lbar, tp, ts, sn, ss, w, v, ptr, origs, node_leaf, lo, hi, leaf
     return evals
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def linear_gather(Lbar, tp, ts, sn, ss, w, ptr, origs, node_leaf, parent, noff, node_center,
                   normal, node_orig, verts, nverts, leaf_node, leaf_center, ncap, mode, d, y):
     """The final gather to first order, y (2, C, M) += for the leaves of originals `origs`:
@@ -644,10 +644,19 @@ class LocalLinkOperator(_Base):
             setattr(self.inp, k, v)
 
     def final_gather(self, L):
-        """The final gather of the solved L (task_final_gather), (2, C, M)."""
-        y, evals = task_final_gather(self.inp, np.arange(len(self.inp.noff) - 1), L)
-        self.evals = evals
-        return y
+        """The final gather of the solved L (task_final_gather), (2, C, M): groups of originals
+        on this machine's cores, as threads of dask's local scheduler (the kernels release the
+        GIL; the workers sit idle meanwhile)."""
+        import os
+
+        import dask
+
+        _directed(self.inp)  # built once, before the threads share it
+        groups = self.orig_groups(os.cpu_count() or 1)
+        parts = dask.compute(*[dask.delayed(task_final_gather)(self.inp, g, L) for g in groups],
+                             scheduler="threads", num_workers=len(groups))
+        self.evals = sum(e for _, e in parts)
+        return sum(y for y, _ in parts)
 
     def gs_sweep(self, L, Le, rho):
         new, t = task_gs_sweep(self.inp, L, Le, rho)

@@ -623,7 +623,8 @@ class _Base:
 
 
 class LocalLinkOperator(_Base):
-    """K in this process (the same task functions, no cluster): for tests and small runs."""
+    """K in this process (the same task functions, no cluster): the driver's solve up to
+    hierarchy.driver-solve-links links, and tests."""
 
     def __init__(self, inp: LinkSolveInputs, kernel: str, groups: int = 1):
         super().__init__(inp, kernel, groups)
@@ -904,6 +905,7 @@ def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float 
         ambient=None if res.ambient is None else res.ambient.tolist(),
         closure=None if closure is None else closure.to_dict(), method="hierarchical",
         hierarchy={"leaves": M, "link_terms": int(op.terms),
+                   "passes_on": "driver" if isinstance(op, LocalLinkOperator) else "workers",
                    "final_gather": fg if gather_final else "none",
                    "final_gather_evaluations": int(getattr(op, "evals", 0)),
                    "time_final_gather_s": round(t_fg, 4)})

@@ -210,3 +210,28 @@ def test_kernel_disc_alone_renders_and_explicit_cg_disc_is_refused(client, tmp_p
     with pytest.raises(RadiosityError, match="reciprocal"):
         render_scene(sc, str(tmp_path / "b"), client, kernel="disc", solver="cg", preview=False,
                      progress=False)
+
+
+# ----------------------------------------------------------------------------- tolerance
+
+def test_default_tolerance_saves_passes_without_a_visible_change(client, tmp_path):
+    """radiosity.solve.tol (1e-5) was chosen against 1e-6 on the built-in scenes (README,
+    benchmarks/bench_defaults.py): fewer passes, the image moves by under 1e-3 on average and
+    under 1 % anywhere; 1e-3 would move it by more than that (so the check can tell)."""
+    import dask.config
+
+    from radiosity import config
+
+    assert float(config.get("solve.tol")) == 1e-5
+    sc = load_scene(scene_path("cornell-box-inside"), resolution=24)
+    imgs, passes = {}, {}
+    for tol in (1e-6, None, 1e-3):
+        out = str(tmp_path / f"t{tol}")
+        with dask.config.set({"radiosity.visibility.method": "pairs"}):
+            rep = render_scene(sc, out, client, tol=tol, preview=False, progress=False)
+        imgs[tol], passes[tol] = read_exr(f"{out}/image.exr"), rep["solve"]["iterations"]
+    m = imgs[1e-6] > 0
+    change = {t: np.abs(imgs[t][m] / imgs[1e-6][m] - 1) for t in (None, 1e-3)}
+    assert passes[None] < passes[1e-6]
+    assert change[None].mean() < 1e-3 and change[None].max() < 0.01, change[None].max()
+    assert change[1e-3].max() > 0.01

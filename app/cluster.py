@@ -215,15 +215,21 @@ def local_cluster(n: int, threads_per_worker: int | None = None, security=None, 
     elif processes:
         kw.update(host=config.get("cluster.host"))
     # else: in-process workers talk over inproc://, which binds no socket (and takes no host)
-    return LocalCluster(n_workers=n,
-                        threads_per_worker=config.get("cluster.threads-per-worker", threads_per_worker),
-                        processes=processes,
-                        dashboard_address=config.get("cluster.dashboard-address"),
-                        # a failed task's traceback goes to the run's log file (faults.py), not
-                        # to the terminal from every worker that tried it
-                        silence_logs=50, scheduler_kwargs={"preload": [  # the page of dashboard.py
-                            *dask.config.get("distributed.scheduler.preload"), "radiosity.dashboard"]},
-                        **kw)
+    trim = config.get("cluster.malloc-trim-threshold")
+    env = {} if trim is None else {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
+                                   int(trim)}
+    with dask.config.set(env):  # read when each nanny is made (workers added later: Dask's)
+        return LocalCluster(n_workers=n,
+                            threads_per_worker=config.get("cluster.threads-per-worker",
+                                                          threads_per_worker),
+                            processes=processes,
+                            dashboard_address=config.get("cluster.dashboard-address"),
+                            # a failed task's traceback goes to the run's log file (faults.py),
+                            # not to the terminal from every worker that tried it
+                            silence_logs=50, scheduler_kwargs={"preload": [  # dashboard.py's page
+                                *dask.config.get("distributed.scheduler.preload"),
+                                "radiosity.dashboard"]},
+                            **kw)
 
 
 @contextlib.contextmanager

@@ -39,6 +39,10 @@ def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback():
         workers = c.scheduler_info()["workers"]
         assert workers and all(_host(w) == "127.0.0.1" for w in workers)
         assert c.submit(sum, [1, 2]).result() == 3
+        # glibc keeps freed memory for the next task's arrays (radiosity.cluster.malloc-trim-
+        # threshold), not Dask's 65536
+        env = c.run(os.environ.get, "MALLOC_TRIM_THRESHOLD_")
+        assert set(env.values()) == {"67108864"}, env
     assert any(line.startswith("dashboard: http://127.0.0.1:") for line in lines)
 
 

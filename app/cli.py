@@ -779,7 +779,7 @@ def _floats(s: str, kind=float):
 @click.option("--epsilons", default=None, metavar="E,E,...",
               callback=_number_list(float, -1e-300, "numbers >= 0"),
               help="Also sweep --method hierarchical at these epsilons (x --link-rays).")
-@click.option("--link-rays", "link_rays", default="16", show_default=True, metavar="K,K,...",
+@click.option("--link-rays", "link_rays", default="4", show_default=True, metavar="K,K,...",
               callback=_number_list(int, 0, "positive integers"),
               help="With --epsilons: the hierarchical method's rays per link (squares).")
 @click.option("--solver", default=None, help="Solver (default: radiosity.solve.solver).")

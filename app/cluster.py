@@ -204,6 +204,9 @@ def jobqueue_cluster(kind: str, threads_per_worker: int | None = None, security=
     return cluster
 
 
+_USER_TRIM = os.environ.get("MALLOC_TRIM_THRESHOLD_")  # the user's own wins over the config
+
+
 def local_cluster(n: int, threads_per_worker: int | None = None, security=None, processes: bool | None = None):
     """A LocalCluster on `radiosity.cluster.host` (127.0.0.1) with its dashboard on loopback."""
     from distributed import LocalCluster
@@ -216,9 +219,13 @@ def local_cluster(n: int, threads_per_worker: int | None = None, security=None, 
         kw.update(host=config.get("cluster.host"))
     # else: in-process workers talk over inproc://, which binds no socket (and takes no host)
     trim = config.get("cluster.malloc-trim-threshold")
-    env = {} if trim is None else {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
-                                   int(trim)}
-    with dask.config.set(env):  # read when each nanny is made (workers added later: Dask's)
+    env = {}
+    if trim is not None and _USER_TRIM is None:
+        # a nanny takes the variable from os.environ over its config, and puts Dask's 65536
+        # there when it starts a worker: set ours in both (workers added later find it too)
+        os.environ["MALLOC_TRIM_THRESHOLD_"] = str(int(trim))
+        env = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": int(trim)}
+    with dask.config.set(env):
         return LocalCluster(n_workers=n,
                             threads_per_worker=config.get("cluster.threads-per-worker",
                                                           threads_per_worker),

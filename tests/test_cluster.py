@@ -31,7 +31,10 @@ def _host(address: str) -> str:
 
 # ----------------------------------------------------------------------------- local clusters
 
-def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback():
+def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback(monkeypatch):
+    # what any earlier Dask nanny in this process leaves in os.environ (and a nanny prefers it
+    # over its config): ours must still reach the workers
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
     lines = []
     with dask.config.set({"radiosity.cluster.tls": False}), open_client(1, kind="local", echo=lines.append) as c:
         assert c.scheduler.address.startswith("tcp://127.0.0.1:")

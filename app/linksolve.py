@@ -653,7 +653,8 @@ class LocalLinkOperator(_Base):
         import dask
 
         _directed(self.inp)  # built once, before the threads share it
-        groups = self.orig_groups(os.cpu_count() or 1)
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        groups = self.orig_groups(cores or 1)  # the cores this process may use (cgroups, Slurm)
         parts = dask.compute(*[dask.delayed(task_final_gather)(self.inp, g, L) for g in groups],
                              scheduler="threads", num_workers=len(groups))
         self.evals = sum(e for _, e in parts)

@@ -32,9 +32,10 @@ from .types import Elements, Partition
 
 MAX_DEPTH = 60  # paths are 64-bit; subdivide.py refuses deeper trees too
 #: Links per leaf at the default epsilon, low and high, for estimates before a run (`radiosity
-#: plan`). MEASURED by benchmarks/bench_hierarchy.py: Cornell box 24 at 64^2, 17 at 128^2, 9.6 at
-#: 256^2, 5.3 at 512^2 (links grow like m^0.53 there); room-2400 (2 400 originals) 19.6 at 256^2.
-LINKS_PER_LEAF = (5.0, 25.0)
+#: plan`). MEASURED by benchmarks/bench_hierarchy.py (epsilon 5e-4, 4 link rays): Cornell box 37
+#: at 64^2, 29 at 128^2, 14.5 at 256^2, 7.1 at 512^2 (links grow like m^0.55 there); room-2400
+#: (2 400 originals) 24.9 at 256^2.
+LINKS_PER_LEAF = (7.0, 37.0)
 
 
 # ----------------------------------------------------------------------------- codes

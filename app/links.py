@@ -946,8 +946,9 @@ def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, ma
     """The link tasks: the pairs I < J that face each other both ways (bi, bj sorted by (I, J),
     originals.facing_pairs), in I-major order; unit 'block': one task per pair; 'stripe':
     consecutive pairs, cut so that no task costs more than max_task_cost nor more than 1 /
-    min_tasks of the whole (estimated cost of a pair: the sub-elements of both). Returns pairs (t, 2) int64, first (k + 1,) int64 (task k holds
-    pairs first[k]:first[k+1]), cost (k,) int64."""
+    min_tasks of the whole (estimated cost of a pair: the sub-elements of both). Returns pairs
+    (t, 2) int64, first (k + 1,) int64 (task k holds pairs first[k]:first[k+1]), cost (k,)
+    int64."""
     size = np.diff(offsets)
     pairs = np.stack([np.asarray(bi, np.int64), np.asarray(bj, np.int64)], 1).reshape(-1, 2)
     pc = size[pairs[:, 0]] + size[pairs[:, 1]]

@@ -24,9 +24,11 @@ i.e. K -> D K D.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
+import dask
 import numba
 import numpy as np
 
@@ -648,10 +650,6 @@ class LocalLinkOperator(_Base):
         """The final gather of the solved L (task_final_gather), (2, C, M): groups of originals
         on this machine's cores, as threads of dask's local scheduler (the kernels release the
         GIL; the workers sit idle meanwhile)."""
-        import os
-
-        import dask
-
         _directed(self.inp)  # built once, before the threads share it
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
         groups = self.orig_groups(cores or 1)  # the cores this process may use (cgroups, Slurm)

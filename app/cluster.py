@@ -204,7 +204,11 @@ def jobqueue_cluster(kind: str, threads_per_worker: int | None = None, security=
     return cluster
 
 
-_USER_TRIM = os.environ.get("MALLOC_TRIM_THRESHOLD_")  # the user's own wins over the config
+#: glibc's malloc settings the workers get from radiosity.cluster.* (config key, variable); a
+#: variable in the environment the process started with wins
+_MALLOC = (("malloc-trim-threshold", "MALLOC_TRIM_THRESHOLD_"),
+           ("malloc-mmap-threshold", "MALLOC_MMAP_THRESHOLD_"))
+_USER_MALLOC = {var: os.environ.get(var) for _, var in _MALLOC}
 
 
 def local_cluster(n: int, threads_per_worker: int | None = None, security=None, processes: bool | None = None):
@@ -218,13 +222,15 @@ def local_cluster(n: int, threads_per_worker: int | None = None, security=None, 
     elif processes:
         kw.update(host=config.get("cluster.host"))
     # else: in-process workers talk over inproc://, which binds no socket (and takes no host)
-    trim = config.get("cluster.malloc-trim-threshold")
     env = {}
-    if trim is not None and _USER_TRIM is None:
-        # a nanny takes the variable from os.environ over its config, and puts Dask's 65536
-        # there when it starts a worker: set ours in both (workers added later find it too)
-        os.environ["MALLOC_TRIM_THRESHOLD_"] = str(int(trim))
-        env = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": int(trim)}
+    for key, var in _MALLOC:
+        value = config.get(f"cluster.{key}")
+        if value is not None and _USER_MALLOC[var] is None:
+            # a nanny takes the variable from os.environ over its config, and puts Dask's
+            # 65536 there for the trim threshold when it starts a worker: set ours in both
+            # (workers added later find it too)
+            os.environ[var] = str(int(value))
+            env[f"distributed.nanny.pre-spawn-environ.{var}"] = int(value)
     with dask.config.set(env):
         return LocalCluster(n_workers=n,
                             threads_per_worker=config.get("cluster.threads-per-worker",

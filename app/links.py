@@ -976,10 +976,40 @@ def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, ma
 
 # ----------------------------------------------------------------------------- the master
 
+def choose_epsilon(epsilon: float | str | None = None, pixels: int | None = None) -> tuple[float, str]:
+    """The links' epsilon and why: a number (argument or radiosity.hierarchy.epsilon) as given;
+    `auto`: epsilon-base for a criterion raster of up to epsilon-resolution^2 pixels, times
+    epsilon-resolution / sqrt(pixels) above. A link's error estimate is first order in its
+    nodes' size and the leaves shrink like 1 / sqrt(pixels): at a fixed epsilon a finer image
+    keeps the same links over smaller leaves, so its error stops falling (MEASURED in
+    radiosity.yaml). pixels None (before the camera's raster exists): the base."""
+    v = config.get("hierarchy.epsilon", epsilon)
+    if v != "auto":
+        try:
+            eps = float(v)
+        except (TypeError, ValueError):
+            raise RadiosityError(f"radiosity.hierarchy.epsilon must be a number >= 0 or auto, "
+                                 f"got {v!r}") from None
+        if not eps >= 0:
+            raise RadiosityError(f"--epsilon must be >= 0, got {eps}")
+        return eps, "stated"
+    base = float(config.get("hierarchy.epsilon-base"))
+    res0 = float(config.get("hierarchy.epsilon-resolution"))
+    if not (base >= 0 and res0 > 0):
+        raise RadiosityError(f"radiosity.hierarchy.epsilon-base must be >= 0 and epsilon-resolution "
+                             f"> 0, got {base} and {res0}")
+    r = float(np.sqrt(pixels)) if pixels else 0.0
+    if r <= res0:
+        return base, f"auto: {base:g} up to {res0:g}^2 pixels"
+    return base * res0 / r, (f"auto: {base:g} x {res0:g} / {r:.0f} (finer leaves than at "
+                             f"{res0:g}^2 pixels get finer links)")
+
+
 def resolve_params(elements, kernel: str | None = None, epsilon: float | None = None,
                    rays: int | None = None, occlusion: bool = True) -> tuple[LinkParams, str]:
     """The link settings from radiosity.hierarchy.* (arguments win), checked; returns
-    (LinkParams, weight)."""
+    (LinkParams, weight). epsilon `auto` (the default): choose_epsilon's base; compute_links
+    passes the value for the run's raster."""
     from .kernels import KERNELS, base_kernel, kernel_id
 
     kernel = config.get("hierarchy.kernel", kernel)
@@ -987,10 +1017,8 @@ def resolve_params(elements, kernel: str | None = None, epsilon: float | None = 
     if base_kernel(kernel) not in ("point", "disc"):
         raise RadiosityError(f"--method hierarchical supports the kernels point, disc, point-nf "
                              f"and disc-nf (links sample their own rays: --link-rays), not {kernel!r}")
-    eps = float(config.get("hierarchy.epsilon", epsilon))
+    eps, _ = choose_epsilon(epsilon)
     k = int(config.get("hierarchy.link-rays", rays))
-    if not eps >= 0:
-        raise RadiosityError(f"--epsilon must be >= 0, got {eps}")
     if k < 1 or int(round(np.sqrt(k))) ** 2 != k:
         raise RadiosityError(f"--link-rays must be a square (1, 4, 9, 16, ...), got {k}")
     weight = config.get("hierarchy.weight")
@@ -1016,6 +1044,7 @@ def links_rows(fig: dict) -> list[tuple[str, object]]:
     """The CLI summary rows of the link stage's figures (report.json section "links")."""
     return [("sub-elements", f"{fig['sub_elements']} ({fig['leaves']} leaves, "
                              f"{fig['split_off_nodes']} nodes split off unseen originals)"),
+            ("epsilon", f"{fig['epsilon']:.3g} ({fig.get('epsilon_reason', 'stated')})"),
             ("links", f"{fig['links']} ({fig['links_per_leaf']:.1f} per leaf, "
                       f"{fig['bytes_per_link']} bytes each)"),
             ("proven by shafts", f"{fig['shaft_visible']} visible, {fig['shaft_blocked']} "
@@ -1044,7 +1073,9 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
     rs = RunStore(run_dir, "r+")
     part = rs.load_partition()
     el = rs.load_elements()
-    prm, weight = resolve_params(el, kernel, epsilon, rays, occlusion)
+    raster = rs.read_arrays("raster")["orig"]
+    eps, eps_why = choose_epsilon(epsilon, raster.size)
+    prm, weight = resolve_params(el, kernel, eps, rays, occlusion)
     unit = config.get("hierarchy.task-unit", unit)
     if unit == "auto":
         unit = choose_unit(config.get("visibility.task-unit"), len(el),
@@ -1054,7 +1085,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
                                     rs.attrs.get("scene") or run_dir)
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit,
                                    int(config.get("hierarchy.max-task-cost")))
-    seen = seen_originals(rs.read_arrays("raster")["orig"], len(el))
+    seen = seen_originals(raster, len(el))
     token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,
                      el.emission, seen, prm.to_dict(), weight, config.get("rays.epsilon"))
     ls = LinkStore(rs)
@@ -1127,7 +1158,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
         "unseen_originals_split": int(len(np.unique(xn["o"]))),
         **c, "links_per_leaf": c["links"] / max(1, table.leaves),
         "bytes_per_link": LINK_DTYPE.itemsize, "link_bytes": c["links"] * LINK_DTYPE.itemsize,
-        "epsilon": prm.epsilon, "link_rays": prm.rays, "weight": weight,
+        "epsilon": prm.epsilon, "epsilon_reason": eps_why, "link_rays": prm.rays, "weight": weight,
         "min_node_size": prm.min_size, "kernel": config.get("hierarchy.kernel", kernel),
         "time_s": round(time.perf_counter() - t_start, 4), "time_tasks_s": round(wall, 4),
         "time_node_table_s": round(t_nodes, 4),

@@ -241,36 +241,34 @@ def final_gather(Lbar, tp, ts, sn, ss, w, v, ptr, origs, node_leaf, lo, hi, leaf
 
 
 @numba.njit(cache=True, nogil=True)
-def linear_gather(Lbar, tp, ts, sn, ss, w, ptr, origs, node_leaf, parent, noff, node_center,
-                  normal, node_orig, verts, nverts, leaf_node, leaf_center, ncap, mode, d, y):
-    """The final gather to first order, y (2, C, M) += for the leaves of originals `origs`:
-    each link into a node t above the leaves carries, besides its value w Lbar, the gradient of
-    the exact form factor F(x -> source) over t (least squares through t's centroid and
-    vertices, in t's plane, relative to F at the centroid); a leaf l below gets
-    sum over its ancestors a of (G_a + grad_a . (c_l - c_a)). Four or five exact
+def linear_gather(Lbar, p, q, wpq, wqp, sp, sq, sel, node_leaf, node_center, normal, node_orig,
+                  verts, nverts, ncap, mode, S0, S1):
+    """The final gather to first order, link by link: for both directions of links (p, q) into
+    a node t of a selected original (sel[orig]), S0 (2, C, N) += the link's value f w Lbar and,
+    for t above the leaves, the value times the gradient of the exact form factor F(x ->
+    source) over t (least squares through t's centroid and vertices, in t's plane, relative to
+    F at the centroid) into S1 (2, C, 3, N) (and its part at t's centroid out of S0). A leaf l
+    then gets sum over its ancestors a of (S0_a + S1_a . c_l) (linear_push). Four or five exact
     point-to-polygon evaluations per link instead of one per link and leaf. Returns the
     evaluations made."""
-    from_d = d.shape[0] > 0
     C = Lbar.shape[1]
     n = np.empty(3)
     evals = 0
-    for e in origs:
-        n0, n1 = noff[e], noff[e + 1]
-        if n1 <= n0:
-            continue
-        S0 = np.zeros((2, C, n1 - n0))      # sum of G_a - grad_a . c_a
-        S1 = np.zeros((2, C, 3, n1 - n0))   # sum of grad_a
-        for k in range(ptr[e], ptr[e + 1]):
-            t, s = tp[k], sn[k]
+    for k in range(p.shape[0]):
+        for h in range(2):
+            t, s = (p[k], q[k]) if h == 0 else (q[k], p[k])
+            ot, os_ = node_orig[t], node_orig[s]
+            if not sel[ot]:
+                continue
+            st, ss = (sp[k], sq[k]) if h == 0 else (sq[k], sp[k])
+            w = wpq[k] if h == 0 else wqp[k]
             f0 = min(ncap[t], ncap[s]) if mode == 1 else 1.0
-            i = t - n0
             for c in range(C):
-                S0[ts[k], c, i] += f0 * w[k] * Lbar[ss[k], c, s]
+                S0[st, c, t] += f0 * w * Lbar[ss, c, s]
             if node_leaf[t] >= 0:
                 continue
-            gt = 1.0 if ts[k] == 0 else -1.0
-            gs = 1.0 if ss[k] == 0 else -1.0
-            ot, os_ = node_orig[t], node_orig[s]
+            gt = 1.0 if st == 0 else -1.0
+            gs = 1.0 if ss == 0 else -1.0
             n[0], n[1], n[2] = gt * normal[ot, 0], gt * normal[ot, 1], gt * normal[ot, 2]
             mx, my, mz = gs * normal[os_, 0], gs * normal[os_, 1], gs * normal[os_, 2]
             S = verts[s]
@@ -307,29 +305,38 @@ def linear_gather(Lbar, tp, ts, sn, ss, w, ptr, origs, node_leaf, parent, noff, 
             gv = (a11 * b2 - a12 * b1) / det / F0
             gx, gy, gz = gu * ex + gv * fx, gu * ey + gv * fy, gu * ez + gv * fz
             for c in range(C):
-                val = f0 * w[k] * Lbar[ss[k], c, s]
-                S1[ts[k], c, 0, i] += val * gx
-                S1[ts[k], c, 1, i] += val * gy
-                S1[ts[k], c, 2, i] += val * gz
-                S0[ts[k], c, i] -= val * (gx * ct[0] + gy * ct[1] + gz * ct[2])
-        for i in range(n0, n1):  # down the tree: parents precede children
+                val = f0 * w * Lbar[ss, c, s]
+                S1[st, c, 0, t] += val * gx
+                S1[st, c, 1, t] += val * gy
+                S1[st, c, 2, t] += val * gz
+                S0[st, c, t] -= val * (gx * ct[0] + gy * ct[1] + gz * ct[2])
+    return evals
+
+
+@numba.njit(cache=True, nogil=True)
+def linear_push(S0, S1, origs, noff, parent, node_leaf, leaf_center, d, y):
+    """y (2, C, M) += for the leaves l of originals `origs`: the sum over l's ancestors a (l
+    included) of S0_a + S1_a . c_l (linear_gather's sums, accumulated down the tree in place;
+    parents precede children), times d[l] (closed balancing; empty: none)."""
+    from_d = d.shape[0] > 0
+    C = S0.shape[1]
+    for e in origs:
+        for i in range(noff[e], noff[e + 1]):
             pa = parent[i]
-            if pa >= n0:
+            if pa >= noff[e]:
                 for s_ in range(2):
                     for c in range(C):
-                        S0[s_, c, i - n0] += S0[s_, c, pa - n0]
+                        S0[s_, c, i] += S0[s_, c, pa]
                         for q in range(3):
-                            S1[s_, c, q, i - n0] += S1[s_, c, q, pa - n0]
+                            S1[s_, c, q, i] += S1[s_, c, q, pa]
             l = node_leaf[i]
             if l >= 0:
                 x = leaf_center[l]
                 f = d[l] if from_d else 1.0
                 for s_ in range(2):
                     for c in range(C):
-                        y[s_, c, l] += f * (S0[s_, c, i - n0] + S1[s_, c, 0, i - n0] * x[0]
-                                            + S1[s_, c, 1, i - n0] * x[1]
-                                            + S1[s_, c, 2, i - n0] * x[2])
-    return evals
+                        y[s_, c, l] += f * (S0[s_, c, i] + S1[s_, c, 0, i] * x[0]
+                                            + S1[s_, c, 1, i] * x[1] + S1[s_, c, 2, i] * x[2])
 
 
 @numba.njit(cache=True)
@@ -545,24 +552,32 @@ def _fill_ends(p, q, wpq, wqp, sp, sq, v, orig, cur, tp, ts, sn, ss, w, vv):
 
 
 def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
-    """The final gather (final_gather) into the leaves of originals `origs`, from the solved
-    L (2, C, M): (y (2, C, M) nonzero on those leaves only, leaf evaluations)."""
-    tp, ts, sn, ss, w, ptr, v = _directed(inp)
+    """The final gather into the leaves of originals `origs`, from the solved L (2, C, M):
+    (y (2, C, M) nonzero on those leaves only, evaluations). linear (linear_gather): link by
+    link from the link tasks as the passes hold them; exact (final_gather): over the link ends
+    grouped by target original (_directed)."""
     mode, ncap, d = inp.cap_args()
-    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d,
-                scratch((L.shape[0], L.shape[1], len(inp.parent)))[0])
+    origs = np.asarray(origs, np.int64)
+    S, G = scratch((L.shape[0], L.shape[1], len(inp.parent)))
+    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d, S)
     y = np.zeros_like(L)
     if inp.fg_mode == "linear":
-        evals = linear_gather(Lbar, tp, ts, sn, ss, w, ptr, np.asarray(origs, np.int64),
-                              inp.node_leaf, inp.parent, inp.noff, inp.node_center, inp.normal,
-                              inp.orig, inp.verts, inp.nverts, inp.leaf_node, inp.leaf_center,
-                              ncap, mode, d, y)
-        if len(inp.need):
-            y[:, :, ~inp.need[inp.leaf_orig]] = 0.0
-        return y, evals
-    evals = final_gather(Lbar, tp, ts, sn, ss, w, v, ptr, np.asarray(origs, np.int64),
-                         inp.node_leaf, inp.lo, inp.hi, inp.leaf_center, inp.normal, inp.orig,
-                         inp.verts, inp.nverts, inp.child, inp.fg_levels, ncap, mode, d, y)
+        sel = np.zeros(len(inp.noff) - 1, np.bool_)
+        sel[origs] = True
+        G[...] = 0.0
+        S1 = np.zeros((L.shape[0], L.shape[1], 3, len(inp.parent)))
+        evals = 0
+        for t in range(len(inp.entries)):
+            p, q, wpq, wqp, sp, sq, _ = task_link_arrays(inp, t)
+            evals += linear_gather(Lbar, p, q, wpq, wqp, sp, sq, sel, inp.node_leaf,
+                                   inp.node_center, inp.normal, inp.orig, inp.verts, inp.nverts,
+                                   ncap, mode, G, S1)
+        linear_push(G, S1, origs, inp.noff, inp.parent, inp.node_leaf, inp.leaf_center, d, y)
+    else:
+        tp, ts, sn, ss, w, ptr, v = _directed(inp)
+        evals = final_gather(Lbar, tp, ts, sn, ss, w, v, ptr, origs, inp.node_leaf, inp.lo,
+                             inp.hi, inp.leaf_center, inp.normal, inp.orig, inp.verts,
+                             inp.nverts, inp.child, inp.fg_levels, ncap, mode, d, y)
     if len(inp.need):
         y[:, :, ~inp.need[inp.leaf_orig]] = 0.0
     return y, evals
@@ -650,7 +665,10 @@ class LocalLinkOperator(_Base):
         """The final gather of the solved L (task_final_gather), (2, C, M): groups of originals
         on this machine's cores, as threads of dask's local scheduler (the kernels release the
         GIL; the workers sit idle meanwhile)."""
-        _directed(self.inp)  # built once, before the threads share it
+        if self.inp.fg_mode != "linear":
+            _directed(self.inp)  # built once, before the threads share it
+        for t in range(len(self.inp.entries)):
+            task_link_arrays(self.inp, t)  # read once, before the threads share them
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
         groups = self.orig_groups(cores or 1)  # the cores this process may use (cgroups, Slurm)
         parts = dask.compute(*[dask.delayed(task_final_gather)(self.inp, g, L) for g in groups],

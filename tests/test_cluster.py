@@ -46,6 +46,9 @@ def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback(monkeyp
         # threshold), not Dask's 65536
         env = c.run(os.environ.get, "MALLOC_TRIM_THRESHOLD_")
         assert set(env.values()) == {"67108864"}, env
+        # and keeps arrays up to 64 MiB on its heap (radiosity.cluster.malloc-mmap-threshold)
+        env = c.run(os.environ.get, "MALLOC_MMAP_THRESHOLD_")
+        assert set(env.values()) == {"67108864"}, env
     assert any(line.startswith("dashboard: http://127.0.0.1:") for line in lines)
 
 

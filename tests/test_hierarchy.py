@@ -471,3 +471,35 @@ def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_pat
     assert r.exit_code == 0, r.output
     line = [ln for ln in r.output.splitlines() if ln.startswith("method: ")]
     assert len(line) == 1 and "hierarchical: auto" in line[0] and "links" in line[0], r.output
+
+
+def test_epsilon_auto_scales_with_the_raster_and_reaches_the_links(client, tmp_path):
+    """epsilon auto (the default): epsilon-base up to epsilon-resolution^2 criterion pixels,
+    base x resolution / sqrt(pixels) above, so a finer image gets finer links (more of them per
+    leaf than the same epsilon would keep); a number is used as given; a bad value is one
+    line. The run's report says which epsilon and why."""
+    from radiosity.errors import RadiosityError
+    from radiosity.links import choose_epsilon
+
+    with dask.config.set({"radiosity.hierarchy.epsilon": "auto",
+                          "radiosity.hierarchy.epsilon-base": 5e-4,
+                          "radiosity.hierarchy.epsilon-resolution": 128}):
+        assert choose_epsilon(None, 64 * 64)[0] == 5e-4
+        assert choose_epsilon(None, 128 * 128)[0] == 5e-4
+        eps, why = choose_epsilon(None, 512 * 512)
+        assert eps == pytest.approx(1.25e-4) and why.startswith("auto: 0.0005 x 128 / 512")
+        assert choose_epsilon(None, None)[0] == 5e-4  # before the raster exists: the base
+        assert choose_epsilon(2e-3, 512 * 512) == (2e-3, "stated")
+    with dask.config.set({"radiosity.hierarchy.epsilon": "fine"}):
+        with pytest.raises(RadiosityError, match="number >= 0 or auto, got 'fine'"):
+            choose_epsilon(None, 100)
+    out = prepared(client, tmp_path, scene_path("cornell-box"), 24)
+    figs = {}
+    for res0 in (24, 6):  # 24^2 pixels: the base; 6: a quarter of it
+        with dask.config.set({"radiosity.hierarchy.epsilon": "auto",
+                              "radiosity.hierarchy.epsilon-base": 2e-3,
+                              "radiosity.hierarchy.epsilon-resolution": res0}):
+            figs[res0] = compute_links(out, client, progress=False)
+    assert figs[24]["epsilon"] == 2e-3 and figs[24]["epsilon_reason"] == "auto: 0.002 up to 24^2 pixels"
+    assert figs[6]["epsilon"] == pytest.approx(5e-4) and "x 6 / 24" in figs[6]["epsilon_reason"]
+    assert figs[6]["links_per_leaf"] > 1.5 * figs[24]["links_per_leaf"]

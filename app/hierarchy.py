@@ -356,22 +356,22 @@ def _table_walk(orig, depth, path, noff, verts, nverts, parent, lo, hi, is_leaf)
 
 def node_table(tree: TreeNodes, part: Partition, extra_orig: np.ndarray,
                extra_code: np.ndarray) -> NodeTable:
-    """The union tree: the partition's nodes plus split-off nodes (extra_orig, extra_code) of
-    unseen originals and their closure (closure()); polygons of the new nodes by split_one."""
+    """The union tree: the partition's nodes plus split-off nodes (extra_orig, extra_code) below
+    its leaves (unseen originals, sub-elements no pixel hits) and their closure (closure());
+    polygons of the new nodes by split_one."""
     n = len(part.offsets) - 1
     eo, ep, ed = closure(np.asarray(extra_orig, np.int32), np.asarray(extra_code, np.uint64))
-    # split-off nodes hang below unseen roots, which are partition leaves
     o = np.concatenate([tree.orig, eo]).astype(np.int32)
     p = np.concatenate([tree.path, ep]).astype(np.uint64)
     d = np.concatenate([tree.depth, ed]).astype(np.int32)
     pnode = np.concatenate([np.arange(len(tree.orig)), np.full(len(eo), -1)])
-    order = np.lexsort((d, p, o))
+    # below a seen original's hidden leaf the closure repeats the partition's nodes above it:
+    # the partition's copy (sorted first) is kept
+    order = np.lexsort((pnode < 0, d, p, o))
     o, p, d, pnode = o[order], p[order], d[order], pnode[order]
-    dup = np.zeros(len(o), bool)
-    dup[1:] = (o[1:] == o[:-1]) & (p[1:] == p[:-1]) & (d[1:] == d[:-1])
-    if dup.any():
-        raise ValueError("split-off nodes repeat nodes of the camera partition (a seen original "
-                         "was split below its sub-elements)")
+    keep = np.ones(len(o), bool)
+    keep[1:] = (o[1:] != o[:-1]) | (p[1:] != p[:-1]) | (d[1:] != d[:-1])
+    o, p, d, pnode = o[keep], p[keep], d[keep], pnode[keep]
     N = len(o)
     verts = np.zeros((N, 4, 3))
     nverts = np.zeros(N, np.int8)
@@ -387,8 +387,13 @@ def node_table(tree: TreeNodes, part: Partition, extra_orig: np.ndarray,
     _table_walk(o, d, p, noff, verts, nverts, parent, lo, hi, is_leaf)
     area, _, _ = polygon_properties(verts, nverts)
     leaf_node = np.nonzero(is_leaf)[0]
-    lp = pnode[leaf_node]
-    leaf_sub = np.where(lp >= 0, tree.leaf[np.maximum(lp, 0)], part.offsets[o[leaf_node]])
+    anc = pnode.copy()  # the nearest partition node at or above each node
+    for _ in range(MAX_DEPTH + 1):  # parents first: one level per step
+        up = np.nonzero(anc < 0)[0]
+        if not len(up):
+            break
+        anc[up] = anc[parent[up]]
+    leaf_sub = tree.leaf[anc[leaf_node]]
     if np.any(leaf_sub < 0):
         raise ValueError("a leaf of the union tree is an inner node of the camera partition")
     return NodeTable(orig=o, path=p, depth=d, code=heap_code(p, d), parent=parent, verts=verts,

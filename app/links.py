@@ -118,15 +118,17 @@ class LinkInputs:
 
     The partition's node table (hierarchy.TreeNodes, k nodes): t_verts (k, 4, 3), t_nverts (k,),
     t_area (k,), t_center (k, 3), t_lo / t_hi (k, 3) node boxes, t_child (k, 2), t_orig,
-    t_depth (k,), t_path (k,) uint64. Per original (n): normal (n, 3), two_sided, ext (may be
-    split below its one sub-element: unseen), root (partition node), wrho (n, 2) and lhat
+    t_depth (k,), t_path (k,) uint64. Per original (n): normal (n, 3), two_sided, root (partition node), wrho (n, 2) and lhat
     (n, 2) the oracle's weights per side, elo / ehi / enormal / eoffset / pad: padded
     occluder boxes and planes (shafts.occluders), verts / nverts: polygons (occluders and
-    Embree), key: the Embree cache key; lref: the reference radiance of the weights.
+    Embree), key: the Embree cache key; lref: the reference radiance of the weights. ext (k,):
+    partition leaves that may be split on demand below the camera's partition: those no pixel
+    hits (hit (m,) per sub-element), or without `hit` the one sub-element of an unseen
+    original.
     """
 
     def __init__(self, tree, part, elements, seen, params: LinkParams, weight: str, key: str,
-                 epsilon: float):
+                 epsilon: float, hit: np.ndarray | None = None):
         self.t_verts = tree.verts
         self.t_nverts = tree.nverts.astype(np.int64)
         self.t_area = tree.area
@@ -141,7 +143,12 @@ class LinkInputs:
         n = len(elements)
         self.normal = elements.normal
         self.two_sided = elements.two_sided.astype(np.bool_)
-        self.ext = (~np.asarray(seen, bool)) & (np.diff(part.offsets) == 1)
+        leaf = np.asarray(tree.leaf, np.int64)
+        if hit is None:  # the unseen originals' one sub-element
+            unseen = (~np.asarray(seen, bool)) & (np.diff(part.offsets) == 1)
+            self.ext = (leaf >= 0) & unseen[tree.orig]
+        else:  # every sub-element no pixel hits (hierarchy.split-hidden)
+            self.ext = (leaf >= 0) & ~np.asarray(hit, bool)[np.maximum(leaf, 0)]
         self.root = part.root.astype(np.int64)
         self.wrho, self.lhat, self.lref = oracle_weights(elements, weight)
         self.elo, self.ehi, self.enormal, self.eoffset, self.pad = occluders(elements)
@@ -395,7 +402,7 @@ def _copy_tree_node(x, t, t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_chi
     Lch[x, 0] = -1
     Lch[x, 1] = -1
     Lpn[x] = t
-    Lcan[x] = t_child[t, 0] >= 0 or (ext[t_orig[t]] and np.sqrt(t_area[t]) > min_size
+    Lcan[x] = t_child[t, 0] >= 0 or (ext[t] and np.sqrt(t_area[t]) > min_size
                                      and t_depth[t] < MAX_DEPTH)
 
 
@@ -1086,8 +1093,13 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit,
                                    int(config.get("hierarchy.max-task-cost")))
     seen = seen_originals(raster, len(el))
+    hit = None
+    if config.get("hierarchy.split-hidden"):
+        sub = rs.read_arrays("raster")["sub"]
+        hit = np.zeros(len(part), bool)
+        hit[sub[sub >= 0]] = True
     token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,
-                     el.emission, seen, prm.to_dict(), weight, config.get("rays.epsilon"))
+                     el.emission, seen, hit, prm.to_dict(), weight, config.get("rays.epsilon"))
     ls = LinkStore(rs)
     done, corrupted = {}, 0
     if resume and ls.token() == token:
@@ -1103,7 +1115,8 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
                                         "unit": unit})
     tree = tree_nodes(part, el)
     key = tokenize(el.verts, el.nverts)
-    inp = LinkInputs(tree, part, el, seen, prm, weight, key, float(config.get("rays.epsilon")))
+    inp = LinkInputs(tree, part, el, seen, prm, weight, key, float(config.get("rays.epsilon")),
+                     hit)
     ntasks = len(first) - 1
     todo = [t for t in range(ntasks) if t not in done]
     threads = sum(client.nthreads().values()) or 1

@@ -132,7 +132,8 @@ def test_two_tasks_split_an_unseen_original_into_the_same_named_nodes(tmp_path):
     path = write_scene(tmp_path, EMITTER_AND_TWO_RECEIVERS, MATERIALS, camera=CAMERA_ON_RECEIVERS)
     sc, part, tree, inp = in_process(path, epsilon=1e-4, rays=4)
     el = sc.elements
-    assert not inp.ext[1] and not inp.ext[2] and inp.ext[0]  # the emitter alone is unseen
+    # the emitter alone is unseen: its one sub-element may split
+    assert inp.ext[tree.orig == 0].all() and not inp.ext[tree.orig > 0].any()
     rc = RayCaster(el.verts, el.nverts)
     got = [refine_pairs(inp, np.array([[0, j]]), rc, polygons=True) for j in (1, 2)]
     (_, n1, _, v1), (_, n2, _, v2) = got
@@ -156,6 +157,38 @@ def test_two_tasks_split_an_unseen_original_into_the_same_named_nodes(tmp_path):
                           part.verts[table.leaf_sub[seen & (orig[lo] > 0)]])
     leaves = tree.leaf >= 0
     assert np.array_equal(tree.verts[leaves], part.verts[tree.leaf[leaves]])
+
+
+def test_a_hidden_sub_element_of_a_seen_original_is_split_on_demand(tmp_path):
+    """hierarchy.split-hidden: a sub-element no pixel hits (here: receiver 1's largest, marked
+    so) may split below the camera's partition like an unseen original. The union tree keeps
+    the partition's own nodes above it (the closure repeats them), its new leaves tile it and
+    map back to it (leaf_sub), and every other leaf of the seen originals is exactly its camera
+    sub-element. (epsilon 1e-5: there the oracle asks for leaves finer than the camera's.)"""
+    path = write_scene(tmp_path, EMITTER_AND_TWO_RECEIVERS, MATERIALS, camera=CAMERA_ON_RECEIVERS)
+    sc, part, tree, inp = in_process(path, epsilon=1e-5, rays=4)
+    el = sc.elements
+    r1 = np.arange(part.offsets[1], part.offsets[2])
+    big = int(r1[np.argmax(part.area[r1])])
+    hit = np.ones(len(part), bool)
+    hit[part.offsets[0]:part.offsets[1]] = False  # the unseen emitter's one sub-element
+    hit[big] = False
+    seen = seen_originals(subdivide_scene(el, sc.camera)[1], len(el))
+    inp2 = LinkInputs(tree, part, el, seen, inp.params, "bf", "test", 1e-6, hit)
+    assert inp2.ext[tree.leaf == big].all() and inp2.ext.sum() == 2
+    rc = RayCaster(el.verts, el.nverts)
+    _, nodes, _ = refine_pairs(inp2, np.array([[0, 1]]), rc)
+    assert np.any(nodes["o"] == 1)  # the hidden sub-element was split
+    _, nodes0, _ = refine_pairs(inp, np.array([[0, 1]]), rc)
+    assert not np.any(nodes0["o"] == 1)  # and is not without split-hidden
+    table = node_table(tree, part, nodes["o"], nodes["c"])
+    lo = table.leaf_node
+    under = table.leaf_sub == big
+    assert under.sum() > 1
+    np.testing.assert_allclose(table.leaf_area[under].sum(), part.area[big], rtol=1e-12)
+    rest = ~under & (table.orig[lo] > 0)
+    assert np.array_equal(table.verts[lo[rest]], part.verts[table.leaf_sub[rest]])
+    assert sorted(set(table.leaf_sub[table.orig[lo] > 0])) == list(range(part.offsets[1], len(part)))
 
 
 # ----------------------------------------------------------------------------- exact answers

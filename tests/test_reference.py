@@ -238,9 +238,9 @@ def test_cornell_box_walls_agree_with_radiosity(mitsuba, client, tmp_path):
     import dask.config
 
     # the conditions the 5 % margin was measured under: the point kernel and the seed's rule
-    # for unseen elements. Found at the end of the session that introduced unseen refinement and
-    # not yet explained: with the default refinement, element 19 (a block face) comes out 7-9 %
-    # darker than Mitsuba at 32^2, with point and point-nf alike (an open issue)
+    # for unseen elements. With the pairs method element 19 (the tall block's front face) comes
+    # out 5-9 % darker than Mitsuba: a floor sub-element no pixel hits is lost to it whole
+    # (test_hidden_sub_elements_are_split_on_demand_so_the_tall_block_face_is_right)
     with warnings.catch_warnings(), dask.config.set({"radiosity.subdivide.unseen": "keep"}):
         warnings.simplefilter("ignore")
         render_scene(sc, str(tmp_path / "run"), client, subpixel=1, kernel="point", preview=False,
@@ -392,3 +392,35 @@ def test_render_calls_split_into_equal_chunks():
     for spp, px, cap in ((2048, 4096, 1 << 22), (96, 1000, 20_000), (5, 10, 25)):
         c = _chunks(spp, px, cap)
         assert sum(c) == spp and len(set(c)) == 1 and (c[0] * px <= cap or c[0] == 1)
+
+
+def test_hidden_sub_elements_are_split_on_demand_so_the_tall_block_face_is_right(mitsuba, client,
+                                                                                  tmp_path):
+    """The Cornell box's tall block front face (element 19) is lit by the floor between the
+    blocks. The camera leaves a large floor sub-element there that no pixel hits (behind the
+    short block), its centroid under the short block: one centroid ray loses it whole to the
+    face. With hierarchy.split-hidden (the default) such sub-elements are split on demand like
+    unseen originals, and the face agrees with Mitsuba; without, it comes out about 5 % dark."""
+    import dask.config
+
+    from radiosity.compare import element_raster, interior
+    from radiosity.pipeline import render_scene
+    from radiosity.render import read_exr
+
+    sc = _scene("cornell-box", 64)  # measured: -1.2 % with, -5.3 % without (48^2: -1.1, -3.8)
+    m, se = _render(mitsuba, sc, 512, 4)
+    sel = interior(element_raster(sc)) & (element_raster(sc) == 19)
+    assert sel.sum() >= 100
+    b = m[sel].mean(axis=0)
+    sigma = np.sqrt((se[sel] ** 2).sum(axis=0)) / sel.sum() / b
+    rel = {}
+    for hidden in (True, False):
+        out = tmp_path / f"run-{hidden}"
+        with dask.config.set({"radiosity.hierarchy.split-hidden": hidden}):
+            rep = render_scene(sc, str(out), client, preview=False, progress=False,
+                               method="hierarchical", echo=lambda *a: None)
+        rel[hidden] = read_exr(str(out / "image.exr")).astype(float)[sel].mean(axis=0) / b - 1.0
+        if hidden:  # some floor sub-elements were split below the camera's partition
+            assert rep["links"]["split_off_nodes"] > 0
+    assert np.all(np.abs(rel[True]) <= 3 * sigma + 0.025), (rel, sigma)
+    assert np.all(rel[False] < -0.035), rel  # the check can tell

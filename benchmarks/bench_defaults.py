@@ -2,7 +2,7 @@
 
 1. Every built-in scene rendered with no options (`render_scene` with the defaults, a warm
    LocalCluster of 2 workers; the whole stage times, not the process start): its error against
-   the exact answer where one exists, the closure and row mode chosen, and the time.
+   the exact answer where one exists, the method, closure and row mode chosen, and the time.
 2. The tolerance trade-off: on each scene the same visibility matrix solved at tol 1e-2 .. 1e-6;
    passes, and the image's max and mean relative difference against the 1e-6 solution (pixels
    that see an element).
@@ -26,6 +26,7 @@ from radiosity.cluster import open_client
 from radiosity.pipeline import render_scene
 from radiosity.render import read_exr, render_outputs
 from radiosity.scene import load_scene
+from radiosity.linksolve import run_solve_links
 from radiosity.solve import run_solve
 from radiosity.study import form_factor_of_run
 from radiosity.visibility import compute_visibility
@@ -92,7 +93,9 @@ def main(quick: bool = False) -> None:
                 m = r > 0
                 err = abs(float((img @ lum)[m].mean() / r[m].mean() - 1))
             sol = rep["solve"]
+            method = rep["plan"].get("method", "pairs")
             rows.append({"scene": name, "sub_elements": rep["preprocess"]["sub_elements"],
+                         "method": method,
                          "unseen_refined": rep["preprocess"]["unseen_refined"],
                          "closure": "closed" if rep["plan"]["closure"]["closed"] else "open",
                          "rows": (sol.get("row_sums") or {}).get("mode", "-"), "solver": sol["solver"],
@@ -105,7 +108,10 @@ def main(quick: bool = False) -> None:
             # the tolerance trade-off on the same visibility
             images = {}
             for tol in TOLS:
-                fig = run_solve(out, client, tol=tol, progress=False, closure=None)
+                if method == "hierarchical":
+                    fig = run_solve_links(out, client, tol=tol, progress=False)
+                else:
+                    fig = run_solve(out, client, tol=tol, progress=False, closure=None)
                 render_outputs(out)
                 images[tol] = (read_exr(f"{out}/image.exr"), fig.iterations)
             ref_img = images[1e-6][0]
@@ -115,7 +121,7 @@ def main(quick: bool = False) -> None:
                 tol_rows.append({"scene": name, "tol": tol, "passes": images[tol][1],
                                  "passes_1e-6": images[1e-6][1],
                                  "max_rel_diff": float(diff.max()), "mean_rel_diff": float(diff.mean())})
-    cols = ["scene", "sub_elements", "unseen_refined", "closure", "rows", "solver", "kernel",
+    cols = ["scene", "sub_elements", "method", "unseen_refined", "closure", "rows", "solver", "kernel",
             "passes", "error", "against", "time_s"]
     print(table(rows, cols))
     print(table(tol_rows, ["scene", "tol", "passes", "passes_1e-6", "max_rel_diff", "mean_rel_diff"]))

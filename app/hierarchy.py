@@ -31,11 +31,11 @@ from .subdivide import TIE
 from .types import Elements, Partition
 
 MAX_DEPTH = 60  # paths are 64-bit; subdivide.py refuses deeper trees too
-#: Links per leaf at the default epsilon, low and high, for estimates before a run (`radiosity
-#: plan`). MEASURED by benchmarks/bench_hierarchy.py (epsilon 5e-4, 4 link rays): Cornell box 37
-#: at 64^2, 29 at 128^2, 14.5 at 256^2, 7.1 at 512^2 (links grow like m^0.55 there); room-2400
-#: (2 400 originals) 24.9 at 256^2.
-LINKS_PER_LEAF = (7.0, 37.0)
+#: Links per leaf with the defaults, low and high, for estimates before a run (`radiosity
+#: plan`). MEASURED by benchmarks/bench_hierarchy.py (epsilon auto, hidden sub-elements split,
+#: 4 link rays): Cornell box 37.7 at 64^2, 33.4 at 128^2, 29.5 at 256^2, 25.3 at 512^2;
+#: room-2400 (2 400 originals) 48.9 at 256^2.
+LINKS_PER_LEAF = (25.0, 49.0)
 
 
 # ----------------------------------------------------------------------------- codes

@@ -103,7 +103,7 @@ def main(quick: bool = False) -> None:
                          "passes": sol["iterations"],
                          "error": err, "against": against, "time_s": round(wall, 2)})
             print(table(rows[-1:], list(rows[-1])), flush=True)
-            if rep["visibility"].get("skipped"):
+            if "visibility" in rep and rep["visibility"].get("skipped"):
                 continue  # nothing reflects: no solve to stop early
             # the tolerance trade-off on the same visibility
             images = {}

@@ -118,8 +118,8 @@ class LinkInputs:
 
     The partition's node table (hierarchy.TreeNodes, k nodes): t_verts (k, 4, 3), t_nverts (k,),
     t_area (k,), t_center (k, 3), t_lo / t_hi (k, 3) node boxes, t_child (k, 2), t_orig,
-    t_depth (k,), t_path (k,) uint64. Per original (n): normal (n, 3), two_sided, root (partition node), wrho (n, 2) and lhat
-    (n, 2) the oracle's weights per side, elo / ehi / enormal / eoffset / pad: padded
+    t_depth (k,), t_path (k,) uint64. Per original (n): normal (n, 3), two_sided, root
+    (partition node), wrho (n, 2) and lhat (n, 2) the oracle's weights per side, elo / ehi / enormal / eoffset / pad: padded
     occluder boxes and planes (shafts.occluders), verts / nverts: polygons (occluders and
     Embree), key: the Embree cache key; lref: the reference radiance of the weights. ext (k,):
     partition leaves that may be split on demand below the camera's partition: those no pixel
@@ -1050,7 +1050,7 @@ def resolve_params(elements, kernel: str | None = None, epsilon: float | None = 
 def links_rows(fig: dict) -> list[tuple[str, object]]:
     """The CLI summary rows of the link stage's figures (report.json section "links")."""
     return [("sub-elements", f"{fig['sub_elements']} ({fig['leaves']} leaves, "
-                             f"{fig['split_off_nodes']} nodes split off unseen originals)"),
+                             f"{fig['split_off_nodes']} nodes split below the camera's partition)"),
             ("epsilon", f"{fig['epsilon']:.3g} ({fig.get('epsilon_reason', 'stated')})"),
             ("links", f"{fig['links']} ({fig['links_per_leaf']:.1f} per leaf, "
                       f"{fig['bytes_per_link']} bytes each)"),
@@ -1168,7 +1168,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
         "tasks_corrupted_recomputed": corrupted, "sub_elements": len(part),
         "nodes": len(table), "leaves": table.leaves,
         "split_off_nodes": int(np.count_nonzero(table.pnode < 0)),
-        "unseen_originals_split": int(len(np.unique(xn["o"]))),
+        "originals_split": int(len(np.unique(xn["o"]))),  # below the camera's partition
         **c, "links_per_leaf": c["links"] / max(1, table.leaves),
         "bytes_per_link": LINK_DTYPE.itemsize, "link_bytes": c["links"] * LINK_DTYPE.itemsize,
         "epsilon": prm.epsilon, "epsilon_reason": eps_why, "link_rays": prm.rays, "weight": weight,

@@ -226,7 +226,7 @@ def test_opposed_squares_with_the_emitter_out_of_view_pointwise(client, tmp_path
     with dask.config.set({"radiosity.subdivide.unseen": unseen}):
         part, el, L, fig = _solve(client, tmp_path, path)
     if unseen == "keep":
-        assert fig["unseen_originals_split"] == 1 and fig["split_off_nodes"] > 0
+        assert fig["originals_split"] == 1 and fig["split_off_nodes"] > 0
     r = part.orig == 1
     x, y = part.center[r, 0], part.center[r, 1]
     F = sum(differential_to_rectangle(np.abs(a), np.abs(b), 1.0)

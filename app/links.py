@@ -1080,8 +1080,8 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
     rs = RunStore(run_dir, "r+")
     part = rs.load_partition()
     el = rs.load_elements()
-    raster = rs.read_arrays("raster")["orig"]
-    eps, eps_why = choose_epsilon(epsilon, raster.size)
+    raster = rs.read_arrays("raster")  # orig, sub: (H, W) per criterion pixel
+    eps, eps_why = choose_epsilon(epsilon, raster["orig"].size)
     prm, weight = resolve_params(el, kernel, eps, rays, occlusion)
     unit = config.get("hierarchy.task-unit", unit)
     if unit == "auto":
@@ -1092,10 +1092,10 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
                                     rs.attrs.get("scene") or run_dir)
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit,
                                    int(config.get("hierarchy.max-task-cost")))
-    seen = seen_originals(raster, len(el))
+    seen = seen_originals(raster["orig"], len(el))
     hit = None
     if config.get("hierarchy.split-hidden"):
-        sub = rs.read_arrays("raster")["sub"]
+        sub = raster["sub"]
         hit = np.zeros(len(part), bool)
         hit[sub[sub >= 0]] = True
     token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,

@@ -353,24 +353,30 @@ def _polygon_ff(P, nP, Q, nQ, two_sided):
 @numba.njit(cache=True)
 def _point_ff(p, n, Q, nQ):
     """Differential element at p (normal n, unit) to the polygon Q[:nQ], clipped to n's side."""
-    Qc = np.empty((2 * nQ + 2, 3))
+    return point_ff(p[0], p[1], p[2], n[0], n[1], n[2], Q, nQ, np.empty((2 * nQ + 2, 3)))
+
+
+@numba.njit(cache=True)
+def point_ff(px, py, pz, nx, ny, nz, Q, nQ, Qc):
+    """_point_ff with the point and normal as scalars and the clipped polygon in the caller's
+    scratch Qc (at least (2 nQ + 2, 3)): no allocation, for loops over millions of links."""
     scale = 0.0
     for k in range(nQ):
-        scale = max(scale, math.sqrt((Q[k, 0] - p[0]) ** 2 + (Q[k, 1] - p[1]) ** 2
-                                     + (Q[k, 2] - p[2]) ** 2))
-    m = _clip(Q, nQ, n[0], n[1], n[2], p[0], p[1], p[2], 1e-12 * scale, Qc)
+        scale = max(scale, math.sqrt((Q[k, 0] - px) ** 2 + (Q[k, 1] - py) ** 2
+                                     + (Q[k, 2] - pz) ** 2))
+    m = _clip(Q, nQ, nx, ny, nz, px, py, pz, 1e-12 * scale, Qc)
     acc = 0.0
     for k in range(m if m >= 3 else 0):
         l = (k + 1) % m
-        ax, ay, az = Qc[k, 0] - p[0], Qc[k, 1] - p[1], Qc[k, 2] - p[2]
-        bx, by, bz = Qc[l, 0] - p[0], Qc[l, 1] - p[1], Qc[l, 2] - p[2]
+        ax, ay, az = Qc[k, 0] - px, Qc[k, 1] - py, Qc[k, 2] - pz
+        bx, by, bz = Qc[l, 0] - px, Qc[l, 1] - py, Qc[l, 2] - pz
         cx = ay * bz - az * by
         cy = az * bx - ax * bz
         cz = ax * by - ay * bx
         cn = math.sqrt(cx * cx + cy * cy + cz * cz)
         if cn > 0.0:
             gamma = math.atan2(cn, ax * bx + ay * by + az * bz)
-            acc += gamma * (n[0] * cx + n[1] * cy + n[2] * cz) / cn
+            acc += gamma * (nx * cx + ny * cy + nz * cz) / cn
     return abs(acc) / _TWO_PI
 
 

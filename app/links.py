@@ -48,7 +48,7 @@ import numpy as np
 
 from . import config
 from .errors import RadiosityError
-from .exact import _point_ff, _polygon_ff
+from .exact import _point_ff, _polygon_ff, point_ff
 from .geometry import COS_TOL
 from .hierarchy import MAX_DEPTH, _bit, polygon_area_center, split_one
 from .monitor import Monitor, worker_address
@@ -196,39 +196,39 @@ def _grow(a, n):
 
 
 @numba.njit(cache=True)
-def _blocks(o, P, nP, Q, nQ, everts, envert, enormal, eoffset, pad):
-    """Does occluder o alone cut every segment between polygons P[:nP] and Q[:nQ]? Its plane
-    must separate them strictly (beyond pad), and every crossing point of a segment between a
-    vertex of P and one of Q must lie inside o (beyond pad): those points span the crossing set
-    of all segments (it is conv(P u Q) cut by the plane), and o is convex."""
-    n = enormal[o]
+def _blocks(o, V, p, nP, q, nQ, everts, envert, enormal, eoffset, pad, sp, sq):
+    """Does occluder o alone cut every segment between polygons V[p, :nP] and V[q, :nQ]? Its
+    plane must separate them strictly (beyond pad), and every crossing point of a segment
+    between a vertex of P and one of Q must lie inside o (beyond pad): those points span the
+    crossing set of all segments (it is conv(P u Q) cut by the plane), and o is convex.
+    sp, sq: scratch (4,). Arrays and indices, no rows (shafts._faces: views cost)."""
+    n0, n1, n2 = enormal[o, 0], enormal[o, 1], enormal[o, 2]
     d0 = eoffset[o]
-    sp = np.empty(4)
-    sq = np.empty(4)
     pmin, pmax, qmin, qmax = np.inf, -np.inf, np.inf, -np.inf
     for i in range(nP):
-        sp[i] = n[0] * P[i, 0] + n[1] * P[i, 1] + n[2] * P[i, 2] - d0
+        sp[i] = n0 * V[p, i, 0] + n1 * V[p, i, 1] + n2 * V[p, i, 2] - d0
         pmin = min(pmin, sp[i])
         pmax = max(pmax, sp[i])
     for j in range(nQ):
-        sq[j] = n[0] * Q[j, 0] + n[1] * Q[j, 1] + n[2] * Q[j, 2] - d0
+        sq[j] = n0 * V[q, j, 0] + n1 * V[q, j, 1] + n2 * V[q, j, 2] - d0
         qmin = min(qmin, sq[j])
         qmax = max(qmax, sq[j])
     if not ((pmin > pad and qmax < -pad) or (pmax < -pad and qmin > pad)):
         return False
-    O = everts[o]
     m = envert[o]
     for i in range(nP):
         for j in range(nQ):
             t = sp[i] / (sp[i] - sq[j])
-            x0 = P[i, 0] + t * (Q[j, 0] - P[i, 0])
-            x1 = P[i, 1] + t * (Q[j, 1] - P[i, 1])
-            x2 = P[i, 2] + t * (Q[j, 2] - P[i, 2])
+            x0 = V[p, i, 0] + t * (V[q, j, 0] - V[p, i, 0])
+            x1 = V[p, i, 1] + t * (V[q, j, 1] - V[p, i, 1])
+            x2 = V[p, i, 2] + t * (V[q, j, 2] - V[p, i, 2])
             for k in range(m):
                 l = (k + 1) % m
-                ex, ey, ez = O[l, 0] - O[k, 0], O[l, 1] - O[k, 1], O[l, 2] - O[k, 2]
-                wx, wy, wz = x0 - O[k, 0], x1 - O[k, 1], x2 - O[k, 2]
-                c = (ey * wz - ez * wy) * n[0] + (ez * wx - ex * wz) * n[1] + (ex * wy - ey * wx) * n[2]
+                ex = everts[o, l, 0] - everts[o, k, 0]
+                ey = everts[o, l, 1] - everts[o, k, 1]
+                ez = everts[o, l, 2] - everts[o, k, 2]
+                wx, wy, wz = x0 - everts[o, k, 0], x1 - everts[o, k, 1], x2 - everts[o, k, 2]
+                c = (ey * wz - ez * wy) * n0 + (ez * wx - ex * wz) * n1 + (ex * wy - ey * wx) * n2
                 if c <= pad * np.sqrt(ex * ex + ey * ey + ez * ez):
                     return False
     return True
@@ -244,16 +244,16 @@ def _pick(prefer, can_p, can_q, other):
 
 
 @numba.njit(cache=True)
-def _spread(V, nv, nx, ny, nz, c, mx, my, mz, As, fc):
-    """The disc estimate F(x -> c) between the point c (normal m, area As) and the vertices x
-    of polygon V[:nv] (normal n), against its value fc at V's centroid: (largest change, change
+def _spread(V, x, nv, nx, ny, nz, C, y, mx, my, mz, As, fc):
+    """The disc estimate F(v -> c) between the point c = C[y] (normal m, area As) and the
+    vertices v of polygon V[x, :nv] (normal n), against its value fc at the polygon's centroid: (largest change, change
     of the mean). The first is how much a receiver's irradiance varies over it (first order,
     and what the centroids miss at grazing angles near a shared edge); the second the error of
     the centroid rule over a source (second order: the linear part averages out)."""
     big = 0.0
     mean = 0.0
     for i in range(nv):
-        dx, dy, dz = c[0] - V[i, 0], c[1] - V[i, 1], c[2] - V[i, 2]
+        dx, dy, dz = C[y, 0] - V[x, i, 0], C[y, 1] - V[x, i, 1], C[y, 2] - V[x, i, 2]
         r2 = dx * dx + dy * dy + dz * dz + 1e-300
         a = max(nx * dx + ny * dy + nz * dz, 0.0)
         b = max(-(mx * dx + my * dy + mz * dz), 0.0)
@@ -333,30 +333,33 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
 
 
 @numba.njit(cache=True)
-def centroid_to_polygon(P, nP, cp, Ap, gp, Q, nQ, cq, Aq, gq, npx, npy, npz, nqx, nqy, nqz):
-    """F_pq, F_qp of a far link: the exact form factor from a differential element at the
-    smaller node's centroid to the larger polygon (Lambert's formula, exact.py), the other by
-    reciprocity. Exact over the larger node: only the smaller one's extent is approximated
-    (to second order), where the point kernel errs over both."""
-    n = np.empty(3)
+def centroid_to_polygon(Lv, Ln, Lc, p, q, Ap, gp, Aq, gq, npx, npy, npz, nqx, nqy, nqz, S, Sc):
+    """F_pq, F_qp of a far link (p, q): the exact form factor from a differential element at
+    the smaller node's centroid Lc to the larger polygon Lv (Lambert's formula, exact.py), the
+    other by reciprocity. Exact over the larger node: only the smaller one's extent is
+    approximated (to second order), where the point kernel errs over both. S (4, 3), Sc
+    (10, 3): scratch."""
     if Ap <= Aq:
-        n[0], n[1], n[2] = gp * npx, gp * npy, gp * npz
-        if gq * (nqx * (cp[0] - Q[0, 0]) + nqy * (cp[1] - Q[0, 1]) + nqz * (cp[2] - Q[0, 2])) <= 0:
-            return 0.0, 0.0
-        f = _point_ff(cp, n, Q, nQ)
-        return f, f * Ap / Aq
-    n[0], n[1], n[2] = gq * nqx, gq * nqy, gq * nqz
-    if gp * (npx * (cq[0] - P[0, 0]) + npy * (cq[1] - P[0, 1]) + npz * (cq[2] - P[0, 2])) <= 0:
+        a, b, g, nx, ny, nz, mx, my, mz = p, q, gp, npx, npy, npz, gq * nqx, gq * nqy, gq * nqz
+    else:
+        a, b, g, nx, ny, nz, mx, my, mz = q, p, gq, nqx, nqy, nqz, gp * npx, gp * npy, gp * npz
+    if mx * (Lc[a, 0] - Lv[b, 0, 0]) + my * (Lc[a, 1] - Lv[b, 0, 1]) \
+            + mz * (Lc[a, 2] - Lv[b, 0, 2]) <= 0:
         return 0.0, 0.0
-    f = _point_ff(cq, n, P, nP)
+    for i in range(Ln[b]):
+        for c in range(3):
+            S[i, c] = Lv[b, i, c]
+    f = point_ff(Lc[a, 0], Lc[a, 1], Lc[a, 2], g * nx, g * ny, g * nz, S, Ln[b], Sc)
+    if Ap <= Aq:
+        return f, f * Ap / Aq
     return f * Aq / Ap, f
 
 
 @numba.njit(cache=True)
-def _plane_range(nx, ny, nz, d0, V, nv):
+def _plane_range(nx, ny, nz, d0, V, x, nv):
     lo, hi = np.inf, -np.inf
     for i in range(nv):
-        s = nx * V[i, 0] + ny * V[i, 1] + nz * V[i, 2] - d0
+        s = nx * V[x, i, 0] + ny * V[x, i, 1] + nz * V[x, i, 2] - d0
         lo = min(lo, s)
         hi = max(hi, s)
     return lo, hi
@@ -364,12 +367,14 @@ def _plane_range(nx, ny, nz, d0, V, nv):
 
 @numba.njit(cache=True)
 def _new_node(x, verts, nv, orig, path, depth, pnode, can, Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld,
-              Lch, Lpn, Lcan):
-    Lv[x] = verts
+              Lch, Lpn, Lcan, c):
+    for i in range(4):
+        for k in range(3):
+            Lv[x, i, k] = verts[i, k]
     Ln[x] = nv
-    c = np.empty(3)
     La[x] = polygon_area_center(verts, c)
-    Lc[x] = c
+    for k in range(3):
+        Lc[x, k] = c[k]
     for k in range(3):
         lo, hi = np.inf, -np.inf
         for i in range(nv):
@@ -390,12 +395,15 @@ def _new_node(x, verts, nv, orig, path, depth, pnode, can, Lv, Ln, La, Lc, Llo, 
 def _copy_tree_node(x, t, t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig,
                     t_depth, t_path, ext, min_size, Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch,
                     Lpn, Lcan):
-    Lv[x] = t_verts[t]
+    for i in range(4):
+        for k in range(3):
+            Lv[x, i, k] = t_verts[t, i, k]
     Ln[x] = t_nverts[t]
     La[x] = t_area[t]
-    Lc[x] = t_center[t]
-    Llo[x] = t_lo[t]
-    Lhi[x] = t_hi[t]
+    for k in range(3):
+        Lc[x, k] = t_center[t, k]
+        Llo[x, k] = t_lo[t, k]
+        Lhi[x, k] = t_hi[t, k]
     Lo[x] = t_orig[t]
     Lp[x] = t_path[t]
     Ld[x] = t_depth[t]
@@ -462,6 +470,11 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
     B = np.empty((2, 3))
     c0 = np.empty((4, 3))
     c1 = np.empty((4, 3))
+    cc = np.empty(3)
+    s4p = np.empty(4)
+    s4q = np.empty(4)
+    S = np.empty((4, 3))
+    Sc = np.empty((10, 3))
     while ns > 0:
         ns -= 1
         p, q, l0, l1, frac = sp_[ns], sq_[ns], sc0[ns], sc1[ns], sfr[ns]
@@ -481,8 +494,8 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
         # 1. orientation, from the vertices
         dp = npx * Lc[p, 0] + npy * Lc[p, 1] + npz * Lc[p, 2]
         dq = nqx * Lc[q, 0] + nqy * Lc[q, 1] + nqz * Lc[q, 2]
-        qlo, qhi = _plane_range(npx, npy, npz, dp, Lv[q], Ln[q])
-        plo, phi = _plane_range(nqx, nqy, nqz, dq, Lv[p], Ln[p])
+        qlo, qhi = _plane_range(npx, npy, npz, dp, Lv, q, Ln[q])
+        plo, phi = _plane_range(nqx, nqy, nqz, dq, Lv, p, Ln[p])
         fq, bq = qhi > plane_tol, qlo < -plane_tol
         fp, bp = phi > plane_tol, plo < -plane_tol
         if not ((fq or (two_sided[op] and bq)) and (fp or (two_sided[oq] and bp))):
@@ -521,13 +534,13 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
             # order; what the centroids miss at grazing angles); as a source approximated at its
             # centroid: the centroid rule's error (second order)
             if can_p:
-                big, curv = _spread(Lv[p], Ln[p], gp * npx, gp * npy, gp * npz, Lc[q], gq * nqx,
+                big, curv = _spread(Lv, p, Ln[p], gp * npx, gp * npy, gp * npz, Lc, q, gq * nqx,
                                     gq * nqy, gq * nqz, Aq, fpq)
                 ep = wpq * big
                 if Ap <= Aq or not far_polygon:
                     ep += max(wpq, wqp) * curv
             if can_q:
-                big, curv = _spread(Lv[q], Ln[q], gq * nqx, gq * nqy, gq * nqz, Lc[p], gp * npx,
+                big, curv = _spread(Lv, q, Ln[q], gq * nqx, gq * nqy, gq * nqz, Lc, p, gp * npx,
                                     gp * npy, gp * npz, Ap, fqp)
                 eq = wqp * big
                 if Aq < Ap or not far_polygon:
@@ -545,10 +558,11 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
             blocked = False
             for c in range(l0, l1):
                 o = stk_pool[c]
-                if _same_side(A, B, enormal[o], eoffset[o], pad) or \
-                        _shaft_excludes(A, B, elo[o], ehi[o]):
+                if _same_side(A, B, enormal, eoffset, o, pad) or \
+                        _shaft_excludes(A, B, elo, ehi, o):
                     continue
-                if _blocks(o, Lv[p], Ln[p], Lv[q], Ln[q], everts, envert, enormal, eoffset, pad):
+                if _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal, eoffset, pad, s4p,
+                           s4q):
                     blocked = True
                     break
                 stk_pool[m0] = o
@@ -596,7 +610,7 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
                         path = Lp[x] | _bit(Ld[x]) if h == 1 else Lp[x]
                         cv = c1 if h == 1 else c0
                         _new_node(cnt, cv, Ln[x], Lo[x], path, d1, -1, False, Lv, Ln, La, Lc, Llo,
-                                  Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan)
+                                  Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, cc)
                         Lcan[cnt] = np.sqrt(La[cnt]) > min_size and d1 < MAX_DEPTH
                         Lch[x, h] = cnt
                         cnt += 1
@@ -611,8 +625,8 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
             continue
         # keep the link: the leaf test of the visibility stage (centroids face each other)
         length = np.sqrt(r2)
-        if not (_faces(normal[op], two_sided[op], dx, dy, dz, length)
-                and _faces(normal[oq], two_sided[oq], -dx, -dy, -dz, length)):
+        if not (_faces(normal, op, two_sided[op], dx, dy, dz, length)
+                and _faces(normal, oq, two_sided[oq], -dx, -dy, -dz, length)):
             counts[4] += 1
             continue
         if frac < 0.0 and l1 > l0:  # wait for rays, with the filtered occluder list
@@ -655,9 +669,8 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
         elif far_polygon:
             gp = 1.0 if sp == 0 else -1.0
             gq = 1.0 if sq == 0 else -1.0
-            kf[nk, 0], kf[nk, 1] = centroid_to_polygon(Lv[p], Ln[p], Lc[p], Ap, gp, Lv[q], Ln[q],
-                                                       Lc[q], Aq, gq, npx, npy, npz, nqx, nqy,
-                                                       nqz)
+            kf[nk, 0], kf[nk, 1] = centroid_to_polygon(Lv, Ln, Lc, p, q, Ap, gp, Aq, gq, npx, npy,
+                                                       npz, nqx, nqy, nqz, S, Sc)
         elif kid == 0:
             w = g / (np.pi * r2 * r2)
             kf[nk, 0], kf[nk, 1] = w * Aq, w * Ap
@@ -938,11 +951,14 @@ def task_links(inp: LinkInputs, pairs: np.ndarray, store_path: str, task: int) -
     from .store import write_links
 
     t0 = time.time()
+    c0 = time.thread_time()
     caster = caster_for(inp.key, inp.verts, inp.nverts, inp.epsilon)
     links, nodes, counts = refine_pairs(inp, pairs, caster)
+    c1, w1 = time.thread_time(), time.time()
     out = write_links(store_path, task, links, nodes)
     out.update({"counts": counts, "start": t0, "stop": time.time(), "worker": worker_address(),
-                "nodes": nodes})  # for the node table, without reading them back
+                "nodes": nodes,  # for the node table, without reading them back
+                "cpu": (c1 - c0, time.thread_time() - c1, w1 - t0)})  # refine + rays, write
     return out
 
 
@@ -1124,6 +1140,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
     for e in done.values():
         counts += np.asarray(e["counts"], np.int64)
     busy: dict = {}
+    cpu = [0.0, 0.0, 0.0]  # the tasks' thread CPU: refinement and rays, store writes
     computed = [0]
     mon = Monitor(client)
     mon.stage("links", run_dir)
@@ -1137,6 +1154,9 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
         computed[0] += 1
         counts += res["counts"]
         busy[res["worker"]] = busy.get(res["worker"], 0.0) + (res["stop"] - res["start"])
+        cpu[0] += res.get("cpu", (0.0, 0.0))[0]
+        cpu[1] += res.get("cpu", (0.0, 0.0))[1]
+        cpu[2] += res.get("cpu", (0.0, 0.0, 0.0))[2]
         if on_done is not None:
             on_done(computed[0])
 
@@ -1177,6 +1197,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
         "time_node_table_s": round(t_nodes, 4),
         "rays_per_s": c["rays"] / wall if wall > 0 else 0.0,
         "busy_s_per_worker": {str(k): round(v, 4) for k, v in busy.items()},
+        "cpu_refine_s": round(cpu[0], 4), "cpu_write_s": round(cpu[1], 4), "wall_refine_s": round(cpu[2], 4),
         "idle_fraction": (1.0 - sum(busy.values()) / (nworkers * wall)) if wall > 0 and busy else None,
         "workers": nworkers, "occlusion": occlusion, "peak_rss_mb": peak_rss_mb(client),
     }

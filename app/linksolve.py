@@ -34,12 +34,18 @@ import numpy as np
 
 from . import config
 from .errors import RadiosityError, StoreError
-from .exact import _point_ff
+from .exact import _point_ff, point_ff
 from .monitor import progress_bar
 from .operator import CACHE
 from .passes import CAP_MIN, CAP_PRODUCT
 
 LINK_CACHE_KEY = "links"
+# The linear final gather's far links: a source farther than FG_FAR times both nodes' sizes,
+# seen from the receiver's centroid at cosines above sqrt(FG_FAR_COS2) both ways, gets the point
+# kernel's analytic gradient instead of five exact evaluations (MEASURED in the closing note of
+# issue 13: Cornell box 128^2, final gather 0.85 -> s, image change).
+FG_FAR = 6.0
+FG_FAR_COS2 = 0.01
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -242,18 +248,21 @@ def final_gather(Lbar, tp, ts, sn, ss, w, v, ptr, origs, node_leaf, lo, hi, leaf
 
 @numba.njit(cache=True, nogil=True)
 def linear_gather(Lbar, p, q, wpq, wqp, sp, sq, sel, node_leaf, node_center, normal, node_orig,
-                  verts, nverts, ncap, mode, S0, S1):
+                  verts, nverts, ncap, mode, S0, S1, node_area, far):
     """The final gather to first order, link by link: for both directions of links (p, q) into
     a node t of a selected original (sel[orig]), S0 (2, C, N) += the link's value f w Lbar and,
     for t above the leaves, the value times the gradient of the exact form factor F(x ->
     source) over t (least squares through t's centroid and vertices, in t's plane, relative to
     F at the centroid) into S1 (2, C, 3, N) (and its part at t's centroid out of S0). A leaf l
     then gets sum over its ancestors a of (S0_a + S1_a . c_l) (linear_push). Four or five exact
-    point-to-polygon evaluations per link instead of one per link and leaf. Returns the
-    evaluations made."""
+    point-to-polygon evaluations per link instead of one per link and leaf; none where the
+    source lies farther than `far` times both nodes' sizes (sqrt area) in front of t and not
+    grazing: there the point kernel's gradient, analytic (0: never). Returns the evaluations
+    made."""
     C = Lbar.shape[1]
-    n = np.empty(3)
     evals = 0
+    S = np.empty((4, 3))   # the source's polygon, and its clipped copy: scratch, no allocation
+    Sc = np.empty((10, 3))  # per evaluation and no row views (shafts._faces)
     for k in range(p.shape[0]):
         for h in range(2):
             t, s = (p[k], q[k]) if h == 0 else (q[k], p[k])
@@ -269,50 +278,72 @@ def linear_gather(Lbar, p, q, wpq, wqp, sp, sq, sel, node_leaf, node_center, nor
                 continue
             gt = 1.0 if st == 0 else -1.0
             gs = 1.0 if ss == 0 else -1.0
-            n[0], n[1], n[2] = gt * normal[ot, 0], gt * normal[ot, 1], gt * normal[ot, 2]
+            nx, ny, nz = gt * normal[ot, 0], gt * normal[ot, 1], gt * normal[ot, 2]
             mx, my, mz = gs * normal[os_, 0], gs * normal[os_, 1], gs * normal[os_, 2]
-            S = verts[s]
-            m0 = mx * S[0, 0] + my * S[0, 1] + mz * S[0, 2]
-            ct = node_center[t]
-            F0 = _point_ff(ct, n, S, nverts[s]) if mx * ct[0] + my * ct[1] + mz * ct[2] > m0 else 0.0
-            evals += 1
-            if F0 <= 0.0:
-                continue
-            # in-plane basis of t and the least-squares gradient through the vertices
-            V = verts[t]
-            ex, ey, ez = V[1, 0] - V[0, 0], V[1, 1] - V[0, 1], V[1, 2] - V[0, 2]
-            le = np.sqrt(ex * ex + ey * ey + ez * ez)
-            ex, ey, ez = ex / le, ey / le, ez / le
-            fx = normal[ot, 1] * ez - normal[ot, 2] * ey
-            fy = normal[ot, 2] * ex - normal[ot, 0] * ez
-            fz = normal[ot, 0] * ey - normal[ot, 1] * ex
-            a11 = a12 = a22 = b1 = b2 = 0.0
-            for j in range(nverts[t]):
-                x = V[j]
-                Fv = _point_ff(x, n, S, nverts[s]) if mx * x[0] + my * x[1] + mz * x[2] > m0 else 0.0
+            ct0, ct1, ct2 = node_center[t, 0], node_center[t, 1], node_center[t, 2]
+            dx = node_center[s, 0] - ct0
+            dy = node_center[s, 1] - ct1
+            dz = node_center[s, 2] - ct2
+            r2 = dx * dx + dy * dy + dz * dz
+            ca = nx * dx + ny * dy + nz * dz
+            cb = -(mx * dx + my * dy + mz * dz)
+            if far > 0.0 and r2 > far * far * max(node_area[s], node_area[t]) \
+                    and ca * ca > FG_FAR_COS2 * r2 and cb * cb > FG_FAR_COS2 * r2 \
+                    and ca > 0.0 and cb > 0.0:
+                # far: the point kernel's gradient, exactly (no evaluation): F ~ ca cb / r^4,
+                # grad log F = -n / ca + m / cb + 4 d / r^2, in t's plane
+                hx = -nx / ca + mx / cb + 4.0 * dx / r2
+                hy = -ny / ca + my / cb + 4.0 * dy / r2
+                hz = -nz / ca + mz / cb + 4.0 * dz / r2
+                hn = hx * normal[ot, 0] + hy * normal[ot, 1] + hz * normal[ot, 2]
+                gx, gy, gz = hx - hn * normal[ot, 0], hy - hn * normal[ot, 1], hz - hn * normal[ot, 2]
+            else:
+                ns_ = nverts[s]
+                for i in range(ns_):
+                    for c in range(3):
+                        S[i, c] = verts[s, i, c]
+                m0 = mx * S[0, 0] + my * S[0, 1] + mz * S[0, 2]
+                F0 = point_ff(ct0, ct1, ct2, nx, ny, nz, S, ns_, Sc) \
+                    if mx * ct0 + my * ct1 + mz * ct2 > m0 else 0.0
                 evals += 1
-                u = (x[0] - ct[0]) * ex + (x[1] - ct[1]) * ey + (x[2] - ct[2]) * ez
-                v_ = (x[0] - ct[0]) * fx + (x[1] - ct[1]) * fy + (x[2] - ct[2]) * fz
-                a11 += u * u
-                a12 += u * v_
-                a22 += v_ * v_
-                b1 += u * (Fv - F0)
-                b2 += v_ * (Fv - F0)
-            det = a11 * a22 - a12 * a12
-            if det <= 0.0:
-                continue
-            gu = (a22 * b1 - a12 * b2) / det / F0  # relative gradient
-            gv = (a11 * b2 - a12 * b1) / det / F0
-            gx, gy, gz = gu * ex + gv * fx, gu * ey + gv * fy, gu * ez + gv * fz
+                if F0 <= 0.0:
+                    continue
+                # in-plane basis of t and the least-squares gradient through the vertices
+                ex = verts[t, 1, 0] - verts[t, 0, 0]
+                ey = verts[t, 1, 1] - verts[t, 0, 1]
+                ez = verts[t, 1, 2] - verts[t, 0, 2]
+                le = np.sqrt(ex * ex + ey * ey + ez * ez)
+                ex, ey, ez = ex / le, ey / le, ez / le
+                fx = normal[ot, 1] * ez - normal[ot, 2] * ey
+                fy = normal[ot, 2] * ex - normal[ot, 0] * ez
+                fz = normal[ot, 0] * ey - normal[ot, 1] * ex
+                a11 = a12 = a22 = b1 = b2 = 0.0
+                for j in range(nverts[t]):
+                    x0, x1, x2 = verts[t, j, 0], verts[t, j, 1], verts[t, j, 2]
+                    Fv = point_ff(x0, x1, x2, nx, ny, nz, S, ns_, Sc) \
+                        if mx * x0 + my * x1 + mz * x2 > m0 else 0.0
+                    evals += 1
+                    u = (x0 - ct0) * ex + (x1 - ct1) * ey + (x2 - ct2) * ez
+                    v_ = (x0 - ct0) * fx + (x1 - ct1) * fy + (x2 - ct2) * fz
+                    a11 += u * u
+                    a12 += u * v_
+                    a22 += v_ * v_
+                    b1 += u * (Fv - F0)
+                    b2 += v_ * (Fv - F0)
+                det = a11 * a22 - a12 * a12
+                if det <= 0.0:
+                    continue
+                gu = (a22 * b1 - a12 * b2) / det / F0  # relative gradient
+                gv = (a11 * b2 - a12 * b1) / det / F0
+                gx, gy, gz = gu * ex + gv * fx, gu * ey + gv * fy, gu * ez + gv * fz
             # limited so that 1 + g . (x - c_t) >= 0 at t's vertices, hence at every leaf of t
             # (t is convex): a link adds no negative light anywhere (where F0 is small against
             # the vertices' values the unlimited plane dives below zero: room-2400 had 2 % of
             # its sub-elements negative, down to -90)
             lowest = 0.0
             for j in range(nverts[t]):
-                x = V[j]
-                lowest = min(lowest, gx * (x[0] - ct[0]) + gy * (x[1] - ct[1])
-                             + gz * (x[2] - ct[2]))
+                lowest = min(lowest, gx * (verts[t, j, 0] - ct0) + gy * (verts[t, j, 1] - ct1)
+                             + gz * (verts[t, j, 2] - ct2))
             if lowest < -1.0:
                 gx, gy, gz = -gx / lowest, -gy / lowest, -gz / lowest
             for c in range(C):
@@ -320,7 +351,7 @@ def linear_gather(Lbar, p, q, wpq, wqp, sp, sq, sel, node_leaf, node_center, nor
                 S1[st, c, 0, t] += val * gx
                 S1[st, c, 1, t] += val * gy
                 S1[st, c, 2, t] += val * gz
-                S0[st, c, t] -= val * (gx * ct[0] + gy * ct[1] + gz * ct[2])
+                S0[st, c, t] -= val * (gx * ct0 + gy * ct1 + gz * ct2)
     return evals
 
 
@@ -582,7 +613,7 @@ def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
             p, q, wpq, wqp, sp, sq, _ = task_link_arrays(inp, t)
             evals += linear_gather(Lbar, p, q, wpq, wqp, sp, sq, sel, inp.node_leaf,
                                    inp.node_center, inp.normal, inp.orig, inp.verts, inp.nverts,
-                                   ncap, mode, G, S1)
+                                   ncap, mode, G, S1, inp.node_area, FG_FAR)
         linear_push(G, S1, origs, inp.noff, inp.parent, inp.node_leaf, inp.leaf_center, d, y)
     else:
         tp, ts, sn, ss, w, ptr, v = _directed(inp)

@@ -66,7 +66,7 @@ class RunStore:
         except Exception as e:
             raise StoreError(f"cannot open the run store {self.path}: {e}") from None
         if mode == "w":
-            self.root.attrs.update({"format": FORMAT, "created": time.time()})
+            self.root.update_attributes({"format": FORMAT, "created": time.time()})
         elif self.root.attrs.get("format") != FORMAT:
             raise StoreError(f"{self.path} has format {self.root.attrs.get('format')!r}, "
                              f"this version reads {FORMAT!r}: run preprocess again")
@@ -77,7 +77,7 @@ class RunStore:
         return dict(self.root.attrs)
 
     def set_attrs(self, **kw) -> None:
-        self.root.attrs.update(kw)
+        self.root.update_attributes(kw)
 
     def has(self, group: str) -> bool:
         return group in self.root
@@ -86,12 +86,11 @@ class RunStore:
         """Replace `group` with these arrays (each written whole, chunked by zarr)."""
         if group in self.root:
             del self.root[group]
-        g = self.root.create_group(group)
+        # the attributes with the group: attrs.update writes the group's metadata once per key
+        g = self.root.create_group(group, attributes=dict(attrs or {}))
         for name, a in arrays.items():
             a = np.ascontiguousarray(a)
             g.create_array(name, data=a, chunks=_chunks(a))
-        if attrs:
-            g.attrs.update(attrs)
 
     def read_arrays(self, group: str) -> dict:
         if group not in self.root:
@@ -330,7 +329,7 @@ class VisibilityStore:
             a = getattr(plan, name)
             g.create_array(name, data=np.ascontiguousarray(a), chunks=_chunks(a))
         g.create_group("partial")
-        g.attrs.update({"token": token, "chunk": plan.chunk, "total": plan.total,
+        g.update_attributes({"token": token, "chunk": plan.chunk, "total": plan.total,
                         "unit": plan.unit, "blocks_culled": plan.blocks_culled, **attrs})
         with open(self.manifest, "w") as f:
             f.write(json.dumps({"plan": token}) + "\n")
@@ -601,7 +600,7 @@ def create_vf(rs: RunStore, token: str, attrs: dict) -> None:
         del rs.root["viewfactors"]
     g = rs.root.create_group("viewfactors")
     g.create_group("tasks")
-    g.attrs.update({"token": token, **attrs})
+    g.update_attributes({"token": token, **attrs})
     vf_manifest(rs.run_dir).create(token)
 
 
@@ -701,7 +700,7 @@ class LinkStore:
         for name, a in (("pairs", pairs), ("first", first)):
             a = np.ascontiguousarray(a, np.int64)
             g.create_array(name, data=a, chunks=_chunks(a) if a.size else a.shape or (1,))
-        g.attrs.update({"token": token, **attrs})
+        g.update_attributes({"token": token, **attrs})
         Manifest(self.manifest).create(token)
 
     def token(self) -> str | None:

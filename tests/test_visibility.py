@@ -215,7 +215,7 @@ def test_shaft_never_excludes_a_box_that_a_segment_between_the_boxes_touches(val
     x = p + s * (q - p)
     inside = np.all((x >= C[0]) & (x <= C[1]), axis=1)
     if inside.any():
-        assert not _shaft_excludes(A, B, C[0], C[1])
+        assert not _shaft_excludes(A, B, C[:1], C[1:], 0)
 
 
 def test_chunk_size_is_a_bounded_power_of_two():

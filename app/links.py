@@ -415,6 +415,221 @@ def _copy_tree_node(x, t, t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_chi
 
 
 @numba.njit(cache=True)
+def _refine_loop(st, sp_, sq_, sc0, sc1, sfr, stk_pool, base_end, kp, kq, kf, kv, ks, kx, wp, wq,
+                 wc, wpool, Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, pmap,
+                 t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig, t_depth, t_path,
+                 normal, two_sided, ext, wrho, lhat, lref, elo, ehi, everts, envert, enormal,
+                 eoffset, pad, eps, shadow, near_f, min_size, kid, exact, plane_tol, oracle,
+                 gauss_gap, far_polygon, counts):
+    """refine's loop, until the stack is empty or an array is full (refine grows it and calls
+    again; st: [ns, cnt, nk, nw, npool]). No array variable is reassigned here: in a loop that
+    reassigns arrays numba updates each one's reference count (an atomic operation) on every
+    iteration."""
+    ns, cnt, nk, nw, npool = st[0], st[1], st[2], st[3], st[4]
+    cap, scap, kcap, wcap = Lo.shape[0], sp_.shape[0], kp.shape[0], wp.shape[0]
+    A = np.empty((2, 3))
+    B = np.empty((2, 3))
+    c0 = np.empty((4, 3))
+    c1 = np.empty((4, 3))
+    cc = np.empty(3)
+    s4p = np.empty(4)
+    s4q = np.empty(4)
+    S = np.empty((4, 3))
+    Sc = np.empty((10, 3))
+    while ns > 0:
+        # room for two new nodes, two stack entries, a kept link, a waiting link and its list
+        if cnt + 4 > cap or ns + 4 > scap or nk >= kcap or nw >= wcap \
+                or npool + (sc1[ns - 1] - sc0[ns - 1]) > wpool.shape[0]:
+            break
+        ns -= 1
+        p, q, l0, l1, frac = sp_[ns], sq_[ns], sc0[ns], sc1[ns], sfr[ns]
+        counts[2] += 1
+        op, oq = Lo[p], Lo[q]
+        npx, npy, npz = normal[op, 0], normal[op, 1], normal[op, 2]
+        nqx, nqy, nqz = normal[oq, 0], normal[oq, 1], normal[oq, 2]
+        # 1. orientation, from the vertices
+        dp = npx * Lc[p, 0] + npy * Lc[p, 1] + npz * Lc[p, 2]
+        dq = nqx * Lc[q, 0] + nqy * Lc[q, 1] + nqz * Lc[q, 2]
+        qlo, qhi = _plane_range(npx, npy, npz, dp, Lv, q, Ln[q])
+        plo, phi = _plane_range(nqx, nqy, nqz, dq, Lv, p, Ln[p])
+        fq, bq = qhi > plane_tol, qlo < -plane_tol
+        fp, bp = phi > plane_tol, plo < -plane_tol
+        if not ((fq or (two_sided[op] and bq)) and (fp or (two_sided[oq] and bp))):
+            counts[4] += 1
+            continue
+        q_straddles = fq and bq
+        p_straddles = fp and bp
+        can_p, can_q = Lcan[p], Lcan[q]
+        # centroid geometry: the disc estimates, the sides, the weights
+        dx = Lc[q, 0] - Lc[p, 0]
+        dy = Lc[q, 1] - Lc[p, 1]
+        dz = Lc[q, 2] - Lc[p, 2]
+        r2 = dx * dx + dy * dy + dz * dz + 1e-300
+        ca = npx * dx + npy * dy + npz * dz
+        cb = -(nqx * dx + nqy * dy + nqz * dz)
+        g = abs(ca * cb)
+        Ap, Aq = La[p], La[q]
+        sp = 0 if ca > 0 else 1
+        sq = 0 if cb > 0 else 1
+        fpq = Aq * g / (r2 * (np.pi * r2 + Aq))
+        fqp = Ap * g / (r2 * (np.pi * r2 + Ap))
+        wpq = wrho[op, sp] * lhat[oq, sq] / lref
+        wqp = wrho[oq, sq] * lhat[op, sp] / lref
+        amount = max(fpq * wpq, fqp * wqp)  # weighted transfer (partly visible links)
+        prefer = 1 if Aq >= Ap else 0       # the node that looks larger from the other
+        near = np.sqrt(r2) < near_f * max(np.sqrt(Ap), np.sqrt(Aq))
+        split = -1  # 0: split p, 1: split q
+        if frac < 0.0:
+            # 2. shafts: keep the occluders that may cut a segment between the node boxes
+            for k in range(3):
+                A[0, k], A[1, k] = Llo[p, k], Lhi[p, k]
+                B[0, k], B[1, k] = Llo[q, k], Lhi[q, k]
+            top = max(l1, base_end)
+            m0 = top
+            blocked = False
+            for c in range(l0, l1):
+                o = stk_pool[c]
+                if _same_side(A, B, enormal, eoffset, o, pad) or \
+                        _shaft_excludes(A, B, elo, ehi, o):
+                    continue
+                if _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal, eoffset, pad, s4p,
+                           s4q):
+                    blocked = True
+                    break
+                stk_pool[m0] = o
+                m0 += 1
+            if blocked:
+                counts[6] += 1
+                continue
+            l0, l1 = top, m0
+            # 3. the oracle (Hanrahan et al. 1991: split the node that looks larger from the
+            # other; if it cannot split, keep the link; epsilon = 0 is the all-pairs limit)
+            if q_straddles and can_q:
+                split = 1
+            elif p_straddles and can_p:
+                split = 0
+            else:  # the error estimate, only here (a blocked or measured link needs none)
+                ep = eq = 0.0
+                if oracle == 0:
+                    err = amount
+                elif oracle == 1:  # the transfer's variation over the nodes that can split
+                    err = amount * ((np.sqrt(Ap) if can_p else 0.0)
+                                    + (np.sqrt(Aq) if can_q else 0.0)) / np.sqrt(r2)
+                else:  # the estimate's spread over the vertices of each node that can split
+                    gp = 1.0 if sp == 0 else -1.0
+                    gq = 1.0 if sq == 0 else -1.0
+                    # receiving: how much F(x -> other node) varies over the node's vertices
+                    # (first order; what the centroids miss at grazing angles); as a source
+                    # approximated at its centroid: the centroid rule's error (second order)
+                    if can_p:
+                        big, curv = _spread(Lv, p, Ln[p], gp * npx, gp * npy, gp * npz, Lc, q,
+                                            gq * nqx, gq * nqy, gq * nqz, Aq, fpq)
+                        ep = wpq * big
+                        if Ap <= Aq or not far_polygon:
+                            ep += max(wpq, wqp) * curv
+                    if can_q:
+                        big, curv = _spread(Lv, q, Ln[q], gq * nqx, gq * nqy, gq * nqz, Lc, p,
+                                            gp * npx, gp * npy, gp * npz, Ap, fqp)
+                        eq = wqp * big
+                        if Aq < Ap or not far_polygon:
+                            eq += max(wpq, wqp) * curv
+                    err = max(ep, eq)
+                if near or err > eps:
+                    # the smaller node only when the larger cannot split and its own error is
+                    # above epsilon (splitting a node below the other's size dilutes the error
+                    # per link: many small links each under epsilon, summing to a large one)
+                    other = eps <= 0.0 or (oracle == 2 and (ep if prefer == 1 else eq) > eps) \
+                        or oracle == 1 or (near and oracle == 0)
+                    split = _pick(prefer, can_p, can_q, other)
+        elif 0.0 < frac < 1.0 and amount > shadow:
+            split = _pick(prefer, can_p, can_q, oracle > 0 or eps <= 0.0)
+            if split >= 0:
+                counts[10] += 1
+        if split >= 0:
+            counts[3] += 1
+            x = q if split == 1 else p
+            if Lch[x, 0] < 0:  # make the children (partition's, or split off an unseen original)
+                t = Lpn[x]
+                if t >= 0 and t_child[t, 0] >= 0:
+                    for h in range(2):
+                        tc = t_child[t, h]
+                        if pmap[tc] < 0:
+                            pmap[tc] = cnt
+                            _copy_tree_node(cnt, tc, t_verts, t_nverts, t_area, t_center, t_lo,
+                                            t_hi, t_child, t_orig, t_depth, t_path, ext, min_size,
+                                            Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan)
+                            cnt += 1
+                        Lch[x, h] = pmap[tc]
+                else:
+                    split_one(Lv[x], Ln[x], c0, c1)
+                    d1 = Ld[x] + 1
+                    for h in range(2):
+                        path = Lp[x] | _bit(Ld[x]) if h == 1 else Lp[x]
+                        cv = c1 if h == 1 else c0
+                        _new_node(cnt, cv, Ln[x], Lo[x], path, d1, -1, False, Lv, Ln, La, Lc, Llo,
+                                  Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, cc)
+                        Lcan[cnt] = np.sqrt(La[cnt]) > min_size and d1 < MAX_DEPTH
+                        Lch[x, h] = cnt
+                        cnt += 1
+                    counts[12] += 2
+            for h in range(1, -1, -1):  # child 0 popped first
+                if split == 1:
+                    sp_[ns], sq_[ns] = p, Lch[x, h]
+                else:
+                    sp_[ns], sq_[ns] = Lch[x, h], q
+                sc0[ns], sc1[ns], sfr[ns] = l0, l1, -1.0
+                ns += 1
+            continue
+        # keep the link: the leaf test of the visibility stage (centroids face each other)
+        length = np.sqrt(r2)
+        if not (_faces(normal, op, two_sided[op], dx, dy, dz, length)
+                and _faces(normal, oq, two_sided[oq], -dx, -dy, -dz, length)):
+            counts[4] += 1
+            continue
+        if frac < 0.0 and l1 > l0:  # wait for rays, with the filtered occluder list
+            wp[nw], wq[nw] = p, q
+            wc[nw, 0], wc[nw, 1] = npool, l1 - l0
+            for c in range(l0, l1):
+                wpool[npool] = stk_pool[c]
+                npool += 1
+            nw += 1
+            continue
+        v = 1.0 if frac < 0.0 else frac
+        if frac < 0.0:
+            counts[5] += 1
+        if v <= 0.0:
+            counts[9] += 1
+            continue
+        kp[nk], kq[nk], kv[nk] = p, q, v
+        ks[nk, 0], ks[nk, 1] = sp, sq
+        if exact and near:
+            gp = 1.0 if sp == 0 else -1.0
+            gq = 1.0 if sq == 0 else -1.0
+            kf[nk, 0], kf[nk, 1] = near_ff(Lv[p], Ln[p], Ap, gp, Lv[q], Ln[q], Aq, gq, npx, npy,
+                                           npz, nqx, nqy, nqz,
+                                           np.inf if p_straddles or q_straddles else gauss_gap)
+            kx[nk] = True
+        elif far_polygon == 2:
+            gp = 1.0 if sp == 0 else -1.0
+            gq = 1.0 if sq == 0 else -1.0
+            kf[nk, 0], kf[nk, 1] = near_ff(Lv[p], Ln[p], Ap, gp, Lv[q], Ln[q], Aq, gq, npx, npy,
+                                           npz, nqx, nqy, nqz, -1.0)
+        elif far_polygon:
+            gp = 1.0 if sp == 0 else -1.0
+            gq = 1.0 if sq == 0 else -1.0
+            kf[nk, 0], kf[nk, 1] = centroid_to_polygon(Lv, Ln, Lc, p, q, Ap, gp, Aq, gq, npx, npy,
+                                                       npz, nqx, nqy, nqz, S, Sc)
+        elif kid == 0:
+            w = g / (np.pi * r2 * r2)
+            kf[nk, 0], kf[nk, 1] = w * Aq, w * Ap
+        else:
+            kf[nk, 0] = Aq * g / r2 / (np.pi * r2 + Aq)
+            kf[nk, 1] = Ap * g / r2 / (np.pi * r2 + Ap)
+        nk += 1
+    st[0], st[1], st[2], st[3], st[4] = ns, cnt, nk, nw, npool
+
+
+@numba.njit(cache=True)
 def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
            Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, cnt, pmap,
            t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig, t_depth, t_path,
@@ -466,218 +681,35 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
         sc1[ns] = e_c1[i]
         sfr[ns] = e_frac[i]
         ns += 1
-    A = np.empty((2, 3))
-    B = np.empty((2, 3))
-    c0 = np.empty((4, 3))
-    c1 = np.empty((4, 3))
-    cc = np.empty(3)
-    s4p = np.empty(4)
-    s4q = np.empty(4)
-    S = np.empty((4, 3))
-    Sc = np.empty((10, 3))
-    while ns > 0:
-        ns -= 1
-        p, q, l0, l1, frac = sp_[ns], sq_[ns], sc0[ns], sc1[ns], sfr[ns]
-        if cnt + 4 > cap:  # room for two new nodes
-            cap = 2 * cap
+    st = np.array([ns, cnt, nk, nw, npool], np.int64)
+    while True:
+        _refine_loop(st, sp_, sq_, sc0, sc1, sfr, stk_pool, base_end, kp, kq, kf, kv, ks, kx, wp,
+                     wq, wc, wpool, Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, pmap,
+                     t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig, t_depth,
+                     t_path, normal, two_sided, ext, wrho, lhat, lref, elo, ehi, everts, envert,
+                     enormal, eoffset, pad, eps, shadow, near_f, min_size, kid, exact, plane_tol,
+                     oracle, gauss_gap, far_polygon, counts)
+        ns, cnt, nk, nw, npool = st[0], st[1], st[2], st[3], st[4]
+        if ns == 0:
+            break
+        if cnt + 4 > Lo.shape[0]:
+            cap = 2 * Lo.shape[0]
             Lv, Ln, La, Lc = _grow(Lv, cap), _grow(Ln, cap), _grow(La, cap), _grow(Lc, cap)
             Llo, Lhi, Lo, Lp = _grow(Llo, cap), _grow(Lhi, cap), _grow(Lo, cap), _grow(Lp, cap)
             Ld, Lch, Lpn, Lcan = _grow(Ld, cap), _grow(Lch, cap), _grow(Lpn, cap), _grow(Lcan, cap)
-        if ns + 4 > scap:
-            scap = 2 * scap
+        if ns + 4 > sp_.shape[0]:
+            scap = 2 * sp_.shape[0]
             sp_, sq_, sc0, sc1, sfr = (_grow(sp_, scap), _grow(sq_, scap), _grow(sc0, scap),
                                        _grow(sc1, scap), _grow(sfr, scap))
-        counts[2] += 1
-        op, oq = Lo[p], Lo[q]
-        npx, npy, npz = normal[op, 0], normal[op, 1], normal[op, 2]
-        nqx, nqy, nqz = normal[oq, 0], normal[oq, 1], normal[oq, 2]
-        # 1. orientation, from the vertices
-        dp = npx * Lc[p, 0] + npy * Lc[p, 1] + npz * Lc[p, 2]
-        dq = nqx * Lc[q, 0] + nqy * Lc[q, 1] + nqz * Lc[q, 2]
-        qlo, qhi = _plane_range(npx, npy, npz, dp, Lv, q, Ln[q])
-        plo, phi = _plane_range(nqx, nqy, nqz, dq, Lv, p, Ln[p])
-        fq, bq = qhi > plane_tol, qlo < -plane_tol
-        fp, bp = phi > plane_tol, plo < -plane_tol
-        if not ((fq or (two_sided[op] and bq)) and (fp or (two_sided[oq] and bp))):
-            counts[4] += 1
-            continue
-        q_straddles = fq and bq
-        p_straddles = fp and bp
-        can_p, can_q = Lcan[p], Lcan[q]
-        # centroid geometry: the disc estimates, the sides, the weights
-        dx = Lc[q, 0] - Lc[p, 0]
-        dy = Lc[q, 1] - Lc[p, 1]
-        dz = Lc[q, 2] - Lc[p, 2]
-        r2 = dx * dx + dy * dy + dz * dz + 1e-300
-        ca = npx * dx + npy * dy + npz * dz
-        cb = -(nqx * dx + nqy * dy + nqz * dz)
-        g = abs(ca * cb)
-        Ap, Aq = La[p], La[q]
-        sp = 0 if ca > 0 else 1
-        sq = 0 if cb > 0 else 1
-        fpq = Aq * g / (r2 * (np.pi * r2 + Aq))
-        fqp = Ap * g / (r2 * (np.pi * r2 + Ap))
-        wpq = wrho[op, sp] * lhat[oq, sq] / lref
-        wqp = wrho[oq, sq] * lhat[op, sp] / lref
-        amount = max(fpq * wpq, fqp * wqp)  # weighted transfer (partly visible links)
-        prefer = 1 if Aq >= Ap else 0       # the node that looks larger from the other
-        ep = eq = 0.0
-        if oracle == 0:
-            err = amount
-        elif oracle == 1:  # the transfer's variation over the nodes that can still split
-            err = amount * ((np.sqrt(Ap) if can_p else 0.0)
-                            + (np.sqrt(Aq) if can_q else 0.0)) / np.sqrt(r2)
-        else:  # the estimate's spread over the vertices of each node that can still split
-            gp = 1.0 if sp == 0 else -1.0
-            gq = 1.0 if sq == 0 else -1.0
-            # receiving: how much F(x -> other node) varies over the node's vertices (first
-            # order; what the centroids miss at grazing angles); as a source approximated at its
-            # centroid: the centroid rule's error (second order)
-            if can_p:
-                big, curv = _spread(Lv, p, Ln[p], gp * npx, gp * npy, gp * npz, Lc, q, gq * nqx,
-                                    gq * nqy, gq * nqz, Aq, fpq)
-                ep = wpq * big
-                if Ap <= Aq or not far_polygon:
-                    ep += max(wpq, wqp) * curv
-            if can_q:
-                big, curv = _spread(Lv, q, Ln[q], gq * nqx, gq * nqy, gq * nqz, Lc, p, gp * npx,
-                                    gp * npy, gp * npz, Ap, fqp)
-                eq = wqp * big
-                if Aq < Ap or not far_polygon:
-                    eq += max(wpq, wqp) * curv
-            err = max(ep, eq)
-        near = np.sqrt(r2) < near_f * max(np.sqrt(Ap), np.sqrt(Aq))
-        split = -1  # 0: split p, 1: split q
-        if frac < 0.0:
-            # 2. shafts: keep the occluders that may cut a segment between the node boxes
-            for k in range(3):
-                A[0, k], A[1, k] = Llo[p, k], Lhi[p, k]
-                B[0, k], B[1, k] = Llo[q, k], Lhi[q, k]
-            top = max(l1, base_end)
-            m0 = top
-            blocked = False
-            for c in range(l0, l1):
-                o = stk_pool[c]
-                if _same_side(A, B, enormal, eoffset, o, pad) or \
-                        _shaft_excludes(A, B, elo, ehi, o):
-                    continue
-                if _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal, eoffset, pad, s4p,
-                           s4q):
-                    blocked = True
-                    break
-                stk_pool[m0] = o
-                m0 += 1
-            if blocked:
-                counts[6] += 1
-                continue
-            l0, l1 = top, m0
-            # 3. the oracle (Hanrahan et al. 1991: split the node that looks larger from the
-            # other; if it cannot split, keep the link; epsilon = 0 is the all-pairs limit)
-            if q_straddles and can_q:
-                split = 1
-            elif p_straddles and can_p:
-                split = 0
-            elif near or err > eps:
-                # the smaller node only when the larger cannot split and its own error is
-                # above epsilon (splitting a node below the other's size dilutes the error
-                # per link: many small links each under epsilon, summing to a large one)
-                other = eps <= 0.0 or (oracle == 2 and (ep if prefer == 1 else eq) > eps) \
-                    or oracle == 1 or (near and oracle == 0)
-                split = _pick(prefer, can_p, can_q, other)
-        elif 0.0 < frac < 1.0 and amount > shadow:
-            split = _pick(prefer, can_p, can_q, oracle > 0 or eps <= 0.0)
-            if split >= 0:
-                counts[10] += 1
-        if split >= 0:
-            counts[3] += 1
-            x = q if split == 1 else p
-            if Lch[x, 0] < 0:  # make the children (partition's, or split off an unseen original)
-                t = Lpn[x]
-                if t >= 0 and t_child[t, 0] >= 0:
-                    for h in range(2):
-                        tc = t_child[t, h]
-                        if pmap[tc] < 0:
-                            pmap[tc] = cnt
-                            _copy_tree_node(cnt, tc, t_verts, t_nverts, t_area, t_center, t_lo,
-                                            t_hi, t_child, t_orig, t_depth, t_path, ext, min_size,
-                                            Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan)
-                            cnt += 1
-                        Lch[x, h] = pmap[tc]
-                else:
-                    split_one(Lv[x], Ln[x], c0, c1)
-                    d1 = Ld[x] + 1
-                    for h in range(2):
-                        path = Lp[x] | _bit(Ld[x]) if h == 1 else Lp[x]
-                        cv = c1 if h == 1 else c0
-                        _new_node(cnt, cv, Ln[x], Lo[x], path, d1, -1, False, Lv, Ln, La, Lc, Llo,
-                                  Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, cc)
-                        Lcan[cnt] = np.sqrt(La[cnt]) > min_size and d1 < MAX_DEPTH
-                        Lch[x, h] = cnt
-                        cnt += 1
-                    counts[12] += 2
-            for h in range(1, -1, -1):  # child 0 popped first
-                if split == 1:
-                    sp_[ns], sq_[ns] = p, Lch[x, h]
-                else:
-                    sp_[ns], sq_[ns] = Lch[x, h], q
-                sc0[ns], sc1[ns], sfr[ns] = l0, l1, -1.0
-                ns += 1
-            continue
-        # keep the link: the leaf test of the visibility stage (centroids face each other)
-        length = np.sqrt(r2)
-        if not (_faces(normal, op, two_sided[op], dx, dy, dz, length)
-                and _faces(normal, oq, two_sided[oq], -dx, -dy, -dz, length)):
-            counts[4] += 1
-            continue
-        if frac < 0.0 and l1 > l0:  # wait for rays, with the filtered occluder list
-            if nw == wcap:
-                wcap *= 2
-                wp, wq, wc = _grow(wp, wcap), _grow(wq, wcap), _grow(wc, wcap)
-            while npool + (l1 - l0) > wpool.shape[0]:
-                wpool = _grow(wpool, 2 * wpool.shape[0])
-            wp[nw], wq[nw] = p, q
-            wc[nw, 0], wc[nw, 1] = npool, l1 - l0
-            for c in range(l0, l1):
-                wpool[npool] = stk_pool[c]
-                npool += 1
-            nw += 1
-            continue
-        v = 1.0 if frac < 0.0 else frac
-        if frac < 0.0:
-            counts[5] += 1
-        if v <= 0.0:
-            counts[9] += 1
-            continue
-        if nk == kcap:
-            kcap *= 2
+        if nk >= kp.shape[0]:
+            kcap = 2 * kp.shape[0]
             kp, kq, kf, kv, ks, kx = (_grow(kp, kcap), _grow(kq, kcap), _grow(kf, kcap),
                                       _grow(kv, kcap), _grow(ks, kcap), _grow(kx, kcap))
-        kp[nk], kq[nk], kv[nk] = p, q, v
-        ks[nk, 0], ks[nk, 1] = sp, sq
-        if exact and near:
-            gp = 1.0 if sp == 0 else -1.0
-            gq = 1.0 if sq == 0 else -1.0
-            kf[nk, 0], kf[nk, 1] = near_ff(Lv[p], Ln[p], Ap, gp, Lv[q], Ln[q], Aq, gq, npx, npy,
-                                           npz, nqx, nqy, nqz,
-                                           np.inf if p_straddles or q_straddles else gauss_gap)
-            kx[nk] = True
-        elif far_polygon == 2:
-            gp = 1.0 if sp == 0 else -1.0
-            gq = 1.0 if sq == 0 else -1.0
-            kf[nk, 0], kf[nk, 1] = near_ff(Lv[p], Ln[p], Ap, gp, Lv[q], Ln[q], Aq, gq, npx, npy,
-                                           npz, nqx, nqy, nqz, -1.0)
-        elif far_polygon:
-            gp = 1.0 if sp == 0 else -1.0
-            gq = 1.0 if sq == 0 else -1.0
-            kf[nk, 0], kf[nk, 1] = centroid_to_polygon(Lv, Ln, Lc, p, q, Ap, gp, Aq, gq, npx, npy,
-                                                       npz, nqx, nqy, nqz, S, Sc)
-        elif kid == 0:
-            w = g / (np.pi * r2 * r2)
-            kf[nk, 0], kf[nk, 1] = w * Aq, w * Ap
-        else:
-            kf[nk, 0] = Aq * g / r2 / (np.pi * r2 + Aq)
-            kf[nk, 1] = Ap * g / r2 / (np.pi * r2 + Ap)
-        nk += 1
+        if nw >= wp.shape[0]:
+            wcap = 2 * wp.shape[0]
+            wp, wq, wc = _grow(wp, wcap), _grow(wq, wcap), _grow(wc, wcap)
+        while npool + (sc1[ns - 1] - sc0[ns - 1]) > wpool.shape[0]:
+            wpool = _grow(wpool, 2 * wpool.shape[0])
     return (Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan, cnt,
             kp[:nk], kq[:nk], kf[:nk], kv[:nk], ks[:nk], kx[:nk],
             wp[:nw], wq[:nw], wc[:nw], wpool[:npool])

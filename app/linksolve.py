@@ -42,8 +42,10 @@ from .passes import CAP_MIN, CAP_PRODUCT
 LINK_CACHE_KEY = "links"
 # The linear final gather's far links: a source farther than FG_FAR times both nodes' sizes,
 # seen from the receiver's centroid at cosines above sqrt(FG_FAR_COS2) both ways, gets the point
-# kernel's analytic gradient instead of five exact evaluations (MEASURED in the closing note of
-# issue 13: Cornell box 128^2, final gather 0.85 -> s, image change).
+# kernel's analytic gradient instead of five exact evaluations. MEASURED, Cornell box 128^2
+# against exact evaluations everywhere (6.3 M, 0.85 s on 2 threads): FG_FAR 8: 0.6 s, sub-element
+# radiance changed by 0.01 % on average, 0.45 % at most; 6: 2.6 M evaluations, 0.45 s, 0.025 % /
+# 0.9 %; 4: 0.8 M, 0.23 s, 0.06 % / 2.1 % (tests/test_hierarchy.py holds 6 to 0.05 % / 1.5 %).
 FG_FAR = 6.0
 FG_FAR_COS2 = 0.01
 

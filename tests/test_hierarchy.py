@@ -553,3 +553,31 @@ def test_the_final_gather_adds_no_negative_light(client, tmp_path):
     assert sol["leaf_radiance"].min() >= 0.0  # the solver's own fixed point
     assert sol["radiance"].min() >= 0.0, (sol["radiance"] < 0).sum()
     assert sol["radiance"].max() > 0.0
+
+
+def test_far_links_gradient_in_the_final_gather_matches_exact_evaluation(client, tmp_path,
+                                                                         monkeypatch):
+    """The linear final gather takes the point kernel's analytic gradient over a receiver whose
+    source is farther than FG_FAR times both nodes' sizes, instead of five exact point-to-
+    polygon evaluations. Against the exact evaluations everywhere (FG_FAR = 0) on the Cornell
+    box: far fewer evaluations, the same sub-element radiance to 0.05 % on average and 1.5 % at
+    worst (the error of the method against Mitsuba is about 1 % on average)."""
+    import radiosity.linksolve as ls
+    from radiosity.pipeline import render_scene
+
+    out = str(tmp_path / "cb")
+    render_scene(load_scene(scene_path("cornell-box"), resolution=48), out, client, preview=False,
+                 progress=False, method="hierarchical", echo=lambda *a: None)
+    far0 = ls.FG_FAR
+    assert far0 > 0
+    runs = {}
+    for far in (far0, 0.0):
+        monkeypatch.setattr(ls, "FG_FAR", far)
+        fig = run_solve_links(out, client, progress=False, where="driver")
+        runs[far] = (fig.hierarchy["final_gather_evaluations"],
+                     RunStore(out).read_arrays("solution")["radiance"])
+    (e_far, fast), (e_exact, exact) = runs[far0], runs[0.0]
+    assert e_far < 0.7 * e_exact, (e_far, e_exact)
+    lit = exact > 1e-3 * exact.max()
+    rel = np.abs(fast - exact)[lit] / exact[lit]
+    assert rel.mean() < 5e-4 and rel.max() < 0.015, (rel.mean(), rel.max())

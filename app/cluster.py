@@ -211,6 +211,86 @@ _MALLOC = (("malloc-trim-threshold", "MALLOC_TRIM_THRESHOLD_"),
 _USER_MALLOC = {var: os.environ.get(var) for _, var in _MALLOC}
 
 
+def tune_malloc() -> dict:
+    """This process's glibc malloc thresholds from radiosity.cluster.malloc-* (as the local
+    workers get them by variable), unless the process started with the variable: the driver
+    runs the solve's passes, its final gather and the node table, whose large arrays would
+    otherwise be fresh mappings that page-fault on first touch. MEASURED (Cornell box 512^2,
+    solve in the driver, 8.7 M links): 24.3 -> 20.9 s cold, 9.7 -> 6.2 s warm. Returns
+    {variable: value} of what was set (empty without glibc's mallopt)."""
+    import ctypes
+    import ctypes.util
+
+    params = {"MALLOC_TRIM_THRESHOLD_": -1, "MALLOC_MMAP_THRESHOLD_": -3}  # M_TRIM_, M_MMAP_
+    try:
+        mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return {}
+    done = {}
+    for key, var in _MALLOC:
+        value = config.get(f"cluster.{key}")
+        if value is not None and _USER_MALLOC[var] is None \
+                and mallopt(ctypes.c_int(params[var]), ctypes.c_int(int(value))) == 1:
+            done[var] = int(value)
+    return done
+
+
+def scatterable(cls):
+    """Class decorator: distributed serializes an instance by its attributes, each array as a
+    buffer of its own, instead of pickling the whole object into one message (its fallback for
+    classes it does not know). MEASURED: a 512^2 link stage's LinkInputs (145 MiB) broadcast
+    to 2 local workers (cluster.scatter) in 1.6 s pickled, 0.6 s by attributes."""
+    from distributed.protocol import dask_deserialize, dask_serialize, deserialize, serialize
+
+    @dask_serialize.register(cls)
+    def _dumps(obj):
+        return serialize(dict(vars(obj)), iterate_collection=True, on_error="raise")
+
+    @dask_deserialize.register(cls)
+    def _loads(header, frames):
+        obj = cls.__new__(cls)
+        obj.__dict__.update(deserialize(header, frames))
+        return obj
+
+    return cls
+
+
+def _direct(client) -> bool:
+    """Whether scatter() sends straight to the workers: radiosity.cluster.direct-scatter true or
+    false, or auto: when every worker listens on this machine's loopback (a LocalCluster)."""
+    mode = config.get("cluster.direct-scatter")
+    if mode != "auto":
+        return bool(mode)
+    try:
+        addrs = list(client.scheduler_info()["workers"])
+    except Exception:  # noqa: BLE001 - no scheduler info: the safe path
+        return False
+    local = ("127.0.0.1", "localhost", "[::1]", "::1")
+    return bool(addrs) and all(a.startswith("inproc://")
+                               or a.split("://", 1)[-1].rsplit(":", 1)[0] in local
+                               for a in addrs)
+
+
+def scatter(client, items: list, broadcast: bool = False) -> list:
+    """client.scatter(items) (futures, unhashed). Where _direct says so, straight to the
+    workers, and a broadcast as the same keys sent to each worker in turn: distributed sends
+    the bytes through the scheduler, or with direct=True to one worker and then from worker to
+    worker; MEASURED on this VM, a 512^2 link stage's LinkInputs (145 MiB) to 2 local workers:
+    through the scheduler 3.0-7.2 s, direct and replicated 1.6-3.6 s, to each in turn 0.6 s."""
+    if not _direct(client):
+        return client.scatter(items, broadcast=broadcast, hash=False)
+    if not broadcast:
+        return client.scatter(items, hash=False, direct=True)
+    import uuid
+
+    keys = [f"scatter-{uuid.uuid4().hex}" for _ in items]
+    out = None
+    for w in client.scheduler_info()["workers"]:
+        got = client.scatter(dict(zip(keys, items)), workers=[w], hash=False, direct=True)
+        out = out or [got[k] for k in keys]
+    return out if out is not None else client.scatter(items, broadcast=True, hash=False)
+
+
 def local_cluster(n: int, threads_per_worker: int | None = None, security=None, processes: bool | None = None):
     """A LocalCluster on `radiosity.cluster.host` (127.0.0.1) with its dashboard on loopback."""
     from distributed import LocalCluster
@@ -260,6 +340,7 @@ def open_client(workers: int | None = None, scheduler: str | None = None, kind: 
     """
     from distributed import Client
 
+    tune_malloc()
     kind = config.get("cluster.kind", kind)
     if scheduler:
         if tls_mode(tls) is not None:

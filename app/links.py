@@ -47,6 +47,7 @@ import numba
 import numpy as np
 
 from . import config
+from .cluster import scatter, scatterable
 from .errors import RadiosityError
 from .exact import _point_ff, _polygon_ff, point_ff
 from .geometry import COS_TOL
@@ -113,6 +114,7 @@ class LinkParams:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
+@scatterable
 class LinkInputs:
     """Read-only arrays every link task needs (scattered to the workers once).
 
@@ -1194,7 +1196,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
 
     t_loop = time.perf_counter()
     if todo:
-        [inp_f] = client.scatter([inp], broadcast=True, hash=False)
+        [inp_f] = scatter(client, [inp], broadcast=True)
         run_tasks(client, task_links, todo,
                   lambda task: (inp_f, pairs[first[task]:first[task + 1]], rs.path, task),
                   name="links", token=tokenize(token, rs.path), cost=cost,

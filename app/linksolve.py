@@ -33,6 +33,7 @@ import numba
 import numpy as np
 
 from . import config
+from .cluster import scatter, scatterable
 from .errors import RadiosityError, StoreError
 from .exact import _point_ff, point_ff
 from .monitor import progress_bar
@@ -397,6 +398,7 @@ def node_min(leaf_value, lo, hi):
 
 # ----------------------------------------------------------------------------- worker side
 
+@scatterable
 class LinkSolveInputs:
     """Read-only arrays the pass tasks need (scattered once per solve).
 
@@ -425,9 +427,9 @@ class LinkSolveInputs:
         self.normal = np.asarray(normal, np.float64)  # (n, 3) of the originals
         self.verts = table["verts"]
         self.nverts = table["nverts"].astype(np.int64)
-        from .geometry import polygon_properties
+        from .hierarchy import areas_centers
 
-        self.node_center = polygon_properties(self.verts, table["nverts"])[2]
+        self.node_center = areas_centers(self.verts)[1]
         self.leaf_center = self.node_center[self.leaf_node]
         self.child = _children(self.parent)
         self.fg_levels = 0  # final gather: levels below a link's source (set by the stage)
@@ -743,7 +745,7 @@ class LinkOperator(_Base):
         self._gs_fixed = None
 
     def apply(self, L, live=None, use_need: bool = True):
-        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
+        [Lf] = scatter(self.client, [L], broadcast=False)
         futs = [self.client.submit(task_apply, self.inp_f, g, Lf, use_need, pure=False,
                                    workers=[w] if w else None, allow_other_workers=True,
                                    retries=self.retries)
@@ -758,11 +760,11 @@ class LinkOperator(_Base):
     def configure(self, **arrays) -> None:
         for k, v in arrays.items():
             setattr(self.inp, k, v)
-        [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
+        [self.inp_f] = scatter(self.client, [self.inp], broadcast=True)
 
     def final_gather(self, L):
         """The final gather of the solved L, one task per group of originals."""
-        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
+        [Lf] = scatter(self.client, [L], broadcast=False)
         groups = self.orig_groups(len(self.groups))
         futs = [self.client.submit(task_final_gather, self.inp_f, g, Lf, pure=False,
                                    workers=[w] if w else None, allow_other_workers=True,
@@ -778,8 +780,8 @@ class LinkOperator(_Base):
     def gs_sweep(self, L, Le, rho):
         w = self.workers[0] if self.workers else None
         if self._gs_fixed is None or self._gs_fixed[0] is not Le:
-            self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
-        Lf = self.client.scatter([L], hash=False)[0]
+            self._gs_fixed = (Le, scatter(self.client, [Le, rho]))
+        Lf = scatter(self.client, [L])[0]
         Lef, rhof = self._gs_fixed[1]
         f = self.client.submit(task_gs_sweep, self.inp_f, Lf, Lef, rhof, pure=False,
                                workers=[w] if w else None, allow_other_workers=True,
@@ -862,7 +864,7 @@ def open_link_operator(rs, client=None, where: str = "auto"):
     if client is None or where == "driver":
         op = LocalLinkOperator(inp, kernel)
     else:
-        [inp_f] = client.scatter([inp], broadcast=True, hash=False)
+        [inp_f] = scatter(client, [inp], broadcast=True)
         op = LinkOperator(client, inp_f, inp, kernel)
     return op, table, el, rs.load_partition()
 

@@ -14,6 +14,7 @@ import numpy as np
 from dask.base import tokenize
 
 from . import config
+from .cluster import scatter
 from .errors import SceneError
 from .monitor import Monitor, peak_rss_mb
 from .plan import subscene_ranges
@@ -136,7 +137,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(), subpixel=subpixel)
     key = tokenize(el.verts, el.nverts)
     inp = RasterInputs(el, cam, subpixel, key, float(config.get("rays.epsilon")))
-    [inp_f] = client.scatter([inp], broadcast=True, hash=False)
+    [inp_f] = scatter(client, [inp], broadcast=True)
     # task keys: deterministic per run directory and inputs (never shared between two runs)
     token = tokenize(key, cam.to_dict(), subpixel, variant, max_depth, ntasks, rows_per_task,
                      inp.epsilon, store.path, config.get("subdivide.unseen"),

@@ -53,6 +53,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from . import config
+from .cluster import scatter
 from .errors import RadiosityError, SceneError
 from .monitor import worker_address
 
@@ -619,7 +620,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     t_tasks = time.perf_counter()
     computed = 0
     if order:
-        [inp_f] = client.scatter([inp], broadcast=True, hash=False)
+        [inp_f] = scatter(client, [inp], broadcast=True)
         from .runner import run_tasks
 
         n_done = [0]

@@ -52,6 +52,23 @@ def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback(monkeyp
     assert any(line.startswith("dashboard: http://127.0.0.1:") for line in lines)
 
 
+def test_the_driver_gets_the_workers_malloc_thresholds_unless_its_environment_set_them(
+        monkeypatch):
+    """The driver runs the solve's passes and final gather: glibc's thresholds by mallopt, as
+    the workers get them by variable; a variable the process started with wins."""
+    import radiosity.cluster as rc
+
+    monkeypatch.setattr(rc, "_USER_MALLOC", {var: None for _, var in rc._MALLOC})
+    assert rc.tune_malloc() == {"MALLOC_TRIM_THRESHOLD_": 67108864,
+                                "MALLOC_MMAP_THRESHOLD_": 67108864}
+    monkeypatch.setattr(rc, "_USER_MALLOC", {"MALLOC_TRIM_THRESHOLD_": "131072",
+                                             "MALLOC_MMAP_THRESHOLD_": None})
+    with dask.config.set({"radiosity.cluster.malloc-mmap-threshold": 1 << 25}):
+        assert rc.tune_malloc() == {"MALLOC_MMAP_THRESHOLD_": 1 << 25}
+    with dask.config.set({"radiosity.cluster.malloc-mmap-threshold": None}):
+        assert rc.tune_malloc() == {}
+
+
 def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene, tmp_path, client):
     from radiosity.preprocess import preprocess
     from radiosity.scene import load_scene

@@ -745,7 +745,7 @@ class LinkOperator(_Base):
         self._gs_fixed = None
 
     def apply(self, L, live=None, use_need: bool = True):
-        [Lf] = scatter(self.client, [L], broadcast=False)
+        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
         futs = [self.client.submit(task_apply, self.inp_f, g, Lf, use_need, pure=False,
                                    workers=[w] if w else None, allow_other_workers=True,
                                    retries=self.retries)
@@ -764,7 +764,7 @@ class LinkOperator(_Base):
 
     def final_gather(self, L):
         """The final gather of the solved L, one task per group of originals."""
-        [Lf] = scatter(self.client, [L], broadcast=False)
+        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
         groups = self.orig_groups(len(self.groups))
         futs = [self.client.submit(task_final_gather, self.inp_f, g, Lf, pure=False,
                                    workers=[w] if w else None, allow_other_workers=True,
@@ -780,8 +780,8 @@ class LinkOperator(_Base):
     def gs_sweep(self, L, Le, rho):
         w = self.workers[0] if self.workers else None
         if self._gs_fixed is None or self._gs_fixed[0] is not Le:
-            self._gs_fixed = (Le, scatter(self.client, [Le, rho]))
-        Lf = scatter(self.client, [L])[0]
+            self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
+        Lf = self.client.scatter([L], hash=False)[0]
         Lef, rhof = self._gs_fixed[1]
         f = self.client.submit(task_gs_sweep, self.inp_f, Lf, Lef, rhof, pure=False,
                                workers=[w] if w else None, allow_other_workers=True,

@@ -22,7 +22,6 @@ from typing import Protocol
 import numpy as np
 
 from . import config
-from .cluster import scatter
 from .errors import RadiosityError
 from .kernels import get_kernel, kernel_id, sample_points, sampled_pairs
 from .passes import BOTH, CAP_MIN, gs_sweep, partial_apply, sparse_by_target, tiles_apply
@@ -328,7 +327,7 @@ class DaskOperator(_Base):
         workers = sorted(client.scheduler_info()["workers"])
         self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
         self.retries = retries
-        [self.inp_f] = scatter(client, [inp], broadcast=True)
+        [self.inp_f] = client.scatter([inp], broadcast=True, hash=False)
         self._gs_fixed = None  # (Le, [futures of Le, rho]) scattered once for Gauss-Seidel
 
     def _lost_data_retried(self, run):
@@ -348,17 +347,17 @@ class DaskOperator(_Base):
                 alive = sorted(self.client.scheduler_info()["workers"])
                 self.workers = ([alive[g % len(alive)] for g in range(len(self.groups))]
                                 if alive else None)
-                [self.inp_f] = scatter(self.client, [self.inp], broadcast=True)
+                [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
                 self._gs_fixed = None
 
     def _run_groups(self, L, live_orig, use_need) -> list:
         def run():
-            Lf = scatter(self.client, [L], broadcast=False)
+            Lf = self.client.scatter([L], broadcast=False, hash=False)
             workers = self.workers or [None] * len(self.groups)
 
             def submit(i, attempt):
                 if attempt and Lf[0].status != "finished":  # its only copy died with a worker
-                    Lf[:] = scatter(self.client, [L], broadcast=False)
+                    Lf[:] = self.client.scatter([L], broadcast=False, hash=False)
                 return self.client.submit(task_apply, self.inp_f, self.groups[i], Lf[0], self.kid,
                                           live_orig, use_need, pure=False,
                                           workers=[workers[i]] if workers[i] else None,
@@ -372,21 +371,21 @@ class DaskOperator(_Base):
     def configure(self, **arrays) -> None:
         """Replace input arrays and re-scatter the inputs to the workers (one scatter)."""
         super().configure(**arrays)
-        [self.inp_f] = scatter(self.client, [self.inp], broadcast=True)
+        [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
 
     def gs_sweep(self, L, Le, rho) -> np.ndarray:
         def run():
             w = self.workers[0] if self.workers else None
             if self._gs_fixed is None or self._gs_fixed[0] is not Le:
-                self._gs_fixed = (Le, scatter(self.client, [Le, rho]))
-            Lf = scatter(self.client, [L])
+                self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
+            Lf = self.client.scatter([L], hash=False)
 
             def submit(i, attempt):
                 if attempt:  # scattered inputs whose only copy died with a worker: again
                     if Lf[0].status != "finished":
-                        Lf[:] = scatter(self.client, [L])
+                        Lf[:] = self.client.scatter([L], hash=False)
                     if any(f.status != "finished" for f in self._gs_fixed[1]):
-                        self._gs_fixed = (Le, scatter(self.client, [Le, rho]))
+                        self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
                 Lef, rhof = self._gs_fixed[1]
                 return self.client.submit(task_gs_sweep, self.inp_f, Lf[0], Lef, rhof, self.kid,
                                           pure=False, workers=[w] if w else None,

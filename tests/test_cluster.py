@@ -302,3 +302,38 @@ def test_unsatisfiable_slurm_jobs_fail_with_what_to_check(tmp_path):
     assert "PENDING" in msg and "BeginTime" in msg  # the job's state, from squeue
     left = _wait_queue_empty()
     assert not left, f"jobs left in the queue: {left}"
+
+
+def _held(inp):
+    """On a worker: the checksums of a scattered LinkInputs' arrays and its type."""
+    return type(inp).__name__, float(inp.t_verts.sum()), int(inp.t_child.sum())
+
+
+def test_a_broadcast_reaches_every_local_worker_straight_and_by_attributes(client):
+    """cluster.scatter: to a LocalCluster straight from the driver, a broadcast sent to each
+    worker in turn under one key (no worker-to-worker copy), and a scatterable class rebuilt
+    from its attributes on the other side; with direct-scatter false, through the scheduler."""
+    from distributed.protocol import deserialize, serialize
+
+    from radiosity.cluster import _direct, scatter
+    from radiosity.links import LinkInputs
+
+    rng = np.random.default_rng(7)
+    inp = LinkInputs.__new__(LinkInputs)
+    inp.__dict__.update({"t_verts": rng.random((1000, 4, 3)), "t_child": np.arange(2000).reshape(-1, 2),
+                         "key": "k", "epsilon": 1e-6})
+    header, frames = serialize(inp)
+    assert header["serializer"] == "dask" and len(frames) >= 2  # the arrays as buffers of their own
+    back = deserialize(header, frames)
+    assert isinstance(back, LinkInputs) and np.array_equal(back.t_verts, inp.t_verts)
+    assert _direct(client)
+    want = ("LinkInputs", float(inp.t_verts.sum()), int(inp.t_child.sum()))
+    workers = sorted(client.scheduler_info()["workers"])
+    for direct in (True, False):
+        with dask.config.set({"radiosity.cluster.direct-scatter": direct}):
+            [f] = scatter(client, [inp], broadcast=True)
+            assert sorted(client.who_has(f)[f.key]) == workers
+            got = [client.submit(_held, f, workers=[w], allow_other_workers=False, pure=False)
+                   for w in workers]
+            assert client.gather(got) == [want] * len(workers)
+            del f, got

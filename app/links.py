@@ -644,8 +644,7 @@ def refine(e_p, e_q, e_c0, e_c1, e_frac, pool, base_end,
     The local node table (L*, cnt nodes; pmap: partition node -> local id) grows as nodes are
     split and is returned. Returns (local table..., cnt, kept links (kp, kq, kf (k, 2) F_pq F_qp,
     kv, ks (k, 2) sides, kx exact flag, nk), links waiting for rays (wp, wq, wc (w, 2) [start,
-    length] into wpool, nw), wpool)."""
-    cap = Lo.shape[0]
+    length] into wpool, nw), wpool). The loop itself is _refine_loop."""
     # kept links
     kcap = 1024
     kp = np.empty(kcap, np.int64)
@@ -1174,7 +1173,7 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
     for e in done.values():
         counts += np.asarray(e["counts"], np.int64)
     busy: dict = {}
-    cpu = [0.0, 0.0, 0.0]  # the tasks' thread CPU: refinement and rays, store writes
+    cpu = [0.0, 0.0, 0.0]  # tasks' thread CPU: refinement + rays, store writes; refinement's wall
     computed = [0]
     mon = Monitor(client)
     mon.stage("links", run_dir)
@@ -1188,9 +1187,8 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
         computed[0] += 1
         counts += res["counts"]
         busy[res["worker"]] = busy.get(res["worker"], 0.0) + (res["stop"] - res["start"])
-        cpu[0] += res.get("cpu", (0.0, 0.0))[0]
-        cpu[1] += res.get("cpu", (0.0, 0.0))[1]
-        cpu[2] += res.get("cpu", (0.0, 0.0, 0.0))[2]
+        for k, v in enumerate(res["cpu"]):
+            cpu[k] += v
         if on_done is not None:
             on_done(computed[0])
 

@@ -6,6 +6,7 @@ slot 3), counter-clockwise seen from the front.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 
@@ -18,21 +19,36 @@ def polygon_properties(verts: np.ndarray, nverts: np.ndarray):
     """Area (n,), unit normal (n, 3) and area centroid (n, 3) of triangles and convex quads.
 
     A quad is the two triangles (0, 1, 2) and (0, 2, 3); for a triangle the second is empty.
+    One numba loop: numpy's dozen (n, 3) temporaries were fresh pages on first touch, 1.0-2.4 s
+    for 677 k polygons (a 512^2 node table) against 0.03 s, the same values to the bit.
     """
-    v0, v1, v2, v3 = verts[:, 0], verts[:, 1], verts[:, 2], verts[:, 3]
-    c1 = tri_cross(v0, v1, v2)
-    c2 = tri_cross(v0, v2, v3)  # zero for triangles (v3 == v2)
-    a1 = 0.5 * np.linalg.norm(c1, axis=1)
-    a2 = 0.5 * np.linalg.norm(c2, axis=1)
-    area = a1 + a2
-    n = c1 + c2
-    norm = np.linalg.norm(n, axis=1)
-    normal = n / np.where(norm > 0, norm, 1.0)[:, None]
-    g1 = (v0 + v1 + v2) / 3.0
-    g2 = (v0 + v2 + v3) / 3.0
-    safe = np.where(area > 0, area, 1.0)
-    center = (g1 * a1[:, None] + g2 * a2[:, None]) / safe[:, None]
+    verts = np.ascontiguousarray(verts, np.float64)
+    n = len(verts)
+    area, normal, center = np.empty(n), np.empty((n, 3)), np.empty((n, 3))
+    _properties(verts.reshape(n, 4, 3), area, normal, center)
     return area, normal, center
+
+
+@numba.njit(cache=True)
+def _properties(verts, area, normal, center):
+    for i in range(verts.shape[0]):
+        v = verts[i]
+        ax, ay, az = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
+        bx, by, bz = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
+        cx, cy, cz = v[3, 0] - v[0, 0], v[3, 1] - v[0, 1], v[3, 2] - v[0, 2]
+        p = (ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx)  # (1 - 0) x (2 - 0)
+        q = (by * cz - bz * cy, bz * cx - bx * cz, bx * cy - by * cx)  # (2 - 0) x (3 - 0)
+        a1 = 0.5 * np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+        a2 = 0.5 * np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
+        area[i] = a1 + a2
+        s = (p[0] + q[0], p[1] + q[1], p[2] + q[2])
+        norm = np.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
+        safe = area[i] if area[i] > 0 else 1.0
+        for k in range(3):
+            normal[i, k] = s[k] / (norm if norm > 0 else 1.0)
+            g1 = (v[0, k] + v[1, k] + v[2, k]) / 3.0
+            g2 = (v[0, k] + v[2, k] + v[3, k]) / 3.0
+            center[i, k] = (g1 * a1 + g2 * a2) / safe
 
 
 def diameter(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:

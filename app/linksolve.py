@@ -427,9 +427,9 @@ class LinkSolveInputs:
         self.normal = np.asarray(normal, np.float64)  # (n, 3) of the originals
         self.verts = table["verts"]
         self.nverts = table["nverts"].astype(np.int64)
-        from .hierarchy import areas_centers
+        from .geometry import polygon_properties
 
-        self.node_center = areas_centers(self.verts)[1]
+        self.node_center = polygon_properties(self.verts, table["nverts"])[2]
         self.leaf_center = self.node_center[self.leaf_node]
         self.child = _children(self.parent)
         self.fg_levels = 0  # final gather: levels below a link's source (set by the stage)

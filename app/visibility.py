@@ -31,7 +31,6 @@ import numpy as np
 from dask.base import tokenize
 
 from . import config
-from .cluster import scatter
 from .kernels import MC, NXM, Sampling, sample_points, sample_rays
 from .monitor import Monitor, peak_rss_mb, worker_address
 from .plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, choose_unit, make_plan
@@ -351,7 +350,7 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
 
     if todo:
         inp = vis_inputs(part, el, key, epsilon, occlusion, sampling)
-        [inp_f] = scatter(client, [inp], broadcast=True)
+        [inp_f] = client.scatter([inp], broadcast=True, hash=False)
 
         def args(task):
             t = plan.tasks[task]

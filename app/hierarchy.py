@@ -305,7 +305,7 @@ def _find(orig, path, depth, noff, o, p, d):
     return -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def find_codes(orig, path, depth, noff, qo, qcode):
     """Node indices of (qo, qcode) (heap codes) in a node table, (k,) int64 (-1: not found)."""
     out = np.empty(qo.shape[0], np.int64)

@@ -33,7 +33,7 @@ import numba
 import numpy as np
 
 from . import config
-from .cluster import scatter, scatterable
+from .cluster import default_workers, scatter, scatterable
 from .errors import RadiosityError, StoreError
 from .exact import _point_ff, point_ff
 from .monitor import progress_bar
@@ -53,7 +53,7 @@ FG_FAR_COS2 = 0.01
 
 # ----------------------------------------------------------------------------- kernels
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def pull(L, leaf_node, leaf_area, parent, node_area, d, S):
     """Area-weighted means of L (2, C, M) over every node's leaves into S (2, C, N), returned:
     leaves' A L summed up the tree (children follow their parents in the table), divided by the
@@ -80,7 +80,7 @@ def pull(L, leaf_node, leaf_area, parent, node_area, d, S):
     return S
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def gather(Lbar, p, q, wpq, wqp, sp, sq, G, ncap, mode):
     """G += the transfer over links (p, q): G[sp, :, p] += w_pq Lbar[sq, :, q] and the reverse.
     mode 1: each link scaled by min(ncap[p], ncap[q]). Returns the number of link terms."""
@@ -94,7 +94,7 @@ def gather(Lbar, p, q, wpq, wqp, sp, sq, G, ncap, mode):
     return 2 * p.shape[0]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def push(G, parent, leaf_node, d, y):
     """y[:, :, l] += sum of G over the ancestors of leaf l (itself included), times d[l] (closed
     balancing; empty: none). Top-down: H_i = G_i + H_parent."""
@@ -535,19 +535,35 @@ def scratch(shape: tuple) -> tuple[np.ndarray, np.ndarray]:
 def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = True):
     """y = K L over the links of these link tasks (pull, gather, push), (2, C, M); rows of
     originals that do not gather (inp.need, with use_need) stay 0. Returns (y, link terms)."""
-    mode, ncap, d = inp.cap_args()
+    cap = inp.cap_args()
     S, G = scratch((L.shape[0], L.shape[1], len(inp.parent)))
-    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d, S)
     G[...] = 0.0
+    terms = _gather_tasks(inp, cap, task_ids, _pull(inp, cap, L, S), G)
+    return _push(inp, cap, G, L, use_need), terms
+
+
+def _pull(inp: LinkSolveInputs, cap, L, S):
+    """Lbar (2, C, N): the node means of L into S (cap: inp.cap_args())."""
+    return pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, cap[2], S)
+
+
+def _gather_tasks(inp: LinkSolveInputs, cap, task_ids, Lbar, G) -> int:
+    """G += the gather over the links of these link tasks; returns the link terms."""
+    mode, ncap, _ = cap
     terms = 0
     for t in task_ids:
         p, q, wpq, wqp, sp, sq, _ = task_link_arrays(inp, int(t))
         terms += gather(Lbar, p, q, wpq, wqp, sp, sq, G, ncap, mode)
+    return terms
+
+
+def _push(inp: LinkSolveInputs, cap, G, L, use_need: bool):
+    """y (2, C, M) from the gathered G (push; G is consumed), rows that do not gather zeroed."""
     y = np.zeros_like(L)
-    push(G, inp.parent, inp.leaf_node, d, y)
+    push(G, inp.parent, inp.leaf_node, cap[2], y)
     if use_need and len(inp.need):
         y[:, :, ~inp.need[inp.leaf_orig]] = 0.0
-    return y, terms
+    return y
 
 
 def _directed(inp: LinkSolveInputs):
@@ -687,21 +703,40 @@ class _Base:
 
 class LocalLinkOperator(_Base):
     """K in this process (the same task functions, no cluster): the driver's solve up to
-    hierarchy.driver-solve-links links, and tests."""
+    hierarchy.driver-solve-links links, and tests. The link tasks are cut into one group per
+    core this process may use (cgroups, Slurm); each pass pulls once, gathers the groups in
+    threads of dask's local scheduler into a buffer each (the kernels release the GIL; the
+    workers sit idle meanwhile; the first pass reads each group's links in its thread), sums
+    them and pushes once."""
 
-    def __init__(self, inp: LinkSolveInputs, kernel: str, groups: int = 1):
-        super().__init__(inp, kernel, groups)
+    def __init__(self, inp: LinkSolveInputs, kernel: str, groups: int | None = None):
+        super().__init__(inp, kernel, groups or default_workers())
+        self._buffers: dict = {}  # (2, C, N) shape -> one gather buffer per group
+
+    def _threads(self, fn, items) -> list:
+        """[fn(x) for x in items], one thread each (inline for one)."""
+        if len(items) <= 1:
+            return [fn(x) for x in items]
+        return list(dask.compute(*[dask.delayed(fn)(x) for x in items], scheduler="threads",
+                                 num_workers=len(items)))
 
     def apply(self, L, live=None, use_need: bool = True):
-        y = None
-        for g in self.groups:
-            yp, t = task_apply(self.inp, g, L, use_need)
-            y = yp if y is None else y + yp
-            self.terms += t
-        if y is None:
-            y = np.zeros_like(L)
+        inp = self.inp
+        cap = inp.cap_args()
+        shape = (L.shape[0], L.shape[1], len(inp.parent))
+        bufs = self._buffers.setdefault(shape, [np.empty(shape) for _ in self.groups])
+        Lbar = _pull(inp, cap, L, scratch(shape)[0])
+
+        def part(k):
+            bufs[k][...] = 0.0
+            return _gather_tasks(inp, cap, self.groups[k], Lbar, bufs[k])
+
+        self.terms += sum(self._threads(part, list(range(len(self.groups)))))
+        G = bufs[0] if bufs else np.zeros(shape)
+        for extra in bufs[1:]:
+            G += extra
         self.passes += 1
-        return y
+        return _push(inp, cap, G, L, use_need)
 
     def configure(self, **arrays) -> None:
         for k, v in arrays.items():
@@ -713,12 +748,10 @@ class LocalLinkOperator(_Base):
         GIL; the workers sit idle meanwhile)."""
         if self.inp.fg_mode != "linear":
             _directed(self.inp)  # built once, before the threads share it
-        for t in range(len(self.inp.entries)):
-            task_link_arrays(self.inp, t)  # read once, before the threads share them
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-        groups = self.orig_groups(cores or 1)  # the cores this process may use (cgroups, Slurm)
-        parts = dask.compute(*[dask.delayed(task_final_gather)(self.inp, g, L) for g in groups],
-                             scheduler="threads", num_workers=len(groups))
+        # every group's links read (in its thread) before the threads share them
+        self._threads(lambda g: [task_link_arrays(self.inp, int(t)) for t in g], self.groups)
+        parts = self._threads(lambda g: task_final_gather(self.inp, g, L),
+                              self.orig_groups(default_workers()))
         self.evals = sum(e for _, e in parts)
         return sum(y for y, _ in parts)
 

@@ -24,6 +24,7 @@ groups of the stages after it, so a store never mixes results of different input
 
 from __future__ import annotations
 
+import asyncio
 import dataclasses
 import json
 import os
@@ -69,6 +70,7 @@ class RunStore:
         zarr = _zarr()
         self.run_dir = os.path.abspath(run_dir)
         self.path = os.path.join(self.run_dir, STORE)
+        self.mode = mode
         if mode in ("r", "r+") and not os.path.exists(self.path):
             raise StoreError(f"{self.run_dir} is not a run directory (no {STORE}); "
                              f"create one with: radiosity preprocess SCENE --out {run_dir}")
@@ -99,10 +101,19 @@ class RunStore:
         if group in self.root:
             del self.root[group]
         # the attributes with the group: attrs.update writes the group's metadata once per key
-        g = self.root.create_group(group, attributes=dict(attrs or {}))
-        for name, a in arrays.items():
-            a = np.ascontiguousarray(a)
-            _array(g, name, data=a, chunks=_chunks(a))
+        self.root.create_group(group, attributes=dict(attrs or {}))
+        arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
+
+        async def write(g):
+            async def one(name, a):
+                z = await g.create_array(name, shape=a.shape, dtype=a.dtype, chunks=_chunks(a),
+                                         compressors=COMPRESSORS)
+                if a.size:
+                    await z.setitem(..., a)
+
+            await asyncio.gather(*(one(name, a) for name, a in arrays.items()))
+
+        self._in_group(group, write)
 
     def read_arrays(self, group: str) -> dict:
         if group not in self.root:
@@ -111,8 +122,28 @@ class RunStore:
                     "nearfield": f"radiosity solve {self.run_dir}"}.get(
                 group, f"radiosity preprocess SCENE --out {self.run_dir}")
             raise StoreError(f"{self.run_dir} has no {group} yet: run {make} first")
-        g = self.root[group]
-        return {name: arr[...] for name, arr in g.arrays()}
+        async def read(g):
+            names, arrays = [], []
+            async for name, arr in g.arrays():
+                names.append(name)
+                arrays.append(arr)
+            return dict(zip(names, await asyncio.gather(*(a.getitem(...) for a in arrays))))
+
+        return self._in_group(group, read)
+
+    def _in_group(self, group: str, work):
+        """work(async group) run to completion on zarr's event loop: every array of a group read
+        or written concurrently (zarr costs a few ms per array, mostly waiting: the partition's
+        13 arrays read in 26-33 ms against 35-58 ms one after another, the node table's 15
+        written in 86-115 against 135-169 ms)."""
+        import zarr.api.asynchronous as za
+        from zarr.core.sync import sync
+
+        async def run():
+            root = await za.open_group(self.path, mode="r" if self.mode == "r" else "r+")
+            return await work(await root.getitem(group))
+
+        return sync(run())
 
     def group_attrs(self, group: str) -> dict:
         return dict(self.root[group].attrs)

@@ -57,6 +57,16 @@ def _zarr():
 COMPRESSORS = ({"name": "zstd", "configuration": {"level": 1, "checksum": False}},)
 
 
+def record_compressors(itemsize: int) -> tuple:
+    """The compressor of records stored as bytes (link tasks): Blosc's byte shuffle by the
+    record size, then lz4. MEASURED on the 18 link tasks of the Cornell box at 128^2 (45 MB),
+    against zstd level 1 on the raw bytes: written in 0.37-0.47 s against 0.60-1.19 s, read in
+    0.10-0.13 against 0.13-0.16 s, 2.85x smaller against 2.51x."""
+    from zarr.codecs import BloscCodec
+
+    return (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle", typesize=int(itemsize)),)
+
+
 def _array(group, name: str, **kw):
     """group.create_array with the store's compressor."""
     return group.create_array(name, compressors=COMPRESSORS, **kw)
@@ -698,8 +708,8 @@ def write_links(store_path: str, task: int, links: np.ndarray, nodes: np.ndarray
         if name == "nodes" and not len(a):  # most tasks split nothing off: no array (15 ms)
             continue
         raw = a.view(np.uint8).reshape(-1)
-        _array(g, f"{task}-{name}", data=raw, chunks=_chunks(raw) if len(raw) else (1,),
-                       overwrite=True)
+        g.create_array(f"{task}-{name}", data=raw, chunks=_chunks(raw) if len(raw) else (1,),
+                       overwrite=True, compressors=record_compressors(a.dtype.itemsize))
     return {"crc": _links_crc(links, nodes), "n": int(len(links)), "nx": int(len(nodes))}
 
 

@@ -291,6 +291,32 @@ def scatter(client, items: list, broadcast: bool = False) -> list:
     return out if out is not None else client.scatter(items, broadcast=True, hash=False)
 
 
+class Scattered:
+    """A value broadcast to the workers once (scatter), sent again when its copies are lost:
+    `future()` before every submit. A worker killed mid-run takes its copy with it; where that
+    was the last one the scheduler marks the key lost, and a retried task that named it would
+    fail the same way ("lost dependencies") however often it ran. straight: scatter()'s direct
+    path where _direct allows (else distributed's own, through the scheduler)."""
+
+    def __init__(self, client, value, straight: bool = True):
+        self.client = client
+        self.value = value
+        self.straight = straight
+        self.sent = 0
+        self._future = None
+
+    def future(self):
+        f = self._future
+        if f is None or f.status != "finished":
+            if self.straight:
+                [f] = scatter(self.client, [self.value], broadcast=True)
+            else:
+                [f] = self.client.scatter([self.value], broadcast=True, hash=False)
+            self._future = f
+            self.sent += 1
+        return f
+
+
 def local_cluster(n: int, threads_per_worker: int | None = None, security=None, processes: bool | None = None):
     """A LocalCluster on `radiosity.cluster.host` (127.0.0.1) with its dashboard on loopback."""
     from distributed import LocalCluster

@@ -47,7 +47,7 @@ import numba
 import numpy as np
 
 from . import config
-from .cluster import scatter, scatterable
+from .cluster import Scattered, scatterable
 from .errors import RadiosityError
 from .exact import _point_ff, _polygon_ff, point_ff
 from .geometry import COS_TOL
@@ -1194,9 +1194,9 @@ def compute_links(run_dir: str, client, kernel: str | None = None, epsilon: floa
 
     t_loop = time.perf_counter()
     if todo:
-        [inp_f] = scatter(client, [inp], broadcast=True)
+        shared = Scattered(client, inp)
         run_tasks(client, task_links, todo,
-                  lambda task: (inp_f, pairs[first[task]:first[task + 1]], rs.path, task),
+                  lambda task: (shared.future(), pairs[first[task]:first[task + 1]], rs.path, task),
                   name="links", token=tokenize(token, rs.path), cost=cost,
                   window=max(1, int(config.get("visibility.window-per-worker")) * threads),
                   retries=int(config.get("visibility.retries")), on_result=finished,

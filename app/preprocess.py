@@ -14,7 +14,7 @@ import numpy as np
 from dask.base import tokenize
 
 from . import config
-from .cluster import scatter
+from .cluster import Scattered
 from .errors import SceneError
 from .monitor import Monitor, peak_rss_mb
 from .plan import subscene_ranges
@@ -137,7 +137,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(), subpixel=subpixel)
     key = tokenize(el.verts, el.nverts)
     inp = RasterInputs(el, cam, subpixel, key, float(config.get("rays.epsilon")))
-    [inp_f] = scatter(client, [inp], broadcast=True)
+    shared = Scattered(client, inp)
     # task keys: deterministic per run directory and inputs (never shared between two runs)
     token = tokenize(key, cam.to_dict(), subpixel, variant, max_depth, ntasks, rows_per_task,
                      inp.epsilon, store.path, config.get("subdivide.unseen"),
@@ -153,7 +153,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         a, b = bands[i]
         elem[a * w:b * w], pts[a * w:b * w] = res
 
-    run_tasks(client, task_raster, range(len(bands)), lambda i: (inp_f, *bands[i]), name="raster",
+    run_tasks(client, task_raster, range(len(bands)), lambda i: (shared.future(), *bands[i]), name="raster",
               token=token, window=window, retries=retries, on_result=got_band, progress=progress,
               repair=repair)
     t_raster = time.perf_counter() - t0
@@ -198,13 +198,15 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         args = [(el.verts[a:b], el.nverts[a:b], el.normal[a:b], hp[starts[i]:starts[i + 1]],
                  he[starts[i]:starts[i + 1]] - a, max_depth, np.arange(a, b))
                 for i, (a, b) in enumerate(ranges)]
-        fn = task_subdivide
+        fn, args_of = task_subdivide, args.__getitem__
     else:
         ranges = subscene_ranges(np.ones(len(el)), ntasks)
-        args = [(inp_f, a, b, max_depth, rows_per_task) for a, b in ranges]
         fn = task_seed_subscene
+
+        def args_of(i):
+            return (shared.future(), *ranges[i], max_depth, rows_per_task)
     pieces = [None] * len(ranges)
-    run_tasks(client, fn, range(len(ranges)), lambda i: args[i], name="subdivide", token=token,
+    run_tasks(client, fn, range(len(ranges)), args_of, name="subdivide", token=token,
               window=window, retries=retries, on_result=pieces.__setitem__, progress=progress,
               repair=repair)
     part = merge_partitions([p for p, _ in pieces], ranges, len(el))

@@ -53,7 +53,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from . import config
-from .cluster import scatter
+from .cluster import Scattered
 from .errors import RadiosityError, SceneError
 from .monitor import worker_address
 
@@ -620,7 +620,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     t_tasks = time.perf_counter()
     computed = 0
     if order:
-        [inp_f] = scatter(client, [inp], broadcast=True)
+        shared = Scattered(client, inp)
         from .runner import run_tasks
 
         n_done = [0]
@@ -633,7 +633,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
 
         # order is already most expensive first: the runner keeps it (cost=None)
         computed = run_tasks(
-            client, task_viewfactors, order, lambda t: (inp_f, prm, tasks[t], rs.path, t),
+            client, task_viewfactors, order, lambda t: (shared.future(), prm, tasks[t], rs.path, t),
             name="viewfactors", token=tokenize(token, rs.path), window=max(
                 1, int(config.get("viewfactors.window-per-worker")) * threads),
             retries=int(config.get("viewfactors.retries")), on_result=record_and_count,

@@ -337,3 +337,26 @@ def test_a_broadcast_reaches_every_local_worker_straight_and_by_attributes(clien
                    for w in workers]
             assert client.gather(got) == [want] * len(workers)
             del f, got
+
+
+def test_a_broadcast_lost_with_its_workers_is_sent_again():
+    """cluster.Scattered: the stages' one-time inputs are sent once while a copy lives, and
+    again when every copy died with its worker (the workers restarted), so that a retried task
+    gets its input instead of failing on "lost dependencies" at every attempt."""
+    from distributed import Client, LocalCluster
+
+    from radiosity.cluster import Scattered
+
+    value = np.arange(100_000.0)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address="127.0.0.1:0", silence_logs=50) as cluster, \
+            Client(cluster) as c:
+        shared = Scattered(c, value)
+        f = shared.future()
+        assert shared.future() is f and shared.sent == 1  # alive: not sent again
+        assert c.submit(np.sum, f, pure=False).result() == value.sum()
+        c.restart()
+        assert f.status != "finished"  # every copy gone with the old worker processes
+        g = shared.future()
+        assert g is not f and shared.sent == 2
+        assert c.submit(np.sum, g, pure=False).result() == value.sum()

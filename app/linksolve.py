@@ -24,7 +24,6 @@ i.e. K -> D K D.
 
 from __future__ import annotations
 
-import os
 import threading
 import time
 

@@ -3,7 +3,8 @@ pairs), both in the same run, on the Cornell box at growing resolutions.
 
 Per (method, resolution): sub-elements, nodes, links, links per leaf, rays, the time of every
 stage (the whole `render_scene` on a warm 2-worker LocalCluster, not the process start; up to
---repeat-below the best of --repeat runs by visibility + solve, their median beside it), peak
+--repeat-below the best of --repeat rounds of both methods in turn, by visibility + solve, the
+median beside it), peak
 memory per worker, and the error of the image against a Mitsuba 3 path-traced reference of the
 same view (rendered at 64x64 with high spp; it and every image are box-filtered to --grid
 (32x32) before comparing, exact because the pixels nest, so that the reference's own noise,
@@ -192,14 +193,20 @@ def main():
         run_one(client, CORNELL, 16, "hierarchical", d)
         run_one(client, CORNELL, 16, "pairs", d)
         for res in sizes:
-            for method in (["pairs"] if res in pairs_sizes else []) + ["hierarchical"]:
-                # the machine is shared: up to --repeat-below, the best of --repeat runs (by
-                # visibility + solve), the others' median kept beside it
-                n = args.repeat if res <= args.repeat_below else 1
-                runs = [run_one(client, CORNELL, res, method, d, ref, args.grid) for _ in range(n)]
-                row = min(runs, key=lambda r: r["vis_plus_solve_s"])
+            methods = (["pairs"] if res in pairs_sizes else []) + ["hierarchical"]
+            # the machine is shared: up to --repeat-below, --repeat rounds of both methods in
+            # turn (a slow minute slows both), the best run of each by visibility + solve, the
+            # median beside it
+            n = args.repeat if res <= args.repeat_below else 1
+            runs = {m: [] for m in methods}
+            for _ in range(n):
+                for method in methods:
+                    runs[method].append(run_one(client, CORNELL, res, method, d, ref, args.grid))
+            for method in methods:
+                row = min(runs[method], key=lambda r: r["vis_plus_solve_s"])
                 row["runs"] = n
-                row["vis_plus_solve_median_s"] = float(np.median([r["vis_plus_solve_s"] for r in runs]))
+                row["vis_plus_solve_median_s"] = float(np.median([r["vis_plus_solve_s"]
+                                                                  for r in runs[method]]))
                 rows.append(row)
                 print(f"  {method:12s} {res:4d}^2: {row['sub_elements']} sub-elements, total "
                       f"{row['total_s']:.1f} s, error {row['mare']:.4f} (interior cells "

@@ -186,7 +186,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         ranges = [(0, len(el))]
         args = [(el.verts, el.nverts, el.normal, np.zeros((0, 3)), np.zeros(0, np.int64),
                  max_depth, np.arange(len(el)))]
-        fn = task_subdivide
+        fn, args_of = task_subdivide, args.__getitem__
     elif variant == "exact":
         e_all = np.concatenate([elem[hit], ue]).astype(np.int64)
         p_all = np.concatenate([pts[hit], up])

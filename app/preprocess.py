@@ -153,9 +153,9 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         a, b = bands[i]
         elem[a * w:b * w], pts[a * w:b * w] = res
 
-    run_tasks(client, task_raster, range(len(bands)), lambda i: (shared.future(), *bands[i]), name="raster",
-              token=token, window=window, retries=retries, on_result=got_band, progress=progress,
-              repair=repair)
+    run_tasks(client, task_raster, range(len(bands)), lambda i: (shared.future(), *bands[i]),
+              name="raster", token=token, window=window, retries=retries, on_result=got_band,
+              progress=progress, repair=repair)
     t_raster = time.perf_counter() - t0
     hit = elem >= 0
     if not hit.any():

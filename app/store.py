@@ -60,8 +60,9 @@ COMPRESSORS = ({"name": "zstd", "configuration": {"level": 1, "checksum": False}
 def record_compressors(itemsize: int) -> tuple:
     """The compressor of records stored as bytes (link tasks): Blosc's byte shuffle by the
     record size, then lz4. MEASURED on the 18 link tasks of the Cornell box at 128^2 (45 MB),
-    against zstd level 1 on the raw bytes: written in 0.37-0.47 s against 0.60-1.19 s, read in
-    0.10-0.13 against 0.13-0.16 s, 2.85x smaller against 2.51x."""
+    against zstd level 1 on the raw bytes: write_links 0.63-0.73 s against 0.79-0.90 s (most of
+    it zarr's own work per array and this VM's slow fresh file pages), read back as fast,
+    2.85x smaller against 2.51x."""
     from zarr.codecs import BloscCodec
 
     return (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle", typesize=int(itemsize)),)
@@ -132,6 +133,7 @@ class RunStore:
                     "nearfield": f"radiosity solve {self.run_dir}"}.get(
                 group, f"radiosity preprocess SCENE --out {self.run_dir}")
             raise StoreError(f"{self.run_dir} has no {group} yet: run {make} first")
+
         async def read(g):
             names, arrays = [], []
             async for name, arr in g.arrays():

@@ -31,11 +31,11 @@ import numpy as np
 from dask.base import tokenize
 
 from . import config
+from .cluster import Scattered
 from .kernels import MC, NXM, Sampling, sample_points, sample_rays
 from .monitor import Monitor, peak_rss_mb, worker_address
 from .plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, choose_unit, make_plan
 from .rays import caster_for
-from .cluster import Scattered
 from .runner import run_tasks
 from .settings import sampling_of
 from .shafts import block_candidates, classify, occluders, set_bits, small_tile_pairs
@@ -355,7 +355,8 @@ def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bo
 
         def args(task):
             t = plan.tasks[task]
-            return shared.future(), plan.tiles_of(task), rs.path, int(t[TSTART]), int(t[TBYTES]), task
+            return (shared.future(), plan.tiles_of(task), rs.path, int(t[TSTART]),
+                    int(t[TBYTES]), task)
 
         run_tasks(client, task_visibility, todo, args, name="visibility",
                   token=tokenize(token, rs.path), cost=plan.task_bits(),

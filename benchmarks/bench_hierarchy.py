@@ -4,8 +4,7 @@ pairs), both in the same run, on the Cornell box at growing resolutions.
 Per (method, resolution): sub-elements, nodes, links, links per leaf, rays, the time of every
 stage (the whole `render_scene` on a warm 2-worker LocalCluster, not the process start; up to
 --repeat-below the best of --repeat rounds of both methods in turn, by visibility + solve, the
-median beside it), peak
-memory per worker, and the error of the image against a Mitsuba 3 path-traced reference of the
+median beside it), peak memory per worker, and the error of the image against a Mitsuba 3 path-traced reference of the
 same view (rendered at 64x64 with high spp; it and every image are box-filtered to --grid
 (32x32) before comparing, exact because the pixels nest, so that the reference's own noise,
 printed as its noise floor, stays well below the methods' errors): over all cells, and over the
@@ -231,8 +230,8 @@ def main():
                        "vis_plus_solve_median_s", "speedup_vis_solve", "speedup_total"]))
     if ratio:
         print("\nlink stage rays/s against raw embreex on the same rays (x workers):")
-        print(table([ratio], ["sample_rays", "raw_Mrays_s_1thread", "call_Mrays_s_1thread", "call_vs_raw",
-                              "stage_Mrays_s", "stage_vs_raw"]))
+        print(table([ratio], ["sample_rays", "raw_Mrays_s_1thread", "call_Mrays_s_1thread",
+                              "call_vs_raw", "stage_Mrays_s", "stage_vs_raw"]))
     print(f"wrote {fn}")
 
 

@@ -14,17 +14,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import config
-from .effects import plan_effects
-from .monitor import peak_rss_mb
-from .preprocess import preprocess
-from .rays import RayCaster, raster_band
-from .render import previewer, render_outputs
-from .settings import choose_method
-from .solve import resolve_closure, run_solve, write_direct_solution
-from .store import RunStore, StageFigures, update_report
-from .types import Scene
-from .visibility import compute_visibility
+from radiosity import config
+from radiosity.scene.effects import plan_effects
+from radiosity.runtime.monitor import peak_rss_mb
+from radiosity.stages.preprocess import preprocess
+from radiosity.tracing.rays import RayCaster, raster_band
+from radiosity.stages.image import previewer, render_outputs
+from radiosity.settings import choose_method
+from radiosity.stages.solve import resolve_closure, run_solve, write_direct_solution
+from radiosity.runtime.store import RunStore, StageFigures, update_report
+from radiosity.core.bundles import Scene
+from radiosity.methods.pairs.visibility import compute_visibility
 
 
 @dataclass(frozen=True)
@@ -172,7 +172,7 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     update_report(out, "plan", {"method": method, "method_reason": why})
     t = time.perf_counter()
     if effects.interreflection and method == "hierarchical":
-        from .links import compute_links
+        from radiosity.methods.hierarchical.links import compute_links
 
         compute_links(out, client, kernel=kernel, epsilon=epsilon, rays=link_rays, unit=unit,
                       resume=resume and reuse, progress=progress, occlusion=effects.occlusion)
@@ -185,7 +185,7 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     stages["visibility_s"] = time.perf_counter() - t
     t = time.perf_counter()
     if effects.interreflection and method == "hierarchical":
-        from .linksolve import run_solve_links
+        from radiosity.methods.hierarchical.operator import run_solve_links
 
         run_solve_links(out, client, solver=solver, tol=tol, progress=progress, effects=effects,
                         closure=planned.closure, keep_unconverged=keep_unconverged)

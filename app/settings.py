@@ -6,8 +6,8 @@ results and never reads the configuration itself.
 
 from __future__ import annotations
 
-from . import config
-from .kernels import Sampling, make_sampling
+from radiosity import config
+from radiosity.core.kernels import Sampling, make_sampling
 
 
 def sampling_of(kernel: str, points: int | None = None, samples: int | None = None,
@@ -31,7 +31,7 @@ def choose_method(sub_elements: int, setting: str | None = None,
     own rays): auto takes pairs for it, and for scenes of many originals with few sub-elements
     each (visibility.hierarchical-min-per-original: a 20 000-triangle floor at 16^2 took 67 s
     hierarchical against 17 s with pairs)."""
-    from .errors import RadiosityError
+    from radiosity.errors import RadiosityError
 
     method = config.get("visibility.method", setting)
     if method not in METHODS:

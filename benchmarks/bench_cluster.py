@@ -20,11 +20,11 @@ import time
 
 from common import ROOT, table, write
 
-from radiosity.cluster import open_client, slurm_unavailable
+from radiosity.runtime.cluster import open_client, slurm_unavailable
 from radiosity.pipeline import render_scene
-from radiosity.preprocess import preprocess
-from radiosity.scene import load_scene
-from radiosity.visibility import compute_visibility
+from radiosity.stages.preprocess import preprocess
+from radiosity.scene.load import load_scene
+from radiosity.methods.pairs.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 THREE = os.path.join(ROOT, "scenes", "three-rectangles", "scene.toml")

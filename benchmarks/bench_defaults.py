@@ -22,14 +22,14 @@ import time
 import numpy as np
 
 from common import ROOT, table, write
-from radiosity.cluster import open_client
+from radiosity.runtime.cluster import open_client
 from radiosity.pipeline import render_scene
-from radiosity.render import read_exr, render_outputs
-from radiosity.scene import load_scene
-from radiosity.linksolve import run_solve_links
-from radiosity.solve import run_solve
-from radiosity.study import form_factor_of_run
-from radiosity.visibility import compute_visibility
+from radiosity.stages.image import read_exr, render_outputs
+from radiosity.scene.load import load_scene
+from radiosity.methods.hierarchical.operator import run_solve_links
+from radiosity.stages.solve import run_solve
+from radiosity.validation.study import form_factor_of_run
+from radiosity.methods.pairs.visibility import compute_visibility
 from radiosity import config
 
 SCENES = ["furnace-cube", "furnace-sphere", "parallel-squares", "perpendicular-squares",

@@ -31,11 +31,11 @@ import time
 import numpy as np
 
 from common import ROOT, best_of, table, write
-from radiosity.cluster import open_client
-from radiosity.compare import box_down, box_down_stderr, errors, noise_floor
+from radiosity.runtime.cluster import open_client
+from radiosity.validation.compare import box_down, box_down_stderr, errors, noise_floor
 from radiosity.pipeline import render_scene
-from radiosity.render import read_exr
-from radiosity.scene import load_scene
+from radiosity.stages.image import read_exr
+from radiosity.scene.load import load_scene
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 ROOM = os.path.join(ROOT, "scenes", "room-2400", "scene.toml")
@@ -44,7 +44,7 @@ GRID = 64
 
 def reference(spp: int, out: str) -> dict:
     """The Mitsuba reference of the Cornell box at GRID x GRID: mean, stderr, figures."""
-    from radiosity.reference import make_reference
+    from radiosity.validation.reference import make_reference
 
     fig = make_reference(load_scene(CORNELL, resolution=GRID), out, spp=spp, passes=8,
                          echo=lambda *a: None)
@@ -58,10 +58,11 @@ def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dic
     from embreex import mesh_construction, rtcore_scene
 
     from radiosity import config
-    from radiosity.hierarchy import seen_originals, tree_nodes
-    from radiosity.links import LinkInputs, refine_pairs, resolve_params
-    from radiosity.rays import RayCaster, element_triangles
-    from radiosity.store import LinkStore, RunStore
+    from radiosity.scene.splittrees import seen_originals, tree_nodes
+    from radiosity.methods.hierarchical.links import LinkInputs, refine_pairs, resolve_params
+    from radiosity.tracing.rays import RayCaster, element_triangles
+    from radiosity.methods.hierarchical.store import LinkStore
+    from radiosity.runtime.store import RunStore
 
     rs = RunStore(run_dir)
     part, el = rs.load_partition(), rs.load_elements()
@@ -122,7 +123,7 @@ def interior_cells(grid: int) -> np.ndarray:
     not the edges' (a pixel that straddles the light's edge is point-sampled by the engine and
     area-averaged by the path tracer: -85 % on the light's border cells, about half of the
     all-cell error at 128^2, the same for both methods)."""
-    from radiosity.compare import element_raster, interior
+    from radiosity.validation.compare import element_raster, interior
 
     return interior(element_raster(load_scene(CORNELL, resolution=grid)))
 

@@ -24,15 +24,15 @@ import numpy as np
 
 from common import ROOT, table, write
 
-from radiosity.cluster import open_client
-from radiosity.kernels import KERNELS
+from radiosity.runtime.cluster import open_client
+from radiosity.core.kernels import KERNELS
 from radiosity.settings import sampling_of
-from radiosity.preprocess import preprocess
-from radiosity.scene import load_scene
-from radiosity.solve import run_solve
-from radiosity.store import RunStore
-from radiosity.study import form_factor_of_run, kernel_setting
-from radiosity.visibility import compute_visibility
+from radiosity.stages.preprocess import preprocess
+from radiosity.scene.load import load_scene
+from radiosity.stages.solve import run_solve
+from radiosity.runtime.store import RunStore
+from radiosity.validation.study import form_factor_of_run, kernel_setting
+from radiosity.methods.pairs.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 VALIDATION = ("parallel-squares", "perpendicular-squares")

@@ -83,8 +83,8 @@ def tree_figures(scene: str) -> dict:
     """The hierarchy on the driver, in this process: times and memory (tracemalloc)."""
     import tracemalloc
 
-    from radiosity.originals import behind_any, estimate_facing_pairs, facing_pairs, tree_of
-    from radiosity.scene import load_scene
+    from radiosity.scene.originals import behind_any, estimate_facing_pairs, facing_pairs, tree_of
+    from radiosity.scene.load import load_scene
 
     t0 = time.perf_counter()
     el = load_scene(scene).elements

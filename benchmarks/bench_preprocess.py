@@ -14,11 +14,11 @@ import numpy as np
 
 from common import best_of, table, write
 
-from radiosity.camera import ray_directions32
-from radiosity.rays import RayCaster, element_triangles
-from radiosity.scene import load_scene
-from radiosity.rays import raster_band
-from radiosity.subdivide import subdivide
+from radiosity.core.camera import ray_directions32
+from radiosity.tracing.rays import RayCaster, element_triangles
+from radiosity.scene.load import load_scene
+from radiosity.tracing.rays import raster_band
+from radiosity.scene.subdivide import subdivide
 
 
 def raw_embree(el):
@@ -64,8 +64,8 @@ def main():
                      "ours_vs_raw": t_raw / t_ours, "raster_vs_raw": t_raw / t_band})
         res *= 2
     # the Dask pipeline at the largest resolution (includes cluster round trips)
-    from radiosity.cluster import open_client
-    from radiosity.preprocess import preprocess
+    from radiosity.runtime.cluster import open_client
+    from radiosity.stages.preprocess import preprocess
     import tempfile
 
     with open_client(args.workers, quiet=True) as client:

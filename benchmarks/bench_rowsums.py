@@ -24,12 +24,12 @@ import numpy as np
 
 from common import ROOT, table, write
 
-from radiosity.cluster import open_client
-from radiosity.operator import open_operator
-from radiosity.preprocess import preprocess
-from radiosity.scene import load_scene
-from radiosity.store import RunStore
-from radiosity.visibility import compute_visibility
+from radiosity.runtime.cluster import open_client
+from radiosity.methods.pairs.operator import open_operator
+from radiosity.stages.preprocess import preprocess
+from radiosity.scene.load import load_scene
+from radiosity.runtime.store import RunStore
+from radiosity.methods.pairs.visibility import compute_visibility
 
 CUBE = os.path.join(ROOT, "scenes", "furnace-cube", "scene.toml")
 KERNELS = ("point", "disc", "point-nf")

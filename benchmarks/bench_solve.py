@@ -18,14 +18,14 @@ import numpy as np
 
 from common import ROOT, best_of, table, write
 
-from radiosity.cluster import open_client
+from radiosity.runtime.cluster import open_client
 from radiosity.pipeline import render_scene
-from radiosity.preprocess import preprocess
-from radiosity.scene import load_scene
-from radiosity.operator import all_task_bytes, open_operator, task_apply
-from radiosity.solve import run_solve, side_vectors
-from radiosity.store import RunStore
-from radiosity.visibility import compute_visibility
+from radiosity.stages.preprocess import preprocess
+from radiosity.scene.load import load_scene
+from radiosity.methods.pairs.operator import all_task_bytes, open_operator, task_apply
+from radiosity.stages.solve import run_solve, side_vectors
+from radiosity.runtime.store import RunStore
+from radiosity.methods.pairs.visibility import compute_visibility
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from common import table, write
 
-from radiosity.cluster import open_client
+from radiosity.runtime.cluster import open_client
 
 
 # ----------------------------------------------------------------------------- the scene
@@ -99,7 +99,7 @@ def ours(mesh, workers, accuracy=None, smax=None, warm=True, repeat=1):
     tiny mesh: numba loads its cache on every worker)."""
     import dask.config
 
-    from radiosity.viewfactor import compute_viewfactors
+    from radiosity.viewfactors.api import compute_viewfactors
 
     cfg = {} if smax is None else {"radiosity.viewfactors.max-points-per-side": smax}
     with dask.config.set(cfg), open_client(workers, quiet=True) as client, \
@@ -160,8 +160,8 @@ def check_reference(fac, ref, acc_ref, k=400, rows=12, rays=4096, seed=5) -> dic
     standard errors), and on whole rows (every facing partner of `rows` random facets, 1 024
     rays each: the row L1 difference against the brute force's own noise, sum of 2 standard
     errors)."""
-    from radiosity.exact import pair_form_factors_exact
-    from radiosity.rays import RayCaster
+    from radiosity.core.exact import pair_form_factors_exact
+    from radiosity.tracing.rays import RayCaster
 
     rng = np.random.default_rng(seed)
     rc = RayCaster(fac.verts, fac.nverts)
@@ -216,7 +216,7 @@ def check_reference(fac, ref, acc_ref, k=400, rows=12, rays=4096, seed=5) -> dic
 # ----------------------------------------------------------------------------- parts
 
 def compare(nb: int, workers: int, repeat: int) -> list:
-    from radiosity.viewfactor import load_facets
+    from radiosity.viewfactors.api import load_facets
 
     V, F = urban(nb)
     fac = load_facets((V, F))

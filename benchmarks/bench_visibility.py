@@ -17,12 +17,12 @@ import numpy as np
 
 from common import best_of, table, write
 
-from radiosity.cluster import open_client
-from radiosity.preprocess import preprocess
-from radiosity.scene import load_scene
-from radiosity.store import RunStore
-from radiosity.shafts import block_candidates, classify
-from radiosity.visibility import compute_visibility, vis_inputs
+from radiosity.runtime.cluster import open_client
+from radiosity.stages.preprocess import preprocess
+from radiosity.scene.load import load_scene
+from radiosity.runtime.store import RunStore
+from radiosity.tracing.shafts import block_candidates, classify
+from radiosity.methods.pairs.visibility import compute_visibility, vis_inputs
 
 
 def run(scene, res, workers, unit=None):
@@ -39,7 +39,7 @@ def run(scene, res, workers, unit=None):
 
 def ray_throughput(scene, res):
     """Segments of the largest block that needed rays: our occluded() against raw embreex."""
-    from radiosity.rays import RayCaster, element_triangles
+    from radiosity.tracing.rays import RayCaster, element_triangles
     from embreex import mesh_construction, rtcore_scene
 
     sc = load_scene(scene, resolution=res)

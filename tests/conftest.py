@@ -31,7 +31,7 @@ def missing(component: str) -> str | None:
         return (f"headless Chromium not found at {CHROMIUM} (apt-get install chromium, or point "
                 "RADIOSITY_CHROMIUM at it)")
     if component == "slurm":
-        from radiosity.cluster import slurm_unavailable
+        from radiosity.runtime.cluster import slurm_unavailable
 
         why = slurm_unavailable()
         if why is None:
@@ -90,9 +90,9 @@ def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibili
              **kw) -> str:
     """A run directory of `scene` (a TOML path) preprocessed at `res` (kw: preprocess options),
     with its one-ray visibility matrix unless `visibility` is False."""
-    from radiosity.preprocess import preprocess
-    from radiosity.scene import load_scene
-    from radiosity.visibility import compute_visibility
+    from radiosity.stages.preprocess import preprocess
+    from radiosity.scene.load import load_scene
+    from radiosity.methods.pairs.visibility import compute_visibility
 
     out = str(tmp_path / name)
     preprocess(load_scene(scene, resolution=res), out, client, progress=False, **kw)
@@ -103,7 +103,7 @@ def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibili
 
 def radiance(out: str) -> np.ndarray:
     """The solved radiance (m, 2, 3) of a run directory."""
-    from radiosity.store import RunStore
+    from radiosity.runtime.store import RunStore
 
     return RunStore(out).read_arrays("solution")["radiance"]
 

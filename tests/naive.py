@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from radiosity.rays import RayCaster
+from radiosity.tracing.rays import RayCaster
 
 COS_TOL = 1e-9
 
@@ -207,7 +207,7 @@ def near_field_matrix(part, elements, V, kernel: str, factor: float) -> np.ndarr
     kernel everywhere, and for each visible pair of different originals closer than `factor`
     element sizes (|c_a - c_b| < factor max(sqrt A_a, sqrt A_b)) the exact form factor of the two
     polygons (exact.polygon_form_factor, one pair at a time, the sides facing each other)."""
-    from radiosity.exact import polygon_form_factor
+    from radiosity.core.exact import polygon_form_factor
 
     m = len(part)
     F = form_factor_matrix(part, elements, V, kernel.removesuffix("-nf"))

@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 
 from radiosity.errors import RadiosityError
-from radiosity.exact import parallel_rectangles, perpendicular_rectangles
-from radiosity.geometry import polygon_properties
-from radiosity.kernels import pair_form_factors
-from radiosity.preprocess import preprocess
-from radiosity.scene import load_scene
-from radiosity.operator import open_operator
-from radiosity.solve import run_solve
-from radiosity.store import RunStore
-from radiosity.study import accuracy, form_factor_of_run, pareto
-from radiosity.visibility import compute_visibility
+from radiosity.core.exact import parallel_rectangles, perpendicular_rectangles
+from radiosity.core.geometry import polygon_properties
+from radiosity.core.kernels import pair_form_factors
+from radiosity.stages.preprocess import preprocess
+from radiosity.scene.load import load_scene
+from radiosity.methods.pairs.operator import open_operator
+from radiosity.stages.solve import run_solve
+from radiosity.runtime.store import RunStore
+from radiosity.validation.study import accuracy, form_factor_of_run, pareto
+from radiosity.methods.pairs.visibility import compute_visibility
 from conftest import prepared, radiance, scene_path, write_scene
 
 
@@ -222,7 +222,7 @@ def test_pass_accumulates_1e5_elements_in_float64(rng):
     precision (longdouble) sum of the same form factors to 1e-12. Summing these terms in float32
     is off by 1.1e-4 (measured once, when the data were chosen): a pass that accumulated in float32
     fails by eight orders of magnitude; float64 rounding over 10^5 terms stays below 1e-13."""
-    from radiosity.passes import BOTH, CAP_MIN, tile_apply
+    from radiosity.methods.pairs.passes import BOTH, CAP_MIN, tile_apply
 
     C = 100_000
     m = C + 1
@@ -319,7 +319,7 @@ def test_study_accuracy_writes_csv_table_and_plot(client, tmp_path):
 def _camera_hit_points(run: str):
     """Each pixel's hit point on the original element the run's raster says it sees, by
     intersecting the pixel's ray with that element's plane: points (k, 3), orig (k,), camera."""
-    from radiosity.camera import pixel_directions
+    from radiosity.core.camera import pixel_directions
 
     rs = RunStore(run)
     el, cam = rs.load_elements(), rs.load_camera()
@@ -364,7 +364,7 @@ def test_study_seed_writes_its_plots_and_times_the_worker_counts_it_names(client
 
     from distributed import Client, LocalCluster
 
-    from radiosity.study import seed
+    from radiosity.validation.study import seed
 
     seen = []
 
@@ -392,7 +392,7 @@ def test_study_seed_writes_its_plots_and_times_the_worker_counts_it_names(client
 
 
 def test_coaxial_discs_validation_value_is_the_64_gon_contour_integral():
-    from radiosity.exact import polygon_form_factor
+    from radiosity.core.exact import polygon_form_factor
 
     n = 64
     ring = np.array([[np.cos(2 * np.pi * k / n), np.sin(2 * np.pi * k / n), 0.0] for k in range(n)])

@@ -9,7 +9,7 @@ import os
 import pytest
 from click.testing import CliRunner
 
-from radiosity.cli import main
+from radiosity.cli.commands import main
 from conftest import scene_path
 
 S = scene_path("three-rectangles")
@@ -125,8 +125,8 @@ def test_a_scene_without_an_emitter_is_said_up_front(tmp_path):
 
 def test_a_camera_that_sees_one_small_thing_is_not_refused(tmp_path):
     """The coarse ray grid misses a tiny element; the full raster then finds it."""
-    from radiosity.preflight import COARSE_RAYS, check_scene
-    from radiosity.scene import load_scene
+    from radiosity.runtime.checks import COARSE_RAYS, check_scene
+    from radiosity.scene.load import load_scene
 
     obj = "v 0.499 0.499 0\nv 0.501 0.499 0\nv 0.5 0.501 0\nf 1 2 3\n"
     cam = """
@@ -158,7 +158,7 @@ def test_a_huge_coordinate_is_rejected_up_front(tmp_path):
     import warnings
 
     from radiosity.errors import SceneError
-    from radiosity.scene import load_scene
+    from radiosity.scene.load import load_scene
 
     path = write_scene(tmp_path, "v 0 0 0\nv 1e300 0 0\nv 1 0 1\nv 0 0 1\nf 1 4 3 2\n", LIGHT)
     with warnings.catch_warnings():

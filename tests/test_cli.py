@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from radiosity.cli import main
-from radiosity.render import read_exr
+from radiosity.cli.commands import main
+from radiosity.stages.image import read_exr
 from conftest import FLOOR_AND_TRIANGLE, ROOT, scene_path, write_scene
 
 DATA = os.path.join(ROOT, "tests", "data")
@@ -111,8 +111,8 @@ def test_coaxial_discs_through_the_pipeline_against_the_exact_form_factor(client
     (length 1, width 0.1) that the camera splits slowly, so the error falls slowly: measured
     +6.0 % at 8^2, +5.27 % at 16^2 (+3.8 % at 32^2, +0.97 % at 64^2). Deterministic (no
     occluder): the figure to 1e-3, and smaller than at 8^2."""
-    from radiosity.scene import load_scene
-    from radiosity.study import form_factor_of_run
+    from radiosity.scene.load import load_scene
+    from radiosity.validation.study import form_factor_of_run
 
     val = load_scene(scene_path("coaxial-discs")).validation
     errs = []
@@ -154,7 +154,7 @@ def test_cluster_flags_reach_the_config(tmp_path, monkeypatch):
     cluster); a local TLS run works end to end; afterwards the process's config is as before."""
     import dask.config
 
-    from radiosity import cluster
+    from radiosity.runtime import cluster
 
     seen = {}
     real = cluster.open_client

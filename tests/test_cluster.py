@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import yaml
 
-from radiosity.cluster import (adaptive_bounds, jobqueue_cluster, jobqueue_kwargs, open_client,
+from radiosity.runtime.cluster import (adaptive_bounds, jobqueue_cluster, jobqueue_kwargs, open_client,
                                tls_mode)
 from radiosity.errors import RadiosityError
 
@@ -56,7 +56,7 @@ def test_the_driver_gets_the_workers_malloc_thresholds_unless_its_environment_se
         monkeypatch):
     """The driver runs the solve's passes and final gather: glibc's thresholds by mallopt, as
     the workers get them by variable; a variable the process started with wins."""
-    import radiosity.cluster as rc
+    import radiosity.runtime.cluster as rc
 
     monkeypatch.setattr(rc, "_USER_MALLOC", {var: None for _, var in rc._MALLOC})
     assert rc.tune_malloc() == {"MALLOC_TRIM_THRESHOLD_": 67108864,
@@ -70,9 +70,9 @@ def test_the_driver_gets_the_workers_malloc_thresholds_unless_its_environment_se
 
 
 def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene, tmp_path, client):
-    from radiosity.preprocess import preprocess
-    from radiosity.scene import load_scene
-    from radiosity.visibility import compute_visibility
+    from radiosity.stages.preprocess import preprocess
+    from radiosity.scene.load import load_scene
+    from radiosity.methods.pairs.visibility import compute_visibility
 
     sc = load_scene(small_scene)
     with dask.config.set({"radiosity.cluster.tls": "temporary"}), open_client(1, kind="local", quiet=True) as c:
@@ -224,8 +224,8 @@ def _wait_queue_empty(timeout=30.0) -> list[str]:
 @pytest.mark.needs("slurm")
 def test_render_through_slurm_jobs_equals_local_render(client, tmp_path):
     from radiosity.pipeline import render_scene
-    from radiosity.scene import load_scene
-    from radiosity.store import RunStore
+    from radiosity.scene.load import load_scene
+    from radiosity.runtime.store import RunStore
 
     sc = load_scene(scene_path("three-rectangles"), resolution=12)
     logs = tmp_path / "slurm-logs"
@@ -260,9 +260,9 @@ def test_tls_with_slurm_workers_runs_the_stages(small_scene, client, tmp_path):
     """TLS with jobqueue workers: the temporary certificate reaches the Slurm jobs through the
     shared temporary directory; scheduler and worker speak tls:// only, and the stages give the
     answer of the plain-TCP LocalCluster."""
-    from radiosity.preprocess import preprocess
-    from radiosity.scene import load_scene
-    from radiosity.visibility import compute_visibility
+    from radiosity.stages.preprocess import preprocess
+    from radiosity.scene.load import load_scene
+    from radiosity.methods.pairs.visibility import compute_visibility
 
     sc = load_scene(small_scene)
     certs = tmp_path / "certs"
@@ -315,8 +315,8 @@ def test_a_broadcast_reaches_every_local_worker_straight_and_by_attributes(clien
     from its attributes on the other side; with direct-scatter false, through the scheduler."""
     from distributed.protocol import deserialize, serialize
 
-    from radiosity.cluster import _direct, scatter
-    from radiosity.links import LinkInputs
+    from radiosity.runtime.cluster import _direct, scatter
+    from radiosity.methods.hierarchical.links import LinkInputs
 
     rng = np.random.default_rng(7)
     inp = LinkInputs.__new__(LinkInputs)
@@ -345,7 +345,7 @@ def test_a_broadcast_lost_with_its_workers_is_sent_again():
     gets its input instead of failing on "lost dependencies" at every attempt."""
     from distributed import Client, LocalCluster
 
-    from radiosity.cluster import Scattered
+    from radiosity.runtime.cluster import Scattered
 
     value = np.arange(100_000.0)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",

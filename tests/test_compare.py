@@ -18,7 +18,7 @@ def _pair(rng, h=8, w=12):
 
 
 def test_errors_are_the_relative_errors(rng):
-    from radiosity.compare import errors
+    from radiosity.validation.compare import errors
 
     a, b, rel = _pair(rng)
     b[0, 0] = 0.0  # undefined there: left out
@@ -39,7 +39,7 @@ def test_errors_are_the_relative_errors(rng):
 def test_noise_floor_is_what_an_exact_image_shows(rng):
     """An exact image against a noisy reference (Gaussian, known standard error): the mean
     absolute relative error converges to the stated floor sqrt(2/pi) mean(se/ref)."""
-    from radiosity.compare import errors, noise_floor
+    from radiosity.validation.compare import errors, noise_floor
 
     truth = rng.uniform(1.0, 3.0, (200, 200, 3))
     se = 0.01 * truth * rng.uniform(0.5, 1.5, truth.shape)
@@ -50,7 +50,7 @@ def test_noise_floor_is_what_an_exact_image_shows(rng):
 
 
 def test_box_down_and_its_standard_error(rng):
-    from radiosity.compare import CompareError, box_down, box_down_stderr
+    from radiosity.validation.compare import CompareError, box_down, box_down_stderr
 
     img = rng.uniform(size=(8, 12, 3))
     small = box_down(img, 2, 3)
@@ -62,7 +62,7 @@ def test_box_down_and_its_standard_error(rng):
 
 
 def test_interior_keeps_pixels_whose_neighbourhood_is_one_element():
-    from radiosity.compare import interior
+    from radiosity.validation.compare import interior
 
     r = np.full((6, 7), -1)
     r[0:6, 0:4] = 0
@@ -78,7 +78,7 @@ def test_interior_keeps_pixels_whose_neighbourhood_is_one_element():
 
 
 def test_surface_errors_average_before_comparing(rng):
-    from radiosity.compare import surface_errors
+    from radiosity.validation.compare import surface_errors
 
     raster = np.zeros((6, 6), int)
     raster[:, 3:] = 1
@@ -93,8 +93,8 @@ def test_surface_errors_average_before_comparing(rng):
 
 
 def test_compare_command(tmp_path, rng):
-    from radiosity.cli import main
-    from radiosity.render import write_exr
+    from radiosity.cli.commands import main
+    from radiosity.stages.image import write_exr
 
     a, b, rel = _pair(rng, 16, 16)
     fine = np.repeat(np.repeat(a, 2, axis=0), 2, axis=1)  # A at twice the resolution, same means

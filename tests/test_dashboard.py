@@ -155,13 +155,13 @@ async def _browse(port: int, url: str, publish_later) -> tuple[dict, dict, bytes
 def test_dashboard_page_in_chromium(tmp_path):
     import dask
 
-    from radiosity.cluster import open_client
-    from radiosity.dashboard import PATH, page_url
-    from radiosity.monitor import Monitor
-    from radiosity.preprocess import preprocess
-    from radiosity.scene import load_scene
-    from radiosity.solve import run_solve
-    from radiosity.visibility import compute_visibility
+    from radiosity.runtime.cluster import open_client
+    from radiosity.runtime.dashboard import PATH, page_url
+    from radiosity.runtime.monitor import Monitor
+    from radiosity.stages.preprocess import preprocess
+    from radiosity.scene.load import load_scene
+    from radiosity.stages.solve import run_solve
+    from radiosity.methods.pairs.visibility import compute_visibility
 
     t0 = time.perf_counter()
     out = str(tmp_path / "run")

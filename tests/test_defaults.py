@@ -8,13 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from radiosity.closure import detect_closure
+from radiosity.scene.closure import detect_closure
 from radiosity.errors import RadiosityError
 from radiosity.pipeline import render_scene
-from radiosity.render import read_exr
-from radiosity.scene import load_scene
-from radiosity.solvers import choose_solver
-from radiosity.store import RunStore
+from radiosity.stages.image import read_exr
+from radiosity.scene.load import load_scene
+from radiosity.core.solvers import choose_solver
+from radiosity.runtime.store import RunStore
 from conftest import SCENES, radiance, scene_path, write_scene
 
 
@@ -125,8 +125,8 @@ def test_open_box_is_never_balanced(client, tmp_path):
 
 def _exact_receiver(sc, out):
     """Exact receiver radiance rho Le F(dA_p -> emitter) at every pixel's hit point."""
-    from radiosity.camera import pixel_directions
-    from radiosity.exact import polygon_point_form_factor
+    from radiosity.core.camera import pixel_directions
+    from radiosity.core.exact import polygon_point_form_factor
 
     el = sc.elements
     names = np.array(el.material_names)[el.material]

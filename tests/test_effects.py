@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from radiosity.cli import main
+from radiosity.cli.commands import main
 from radiosity.pipeline import render_scene
-from radiosity.effects import plan_effects
-from radiosity.scene import load_scene
-from radiosity.store import RunStore
+from radiosity.scene.effects import plan_effects
+from radiosity.scene.load import load_scene
+from radiosity.runtime.store import RunStore
 from conftest import scene_path, write_scene
 
 CAM_ABOVE = """

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from radiosity.exact import (coaxial_discs, differential_to_rectangle, pair_form_factors_exact,
+from radiosity.core.exact import (coaxial_discs, differential_to_rectangle, pair_form_factors_exact,
                        parallel_rectangles, perpendicular_rectangles, polygon_area,
                        polygon_form_factor, polygon_point_form_factor)
-from radiosity.kernels import pair_form_factors
+from radiosity.core.kernels import pair_form_factors
 
 # 40-digit evaluations (mpmath) of the catalogue's formulas, written to 20 digits; regenerated and
 # checked by tests/data/exact_constants.py

@@ -76,7 +76,7 @@ SMALL = ["--resolution", "8", "--workers", "1", "--no-preview"]
 
 def test_run_lock_refuses_a_live_owner_and_takes_over_a_dead_one(tmp_path):
     from radiosity.errors import StoreError
-    from radiosity.runlock import LOCK, run_lock
+    from radiosity.runtime.runlock import LOCK, run_lock
 
     d = tmp_path / "run"
     d.mkdir()
@@ -103,7 +103,7 @@ def test_run_lock_refuses_a_live_owner_and_takes_over_a_dead_one(tmp_path):
 
 def test_a_lock_from_another_host_names_the_file_to_delete(tmp_path):
     from radiosity.errors import StoreError
-    from radiosity.runlock import LOCK, run_lock
+    from radiosity.runtime.runlock import LOCK, run_lock
 
     (tmp_path / LOCK).write_text(json.dumps({"pid": 1, "host": "node-17", "started": time.time(),
                                              "command": "radiosity render x"}))
@@ -176,7 +176,7 @@ def fill(d, leave_pages: int) -> str:
 def cli(args, client=None):
     from click.testing import CliRunner
 
-    from radiosity.cli import main
+    from radiosity.cli.commands import main
 
     extra = ["--scheduler", client.scheduler.address] if client is not None else []
     return CliRunner().invoke(main, [str(a) for a in args] + extra)
@@ -220,8 +220,9 @@ def test_full_disk_during_visibility_then_resume(client, tmpfs, tmp_path):
     manifest holds only tasks whose bytes are on disk, and --resume completes the matrix
     (equal to one computed on a roomy disk)."""
     from conftest import prepared
-    from radiosity.store import RunStore, VisibilityStore
-    from radiosity.visibility import dense_visibility
+    from radiosity.runtime.store import RunStore
+    from radiosity.methods.pairs.store import VisibilityStore
+    from radiosity.methods.pairs.visibility import dense_visibility
 
     cornell = scene_path("cornell-box")
     run_dir = prepared(client, tmpfs, cornell, 16, visibility=False)
@@ -259,8 +260,8 @@ def corrupt_a_chunk(run_dir: str) -> str:
 
 def test_corrupted_zstd_frame_stops_solve_in_one_line_and_resume_recomputes_it(client, tmp_path):
     from conftest import prepared
-    from radiosity.store import RunStore
-    from radiosity.visibility import compute_visibility, dense_visibility
+    from radiosity.runtime.store import RunStore
+    from radiosity.methods.pairs.visibility import compute_visibility, dense_visibility
 
     run_dir = prepared(client, tmp_path, scene_path("cornell-box"), 12)
     before = dense_visibility(RunStore(run_dir))
@@ -299,7 +300,7 @@ def _count_and_fail(path: str, kind: str, fail_times: int = 99):
 
 @pytest.mark.parametrize("kind,attempts", [("store", 1), ("enospc", 1), ("same", 2), ("varies", 4)])
 def test_runner_stops_deterministic_failures_at_once(client, tmp_path, kind, attempts):
-    from radiosity.runner import TaskFailed, run_tasks
+    from radiosity.runtime.runner import TaskFailed, run_tasks
 
     path = str(tmp_path / "attempts")
     with pytest.raises(TaskFailed) as ei:
@@ -312,7 +313,7 @@ def test_runner_stops_deterministic_failures_at_once(client, tmp_path, kind, att
 
 def test_operator_gather_raises_corruption_at_once_and_retries_the_rest(client, tmp_path):
     from radiosity.errors import StoreError
-    from radiosity.runner import TaskFailed, gather_retrying
+    from radiosity.runtime.runner import TaskFailed, gather_retrying
 
     path = str(tmp_path / "a")
 
@@ -334,8 +335,8 @@ def test_a_failed_task_prints_one_line_naming_its_log(tmp_path):
     import click
     from click.testing import CliRunner
 
-    from radiosity import cli as cli_mod
-    from radiosity.runner import TaskFailed
+    from radiosity.cli import commands as cli_mod
+    from radiosity.runtime.runner import TaskFailed
 
     @click.command()
     @cli_mod._friendly
@@ -512,7 +513,7 @@ def test_a_pass_survives_losing_its_scattered_input_with_a_worker():
     are cancelled: gather_retrying resubmits them and the operator scatters L again."""
     from distributed import Client, LocalCluster
 
-    from radiosity.runner import gather_retrying
+    from radiosity.runtime.runner import gather_retrying
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None, silence_logs=50) as cl, Client(cl) as c:
@@ -538,7 +539,7 @@ def test_a_pass_survives_losing_its_scattered_input_with_a_worker():
 
 def test_image_names_the_solve_command_and_warns_about_idle_filters(client, tmp_path):
     from conftest import prepared
-    from radiosity.solve import run_solve
+    from radiosity.stages.solve import run_solve
 
     run_dir = prepared(client, tmp_path, S, 8)
     r = cli(["image", run_dir])

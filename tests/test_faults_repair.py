@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from radiosity.cli import main
-from radiosity.plan import TSTART
-from radiosity.solve import run_solve
-from radiosity.store import RunStore, VisibilityStore
+from radiosity.cli.commands import main
+from radiosity.methods.pairs.plan import TSTART
+from radiosity.stages.solve import run_solve
+from radiosity.runtime.store import RunStore
+from radiosity.methods.pairs.store import VisibilityStore
 from conftest import prepared, radiance, scene_path
 
 

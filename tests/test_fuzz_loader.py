@@ -14,8 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from radiosity.errors import SceneError
-from radiosity.scene import load_scene
-from radiosity.types import Scene
+from radiosity.scene.load import load_scene
+from radiosity.core.bundles import Scene
 
 OBJ = b"""mtllib mesh.mtl
 v 0 0 0

@@ -10,15 +10,15 @@ import dask.config
 import numpy as np
 import pytest
 
-from radiosity.exact import differential_to_rectangle, pair_form_factors_exact
-from radiosity.hierarchy import decode, node_table, seen_originals, tree_nodes
-from radiosity.links import COUNTERS, LinkInputs, compute_links, refine_pairs, resolve_params
-from radiosity.linksolve import (LinkOperator, LocalLinkOperator, leaf_vectors,
+from radiosity.core.exact import differential_to_rectangle, pair_form_factors_exact
+from radiosity.scene.splittrees import decode, node_table, seen_originals, tree_nodes
+from radiosity.methods.hierarchical.links import COUNTERS, LinkInputs, compute_links, refine_pairs, resolve_params
+from radiosity.methods.hierarchical.operator import (LinkOperator, LocalLinkOperator, leaf_vectors,
                                   open_link_operator, run_solve_links, task_link_arrays)
-from radiosity.rays import RayCaster
-from radiosity.scene import load_scene
-from radiosity.store import RunStore
-from radiosity.subdivide import split_polygons, subdivide_scene
+from radiosity.tracing.rays import RayCaster
+from radiosity.scene.load import load_scene
+from radiosity.runtime.store import RunStore
+from radiosity.scene.subdivide import split_polygons, subdivide_scene
 from conftest import prepared, radiance, scene_path, write_scene
 
 ALL_PAIRS = {"radiosity.hierarchy.min-node-size": 1e9, "radiosity.hierarchy.weight": "none",
@@ -54,7 +54,7 @@ def test_epsilon_zero_with_one_ray_per_leaf_pair_equals_the_pairs_method(client,
     (--link-rays 1) is the pairs method's visibility; unseen originals are not split; near
     links use the contour integral (no Gauss shortcut). Then F L and the solver's solution
     equal --method pairs with the same kernel (near field and row caps included)."""
-    from radiosity.solve import open_operator, run_solve
+    from radiosity.stages.solve import open_operator, run_solve
 
     out = prepared(client, tmp_path, scene_path(scene), res)
     rs = RunStore(out)
@@ -421,7 +421,7 @@ def test_half_occluded_pair_gets_the_visible_fraction_within_one_ray(tmp_path, h
 def test_corrupted_link_task_is_detected_and_recomputed_on_resume(client, tmp_path):
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 12, visibility=False)
     fig = compute_links(out, client, progress=False)
-    from radiosity.store import links_path
+    from radiosity.methods.hierarchical.store import links_path
 
     store = os.path.join(out, "store.zarr")
     a = os.path.join(links_path(store), "0-links")
@@ -444,7 +444,7 @@ def test_corrupted_link_task_is_detected_and_recomputed_on_resume(client, tmp_pa
 def test_render_with_the_hierarchical_method_from_the_cli(client, tmp_path):
     from click.testing import CliRunner
 
-    from radiosity.cli import main
+    from radiosity.cli.commands import main
 
     addr = client.scheduler.address
     out = str(tmp_path / "run")
@@ -468,7 +468,7 @@ def test_dashboard_heat_map_shows_link_progress_then_links_per_pair():
     """While link tasks run the heat map is the fraction done per bin of original pairs; once
     all are done it is the links per pair on a log scale (the busiest bin 1, an empty bin -1
     on the page), titled with the total."""
-    from radiosity.monitor import link_heat
+    from radiosity.runtime.monitor import link_heat
 
     pairs = np.array([[0, 1], [0, 2], [1, 2]])
     first = np.array([0, 2, 3])  # task 0 holds pairs (0,1), (0,2); task 1 holds (1,2)
@@ -487,7 +487,7 @@ def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_pat
     is kept. `radiosity plan` prints the choice and the links it would keep."""
     from click.testing import CliRunner
 
-    from radiosity.cli import main
+    from radiosity.cli.commands import main
     from radiosity.settings import choose_method
 
     with dask.config.set({"radiosity.visibility.method": "auto",
@@ -512,7 +512,7 @@ def test_epsilon_auto_scales_with_the_raster_and_reaches_the_links(client, tmp_p
     leaf than the same epsilon would keep); a number is used as given; a bad value is one
     line. The run's report says which epsilon and why."""
     from radiosity.errors import RadiosityError
-    from radiosity.links import choose_epsilon
+    from radiosity.methods.hierarchical.links import choose_epsilon
 
     with dask.config.set({"radiosity.hierarchy.epsilon": "auto",
                           "radiosity.hierarchy.epsilon-base": 5e-4,
@@ -562,7 +562,7 @@ def test_far_links_gradient_in_the_final_gather_matches_exact_evaluation(client,
     polygon evaluations. Against the exact evaluations everywhere (FG_FAR = 0) on the Cornell
     box: far fewer evaluations, the same sub-element radiance to 0.05 % on average and 1.5 % at
     worst (the error of the method against Mitsuba is about 1 % on average)."""
-    import radiosity.linksolve as ls
+    import radiosity.methods.hierarchical.operator as ls
     from radiosity.pipeline import render_scene
 
     out = str(tmp_path / "cb")

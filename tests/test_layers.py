@@ -1,6 +1,7 @@
-"""The house keeps its layers: no import cycles (function-level imports included), imports only
-point down, low layers never touch a Dask client, and worker-side code never reads the
-configuration (every tunable is resolved on the driver and passed in)."""
+"""The house keeps its layers: the folders of `app/` are the layers, imports only point down
+(function-level imports included), sibling methods never import each other, no import cycles,
+low layers never touch a Dask client, and worker-side code never reads the configuration (every
+tunable is resolved on the driver and passed in)."""
 
 from __future__ import annotations
 
@@ -11,62 +12,101 @@ import pytest
 
 APP = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "app")
 
-# top to bottom; a module may import its own layer or lower ones
+# top to bottom, by folder (or top-level module); a module may import its own layer or lower ones
 LAYERS = [
     {"cli"},
-    {"pipeline", "study"},
-    {"preprocess", "visibility", "links", "solve", "linksolve", "render", "dashboard", "cluster",
-     "reference", "compare", "viewfactor"},
-    {"operator", "solvers", "runner", "monitor", "settings", "nearfield", "effects", "closure",
-     "enclosure", "preflight", "runlock", "faults"},
-    {"store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "scene", "camera", "rays",
-     "bvh", "vfkernels", "originals", "hierarchy"},
-    {"types", "geometry", "config", "errors"},
+    {"validation"},
+    {"pipeline"},
+    {"stages", "viewfactors"},
+    {"methods"},
+    {"runtime"},
+    {"scene"},
+    {"tracing"},
+    {"settings"},
+    {"core"},
+    {"config", "errors"},
 ]
-# modules whose code runs on workers (or is pure): no configuration, no Client
-WORKER_SIDE = {"bvh", "vfkernels", "store", "plan", "kernels", "passes", "shafts", "exact", "subdivide", "camera",
-               "rays", "types", "geometry", "errors", "originals", "hierarchy"}
+# folders whose code runs on workers (or is pure): no configuration, no Client
+WORKER_SIDE = ("core", "scene", "tracing")
+TOP_LEVEL_MAX = 5  # app/*.py, __init__ included
 
 
 def _modules() -> dict:
-    return {f[:-3]: os.path.join(APP, f) for f in os.listdir(APP)
-            if f.endswith(".py") and f != "__init__.py"}
+    """Dotted module name under `radiosity` -> path, for every module of the package."""
+    out = {}
+    for d, _, files in os.walk(APP):
+        for f in files:
+            if f.endswith(".py") and f not in ("__init__.py", "__main__.py"):
+                rel = os.path.relpath(os.path.join(d, f[:-3]), APP)
+                out[rel.replace(os.sep, ".")] = os.path.join(d, f)
+    return out
 
 
-def _imports(path: str) -> set:
-    """Modules of the package that `path` imports, anywhere in the file."""
+def _imports(name: str, path: str, mods: dict) -> set:
+    """Modules of the package that `path` (module `name`) imports, anywhere in the file."""
     out = set()
+    pkg = name.split(".")[:-1]
     for node in ast.walk(ast.parse(open(path).read())):
         if isinstance(node, ast.ImportFrom):
-            mod = node.module or ""
-            if node.level == 1:
-                out.update([mod.split(".")[0]] if mod else [a.name for a in node.names])
-            elif mod.split(".")[0] == "radiosity":
-                parts = mod.split(".")
-                out.update([parts[1]] if len(parts) > 1 else [a.name for a in node.names])
-    return out
+            if node.level:
+                base = pkg[:len(pkg) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            elif (node.module or "").split(".")[0] == "radiosity":
+                mod = node.module[len("radiosity."):] if "." in node.module else ""
+            else:
+                continue
+            for a in node.names:
+                sub = f"{mod}.{a.name}" if mod else a.name
+                out.add(sub if sub in mods else mod)
+        elif isinstance(node, ast.Import):
+            out.update(a.name[len("radiosity."):] for a in node.names
+                       if a.name.startswith("radiosity."))
+    return {m for m in out if m in mods}
+
+
+def _room(mod: str) -> str:
+    return mod.split(".")[0]
 
 
 def _layer(mod: str) -> int:
     for i, layer in enumerate(LAYERS):
-        if mod in layer:
+        if _room(mod) in layer:
             return i
-    raise AssertionError(f"app/{mod}.py is in no layer: add it to LAYERS in tests/test_layers.py")
+    raise AssertionError(f"app/{_room(mod)} is in no layer: add it to LAYERS in tests/test_layers.py")
+
+
+def test_top_level_holds_few_modules():
+    top = sorted(f for f in os.listdir(APP) if f.endswith(".py"))
+    assert len(top) <= TOP_LEVEL_MAX, top
 
 
 def test_every_module_has_a_layer_and_imports_point_down():
     mods = _modules()
     bad = []
     for m, path in mods.items():
-        for d in _imports(path) & set(mods):
-            if d != m and _layer(d) < _layer(m):
+        for d in _imports(m, path, mods):
+            if _layer(d) < _layer(m):
                 bad.append(f"{m} (layer {_layer(m)}) imports {d} (layer {_layer(d)})")
+    assert not bad, "\n".join(bad)
+
+
+def test_methods_do_not_import_each_other():
+    """Each method folder stands on methods/base and the layers below, never on a sibling."""
+    mods = _modules()
+    bad = []
+    for m, path in mods.items():
+        parts = m.split(".")
+        if parts[0] == "methods" and len(parts) > 2:
+            for d in _imports(m, path, mods):
+                dp = d.split(".")
+                if dp[0] == "methods" and len(dp) > 2 and dp[1] != parts[1]:
+                    bad.append(f"{m} imports {d}")
     assert not bad, "\n".join(bad)
 
 
 def test_no_import_cycles():
     mods = _modules()
-    graph = {m: _imports(p) & set(mods) - {m} for m, p in mods.items()}
+    graph = {m: _imports(m, p, mods) - {m} for m, p in mods.items()}
     state, stack, cycles = {}, [], []
 
     def visit(u):
@@ -91,15 +131,11 @@ def _names(node) -> set:
         {n.attr for n in ast.walk(node) if isinstance(n, ast.Attribute)}
 
 
-@pytest.mark.parametrize("mod", sorted(WORKER_SIDE))
+@pytest.mark.parametrize("mod", sorted(m for m in _modules() if _room(m) in WORKER_SIDE))
 def test_worker_side_modules_read_no_configuration_and_use_no_client(mod):
-    path = os.path.join(APP, f"{mod}.py")
-    tree = ast.parse(open(path).read())
-    reads = [n for n in ast.walk(tree) if isinstance(n, ast.Attribute) and n.attr == "get"
-             and isinstance(n.value, ast.Name) and n.value.id == "config"]
-    reads += [a for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module == "config"
-              for a in n.names if a.name == "get"]
-    assert not reads, f"app/{mod}.py reads config.get: resolve the value on the driver"
+    tree = ast.parse(open(_modules()[mod]).read())
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
+    assert "config" not in imported, f"{mod} imports config: resolve the value on the driver"
     dask_dist = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module} | \
         {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     assert not any(d.startswith("distributed") or d == "dask.distributed" for d in dask_dist), mod
@@ -113,17 +149,23 @@ def test_task_functions_read_no_configuration():
             if isinstance(node, ast.FunctionDef) and node.name.startswith("task_"):
                 found += 1
                 assert "config" not in _names(node), f"{m}.{node.name} reads the configuration"
-                assert "get" not in {n.attr for n in ast.walk(node) if isinstance(n, ast.Attribute)
-                                     and isinstance(n.value, ast.Name) and n.value.id == "config"}
     assert found >= 6  # raster, subdivide, seed subscene, visibility, apply, gs sweep
 
 
-def test_readme_layout_names_every_module():
-    """The README's layout table is the map a newcomer reads: every module is on it."""
+def test_no_module_is_named_after_the_standard_library():
+    import sys
+
+    bad = [m for m in _modules() if m.split(".")[-1] in sys.stdlib_module_names]
+    assert not bad, bad
+
+
+def test_readme_layout_names_every_folder():
+    """The README's layout is the map a newcomer reads: every folder is on it."""
     readme = open(os.path.join(os.path.dirname(APP), "README.md")).read()
     section = readme[readme.index("## Layout"):]
     section = section[:section.index("\n## ", 5)] if "\n## " in section[5:] else section
-    missing = [m for m in _modules() if f"`{m}`" not in section]
+    rooms = {_room(m) for m in _modules() if "." in m}
+    missing = sorted(r for r in rooms if f"{r}/" not in section)
     assert not missing, f"README's Layout misses {missing}"
 
 

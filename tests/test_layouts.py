@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 import naive
-from radiosity.plan import I, J
-from radiosity.solve import run_solve
-from radiosity.store import RunStore, VisibilityStore
-from radiosity.visibility import compute_visibility
+from radiosity.methods.pairs.plan import I, J
+from radiosity.stages.solve import run_solve
+from radiosity.runtime.store import RunStore
+from radiosity.methods.pairs.store import VisibilityStore
+from radiosity.methods.pairs.visibility import compute_visibility
 from conftest import prepared, radiance, scene_path
 
 

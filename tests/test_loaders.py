@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from radiosity.scene import SceneWarning, load_scene
+from radiosity.scene.load import SceneWarning, load_scene
 from conftest import prepared, radiance, write_scene
 
 CAMERA = ('[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nup = [0, 1, 0]\nfov_y = 60\n'
@@ -136,11 +136,11 @@ def test_back_emission_of_two_sided_elements(client, tmp_path):
     np.testing.assert_array_equal(el.emission[panel], [[0, 0, 0], [5, 4, 3]])
     np.testing.assert_array_equal(el.emission[twin], [[1, 1, 1], [1, 1, 1]])  # back = front
     assert el.normal[panel] @ [0, 1, 0] > 0.99  # the front faces up: its back faces the floor
-    from radiosity.solve import run_solve
+    from radiosity.stages.solve import run_solve
 
     out = prepared(client, tmp_path, path, 12)
     run_solve(out, client, tol=1e-10, progress=False)
-    from radiosity.store import RunStore
+    from radiosity.runtime.store import RunStore
 
     part = RunStore(out).load_partition()
     L = radiance(out)

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 import naive
-from radiosity.operator import BoundedCache, DaskOperator, LocalOperator, open_operator
-from radiosity.passes import CAP_MIN
-from radiosity.solve import normalise_rows, side_vectors
-from radiosity.solvers import SOLVERS
-from radiosity.store import RunStore
+from radiosity.methods.pairs.operator import BoundedCache, DaskOperator, LocalOperator, open_operator
+from radiosity.methods.pairs.passes import CAP_MIN
+from radiosity.stages.solve import normalise_rows, side_vectors
+from radiosity.core.solvers import SOLVERS
+from radiosity.runtime.store import RunStore
 from conftest import prepared, scene_path
 
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from conftest import scene_path
-from radiosity.effects import _behind
-from radiosity.originals import (FacingPairsError, behind_any, build_tree, check_budget,
+from radiosity.scene.effects import _behind
+from radiosity.scene.originals import (FacingPairsError, behind_any, build_tree, check_budget,
                                  estimate_facing_pairs, facing_pairs, tree_of)
-from radiosity.plan import facing_blocks, make_plan
-from radiosity.scene import load_scene
+from radiosity.methods.pairs.plan import facing_blocks, make_plan
+from radiosity.scene.load import load_scene
 
 
 def dense_pairs(v, nv, nrm, c, ts):
@@ -134,7 +134,7 @@ def test_a_scene_beyond_the_pair_budget_is_refused_up_front_in_one_line(tmp_path
     import dask.config
     from click.testing import CliRunner
 
-    from radiosity.cli import main
+    from radiosity.cli.commands import main
 
     el = load_scene(scene_path("furnace-sphere")).elements  # 320 elements, 51 040 facing pairs
     with pytest.raises(FacingPairsError, match=r"about 5.1e\+04 pairs of its 320 original elements"):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from radiosity.rays import RayCaster
+from radiosity.tracing.rays import RayCaster
 
 # a unit quad at z = 1 (facing -z) and a small occluding triangle at z = 0.5
 VERTS = np.array([[[0, 0, 1], [0, 1, 1], [1, 1, 1], [1, 0, 1]],

@@ -44,7 +44,7 @@ def mitsuba():
         if os.environ.get("CI"):
             pytest.fail(f"{msg}; CI must run the Mitsuba tests")
         pytest.skip(msg)
-    from radiosity.reference import load_mitsuba
+    from radiosity.validation.reference import load_mitsuba
 
     return load_mitsuba(echo=print)
 
@@ -52,7 +52,7 @@ def mitsuba():
 def _scene(name, res=None):
     import warnings
 
-    from radiosity.scene import load_scene
+    from radiosity.scene.load import load_scene
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -60,7 +60,7 @@ def _scene(name, res=None):
 
 
 def _render(mitsuba, sc, spp, passes, seed=0):
-    from radiosity.reference import mitsuba_scene, path_depth, render_passes
+    from radiosity.validation.reference import mitsuba_scene, path_depth, render_passes
 
     mi, _ = mitsuba
     msc, _ = mitsuba_scene(sc, path_depth(sc)[0], mi=mi)
@@ -89,8 +89,8 @@ def _camera_scenes(tmp_path):
 
 
 def test_pixel_rays_agree_with_the_engine(mitsuba, tmp_path):
-    from radiosity.camera import pixel_directions
-    from radiosity.reference import mitsuba_scene
+    from radiosity.core.camera import pixel_directions
+    from radiosity.validation.reference import mitsuba_scene
 
     mi, variant = mitsuba
     scenes = _camera_scenes(tmp_path)
@@ -121,7 +121,7 @@ def test_pixel_rays_agree_with_the_engine(mitsuba, tmp_path):
 
 
 def test_non_square_pixels_are_refused(mitsuba, tmp_path):
-    from radiosity.reference import ReferenceError, sensor_dict
+    from radiosity.validation.reference import ReferenceError, sensor_dict
     from conftest import FLOOR_AND_TRIANGLE
 
     p = write_scene(tmp_path, FLOOR_AND_TRIANGLE, camera=SEED_CAMERA.replace("[20, 20]", "[32, 16]"))
@@ -130,7 +130,7 @@ def test_non_square_pixels_are_refused(mitsuba, tmp_path):
 
 
 def test_path_depth_bounds_the_truncation():
-    from radiosity.reference import path_depth
+    from radiosity.validation.reference import path_depth
 
     d, rho = path_depth(_scene("cornell-box", 8))
     assert rho == 0.78 and d == 56 and 0.78 ** d <= 1e-6 < 0.78 ** (d - 1)
@@ -155,7 +155,7 @@ def test_furnace_converges_to_le_over_one_minus_rho(mitsuba):
 
 
 def test_parallel_squares_form_factor(mitsuba):
-    from radiosity.reference import form_factor
+    from radiosity.validation.reference import form_factor
 
     sc = _scene("parallel-squares")
     exact = sc.validation["form_factor"]
@@ -230,9 +230,9 @@ def test_two_sided_lamp_from_behind_equals_the_one_sided_lamp(mitsuba, tmp_path)
 def test_cornell_box_walls_agree_with_radiosity(mitsuba, client, tmp_path):
     import warnings
 
-    from radiosity.compare import element_raster, interior
+    from radiosity.validation.compare import element_raster, interior
     from radiosity.pipeline import render_scene
-    from radiosity.render import read_exr
+    from radiosity.stages.image import read_exr
 
     sc = _scene("cornell-box", 32)
     import dask.config
@@ -273,8 +273,8 @@ def test_cornell_box_walls_agree_with_radiosity(mitsuba, client, tmp_path):
 # ----------------------------------------------------------------------------- the command
 
 def test_reference_command(mitsuba, tmp_path):
-    from radiosity.cli import main
-    from radiosity.render import read_exr
+    from radiosity.cli.commands import main
+    from radiosity.stages.image import read_exr
 
     out = tmp_path / "ref"
     r = CliRunner().invoke(main, ["reference", scene_path("furnace-cube"), "--out", str(out),
@@ -306,8 +306,8 @@ def test_without_llvm_it_falls_back_to_scalar_and_says_so(mitsuba, tmp_path):
 
 
 def test_without_mitsuba_the_command_says_how_to_install(monkeypatch, tmp_path):
-    from radiosity import reference
-    from radiosity.cli import main
+    from radiosity.validation import reference
+    from radiosity.cli.commands import main
 
     monkeypatch.setattr(reference, "_LOADED", {})
     monkeypatch.setitem(sys.modules, "mitsuba", None)  # import mitsuba raises ImportError
@@ -318,7 +318,7 @@ def test_without_mitsuba_the_command_says_how_to_install(monkeypatch, tmp_path):
 
 
 def test_find_libllvm_takes_the_newest_recent_one(monkeypatch, tmp_path):
-    from radiosity import reference
+    from radiosity.validation import reference
 
     for name in ("libLLVM-14.so.1", "libLLVM-15.so", "libLLVM.so.19.1", "libLLVM-17.so", "libLLVMCore.a"):
         (tmp_path / name).write_bytes(b"")
@@ -332,10 +332,10 @@ def test_find_libllvm_takes_the_newest_recent_one(monkeypatch, tmp_path):
 def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
     import csv
 
-    from radiosity.cli import main
-    from radiosity.compare import element_raster, errors, interior
-    from radiosity.render import read_exr
-    from radiosity.study import accuracy, image_error
+    from radiosity.cli.commands import main
+    from radiosity.validation.compare import element_raster, errors, interior
+    from radiosity.stages.image import read_exr
+    from radiosity.validation.study import accuracy, image_error
 
     out = tmp_path / "st"
     args = ["study", "accuracy", scene_path("cornell-box"), "--out", str(out), "--resolutions", "12,24",
@@ -365,7 +365,7 @@ def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
     md = (out / "results.md").read_text()
     assert "path tracer, 16 spp" in md and "reference's own noise" in md
     # a second study reuses the reference (same scene file, camera, spp and passes)
-    from radiosity.reference import reference_at
+    from radiosity.validation.reference import reference_at
 
     said = []
     again, _, fig = reference_at(_scene("cornell-box", 24), str(out / "reference" / "r24"), 256, 8, said.append)
@@ -383,7 +383,7 @@ def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
 
 
 def test_render_calls_split_into_equal_chunks():
-    from radiosity.reference import _chunks
+    from radiosity.validation.reference import _chunks
 
     assert _chunks(32, 128 * 128, 4_194_304) == [32]
     assert _chunks(2048, 64 * 64, 4_194_304) == [1024, 1024]
@@ -403,9 +403,9 @@ def test_hidden_sub_elements_are_split_on_demand_so_the_tall_block_face_is_right
     unseen originals, and the face agrees with Mitsuba; without, it comes out about 5 % dark."""
     import dask.config
 
-    from radiosity.compare import element_raster, interior
+    from radiosity.validation.compare import element_raster, interior
     from radiosity.pipeline import render_scene
-    from radiosity.render import read_exr
+    from radiosity.stages.image import read_exr
 
     sc = _scene("cornell-box", 64)  # measured: -1.2 % with, -5.3 % without (48^2: -1.1, -3.8)
     m, se = _render(mitsuba, sc, 512, 4)
@@ -434,9 +434,9 @@ def test_cornell_box_inside_with_no_options_against_mitsuba(mitsuba, client, tmp
     (pairs, unseen elements kept whole) is off by more than 3.5 % there (measured 4.2 %)."""
     import dask.config
 
-    from radiosity.compare import element_raster, interior
+    from radiosity.validation.compare import element_raster, interior
     from radiosity.pipeline import render_scene
-    from radiosity.render import read_exr
+    from radiosity.stages.image import read_exr
 
     lum = np.array([0.2126, 0.7152, 0.0722])
     sc = _scene("cornell-box-inside", 48)

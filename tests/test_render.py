@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from radiosity import render
-from radiosity.preprocess import preprocess
-from radiosity.scene import load_scene
-from radiosity.store import RunStore
+from radiosity.stages import image as render
+from radiosity.stages.preprocess import preprocess
+from radiosity.scene.load import load_scene
+from radiosity.runtime.store import RunStore
 from conftest import CHROMIUM, scene_path, write_scene
 
 # Three vertical unit panels in the plane z = 0, the camera in front at z = -3 looking +z.

@@ -11,14 +11,15 @@ import pytest
 from click.testing import CliRunner
 
 import naive
-from radiosity.cli import main
+from radiosity.cli.commands import main
 from radiosity.errors import RadiosityError, StoreError
-from radiosity.kernels import Sampling, sample_points
+from radiosity.core.kernels import Sampling, sample_points
 from radiosity.settings import sampling_of
-from radiosity.operator import open_operator
-from radiosity.solve import run_solve
-from radiosity.store import RunStore, VisibilityStore, read_partial
-from radiosity.visibility import compute_visibility
+from radiosity.methods.pairs.operator import open_operator
+from radiosity.stages.solve import run_solve
+from radiosity.runtime.store import RunStore
+from radiosity.methods.pairs.store import VisibilityStore, read_partial
+from radiosity.methods.pairs.visibility import compute_visibility
 from conftest import prepared, scene_path
 
 
@@ -47,7 +48,7 @@ def _inside(p, verts, nv):
 
 @pytest.mark.parametrize("n", [1, 4, 9, 16])
 def test_nxm_points_are_cell_centres_with_area_weights(rng, n):
-    from radiosity.geometry import polygon_properties
+    from radiosity.core.geometry import polygon_properties
 
     v, nv = _polys(rng)
     _, _, centre = polygon_properties(v, nv)
@@ -65,7 +66,7 @@ def test_nxm_points_are_cell_centres_with_area_weights(rng, n):
 
 
 def test_mc_points_are_seeded_uniform_samples(rng):
-    from radiosity.geometry import polygon_properties
+    from radiosity.core.geometry import polygon_properties
 
     v, nv = _polys(rng)
     _, _, centre = polygon_properties(v, nv)
@@ -205,7 +206,7 @@ def test_render_with_the_nxm_kernel_from_the_cli(client, tmp_path):
 
 
 def test_study_sweeps_sample_counts(client, tmp_path):
-    from radiosity.study import accuracy, kernel_setting
+    from radiosity.validation.study import accuracy, kernel_setting
 
     assert kernel_setting("nxm:16") == ("nxm", {"radiosity.solve.nxm-points": 16})
     assert kernel_setting("point") == ("point", {})

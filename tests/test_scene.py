@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from radiosity.errors import SceneError
-from radiosity.scene import SceneWarning, load_scene, merge_parallelograms, parse_camera
+from radiosity.scene.load import SceneWarning, load_scene, merge_parallelograms, parse_camera
 from conftest import FLOOR_AND_TRIANGLE, write_scene
 
 QUAD = """
@@ -149,7 +149,7 @@ def test_both_camera_forms_agree():
                       "resolution": [16, 16]}, "x.toml")
     b = parse_camera({"center": [0, 0, 0], "x": a.x.tolist(), "y": [0, 1, 0], "z": [0, 0, 1],
                       "focal_distance": 1.0, "resolution": [16, 16]}, "x.toml")
-    from radiosity.camera import pixel_directions
+    from radiosity.core.camera import pixel_directions
     np.testing.assert_allclose(pixel_directions(a), pixel_directions(b), atol=1e-12)
 
 
@@ -210,7 +210,7 @@ def test_missing_unreadable_and_unknown_files(tmp_path):
 
 
 def test_camera_that_sees_nothing(tmp_path, client):
-    from radiosity.preprocess import preprocess
+    from radiosity.stages.preprocess import preprocess
 
     cam = CAM.replace("look_at = [0.5, 0.0, 0.5]", "look_at = [0.5, 4.0, -5.0]")
     sc = load_scene(write_scene(tmp_path, FLOOR_AND_TRIANGLE, camera=cam))

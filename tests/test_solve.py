@@ -7,12 +7,12 @@ import pytest
 
 import naive
 from radiosity.errors import RadiosityError
-from radiosity.kernels import pair_form_factors
-from radiosity.operator import open_operator
-from radiosity.solve import run_solve, side_vectors
-from radiosity.solvers import SOLVERS
-from radiosity.store import RunStore
-from radiosity.visibility import dense_visibility
+from radiosity.core.kernels import pair_form_factors
+from radiosity.methods.pairs.operator import open_operator
+from radiosity.stages.solve import run_solve, side_vectors
+from radiosity.core.solvers import SOLVERS
+from radiosity.runtime.store import RunStore
+from radiosity.methods.pairs.visibility import dense_visibility
 from conftest import prepared, radiance, scene_path, write_scene
 
 ALL = list(SOLVERS)
@@ -117,7 +117,7 @@ def test_energy_balance_in_an_open_scene_by_monte_carlo(client, tmp_path):
     Measured at 16^2 (339 sub-elements, 4096 rays per sub-element): -0.12 % with point-nf
     (point -0.03 %, disc -0.09 %: the discretisation), seed-to-seed spread 1.5e-5. Bound:
     2.5e-3, twice the discretisation error."""
-    from radiosity.passes import CAP_PRODUCT
+    from radiosity.methods.pairs.passes import CAP_PRODUCT
 
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 16)
     fig = run_solve(out, client, tol=1e-10, progress=False)  # the defaults: point-nf, cg

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from radiosity.camera import pixel_directions, project
-from radiosity.geometry import polygon_properties
-from radiosity.plan import subscene_ranges
-from radiosity.preprocess import preprocess
-from radiosity.scene import load_scene
-from radiosity.store import RunStore
-from radiosity.subdivide import lookup, split_polygons, subdivide, subdivide_scene
-from radiosity.types import Camera, Scene
+from radiosity.core.camera import pixel_directions, project
+from radiosity.core.geometry import polygon_properties
+from radiosity.methods.pairs.plan import subscene_ranges
+from radiosity.stages.preprocess import preprocess
+from radiosity.scene.load import load_scene
+from radiosity.runtime.store import RunStore
+from radiosity.scene.subdivide import lookup, split_polygons, subdivide, subdivide_scene
+from radiosity.core.bundles import Camera, Scene
 from conftest import scene_path
 
 
@@ -108,7 +108,7 @@ def test_any_point_set_ends_with_at_most_one_point_per_leaf(p):
 
 
 def test_depth_guard_warns(recwarn):
-    from radiosity.subdivide import DepthGuardWarning, warn_depth_guard
+    from radiosity.scene.subdivide import DepthGuardWarning, warn_depth_guard
 
     verts = np.array([[[0, 0, 0], [0, 0, 1], [1, 0, 1], [1, 0, 0]]], float)
     pts = np.array([[0.3, 0, 0.3], [0.3 + 1e-13, 0, 0.3]])
@@ -184,7 +184,7 @@ def test_pixel_directions_invert_projection():
 
 
 def test_numba_camera_rays_match_the_numpy_reference():
-    from radiosity.camera import ray_directions32
+    from radiosity.core.camera import ray_directions32
 
     sc = load_scene(scene_path("cornell-box"), resolution=[12, 7])
     d = ray_directions32(sc.camera, 2, 3, 9)

@@ -18,10 +18,10 @@ import pytest
 import scipy.sparse as sp
 from click.testing import CliRunner
 
-from radiosity.cli import main
-from radiosity.exact import (coaxial_discs, pair_form_factors_exact, parallel_rectangles,
+from radiosity.cli.commands import main
+from radiosity.core.exact import (coaxial_discs, pair_form_factors_exact, parallel_rectangles,
                        perpendicular_rectangles, polygon_form_factor)
-from radiosity.viewfactor import compute_viewfactors, load_facets
+from radiosity.viewfactors.api import compute_viewfactors, load_facets
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -132,7 +132,7 @@ def test_half_blocked_squares_against_brute_force_monte_carlo(client, tmp_path):
     is blocked iff its midpoint has x < 0, and the reflection x -> -x maps the blocked pairs onto
     the visible ones with the same kernel: exactly half of F is blocked. Brute force: 2e6
     uniform point pairs, one Embree ray each. Tolerance: the accuracy plus 4 standard errors."""
-    from radiosity.rays import RayCaster
+    from radiosity.tracing.rays import RayCaster
 
     blocker = [[-3, -3, 0.5], [0, -3, 0.5], [0, 3, 0.5], [-3, 3, 0.5]]
     V, Fc = mesh_of(square(0.0), square(1.0, up=False), blocker)
@@ -161,7 +161,7 @@ def _naive(fac, pairs_per=4096, seed=3):
     """Reference without shafts, trees or levels: every pair's exact unobstructed factor (front
     sides) times its visible fraction from `pairs_per` uniform random point pairs, one Embree
     ray each, weighted by the kernel; and its standard error. Dense (n, n)."""
-    from radiosity.rays import RayCaster
+    from radiosity.tracing.rays import RayCaster
 
     n = len(fac)
     rng = np.random.default_rng(seed)
@@ -247,8 +247,8 @@ def test_cheap_kernel_is_within_its_proven_bound(rng):
     """Far pairs of random triangles, parallelograms and other convex quads: the degree-5 product
     rule is within its bound (*) of an independent reference (the same rule on 16 sub-triangles
     of each triangle: its error is 4^-6 of the single rule's), and the bound is not vacuous."""
-    from radiosity.geometry import polygon_properties
-    from radiosity.vfkernels import _TRI5, cheap_ff, facet_quadrature, second_moments
+    from radiosity.core.geometry import polygon_properties
+    from radiosity.viewfactors.loops import _TRI5, cheap_ff, facet_quadrature, second_moments
 
     def poly(kind):
         n = rng.normal(size=3)
@@ -333,8 +333,8 @@ def test_facets_load_as_the_scene_loader_would(recwarn):
     """The whole-array loader gives polygons_from_raw(merge=False)'s facets for valid meshes, and
     hands any other mesh to it (repairs with a warning; errors name the face)."""
     from radiosity.errors import SceneError
-    from radiosity.scene import RawMesh, polygons_from_raw
-    from radiosity.viewfactor import _polygons
+    from radiosity.scene.load import RawMesh, polygons_from_raw
+    from radiosity.viewfactors.api import _polygons
 
     rng = np.random.default_rng(4)
     for V, F in (box([0, 0, 0], [1, 2, 3], 3), _random_scene(rng)):
@@ -368,8 +368,8 @@ def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
     lost = F0 - F1
     assert (lost >= 0).all() and lost[:8, :8].max() == 0           # near pairs untouched
     assert lost[:4, 8:].min() > 0                                  # the floor no longer sees the far group
-    from radiosity.store import RunStore
-    from radiosity.viewfactor import assemble, make_inputs
+    from radiosity.runtime.store import RunStore
+    from radiosity.viewfactors.api import assemble, make_inputs
 
     fac = load_facets(mesh)
     tree, _ = make_inputs(fac, 4)
@@ -384,8 +384,8 @@ def test_tree_and_task_plan_cover_every_facet_once(rng):
     """The facet tree's leaves tile the facets, node boxes hold their facets, every facet normal
     lies in its nodes' cones; the task plan takes every leaf once, in order, within the pair
     budget (a single leaf may exceed it), with at least the requested number of tasks."""
-    from radiosity.bvh import build_tree
-    from radiosity.viewfactor import plan_tasks
+    from radiosity.viewfactors.bvh import build_tree
+    from radiosity.viewfactors.api import plan_tasks
 
     n = 3000
     center = rng.random((n, 3)) * [100, 100, 20]
@@ -416,8 +416,8 @@ def test_jittered_points_lie_on_their_facets_and_integrate(rng):
     integrate 1, x and x^2 over the facet to the stratified-sampling accuracy (the trapezoid's
     weights are the bilinear map's Jacobian), and the same (seed, facet, level) gives the same
     points."""
-    from radiosity.geometry import polygon_properties
-    from radiosity.vfkernels import sample_facets
+    from radiosity.core.geometry import polygon_properties
+    from radiosity.viewfactors.loops import sample_facets
 
     tri = [[0, 0, 0], [2, 0, 0], [0.5, 1.5, 0], [0.5, 1.5, 0]]
     trap = [[0, 0, 0], [3, 0, 0], [2, 1, 0], [1, 1, 0]]
@@ -550,7 +550,7 @@ def test_cli_end_to_end_npz_and_csv(client, tmp_path):
     # the Python API gives the same matrix
     import radiosity
 
-    A = radiosity.viewfactors(obj, client=client, accuracy=1e-3)
+    A = radiosity.view_factors(obj, client=client, accuracy=1e-3)
     assert isinstance(A, sp.csr_matrix) and np.allclose(A.toarray(), M.toarray(), rtol=0, atol=1e-15)
 
 

@@ -12,12 +12,13 @@ from hypothesis import given, settings, strategies as st
 
 import naive
 from radiosity.errors import StoreError
-from radiosity.preprocess import preprocess
-from radiosity.plan import END, FIRST, NBYTES, START, TBYTES, TSTART, choose_chunk, make_plan
-from radiosity.scene import load_scene
-from radiosity.store import RunStore, VisibilityStore
-from radiosity.shafts import _shaft_excludes
-from radiosity.visibility import compute_visibility, dense_visibility
+from radiosity.stages.preprocess import preprocess
+from radiosity.methods.pairs.plan import END, FIRST, NBYTES, START, TBYTES, TSTART, choose_chunk, make_plan
+from radiosity.scene.load import load_scene
+from radiosity.runtime.store import RunStore
+from radiosity.methods.pairs.store import VisibilityStore
+from radiosity.tracing.shafts import _shaft_excludes
+from radiosity.methods.pairs.visibility import compute_visibility, dense_visibility
 from conftest import scene_path
 
 

@@ -30,8 +30,8 @@ def main(names):
     from distributed import Client, LocalCluster
     from click.testing import CliRunner
 
-    from radiosity.cli import main as cli
-    from radiosity.render import read_exr
+    from radiosity.cli.commands import main as cli
+    from radiosity.stages.image import read_exr
 
     meta_fn = os.path.join(HERE, "references.json")
     meta = json.load(open(meta_fn)) if os.path.exists(meta_fn) else {}

@@ -1,0 +1,1 @@
+"""The `radiosity` command: options, subcommands and the summary they print."""

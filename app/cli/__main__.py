@@ -1,0 +1,5 @@
+"""`python -m radiosity.cli` runs the command line, as the `radiosity` script does."""
+
+from radiosity.cli.commands import main
+
+main()

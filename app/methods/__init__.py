@@ -1,0 +1,2 @@
+"""Transport methods behind one seam: `base` holds the protocol and the registry; each method
+lives in its own folder (pairs: the seed's all-pairs bits; hierarchical: links on split trees)."""

@@ -1,0 +1,146 @@
+"""The hierarchical method's part of the run store: links and split-off nodes per link task,
+the task plan, the manifest, and the node table.
+ (--method hierarchical, links.py). Per link task, in group `links/`:
+   <task>-links  (k,) LINK_DTYPE, 46 bytes a link: both nodes as (original, heap code; see
+                 hierarchy.py), F_pq, F_qp (unoccluded form factors, p -> q and q -> p), the
+                 visible fraction v and the sides sp, sq (0 front, 1 back) that face
+   <task>-nodes  (j,) NODE_DTYPE: the nodes the task split below the camera's partition (12 bytes each)
+ one array each per task (so a task writes only its own chunks), checked by a crc32 over both in
+ RUN_DIR/links.manifest.jsonl (first line: the plan token; then one line per finished task).
+ Group `hierarchy/`: the node table of the union tree and the leaves (hierarchy.NodeTable).
+"""
+
+from __future__ import annotations
+
+import os
+import zlib
+
+import numpy as np
+
+from radiosity.errors import StoreError
+from radiosity.runtime.store import Manifest, RunStore, chunks_of, create_array, record_compressors, zarr_module
+
+LINK_DTYPE = np.dtype([("po", "<i4"), ("pc", "<u8"), ("qo", "<i4"), ("qc", "<u8"),
+                       ("fpq", "<f8"), ("fqp", "<f8"), ("v", "<f4"), ("sp", "i1"), ("sq", "i1")])
+NODE_DTYPE = np.dtype([("o", "<i4"), ("c", "<u8")])
+LINKS_MANIFEST = "links.manifest.jsonl"
+
+
+def links_path(store_path: str) -> str:
+    return os.path.join(store_path, "links")
+
+
+def _links_crc(links: np.ndarray, nodes: np.ndarray) -> int:
+    return zlib.crc32(np.ascontiguousarray(nodes).view(np.uint8).tobytes(),
+                      zlib.crc32(np.ascontiguousarray(links).view(np.uint8).tobytes()))
+
+
+def write_links(store_path: str, task: int, links: np.ndarray, nodes: np.ndarray) -> dict:
+    """Write one link task's links (k,) LINK_DTYPE and split-off nodes (j,) NODE_DTYPE (called
+    on the workers); returns {crc, n, nx} for the manifest."""
+    links = np.ascontiguousarray(links, LINK_DTYPE)
+    nodes = np.ascontiguousarray(nodes, NODE_DTYPE)
+    zarr = zarr_module()
+    g = zarr.open_group(links_path(store_path), mode="r+")
+    for name, a in (("links", links), ("nodes", nodes)):
+        if name == "nodes" and not len(a):  # most tasks split nothing off: no array (15 ms)
+            continue
+        raw = a.view(np.uint8).reshape(-1)
+        g.create_array(f"{task}-{name}", data=raw, chunks=chunks_of(raw) if len(raw) else (1,),
+                       overwrite=True, compressors=record_compressors(a.dtype.itemsize))
+    return {"crc": _links_crc(links, nodes), "n": int(len(links)), "nx": int(len(nodes))}
+
+
+def read_links(store_path: str, task: int, entry: dict):
+    """One link task's (links (k,) LINK_DTYPE, nodes (j,) NODE_DTYPE), checked against its
+    manifest entry {crc, n, nx}; a missing or altered task raises StoreError. Called on the
+    workers."""
+    zarr = zarr_module()
+    links = nodes = None
+    try:
+        g = zarr.open_group(links_path(store_path), mode="r")
+        links = np.ascontiguousarray(g[f"{task}-links"][...]).view(LINK_DTYPE)
+        nodes = (np.ascontiguousarray(g[f"{task}-nodes"][...]).view(NODE_DTYPE) if entry["nx"]
+                 else np.zeros(0, NODE_DTYPE))
+    except Exception:  # missing, unreadable, or of a length that is no whole record
+        pass
+    if links is None or len(links) != entry["n"] or len(nodes) != entry["nx"] \
+            or _links_crc(links, nodes) != entry["crc"]:
+        run_dir = os.path.dirname(store_path)
+        raise StoreError(f"link task {task} of {run_dir} is missing or corrupted (checksum): run "
+                         f"radiosity visibility {run_dir} --method hierarchical --resume")
+    return links, nodes
+
+
+class LinkStore:
+    """The links group of a run store: the task plan (pairs of originals per task), the links
+    of each task, the manifest, and the node table (group hierarchy)."""
+
+    def __init__(self, rs: RunStore):
+        self.rs = rs
+        self.manifest = os.path.join(rs.run_dir, LINKS_MANIFEST)
+
+    def create(self, pairs: np.ndarray, first: np.ndarray, token: str, attrs: dict) -> None:
+        """A fresh links group for tasks over `pairs` (t, 2) int64 [I, J]; task k holds pairs
+        first[k]:first[k + 1]. Drops old links, node table, solution and manifest."""
+        root = self.rs.root
+        for g in ("links", "hierarchy", "solution"):
+            if g in root:
+                del root[g]
+        g = root.create_group("links")
+        for name, a in (("pairs", pairs), ("first", first)):
+            a = np.ascontiguousarray(a, np.int64)
+            create_array(g, name, data=a, chunks=chunks_of(a) if a.size else a.shape or (1,))
+        g.update_attributes({"token": token, **attrs})
+        Manifest(self.manifest).create(token)
+
+    def token(self) -> str | None:
+        if "links" not in self.rs.root:
+            return None
+        return self.rs.root["links"].attrs.get("token")
+
+    def attrs(self) -> dict:
+        return dict(self.rs.root["links"].attrs)
+
+    def plan(self):
+        """(pairs (t, 2) int64, first (k + 1,) int64) of the stored task plan."""
+        g = self.rs.root["links"]
+        return g["pairs"][...], g["first"][...]
+
+    @staticmethod
+    def _line(task: int, e: dict) -> dict:
+        return {"task": int(task), "crc": int(e["crc"]), "n": int(e["n"]), "nx": int(e["nx"]),
+                "counts": [int(c) for c in e["counts"]]}
+
+    def record(self, task: int, result: dict) -> None:
+        """Append one finished task to the manifest (the master is its only writer)."""
+        Manifest(self.manifest).record(self._line(task, result))
+
+    def rewrite_manifest(self, token: str, entries: dict) -> None:
+        Manifest(self.manifest).rewrite(token, {t: self._line(t, e) for t, e in entries.items()})
+
+    def finished(self, token: str) -> dict:
+        """task -> manifest entry, for the plan `token` (a torn last line is ignored)."""
+        return Manifest(self.manifest).finished(token)
+
+    def verify(self, task: int, entry: dict) -> bool:
+        try:
+            read_links(self.rs.path, task, entry)
+        except StoreError:
+            return False
+        return True
+
+    def require(self):
+        """(token, (pairs, first), finished entries), or a StoreError saying what to run."""
+        token = self.token()
+        if token is None:
+            raise StoreError(f"{self.rs.run_dir} has no links yet: run radiosity visibility "
+                             f"{self.rs.run_dir} --method hierarchical")
+        return token, self.plan(), self.finished(token)
+
+    def write_nodes(self, table: dict, attrs: dict) -> None:
+        """The node table and leaves (hierarchy.NodeTable.arrays()) of the finished links."""
+        self.rs.write_arrays("hierarchy", table, attrs)
+
+    def read_nodes(self) -> dict:
+        return self.rs.read_arrays("hierarchy")

@@ -1,0 +1,1 @@
+"""The seed's method (seed §4.3, SPEC §5): one visibility bit per pair of sub-elements."""

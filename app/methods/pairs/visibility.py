@@ -1,0 +1,405 @@
+"""The visibility matrix (seed §4.3, SPEC §5): one bit per pair of sub-elements, computed by a
+dynamic master that keeps every worker busy, written as bit-packed tiles into the run's store.
+
+Per pair (a, b): V = 1 iff the two face each other (cos > 0 on a side that exists: both sides of a
+two-sided element) and the open segment between their centres hits nothing. Work is culled before
+any ray is cast:
+
+1. orientation, per block (originals.facing_pairs: cluster against cluster, nothing n x n) and
+   per pair (cos <= 0 -> 0, no ray);
+2. shafts (Haines & Wallace 1991), hierarchically: a block's rows and columns are halved
+   recursively (sub-elements are in depth-first split order, so a range is a compact patch);
+   each pair of ranges keeps only the occluder boxes that enter the shaft between their boxes;
+   a range pair with no occluder left is all visible without rays;
+3. at the leaves, a pair whose segment misses every remaining occluder box is visible; only the
+   others get an Embree ray.
+
+Sampled kernels (kernels.py: nxm, mc) cast one ray per sample pair instead: at the leaves a pair
+is visible without rays only when no occluder enters the shaft between the two sub-elements'
+boxes (then every sample pair sees); the others get all their sample rays. The bit is "some
+sample pair sees"; pairs that only partly see are kept sparsely per task (pairs a < b, the
+number of visible sample rays and the kernel-weighted visible fraction phi, store.py).
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+from dask.base import tokenize
+
+from radiosity import config
+from radiosity.runtime.cluster import Scattered
+from radiosity.core.kernels import MC, NXM, Sampling, sample_points, sample_rays
+from radiosity.runtime.monitor import Monitor, peak_rss_mb, worker_address
+from radiosity.methods.pairs.plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, choose_unit, make_plan
+from radiosity.tracing.rays import caster_for
+from radiosity.runtime.runner import run_tasks
+from radiosity.settings import sampling_of
+from radiosity.tracing.shafts import block_candidates, classify, occluders, set_bits, small_tile_pairs
+from radiosity.runtime.store import RunStore, StageFigures
+from radiosity.methods.pairs.store import VisibilityStore, write_bits, write_partial
+
+SMALL_TILE_FACTOR = 8  # tiles with pairs * this < number of elements skip the shaft search
+
+
+@dataclass(frozen=True)
+class VisibilityFigures(StageFigures):
+    """The visibility stage's figures (report.json, section "visibility"); pair counts are of
+    unordered pairs of sub-elements."""
+
+    SECTION = "visibility"
+    task_unit: str
+    tasks: int
+    tasks_computed: int
+    tasks_reused: int
+    tasks_corrupted_recomputed: int
+    tiles: int
+    chunk_bytes: int
+    store_bytes: int
+    sub_elements: int
+    blocks_culled: int
+    pairs_total: int
+    pairs_in_blocks: int
+    pairs_facing: int
+    pairs_shaft_visible: int
+    rays: int
+    pairs_visible: int
+    shaft_tests: int
+    pairs_partial: int
+    pairs_culled_by_orientation: int
+    rays_fraction_of_pairs: float
+    naive_ordered_rays: int
+    time_s: float
+    time_tasks_s: float
+    busy_s_per_worker: dict
+    idle_fraction: float | None
+    workers: int
+    occlusion: bool
+    sampling: str | None
+    rays_per_pair: int
+    peak_rss_mb: dict
+
+    def rows(self):
+        pt = max(1, self.pairs_total)
+        culled = self.pairs_culled_by_orientation
+        return [("sub-elements", self.sub_elements), ("pairs", self.pairs_total),
+                ("culled by orientation", f"{culled} ({culled / pt:.1%})"),
+                ("proven visible by shafts",
+                 f"{self.pairs_shaft_visible} ({self.pairs_shaft_visible / pt:.1%})"),
+                ("rays cast", f"{self.rays} ({self.rays / pt:.1%} of pairs, "
+                              f"{self.rays_per_pair} per pair)"),
+                ("visible pairs", self.pairs_visible),
+                ("tasks", f"{self.tasks} {self.task_unit} ({self.tasks_computed} computed, "
+                          f"{self.tasks_reused} reused)"),
+                ("idle fraction", "-" if self.idle_fraction is None else f"{self.idle_fraction:.1%}"),
+                ("time", f"{self.time_s:.2f} s")]
+
+
+# ----------------------------------------------------------------------------- inputs
+
+@dataclass(frozen=True)
+class VisInputs:
+    """Read-only arrays every visibility task needs; scattered to the workers once.
+
+    center, normal (m, 3) float64; two_sided (m,) bool; orig (m,) int32; lo, hi (m, 3) float64
+    sub-element boxes; offsets (n + 1,) int64; elo, ehi (n, 3) padded boxes of the originals
+    (the occluders), enormal (n, 3), eoffset (n,) their planes, pad the plane tolerance;
+    verts (n, 4, 3), nverts (n,) for the Embree scene; key: the Embree cache key; epsilon: the
+    ray offset; occlusion: False when nothing can block (effects.py); sampling (kernels.Sampling
+    or None) with kid, pts (m, S, 3), w (m, S): the sample points of a sampled kernel.
+    """
+
+    center: np.ndarray
+    normal: np.ndarray
+    two_sided: np.ndarray
+    orig: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    offsets: np.ndarray
+    elo: np.ndarray
+    ehi: np.ndarray
+    enormal: np.ndarray
+    eoffset: np.ndarray
+    pad: float
+    verts: np.ndarray
+    nverts: np.ndarray
+    key: str
+    epsilon: float
+    occlusion: bool
+    sampling: Sampling | None
+    kid: int
+    pts: np.ndarray
+    w: np.ndarray
+
+    @property
+    def pts_flat(self) -> np.ndarray:
+        return self.pts.reshape(-1, 3)
+
+    @property
+    def pts_orig(self) -> np.ndarray:
+        return np.repeat(self.orig, self.pts.shape[1])
+
+
+def vis_inputs(part, elements, key: str, epsilon: float, occlusion: bool = True,
+               sampling: Sampling | None = None) -> VisInputs:
+    """The VisInputs of a partition (all values resolved here, on the driver)."""
+    v = np.where(part.nverts[:, None, None] == 3, part.verts[:, [0, 1, 2, 2]], part.verts)
+    elo, ehi, enormal, eoffset, pad = occluders(elements)
+    pts, w = sample_points(part.verts, part.nverts, sampling)
+    return VisInputs(
+        center=part.center, normal=part.normal, two_sided=elements.two_sided[part.orig],
+        orig=part.orig, lo=v.min(axis=1), hi=v.max(axis=1), offsets=part.offsets,
+        elo=elo, ehi=ehi, enormal=enormal, eoffset=eoffset, pad=pad, verts=elements.verts, nverts=elements.nverts,
+        key=key, epsilon=float(epsilon), occlusion=occlusion, sampling=sampling,
+        kid=0 if sampling is None else (NXM if sampling.kind == "nxm" else MC), pts=pts, w=w)
+
+
+def tile_bits(inp: VisInputs, caster, i: int, j: int, r0: int, r1: int):
+    """The bits of rows r0:r1 of block (i, j): (r1 - r0) * nJ bool, row-major, and counters.
+
+    Without occlusion (effects.py: nothing can block), facing pairs are visible: no shafts, no rays."""
+    a0, b0, b1 = inp.offsets[i] + r0, inp.offsets[j], inp.offsets[j + 1]
+    a1 = inp.offsets[i] + r1
+    A = np.empty((2, 3))
+    B = np.empty((2, 3))
+    A[0], A[1] = inp.lo[a0:a1].min(0), inp.hi[a0:a1].max(0)
+    B[0], B[1] = inp.lo[b0:b1].min(0), inp.hi[b0:b1].max(0)
+    pad = inp.pad
+    if inp.occlusion:
+        cand = block_candidates(A, B, inp.elo, inp.ehi, inp.enormal, inp.eoffset, pad, i, j)
+    else:
+        cand = np.zeros(0, np.int64)
+    code, tests = classify(inp.center[a0:a1], inp.normal[a0:a1], inp.two_sided[a0:a1],
+                           inp.lo[a0:a1], inp.hi[a0:a1], inp.center[b0:b1], inp.normal[b0:b1],
+                           inp.two_sided[b0:b1], inp.lo[b0:b1], inp.hi[b0:b1], inp.elo, inp.ehi,
+                           inp.enormal, inp.eoffset, pad, cand, inp.sampling is not None)
+    bits = code == 1
+    need = np.nonzero(code == 2)[0]
+    nb = b1 - b0
+    partial = _NO_PARTIAL
+    rays = len(need)
+    if len(need) and inp.sampling is None:
+        occ = caster.occluded_pairs(inp.center, a0 + need // nb, b0 + need % nb, inp.orig)
+        bits[need] = ~occ
+    elif len(need):
+        bits[need], partial, rays = sampled_visibility(inp, caster, a0 + need // nb, b0 + need % nb)
+    counts = np.array([len(code), int(np.count_nonzero(code)), int(np.count_nonzero(code == 1)),
+                       rays, int(bits.sum()), tests, len(partial[0])], np.int64)
+    return bits, counts, partial
+
+
+COUNTERS = ("pairs_in_blocks", "pairs_facing", "pairs_shaft_visible", "rays", "pairs_visible",
+            "shaft_tests", "pairs_partial")
+_NO_PARTIAL = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+SAMPLED_BATCH = 1 << 16  # pairs per batch of sample rays (bounds the per-ray arrays)
+
+
+def sampled_visibility(inp: VisInputs, caster, ia: np.ndarray, ib: np.ndarray):
+    """One ray per sample pair of each pair (ia, ib) (kernels.sample_rays). Returns whether
+    some sample pair sees (k,) bool, the partly visible pairs (a, b, visible rays, phi) with
+    phi the kernel-weighted visible fraction, and the number of rays cast."""
+    seen = np.zeros(len(ia), bool)
+    parts = []
+    P = inp.sampling.rays_per_pair
+    for s in range(0, len(ia), SAMPLED_BATCH):
+        a, b = ia[s:s + SAMPLED_BATCH], ib[s:s + SAMPLED_BATCH]
+        ra, rb, term = sample_rays(inp.kid, inp.pts, inp.w, inp.center, inp.normal, a, b)
+        V = ~caster.occluded_pairs(inp.pts_flat, ra, rb, inp.pts_orig).reshape(len(a), P)
+        count = V.sum(axis=1)
+        seen[s:s + len(a)] = count > 0
+        part = (count > 0) & (count < P)
+        tot = term[part].sum(axis=1)
+        vis = (term[part] * V[part]).sum(axis=1)
+        phi = np.where(tot > 0, vis / np.where(tot > 0, tot, 1.0), count[part] / P)
+        parts.append((a[part], b[part], count[part], phi))
+    if not parts:
+        return seen, _NO_PARTIAL, 0
+    return seen, tuple(np.concatenate(x) for x in zip(*parts)), len(ia) * P
+
+
+# ----------------------------------------------------------------------------- the task
+
+def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: int, tbytes: int,
+                    task: int = 0):
+    """Compute the tiles of one task, write their packed bits as whole chunks (and, for sampled
+    kernels, the task's partly visible pairs), return a summary.
+
+    Returns dict: crc (crc32 of the unpadded bytes), nbytes, counts (len(COUNTERS),), partial
+    (crc32 and length of the partial pairs), worker (its address), start, stop.
+    """
+    t0 = time.time()
+    caster = caster_for(inp.key, inp.verts, inp.nverts, inp.epsilon)
+    buf = np.zeros(tbytes, np.uint8)
+    counts = np.zeros(len(COUNTERS), np.int64)
+    partials = []
+    used = int((tiles[:, START] + tiles[:, NBYTES]).max() - tstart) if len(tiles) else 0
+    # small tiles: one batched pass, every facing pair gets a ray
+    pairs = (tiles[:, R1] - tiles[:, R0]) * tiles[:, NCOLS]
+    small = pairs * SMALL_TILE_FACTOR < len(inp.elo)
+    if small.any():
+        ia, ib, bit = small_tile_pairs(tiles[small], inp.offsets, inp.center, inp.normal,
+                                       inp.two_sided, tstart)
+        rays, npart = 0, 0
+        if not inp.occlusion:
+            vis = np.ones(len(ia), bool)
+        elif inp.sampling is None:
+            vis = ~caster.occluded_pairs(inp.center, ia, ib, inp.orig)
+            rays = len(ia)
+        else:
+            vis, part, rays = sampled_visibility(inp, caster, ia, ib)
+            partials.append(part)
+            npart = len(part[0])
+        set_bits(buf, bit[vis])
+        counts += np.array([int(pairs[small].sum()), len(ia), len(ia) if rays == 0 else 0, rays,
+                            int(vis.sum()), 0, npart])
+    for t in tiles[~small]:
+        bits, c, part = tile_bits(inp, caster, int(t[I]), int(t[J]), int(t[R0]), int(t[R1]))
+        packed = np.packbits(bits, bitorder="little")
+        off = int(t[START]) - tstart
+        buf[off:off + int(t[NBYTES])] = packed
+        counts += c
+        partials.append(part)
+    write_bits(store_path, tstart, buf)
+    out = {"crc": zlib.crc32(buf[:used].tobytes()), "nbytes": used, "counts": counts,
+           "start": t0, "stop": time.time(), "worker": worker_address()}
+    if inp.sampling is not None:
+        part = tuple(np.concatenate(x) for x in zip(*partials)) if partials else _NO_PARTIAL
+        out["partial"] = write_partial(store_path, task, *part)
+    return out
+
+
+# ----------------------------------------------------------------------------- the master
+
+def plan_for(part, elements, unit: str | None, where: str = "the scene"):
+    """The visibility plan of a partition, with the task unit and sizes from the config. The
+    blocks that face each other come from the hierarchy over the originals (originals.py):
+    nothing n x n, and at most radiosity.plan.max-facing-pairs of them (refused beyond)."""
+    from radiosity.scene.originals import pairs_within_budget, tree_of
+
+    unit = choose_unit(config.get("visibility.task-unit", unit), len(elements),
+                       int(config.get("visibility.stripe-threshold")))
+    tree = tree_of(elements, int(config.get("plan.leaf-size")))
+    bi, bj, _ = pairs_within_budget(tree, int(float(config.get("plan.max-facing-pairs"))), where)
+    return make_plan(part.offsets, (bi, bj), unit, int(config.get("visibility.max-task-bits")),
+                     min_task_bits=int(config.get("visibility.min-task-bits")))
+
+
+def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bool = False,
+                       progress: bool = True, on_done=None, occlusion: bool = True,
+                       kernel: str | None = None) -> VisibilityFigures:
+    """The dynamic master (seed §4.3) through the one runner (runner.py): a bounded window of
+    tasks in flight per worker thread, most expensive first; failed tasks are resubmitted;
+    every finished task is recorded with its checksum, so `resume` recomputes only what is
+    missing or corrupted. `on_done(n_finished)` is called after each task (for tests).
+    occlusion=False (effects.py: nothing can block) makes the bits orientation alone.
+    kernel: the form-factor kernel the matrix is for (default radiosity.solve.kernel): the
+    sampled ones (nxm, mc) cast one ray per sample pair (kernels.sampling_of).
+    """
+    sampling = sampling_of(config.get("solve.kernel", kernel))
+    epsilon = float(config.get("rays.epsilon"))
+    t_start = time.perf_counter()
+    rs = RunStore(run_dir, "r+")
+    part = rs.load_partition()
+    el = rs.load_elements()
+    plan = plan_for(part, el, unit, where=rs.attrs.get("scene") or run_dir)
+    token = tokenize(plan.tiles, plan.tasks, plan.chunk, part.center, part.normal, el.verts,
+                     epsilon, occlusion, None if sampling is None else sampling.to_dict())
+    vs = VisibilityStore(rs)
+    done = {}
+    corrupted = 0
+    if resume and vs.token() == token:
+        done = vs.finished(token)
+        good = {}
+        for task, entry in done.items():
+            if vs.verify(plan, task, entry):
+                good[task] = entry
+            else:
+                corrupted += 1
+        done = good
+        # corrupted entries are never trusted again, and a line torn by a crash or a full disk
+        # must not swallow the next one: the manifest is rewritten clean before appending
+        vs.rewrite_manifest(token, done)
+    else:
+        rs.drop_after("raster")
+        vs.create(plan, token, {"rays_epsilon": epsilon,
+                                "sampling": None if sampling is None else sampling.to_dict()})
+    todo = [t for t in range(len(plan.tasks)) if t not in done]
+    key = tokenize(el.verts, el.nverts)
+    threads = sum(client.nthreads().values()) or 1
+    counts = np.zeros(len(COUNTERS), np.int64)
+    for e in done.values():
+        counts += np.asarray(e["counts"], np.int64)
+    busy: dict = {}
+    computed = [0]
+    t_loop = time.perf_counter()
+    mon = Monitor(client)
+    mon.stage("visibility", run_dir)
+    mon.visibility(plan, done, len(el), force=True)
+
+    def finished(task, res):
+        nonlocal counts
+        vs.record(task, res)  # in the manifest only after its bytes were written
+        done[task] = res
+        computed[0] += 1
+        counts += res["counts"]
+        busy[res["worker"]] = busy.get(res["worker"], 0.0) + (res["stop"] - res["start"])
+        mon.visibility(plan, done, len(el))
+        if on_done is not None:
+            on_done(computed[0])
+
+    if todo:
+        inp = vis_inputs(part, el, key, epsilon, occlusion, sampling)
+        shared = Scattered(client, inp, straight=False)
+
+        def args(task):
+            t = plan.tasks[task]
+            return (shared.future(), plan.tiles_of(task), rs.path, int(t[TSTART]),
+                    int(t[TBYTES]), task)
+
+        run_tasks(client, task_visibility, todo, args, name="visibility",
+                  token=tokenize(token, rs.path), cost=plan.task_bits(),
+                  window=max(1, int(config.get("visibility.window-per-worker")) * threads),
+                  retries=int(config.get("visibility.retries")), on_result=finished,
+                  progress=progress, done=len(done),
+                  repair=f"rerun with: radiosity visibility {run_dir} --resume")
+    mon.visibility(plan, done, len(el), force=True)
+    wall = time.perf_counter() - t_loop
+    c = dict(zip(COUNTERS, counts.tolist()))
+    m = len(part)
+    naive = m * (m - 1)  # ordered pairs a brute force would trace
+    nworkers = len(client.scheduler_info()["workers"]) or 1
+    fig = VisibilityFigures(**{
+        "task_unit": plan.unit, "tasks": int(len(plan.tasks)), "tasks_computed": computed[0],
+        "tasks_reused": int(len(plan.tasks) - computed[0]), "tasks_corrupted_recomputed": corrupted,
+        "tiles": int(len(plan.tiles)), "chunk_bytes": plan.chunk, "store_bytes": plan.total,
+        "sub_elements": m, "blocks_culled": int(plan.blocks_culled),
+        "pairs_total": m * (m - 1) // 2, **c,
+        "pairs_culled_by_orientation": m * (m - 1) // 2 - c["pairs_facing"],
+        "rays_fraction_of_pairs": c["rays"] / max(1, m * (m - 1) // 2),
+        "naive_ordered_rays": naive,
+        "time_s": round(time.perf_counter() - t_start, 4), "time_tasks_s": round(wall, 4),
+        "busy_s_per_worker": {str(k): round(v, 4) for k, v in busy.items()},
+        "idle_fraction": (1.0 - sum(busy.values()) / (nworkers * wall)) if wall > 0 and busy else None,
+        "workers": nworkers, "occlusion": occlusion,
+        "sampling": None if sampling is None else sampling.describe(),
+        "rays_per_pair": 1 if sampling is None else sampling.rays_per_pair,
+        "peak_rss_mb": peak_rss_mb(client),
+    })
+    fig.write(run_dir)
+    return fig
+
+
+# ----------------------------------------------------------------------------- readers
+
+def iter_tiles(rs):
+    """Yield (I, J, r0, r1, bits (r1 - r0, nJ) bool) for every stored tile (store.py decodes
+    and verifies them)."""
+    return VisibilityStore(rs).iter_tiles()
+
+
+def dense_visibility(rs) -> np.ndarray:
+    """The whole matrix as (m, m) bool, for small scenes and tests only."""
+    return VisibilityStore(rs).dense(rs.load_partition().offsets)

@@ -1,0 +1,164 @@
+"""Checks made before any cluster starts: everything about a command's input that can be known
+without the workers (solver and kernel, the run directory, the scene's light and camera).
+
+A problem raises RadiosityError (SceneError, StoreError) naming the option, path or scene and
+what to do, so the CLI prints one line and exits 2 before anything is created; warnings are
+said, not fatal.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import warnings
+
+import numpy as np
+
+from radiosity import config
+from radiosity.errors import RadiosityError, SceneError, StoreError
+from radiosity.core.kernels import get_kernel
+from radiosity.settings import sampling_of
+
+#: Rays of the coarse camera check (a grid over the image); the full raster is cast only when
+#: the coarse grid hits nothing, to tell "sees nothing" from "sees only something small".
+COARSE_RAYS = 128
+
+
+def check_solve(solver: str | None, kernel: str | None) -> tuple[str, str]:
+    """The solver and kernel a solve will use, checked: a known kernel with valid sampling
+    settings, a known solver, and cg only with a reciprocal kernel. Returns (solver, kernel)."""
+    from radiosity.core.solvers import choose_solver
+
+    kernel = config.get("solve.kernel", kernel)
+    k = get_kernel(kernel)
+    sampling_of(kernel)  # a bad nxm-points / mc-samples fails here
+    solver = choose_solver(config.get("solve.solver", solver), kernel)
+    if solver == "cg" and not k.reciprocal:
+        raise RadiosityError(f"the cg solver needs a reciprocal kernel (A_a F_ab = A_b F_ba); "
+                             f"'{kernel}' is not: use --kernel point, or --solver jacobi, "
+                             "gauss-seidel or progressive")
+    closure = config.get("solve.closure")
+    if {True: "on", False: "off", None: "auto"}.get(closure, closure) not in ("auto", "on", "off"):
+        raise RadiosityError(f"radiosity.solve.closure must be auto, on or off, got {closure!r}")
+    return solver, kernel
+
+
+# ----------------------------------------------------------------------------- run directories
+
+FS_ERRORS = {errno.ENOSPC: "the filesystem is full", errno.EROFS: "the filesystem is read-only",
+             errno.EACCES: "permission denied", errno.EPERM: "permission denied",
+             errno.EDQUOT: "the disk quota is exceeded", errno.ENOTDIR: "a part of the path is a file",
+             errno.EEXIST: "it exists and is not a directory", errno.EISDIR: "it is a directory"}
+
+
+def fs_advice(err: int | None, existing: bool = False) -> str:
+    """What to do about a filesystem error; `existing`: for a run directory that exists."""
+    if err in (errno.ENOSPC, errno.EDQUOT):
+        return "free space there (or use a run directory on another filesystem)"
+    if err in (errno.EROFS, errno.EACCES, errno.EPERM):
+        if existing:
+            return "copy the run directory to a writable filesystem (or fix its permissions) " \
+                   "and run the command on the copy"
+        return "use a run directory on a writable filesystem (or fix its permissions)"
+    return "choose another run directory"
+
+
+def _probe(d: str, what: str, existing: bool = False) -> None:
+    """Create and delete a small file in directory d: the only test of writability that also
+    holds for root and read-only mounts."""
+    fn = os.path.join(d, f".radiosity-probe-{os.getpid()}")
+    try:
+        with open(fn, "wb") as f:
+            f.write(b"\0" * 512)
+            f.flush()
+            os.fsync(f.fileno())
+        os.remove(fn)
+    except OSError as e:
+        try:
+            os.remove(fn)
+        except OSError:
+            pass
+        raise StoreError(f"cannot write {what} {d}: {FS_ERRORS.get(e.errno, e.strerror)}; "
+                         f"{fs_advice(e.errno, existing)}") from None
+
+
+def check_new_run_dir(out: str) -> None:
+    """A run directory that a command will create or overwrite (preprocess, render --out):
+    not a file, not under a file, creatable and writable. Creates it when missing (empty)."""
+    path = os.path.abspath(out)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise StoreError(f"--out {out} is a file, not a directory: choose another path, or remove "
+                         "the file")
+    parent = path
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise StoreError(f"--out {out} lies under {parent}, which is a file: choose another path")
+    if not os.path.isdir(path):
+        try:
+            os.makedirs(path)
+        except FileExistsError:
+            pass  # made by someone else meanwhile: the lock decides who writes
+        except OSError as e:
+            raise StoreError(f"cannot create the run directory {out}: "
+                             f"{FS_ERRORS.get(e.errno, e.strerror)}; {fs_advice(e.errno)}") from None
+    _probe(path, "into the run directory")
+
+
+def check_run_dir(run_dir: str, write: bool = True) -> None:
+    """An existing run directory a stage reads (and, with `write`, writes: solve, image,
+    visibility). Missing stores say which command makes one (store.RunStore)."""
+    from radiosity.runtime.store import STORE, RunStore
+
+    RunStore(run_dir)  # exists, right format
+    if write:
+        _probe(os.path.abspath(run_dir), "into the run directory", True)
+        _probe(os.path.join(os.path.abspath(run_dir), STORE), "into the run store", True)
+
+
+# ----------------------------------------------------------------------------- the scene
+
+def check_scene(scene, subpixel: int | None = None) -> dict:
+    """Light and camera of a scene, before any cluster starts. A camera that sees no element is
+    an error (the image would be empty); a scene without an emitter is a warning (it renders
+    black, which is what it is, e.g. for a geometry check); a scene whose pairs of facing
+    originals (estimated) exceed radiosity.plan.max-facing-pairs is refused. Returns {"hits":
+    rays that hit, "facing_pairs_estimate": originals.estimate_facing_pairs}."""
+    from radiosity.tracing.rays import RayCaster
+
+    el, cam = scene.elements, scene.camera
+    if not (el.emission > 0).any():
+        warnings.warn(f"{scene.path}: no element emits light (every emission is 0): the image "
+                      "will be black; give a material an emission ([material.NAME] emission = "
+                      "[r, g, b])", stacklevel=2)
+    # the work that grows as n^2 in the originals, refused up front when it would not fit
+    from radiosity.scene.originals import check_budget, tree_of
+
+    est = check_budget(tree_of(el, int(config.get("plan.leaf-size"))),
+                       int(float(config.get("plan.max-facing-pairs"))), scene.path)
+    subpixel = int(config.get("subdivide.subpixel", subpixel))
+    rc = RayCaster(el.verts, el.nverts, float(config.get("rays.epsilon")))
+    h, w = cam.height * subpixel, cam.width * subpixel
+    # a coarse grid of fine pixels first (cheap), the whole raster only when it hits nothing
+    ys = np.unique(np.linspace(0, h - 1, min(h, COARSE_RAYS)).round().astype(np.int64))
+    xs = np.unique(np.linspace(0, w - 1, min(w, COARSE_RAYS)).round().astype(np.int64))
+    hits = _hits(rc, cam, subpixel, ys, xs)
+    if hits == 0 and (len(ys) < h or len(xs) < w):
+        band = max(1, (1 << 20) // max(w, 1))
+        for r0 in range(0, h, band):
+            hits += _hits(rc, cam, subpixel, np.arange(r0, min(h, r0 + band)), np.arange(w))
+            if hits:
+                break
+    if hits == 0:
+        raise SceneError(f"{scene.path}: the camera sees no element (at {cam.center.tolist()}, "
+                         f"looking along {cam.z.tolist()}): check [camera]")
+    return {"hits": hits, "facing_pairs_estimate": est}
+
+
+def _hits(rc, cam, subpixel, ys, xs) -> int:
+    """Rays through fine pixels rows ys x columns xs that hit an element."""
+    from radiosity.core.camera import pixel_directions
+
+    w = cam.width * subpixel
+    d = pixel_directions(cam, subpixel, ys).reshape(len(ys), w, 3)[:, xs].reshape(-1, 3)
+    return int((rc.first_hit(np.asarray(cam.center, np.float64), d) >= 0).sum())

@@ -1,0 +1,207 @@
+"""Simulate only the effects a scene calls for: decide, before any ray is cast, what to skip.
+
+Pure analysis of the original elements (and, for the estimates, one cheap camera raster). Every
+skip is exact: the planned run computes the same numbers as the full run, only less of them.
+
+- occlusion: if every element lies entirely on the front side of every other one (a convex
+  enclosure seen from inside, or a scene with no element in front of another), no segment
+  between two elements can be blocked: visibility is orientation alone, no rays, no shafts.
+- interreflection: with reflectance 0 everywhere, L = Le: no visibility, no solve. Otherwise
+  Jacobi needs at most ceil(log tol / log rho_max) passes (rows of F sum to at most 1).
+- colour: when every reflectance and emission is grey (equal channels), one channel is solved
+  and broadcast to RGB.
+- two-sided transport: a two-sided element with nothing behind its plane receives nothing on
+  its back, so its back radiance is its back emission: it is solved as one-sided.
+- dead rows: emitters that reflect nothing (rho = 0) and elements that no light can reach
+  (not connected to an emitter through elements that face each other and reflect) keep
+  L = Le and gather nothing: their rows drop out of every pass.
+- subdivision: only elements the camera sees are split (the seed's rule), reported.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from radiosity.scene.originals import LEAF, behind_any, pairs_within_budget, tree_of
+from radiosity.core.bundles import Elements
+
+EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class EffectsPlan:
+    """What the run will simulate. Arrays are per original element (n,).
+
+    occlusion, interreflection, colour : bool — the effect is simulated
+    two_sided : (n,) bool — elements solved with two sides
+    gather : (n,) bool — elements that take part in the iteration (gather light)
+    passes_bound : int — Jacobi passes to the tolerance, known up front (0: no solve)
+    reasons : dict effect -> one line saying why it is on or off
+    estimates : dict of figures (pairs, rays, pair terms and channels saved)
+    """
+
+    occlusion: bool
+    interreflection: bool
+    colour: bool
+    two_sided: np.ndarray
+    gather: np.ndarray
+    passes_bound: int
+    reasons: dict = field(default_factory=dict)
+    estimates: dict = field(default_factory=dict)
+    full: bool = False
+
+    def to_dict(self) -> dict:
+        return {"full": self.full, "occlusion": self.occlusion,
+                "interreflection": self.interreflection, "colour": self.colour,
+                "two_sided_elements": int(self.two_sided.sum()),
+                "gathering_elements": int(self.gather.sum()), "elements": int(len(self.gather)),
+                "passes_bound": self.passes_bound, "reasons": dict(self.reasons),
+                "estimates": dict(self.estimates)}
+
+    @property
+    def channels(self) -> int:
+        return 3 if self.colour else 1
+
+
+def _behind(elements: Elements) -> np.ndarray:
+    """(n, n) bool: does any vertex of J lie strictly behind the plane of I? Dense: for tests
+    of originals.behind_any (which plan_effects uses), small scenes only."""
+    v = elements.verts
+    d = np.einsum("ic,jkc->ijk", elements.normal, v) - \
+        np.einsum("ic,ic->i", elements.normal, elements.center)[:, None, None]
+    scale = float(np.linalg.norm(v.reshape(-1, 3).max(0) - v.reshape(-1, 3).min(0)))
+    return (d < -EPS * scale).any(axis=2)
+
+
+def _reachable(bi: np.ndarray, bj: np.ndarray, emitter: np.ndarray,
+               reflects: np.ndarray) -> np.ndarray:
+    """Elements light can reach: BFS from the emitters over the pairs (bi, bj) that face each
+    other (a sparse graph, O(pairs)); light travels on from an element only if it reflects."""
+    from scipy.sparse import csr_matrix
+
+    n = len(emitter)
+    adj = csr_matrix((np.ones(2 * len(bi), np.float32),
+                      (np.concatenate([bi, bj]), np.concatenate([bj, bi]))), shape=(n, n))
+    seen = emitter.copy()
+    frontier = emitter.copy()
+    while frontier.any():
+        nxt = (adj @ frontier.astype(np.float32) > 0) & ~seen
+        seen |= nxt
+        frontier = nxt & reflects
+    return seen
+
+
+def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
+                 sizes: np.ndarray | None = None, max_pairs: int | None = None,
+                 leaf: int = LEAF, where: str = "the scene") -> EffectsPlan:
+    """The effects plan of a scene. `sizes` (n,): expected sub-elements per original, for the
+    estimates (1 each if not given). `full` forces every effect on (the reference run).
+
+    Nothing n x n: the pairs that face each other and whatever lies behind each element come
+    from the hierarchy over the originals (originals.py), at most `max_pairs` pairs (refused
+    beyond, originals.FacingPairsError naming radiosity.plan.max-facing-pairs)."""
+    n = len(elements)
+    rho = elements.reflectance          # (n, 2, 3)
+    Le = elements.emission
+    ts = elements.two_sided
+    s = np.ones(n) if sizes is None else np.asarray(sizes, float)
+    tree = tree_of(elements, leaf)
+    bi, bj, _ = pairs_within_budget(tree, max_pairs, where)
+    back_any = behind_any(tree)   # the rows of the (n, n) "behind" relation, or-ed
+    reasons = {}
+    est = {}
+    pairs = float((s[bi] * s[bj]).sum())
+    est["facing_block_pairs"] = pairs
+    est["facing_original_pairs"] = int(len(bi))
+
+    # occlusion: if every element is in front of (or on) every other's plane, the elements
+    # bound a convex region and a segment between two of them stays inside it: nothing blocks
+    blocker_possible = bool(back_any.any())
+    occlusion = full or blocker_possible
+    if not blocker_possible:
+        reasons["occlusion"] = ("off: every element lies in front of every other (a convex "
+                                "enclosure): no segment between two elements can be blocked")
+        est["rays_saved_at_most"] = pairs
+    else:
+        reasons["occlusion"] = "on: some elements lie behind others; blocks are classified by shafts"
+
+    reflect = rho.max(axis=(1, 2)) > 0
+    interreflection = full or bool(reflect.any())
+    rho_max = float(rho.max(initial=0.0))
+    if not reflect.any():
+        reasons["interreflection"] = "off: reflectance is 0 everywhere, only direct emission (L = Le)"
+        passes = 0
+        est["pair_terms_saved_per_pass"] = 2 * pairs
+    else:
+        passes = int(math.ceil(math.log(tol) / math.log(rho_max))) if rho_max > 0 else 1
+        reasons["interreflection"] = (f"on: largest reflectance {rho_max:.3g}; Jacobi needs at most "
+                                      f"{passes} passes to reach {tol:g} (CG far fewer)")
+
+    grey = bool(np.all(rho == rho[..., :1]) and np.all(Le == Le[..., :1]))
+    colour = full or not grey
+    reasons["colour"] = ("off: every material is grey: one channel is solved and broadcast"
+                         if not colour else "on: some material has colour" if not grey else
+                         "on (--full)")
+    if not colour:
+        est["channels"] = 1
+
+    # two-sided elements whose back sees nothing are one-sided in effect
+    back_used = back_any
+    eff_two = ts & (back_used | full)
+    dropped = int((ts & ~eff_two).sum())
+    reasons["two_sided"] = (f"{int(eff_two.sum())} of {int(ts.sum())} two-sided elements are reached "
+                            f"from both sides" + (f"; {dropped} solved as one-sided" if dropped else ""))
+
+    emitter = Le.max(axis=(1, 2)) > 0
+    reach = _reachable(bi, bj, emitter, reflect)
+    gather = np.ones(n, bool) if full else (reflect & reach)
+    # three disjoint kinds that add up to the rows dropped: ~(reflect & reach)
+    dead_emit = int((emitter & ~reflect).sum())
+    dead_black = int((~emitter & ~reflect).sum())
+    dead_dark = int((reflect & ~reach).sum())
+    reasons["dead_rows"] = (f"{int((~gather).sum())} of {n} elements drop out of the iteration "
+                            f"({dead_emit} emitters that reflect nothing, {dead_black} other "
+                            f"elements that reflect nothing, {dead_dark} that no light can reach)"
+                            if not full else "off (--full)")
+    dead = ~gather
+    est["pair_terms_saved_per_pass"] = est.get("pair_terms_saved_per_pass", 0.0) + float(
+        ((s[bi] * s[bj]) * (dead[bi].astype(float) + dead[bj])).sum())
+    return EffectsPlan(occlusion=occlusion, interreflection=interreflection, colour=colour,
+                       two_sided=eff_two, gather=gather, passes_bound=passes, reasons=reasons,
+                       estimates=est, full=full)
+
+
+def describe(plan: EffectsPlan, unseen: int | None = None, sub_elements: int | None = None,
+             closure=None) -> str:
+    """The plan as the `radiosity plan` command prints it (closure: a closure.Closure)."""
+    lines = ["effect             on/off  why"]
+    rows = [("occlusion", plan.occlusion), ("interreflection", plan.interreflection),
+            ("colour", plan.colour)]
+    for name, on in rows:
+        lines.append(f"{name:<18} {'on' if on else 'OFF':<7} {plan.reasons[name].split(': ', 1)[-1]}")
+    lines.append(f"{'two-sided':<18} {'':<7} {plan.reasons['two_sided']}")
+    lines.append(f"{'dead rows':<18} {'':<7} {plan.reasons['dead_rows']}")
+    if closure is not None:
+        lines.append(f"{'closure':<18} {'on' if closure.closed else 'OFF':<7} "
+                     f"{closure.reason.split(': ', 1)[-1]}")
+    if unseen is not None:
+        lines.append(f"{'subdivision':<18} {'':<7} only where the camera sees: {unseen} elements "
+                     "stay unsplit" + (f", about {sub_elements} sub-elements" if sub_elements else ""))
+    e = plan.estimates
+    lines.append("")
+    if "facing_original_pairs" in e:
+        from radiosity.scene.originals import BYTES_PER_PAIR
+
+        lines.append(f"pairs of facing original elements: {e['facing_original_pairs']} (visibility "
+                     f"plan about {e['facing_original_pairs'] * BYTES_PER_PAIR / 2 ** 20:.3g} MiB)")
+    lines.append(f"estimated pairs of facing sub-elements: {e['facing_block_pairs']:.3g}")
+    if "rays_saved_at_most" in e:
+        lines.append(f"rays saved: up to {e['rays_saved_at_most']:.3g} (no visibility test at all)")
+    lines.append(f"pair terms saved per pass: {e['pair_terms_saved_per_pass']:.3g}"
+                 + (f"; channels solved: {plan.channels} of 3" if not plan.colour else ""))
+    if plan.interreflection:
+        lines.append(f"passes to tolerance (Jacobi bound): {plan.passes_bound}")
+    return "\n".join(lines)

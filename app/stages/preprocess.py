@@ -1,0 +1,246 @@
+"""The preprocessing stage (seed §3, §4.2): the camera's ID raster and the camera-driven
+subdivision, as Dask tasks (raster bands, then one task per subscene) run by the one runner.
+
+Writes elements, partition and raster to the run's store.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from dask.base import tokenize
+
+from radiosity import config
+from radiosity.runtime.cluster import Scattered
+from radiosity.errors import SceneError
+from radiosity.runtime.monitor import Monitor, peak_rss_mb
+from radiosity.methods.pairs.plan import subscene_ranges
+from radiosity.tracing.rays import RayCaster, caster_for, raster_band
+from radiosity.runtime.runner import run_tasks
+from radiosity.runtime.store import RunStore, StageFigures
+from radiosity.scene.subdivide import importance_points, lookup, merge_partitions, subdivide, warn_depth_guard
+from radiosity.core.bundles import Scene
+
+
+@dataclass(frozen=True)
+class RasterInputs:
+    """What every preprocessing task needs (scattered once): the original elements, the camera,
+    the sub-pixel factor, the Embree cache key and the ray epsilon (resolved on the driver)."""
+
+    elements: object
+    camera: object
+    subpixel: int
+    key: str
+    epsilon: float
+
+
+@dataclass(frozen=True)
+class PreprocessFigures(StageFigures):
+    """The preprocessing stage's figures (report.json, section "preprocess")."""
+
+    SECTION = "preprocess"
+    variant: str
+    subpixel: int
+    resolution: list
+    original_elements: int
+    sub_elements: int
+    max_depth: int
+    levels: int
+    unseen_unsplit: int
+    unseen_refined: int          # unseen originals split for the seen ones' sake
+    unseen_sub_elements: int
+    unseen_mode: str             # refine or keep (the seed's rule)
+    pixels_hit: int
+    max_pixels_per_sub_element: int
+    depth_guarded: int
+    sub_elements_per_pixel: float
+    subscene_tasks: int
+    raster_tasks: int
+    time_raster_s: float
+    time_subdivide_s: float
+    time_total_s: float
+    peak_rss_mb: dict
+    sub_elements_exact: int | None = None     # seed variant: the exact partition's size
+    over_refined_elements: int | None = None  # seed variant: originals split differently
+
+    def rows(self):
+        rows = [("original elements", self.original_elements), ("sub-elements", self.sub_elements),
+                ("max depth", self.max_depth),
+                ("unseen", f"{self.unseen_refined} refined into {self.unseen_sub_elements} "
+                           f"sub-elements, {self.unseen_unsplit} left whole ({self.unseen_mode})"),
+                ("pixels hit", self.pixels_hit), ("time", f"{self.time_total_s:.2f} s")]
+        if self.sub_elements_exact is not None:
+            rows.insert(2, ("sub-elements (exact variant)", self.sub_elements_exact))
+        return rows
+
+
+# ----------------------------------------------------------------------------- tasks
+
+def task_raster(inp: RasterInputs, r0: int, r1: int):
+    """Camera rays of fine-raster rows r0:r1 against the whole scene -> (orig, points)."""
+    el = inp.elements
+    rc = caster_for(inp.key, el.verts, el.nverts, inp.epsilon)
+    return raster_band(rc, el.normal, el.center, inp.camera, inp.subpixel, slice(r0, r1))
+
+
+def task_subdivide(verts, nverts, normal, points, point_elem, max_depth, ids):
+    """One subscene: split its elements given the pixels that hit them."""
+    return subdivide(verts, nverts, normal, points, point_elem, max_depth, element_ids=ids)
+
+
+def task_seed_subscene(inp: RasterInputs, start, stop, max_depth, rows_per_batch):
+    """The seed's variant (seed §4.2): render only this subscene on a full-size screen, then split."""
+    el, camera, subpixel = inp.elements, inp.camera, inp.subpixel
+    sl = slice(start, stop)
+    rc = RayCaster(el.verts[sl], el.nverts[sl], inp.epsilon)
+    h = camera.height * subpixel
+    e_all, p_all = [], []
+    for r0 in range(0, h, rows_per_batch):
+        elem, pts = raster_band(rc, el.normal[sl], el.center[sl], camera, subpixel,
+                                slice(r0, min(h, r0 + rows_per_batch)))
+        hit = elem >= 0
+        e_all.append(elem[hit])
+        p_all.append(pts[hit])
+    return subdivide(el.verts[sl], el.nverts[sl], el.normal[sl],
+                     np.concatenate(p_all), np.concatenate(e_all), max_depth,
+                     element_ids=np.arange(start, stop))
+
+
+# ----------------------------------------------------------------------------- the stage
+
+def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
+               variant: str | None = None, subscenes: int | None = None,
+               progress: bool = True) -> PreprocessFigures:
+    """Camera-driven subdivision as Dask tasks; writes elements, partition and raster to the store."""
+    t0 = time.perf_counter()
+    subpixel = int(config.get("subdivide.subpixel", subpixel))
+    variant = config.get("subdivide.variant", variant)
+    max_depth = int(config.get("subdivide.max-depth"))
+    if subpixel < 1:
+        raise SceneError(f"--subpixel must be 1 or more, got {subpixel}")
+    if variant not in ("exact", "seed", "none"):
+        raise SceneError(f"unknown subdivision variant {variant!r}: use exact, seed or none")
+    el, cam = scene.elements, scene.camera
+    threads = sum(client.nthreads().values()) or 1
+    ntasks = int(config.get("subdivide.subscenes", subscenes) or 2 * threads)
+    window = max(1, int(config.get("visibility.window-per-worker")) * threads)
+    retries = int(config.get("visibility.retries"))
+    h, w = cam.height * subpixel, cam.width * subpixel
+    rows_per_task = max(1, int(config.get("subdivide.rays-per-task")) // w)
+
+    Monitor(client).stage("preprocess", out, scene.name)
+    store = RunStore(out, "w")
+    store.save_elements(el)
+    store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(), subpixel=subpixel)
+    key = tokenize(el.verts, el.nverts)
+    inp = RasterInputs(el, cam, subpixel, key, float(config.get("rays.epsilon")))
+    shared = Scattered(client, inp)
+    # task keys: deterministic per run directory and inputs (never shared between two runs)
+    token = tokenize(key, cam.to_dict(), subpixel, variant, max_depth, ntasks, rows_per_task,
+                     inp.epsilon, store.path, config.get("subdivide.unseen"),
+                     config.get("subdivide.unseen-factor"), config.get("subdivide.unseen-budget"))
+    repair = f"run radiosity preprocess again into {out}"
+
+    # 1. the ID raster of the original scene (row bands), needed by both variants for the image
+    bands = [(r0, min(h, r0 + rows_per_task)) for r0 in range(0, h, rows_per_task)]
+    elem = np.full(h * w, -1, np.int32)
+    pts = np.zeros((h * w, 3))
+
+    def got_band(i, res):
+        a, b = bands[i]
+        elem[a * w:b * w], pts[a * w:b * w] = res
+
+    run_tasks(client, task_raster, range(len(bands)), lambda i: (shared.future(), *bands[i]),
+              name="raster", token=token, window=window, retries=retries, on_result=got_band,
+              progress=progress, repair=repair)
+    t_raster = time.perf_counter() - t0
+    hit = elem >= 0
+    if not hit.any():
+        raise SceneError(f"{scene.path}: the camera sees no element (at {cam.center.tolist()}, "
+                         f"looking along {cam.z.tolist()}): check [camera]")
+
+    # 2. subdivision, one task per subscene (contiguous ranges of original ids); the unseen
+    # originals get importance points of their own (subdivide.importance_points)
+    t1 = time.perf_counter()
+    seen = np.zeros(len(el), bool)
+    seen[elem[hit]] = True
+    unseen_mode = config.get("subdivide.unseen")
+    if unseen_mode not in ("refine", "keep"):
+        raise SceneError(f"radiosity.subdivide.unseen must be refine or keep, got {unseen_mode!r}")
+    up, ue = np.zeros((0, 3)), np.zeros(0, np.int64)
+    if unseen_mode == "refine" and variant == "exact" and (~seen).any():
+        hp_all, he_all = pts[hit], elem[hit]
+        sample = hp_all[:: max(1, len(hp_all) // 4096)]
+        from scipy.spatial import cKDTree
+
+        pixel = float(np.median(cKDTree(hp_all).query(sample, k=2)[0][:, 1]))
+        up, ue = importance_points(el.verts, el.nverts, el.normal, el.two_sided,
+                                   np.nonzero(~seen)[0], hp_all, el.normal[he_all],
+                                   float(config.get("subdivide.unseen-factor")), pixel,
+                                   int(float(config.get("subdivide.unseen-budget")) * hit.sum())
+                                   + int((~seen).sum()), max_depth)
+    if variant == "none":  # no preprocessing: every original is one element (seed §6, image 1)
+        ranges = [(0, len(el))]
+        args = [(el.verts, el.nverts, el.normal, np.zeros((0, 3)), np.zeros(0, np.int64),
+                 max_depth, np.arange(len(el)))]
+        fn, args_of = task_subdivide, args.__getitem__
+    elif variant == "exact":
+        e_all = np.concatenate([elem[hit], ue]).astype(np.int64)
+        p_all = np.concatenate([pts[hit], up])
+        counts = np.bincount(e_all, minlength=len(el))
+        ranges = subscene_ranges(counts + 1.0, ntasks)
+        order = np.argsort(e_all, kind="stable")
+        he, hp = e_all[order], p_all[order]
+        starts = np.searchsorted(he, [a for a, _ in ranges] + [len(el)])
+        args = [(el.verts[a:b], el.nverts[a:b], el.normal[a:b], hp[starts[i]:starts[i + 1]],
+                 he[starts[i]:starts[i + 1]] - a, max_depth, np.arange(a, b))
+                for i, (a, b) in enumerate(ranges)]
+        fn, args_of = task_subdivide, args.__getitem__
+    else:
+        ranges = subscene_ranges(np.ones(len(el)), ntasks)
+        fn = task_seed_subscene
+
+        def args_of(i):
+            return (shared.future(), *ranges[i], max_depth, rows_per_task)
+    pieces = [None] * len(ranges)
+    run_tasks(client, fn, range(len(ranges)), args_of, name="subdivide", token=token,
+              window=window, retries=retries, on_result=pieces.__setitem__, progress=progress,
+              repair=repair)
+    part = merge_partitions([p for p, _ in pieces], ranges, len(el))
+    guarded = sum(f["guarded"] for _, f in pieces)
+    firsts = [f["guarded_first"] for _, f in pieces if f["guarded"]]
+    warn_depth_guard(guarded, firsts[0] if firsts else -1, max_depth)
+    t_sub = time.perf_counter() - t1
+
+    # 3. the sub-element raster (two-level lookup) and the store
+    sub = lookup(part, pts, elem)
+    per_sub = np.bincount(sub[sub >= 0], minlength=len(part))
+    unseen_subs = int(np.diff(part.offsets)[~seen].sum())
+    refined = int((np.diff(part.offsets)[~seen] > 1).sum())
+    figures = {
+        "variant": variant, "subpixel": subpixel, "resolution": [cam.width, cam.height],
+        "original_elements": len(el), "sub_elements": len(part),
+        "max_depth": int(part.depth.max(initial=0)), "levels": max(f["levels"] for _, f in pieces),
+        "unseen_unsplit": int((~seen).sum()) - refined, "unseen_refined": refined,
+        "unseen_sub_elements": unseen_subs, "unseen_mode": unseen_mode, "pixels_hit": int(hit.sum()),
+        "max_pixels_per_sub_element": int(per_sub.max(initial=0)), "depth_guarded": guarded,
+        "sub_elements_per_pixel": len(part) / max(1, int(hit.sum())),
+        "subscene_tasks": len(ranges), "raster_tasks": len(bands),
+        "time_raster_s": round(t_raster, 4), "time_subdivide_s": round(t_sub, 4),
+    }
+    if variant == "seed":
+        # the exact partition's size, for comparison with the seed's over-refinement
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            exact, _ = subdivide(el.verts, el.nverts, el.normal, pts[hit], elem[hit], max_depth)
+        figures["sub_elements_exact"] = len(exact)
+        figures["over_refined_elements"] = int(np.sum(np.diff(part.offsets) != np.diff(exact.offsets)))
+    store.save_partition(part, figures)
+    store.write_arrays("raster", {"orig": elem.reshape(h, w), "sub": sub.reshape(h, w)})
+    fig = PreprocessFigures(**figures, time_total_s=round(time.perf_counter() - t0, 4),
+                            peak_rss_mb=peak_rss_mb(client))
+    fig.write(out)
+    return fig

@@ -1,0 +1,296 @@
+"""The solve stage: open the run's operator, handle rows that sum past 1, run a solver
+(solvers.py), write solution/radiance and the report (SPEC §2, §6).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from radiosity import config
+from radiosity.errors import RadiosityError
+from radiosity.scene.closure import Closure, detect_closure
+from radiosity.core.kernels import get_kernel
+from radiosity.runtime.monitor import Monitor, progress_bar
+from radiosity.methods.pairs.operator import open_operator
+from radiosity.methods.pairs.passes import CAP_MIN, CAP_PRODUCT
+from radiosity.settings import sampling_of
+from radiosity.core.solvers import SOLVERS, anorm, choose_solver, get_solver  # noqa: F401  (SOLVERS: re-exported)
+from radiosity.runtime.store import RunStore, StageFigures
+
+
+@dataclass(frozen=True)
+class SolveFigures(StageFigures):
+    """The solve stage's figures (report.json, section "solve")."""
+
+    SECTION = "solve"
+    solver: str
+    kernel: str
+    iterations: int
+    converged: bool
+    residuals: list                  # relative residual (or the solver's bound) per pass
+    final_residual: float            # one true-residual pass, the same measure for every solver
+    passes: int                      # operator products, residual and row-sum passes included
+    pair_terms: int
+    pair_terms_per_s: float          # in the solver's own passes, over their own time
+    time_s: float
+    sub_elements: int
+    channels: int
+    tol: float | None = None
+    row_sums: dict | None = None
+    near_field: dict | None = None
+    partial_visibility: dict | None = None
+    two_sided_sub_elements: int = 0
+    gathering_elements: int = 0
+    channel_terms: int = 0
+    ambient: list | None = None      # progressive refinement's ambient term
+    closure: dict | None = None      # closure.Closure: closed or open, and why
+    solution: str = "written"        # written | kept previous (not converged) | written unconverged
+    method: str = "pairs"            # pairs (the visibility matrix) | hierarchical (links)
+    hierarchy: dict | None = None    # --method hierarchical: leaves, link terms, final gather
+
+    def rows(self):
+        return [("solver", f"{self.solver} ({self.kernel} kernel"
+                           + (", hierarchical links)" if self.method == "hierarchical" else ")")),
+                ("passes", f"{self.iterations} ({'converged' if self.converged else 'NOT converged'})"),
+                *([("solution", self.solution)] if not self.converged else []),
+                ("final residual", f"{self.final_residual:.3g}"),
+                *([("closure", self.closure["reason"])] if self.closure else []),
+                ("pair terms/s", f"{self.pair_terms_per_s / 1e6:.1f} M"),
+                ("time", f"{self.time_s:.2f} s")]
+
+
+class _PassClock:
+    """The operator as a solver sees it, with the time of its passes (apply, gs_sweep) summed:
+    the solver's throughput counts its own passes only, not the monitor's and the preview's
+    callbacks between them."""
+
+    def __init__(self, op):
+        self.op = op
+        self.seconds = 0.0
+
+    def __getattr__(self, name):
+        return getattr(self.op, name)
+
+    def _timed(self, fn, *args, **kw):
+        t = time.perf_counter()
+        try:
+            return fn(*args, **kw)
+        finally:
+            self.seconds += time.perf_counter() - t
+
+    def apply(self, *args, **kw):
+        return self._timed(self.op.apply, *args, **kw)
+
+    def gs_sweep(self, *args, **kw):
+        return self._timed(self.op.gs_sweep, *args, **kw)
+
+
+def side_vectors(part, elements):
+    """Le, rho (2, 3, m) float64 and area (m,) of the sub-elements, per side."""
+    Le = np.ascontiguousarray(np.transpose(elements.emission[part.orig], (1, 2, 0)))
+    rho = np.ascontiguousarray(np.transpose(elements.reflectance[part.orig], (1, 2, 0)))
+    return Le, rho, part.area
+
+
+def row_mode(mode, closure) -> str:
+    """The row handling to use: `mode` (radiosity.solve.normalise-rows) unless it is auto, then
+    closed for a closed scene and cap for an open one (closure: a closure.Closure)."""
+    mode = {True: "cap", False: "off", None: "auto"}.get(mode, mode)
+    if mode == "auto":
+        return "closed" if closure is not None and closure.closed else "cap"
+    return mode
+
+
+def resolve_closure(setting, elements):
+    """closure.Closure for radiosity.solve.closure = auto (detected), on or off (stated)."""
+    setting = {True: "on", False: "off", None: "auto"}.get(setting, setting)
+    if setting not in ("auto", "on", "off"):
+        raise RadiosityError(f"radiosity.solve.closure must be auto, on or off, got {setting!r}")
+    if setting == "auto":
+        return detect_closure(elements, float(config.get("rays.epsilon")))
+    closed = setting == "on"
+    return Closure(closed, 0, 0, -1, 0.0, f"{'closed' if closed else 'open'}: stated "
+                   f"(closure: {setting})" + (": rows balanced to exactly 1" if closed else ""))
+
+
+def normalise_rows(op, mode="cap"):
+    """Detect rows of F that sum to more than 1 (the point kernel near large elements close
+    together, where 1/r^2 blows up) and decide how to handle them. Returns (figures, scaling):
+    what was found and done, and the operator inputs to configure ({} for none: cap (m,) and
+    cmode, passes.CAP_MIN or CAP_PRODUCT).
+
+    cap (default): scale each pair by min(cap_a, cap_b), cap = 1 / row sum on the rows above 1:
+        rows then sum to at most 1 and reciprocity still holds (A_a F'_ab = A_b F'_ba), so every
+        solver converges for rho < 1.
+    closed: for closed scenes, where every row must sum to exactly 1: scale pairs by d_a d_b
+        with d from the symmetric balancing iteration d <- sqrt(d / (F d)) (reciprocity kept);
+        what is left of the kernel's error no longer decides the answer when rho -> 1.
+    off (or False): only report.
+    """
+    mode = {True: "cap", False: "off", None: "cap", "auto": "cap"}.get(mode, mode)
+    if mode not in ("cap", "closed", "off"):
+        raise RadiosityError(f"radiosity.solve.normalise-rows must be cap, closed or off, got {mode!r}")
+    sums = op.row_sums()
+    rs = sums.max(axis=0)
+    over = rs > 1.0 + 1e-12
+    out = {"rows_over_1": int(over.sum()), "max_row_sum": float(rs.max(initial=0.0)),
+           "min_row_sum": float(sums.sum(axis=0).min(initial=0.0)), "mode": mode,
+           "normalised": bool(mode == "cap" and over.any())}
+    scaling = {}
+    if out["normalised"]:
+        scaling = {"cap": np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0), "cmode": CAP_MIN}
+    elif mode == "closed":
+        total = sums.sum(axis=0)
+        # sub-elements that see nothing (under a block standing on the floor) keep their empty
+        # rows; every other row is balanced to 1
+        live = total > 0
+        if not live.any():
+            raise RadiosityError("normalise-rows=closed needs a closed scene: no element sees "
+                                 "another")
+        d = np.where(live, 1.0 / np.sqrt(np.where(live, total, 1.0)), 1.0)
+        m = len(d)
+        for it in range(100):
+            Fd = op.apply(np.broadcast_to(d, (2, 1, m)).copy(), use_need=False)[:, 0, :].sum(axis=0)
+            err = np.abs(d * Fd - 1.0)[live].max()
+            if err < 1e-12:
+                break
+            d = np.where(live, np.sqrt(d / np.where(live, Fd, 1.0)), 1.0)
+        scaling = {"cap": d, "cmode": CAP_PRODUCT}  # pairs scaled by the product d_a d_b
+        out.update({"normalised": True, "balancing_passes": it + 1, "balancing_error": float(err)})
+    return out, scaling
+
+
+def write_direct_solution(run_dir: str) -> SolveFigures:
+    """No interreflection (reflectance 0 everywhere, effects.py): L = Le, without a pass."""
+    rs = RunStore(run_dir, "r+")
+    part, el = rs.load_partition(), rs.load_elements()
+    rs.drop_after("nearfield")
+    rs.write_arrays("solution", {"radiance": el.emission[part.orig]}, {"solver": "direct"})
+    fig = SolveFigures(solver="direct (L = Le)", kernel="-", iterations=0, converged=True,
+                       residuals=[], final_residual=0.0, passes=0, pair_terms=0,
+                       pair_terms_per_s=0.0, time_s=0.0, sub_elements=len(part), channels=0)
+    fig.write(run_dir)
+    return fig
+
+
+def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | None = None,
+              tol: float | None = None, max_iter: int | None = None, progress: bool = True,
+              callback=None, normalise: bool | None = None, effects=None,
+              preview=None, closure=None, keep_unconverged: bool = False) -> SolveFigures:
+    """Solve the run's radiosity system; write solution/radiance (m, 2, 3) and report figures.
+
+    A solve that does not reach `tol` does not replace a converged solution already in the
+    store (fig.solution says "kept previous"), unless `keep_unconverged`; with none to keep it
+    is written, marked converged = False. The CLI exits with status 3 either way.
+
+    effects: an effects.EffectsPlan (grey scenes solve one channel, dead rows skip gathering,
+    two-sided elements reached from one side are solved one-sided). preview: a function
+    (2, C, m) radiance -> (h, w, 3) uint8 image for the dashboard (render.previewer), or None.
+    closure: a closure.Closure already decided (the plan's), else radiosity.solve.closure."""
+    kernel = config.get("solve.kernel", kernel)
+    solver = choose_solver(config.get("solve.solver", solver), kernel)
+    tol = float(config.get("solve.tol", tol))
+    max_iter = int(config.get("solve.max-iterations", max_iter))
+    fn = get_solver(solver)
+    if solver == "progressive":
+        fn = functools.partial(fn, shoot_fraction=float(config.get("solve.shoot-fraction")))
+    get_kernel(kernel)
+    t0 = time.perf_counter()
+    rs = RunStore(run_dir, "r+")
+    op, part, el = open_operator(rs, client, kernel)
+    Le, rho, area = side_vectors(part, el)
+    mode = config.get("solve.normalise-rows", normalise)
+    if mode in ("auto", None) and closure is None:
+        closure = resolve_closure(config.get("solve.closure"), el)
+    rows, changes = normalise_rows(op, row_mode(mode, closure))
+    channels = 3
+    if effects is not None:
+        changes["sided"] = effects.two_sided[part.orig]
+        changes["need"] = effects.gather if not effects.gather.all() else np.zeros(0, np.bool_)
+    if changes:
+        op.configure(**changes)  # one scatter of the inputs
+    if effects is not None:
+        if not effects.colour:  # grey: one channel, broadcast at the end
+            channels = 1
+            Le, rho = Le[:, :1].copy(), rho[:, :1].copy()
+    mon = Monitor(client)
+    mon.stage("solve", run_dir)
+    history = []
+    make_image = preview or (lambda L: np.zeros((1, 1, 3), np.uint8))
+    bar = progress_bar(None, f"solve ({solver})", progress, unit="pass")
+
+    def cb(k, r, L):
+        if not np.isfinite(r) or r > 1e8:
+            bar.close()
+            raise RadiosityError(
+                f"{solver} diverged after {k} passes (residual {r:.3g}): rows of F sum to more "
+                f"than 1/rho with the {kernel} kernel (large elements close together); keep "
+                "radiosity.solve.normalise-rows on, use --kernel disc, or subdivide more")
+        bar.update()
+        bar.set_postfix(residual=f"{r:.2e}")
+        history.append(r)
+        mon.solve(solver, kernel, history)
+        mon.preview(lambda: make_image(L))
+        if callback:
+            callback(k, r, L)
+
+    clock, terms0 = _PassClock(op), op.terms  # the solver's own passes, for the throughput
+    res = fn(clock, Le, rho, area, tol, max_iter, cb)
+    t_iter, iter_terms = clock.seconds, op.terms - terms0
+    bar.close()
+    mon.solve(solver, kernel, history, force=True)
+    mon.preview(lambda: make_image(res.radiance), force=True)
+    t_solve = time.perf_counter() - t0
+    # one true-residual pass, the same measure for every solver
+    y = op.apply(res.radiance)
+    final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
+    L3 = np.broadcast_to(res.radiance, (2, 3, len(area))) if channels == 1 else res.radiance
+    radiance = np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))  # (m, 2, 3)
+    fig = SolveFigures(**{
+        "solver": solver, "kernel": kernel, "tol": tol, "iterations": res.iterations,
+        "converged": bool(res.converged), "residuals": [float(r) for r in res.residuals],
+        "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
+        "pair_terms_per_s": iter_terms / max(t_iter, 1e-9), "time_s": round(t_solve, 4),
+        "sub_elements": len(part), "row_sums": rows, "channels": channels,
+        "near_field": op.sparse["figures"] if op.sparse is not None else None,
+        "partial_visibility": ({"pairs": int(op.inp.pcrc[:, 1].sum()),
+                                "rays_per_pair": sampling_of(kernel).rays_per_pair}
+                               if len(op.inp.pcrc) else None),
+        "two_sided_sub_elements": int(op.inp.sided.sum()),
+        "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(part.offsets) - 1,
+        "channel_terms": int(op.terms) * channels,
+        "ambient": None if res.ambient is None else res.ambient.tolist(),
+        "closure": None if closure is None else closure.to_dict(),
+    })
+    return store_solution(rs, fig, res, {"radiance": radiance}, keep_unconverged, max_iter)
+
+
+def store_solution(rs, fig: SolveFigures, res, arrays: dict, keep_unconverged: bool,
+                   max_iter: int) -> SolveFigures:
+    """Write a solve's arrays into solution/ and its figures into report.json, unless it did
+    not converge and a converged solution is already there (kept, unless keep_unconverged);
+    an unconverged solve is said in fig.solution and in a warning. Both methods' stages end
+    here. Returns the figures as written."""
+    previous = rs.group_attrs("solution") if rs.has("solution") else {}
+    keep = not res.converged and not keep_unconverged and previous.get("converged") is True
+    if not res.converged:
+        fig = dataclasses.replace(fig, solution=(
+            f"kept the previous converged solution ({previous.get('solver')}, "
+            f"{previous.get('kernel')} kernel, final residual {previous.get('final_residual', float('nan')):.3g}); "
+            "--keep-unconverged replaces it" if keep else "written, NOT converged"))
+    if not keep:
+        rs.drop_after("nearfield")
+        rs.write_arrays("solution", arrays, {k: v for k, v in fig.to_dict().items() if k != "residuals"})
+    fig.write(rs.run_dir)
+    if not res.converged:
+        warnings.warn(f"{fig.solver} did not reach tol={fig.tol:g} in {max_iter} passes (residual "
+                      f"{res.residuals[-1] if res.residuals else float('nan'):.3g}): "
+                      + ("the previous converged solution is kept" if keep else
+                         "its solution is written, marked not converged"), stacklevel=3)
+    return fig

@@ -1,0 +1,1 @@
+"""Rays (the one module that imports embreex) and shafts."""

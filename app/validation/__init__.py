@@ -1,0 +1,1 @@
+"""Ground truth and accuracy: Mitsuba references, image comparison, accuracy-against-time studies."""

@@ -1,8 +1,7 @@
 """The engine's tunables: one commented YAML (`radiosity.yaml`) registered in dask.config.
 
-`get("subdivide.max-depth")` reads a value; CLI flags pass explicit values that win. Only the
-driver reads it (stage masters, the CLI): worker code receives every value it needs explicitly,
-so a worker with another config computes what the run's token says.
+`section("solve")` is the one reader of radiosity.* (settings.resolve calls it once per run);
+`get` serves the cluster start only, which dask's own configuration shapes too.
 """
 
 from __future__ import annotations
@@ -21,17 +20,14 @@ dask.config.update_defaults(_DEFAULTS)
 dask.config.ensure_file(source=_FN)
 
 
-def default(key: str):
-    """The packaged default of `radiosity.<key>` (radiosity.yaml as shipped, not the user's
-    dask.config): for code that must not depend on where it runs (worker-side defaults)."""
-    node = _DEFAULTS["radiosity"]
-    for part in key.split("."):
-        node = node[part]
-    return node
+def section(name: str) -> dict:
+    """The radiosity.<name>.* table as dask.config holds it now (user files, environment
+    variables and dask.config.set included)."""
+    return dict(dask.config.get(f"radiosity.{name}"))
 
 
 def get(key: str, override=None):
-    """Value of `radiosity.<key>`, or `override` when that is not None (a CLI flag)."""
+    """Value of `radiosity.<key>`, or `override` when that is not None: the cluster start only."""
     if override is not None:
         return override
     return dask.config.get(f"radiosity.{key}")

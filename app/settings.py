@@ -1,52 +1,280 @@
-"""Tunables resolved on the driver into the plain values worker inputs carry.
+"""Settings: every tunable of radiosity.yaml as frozen objects, resolved once where the user gives
+them (the CLI, the Python API) and passed down; code below that boundary reads attributes of
+these objects, never dask.config.
 
-Stage masters call these (they read radiosity.* from dask.config); worker code receives the
-results and never reads the configuration itself.
+`resolve({"solve.tol": 1e-4})` reads each radiosity.* section of dask.config once, applies the
+overrides (a flag's value; None means "not given") and checks their names and types. The YAML
+(radiosity.yaml) documents every key and why its default was chosen.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar
+
 from radiosity import config
-from radiosity.core.kernels import Sampling, make_sampling
+from radiosity.errors import RadiosityError
 
 
-def sampling_of(kernel: str, points: int | None = None, samples: int | None = None,
-                seed: int | None = None) -> Sampling | None:
-    """The sample points kernel `kernel` needs (None: one ray between centres), from
-    radiosity.solve.nxm-points / mc-samples / mc-seed unless given."""
-    return make_sampling(kernel, config.get("solve.nxm-points", points),
-                         config.get("solve.mc-samples", samples), config.get("solve.mc-seed", seed))
+@dataclass(frozen=True)
+class _Section:
+    """One radiosity.<SECTION>.* table; field names are the YAML keys with '_' for '-'."""
+
+    SECTION: ClassVar[str] = ""
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "_Section":
+        kw = {}
+        for f in dataclasses.fields(cls):
+            key = f.name.replace("_", "-")
+            if key not in values:
+                raise RadiosityError(f"radiosity.{cls.SECTION}.{key} is not set (radiosity.yaml "
+                                     "holds every key: reinstall the package?)")
+            kw[f.name] = _coerce(values[key], f.type, f"radiosity.{cls.SECTION}.{key}")
+        return cls(**kw)
+
+    def to_dict(self) -> dict:
+        return {f.name.replace("_", "-"): getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
-METHODS = ("auto", "pairs", "hierarchical")
+def _coerce(value, kind: str, where: str):
+    """int and float keys as numbers (environment variables and YAML give '1e7' or 3 for
+    either); the other kinds as given."""
+    try:
+        if kind == "int" and not isinstance(value, bool):
+            return int(float(value))
+        if kind == "float" and not isinstance(value, bool):
+            return float(value)
+    except (TypeError, ValueError):
+        raise RadiosityError(f"{where} must be a number, got {value!r}") from None
+    return value
 
 
-def choose_method(sub_elements: int, setting: str | None = None,
-                  kernel: str | None = None, originals: int = 1) -> tuple[str, str]:
-    """(method, why) for a run of `sub_elements`: radiosity.visibility.method unless given;
-    auto takes hierarchical above radiosity.visibility.hierarchical-above sub-elements, where it
-    measured faster at the same error (bench_hierarchy: 2.6x at 128^2, 19x at 256^2 on the
-    Cornell box), and the seed's pairs below, where both cost the same and pairs is the exact
-    all-pairs limit. A sampled kernel (nxm, mc) is the pairs method's (links sample their
-    own rays): auto takes pairs for it, and for scenes of many originals with few sub-elements
-    each (visibility.hierarchical-min-per-original: a 20 000-triangle floor at 16^2 took 67 s
-    hierarchical against 17 s with pairs)."""
-    from radiosity.errors import RadiosityError
+@dataclass(frozen=True)
+class SceneSettings(_Section):
+    """radiosity.scene.*"""
 
-    method = config.get("visibility.method", setting)
-    if method not in METHODS:
-        raise RadiosityError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
-    if method != "auto":
-        return method, f"{method}: stated (method: {method})"
-    above = int(config.get("visibility.hierarchical-above"))
-    kernel = config.get("solve.kernel", kernel)
-    if kernel not in ("point", "disc", "point-nf", "disc-nf"):
-        return "pairs", f"pairs: auto, the {kernel} kernel samples the pairs' own rays"
-    per = float(config.get("visibility.hierarchical-min-per-original"))
-    if sub_elements < per * originals:
-        return "pairs", (f"pairs: auto, {sub_elements} sub-elements on {originals} originals "
-                         f"(under {per:g} each: no trees for links to coarsen)")
-    if sub_elements > above:
-        return "hierarchical", (f"hierarchical: auto, {sub_elements} sub-elements > {above} "
-                                "(links grow at most like m, pairs like m^2)")
-    return "pairs", f"pairs: auto, {sub_elements} sub-elements <= {above} (all pairs cost no more)"
+    SECTION: ClassVar[str] = "scene"
+    planarity_tolerance: float
+    merge_tolerance: float
+    min_relative_area: float
+
+
+@dataclass(frozen=True)
+class RaySettings(_Section):
+    """radiosity.rays.*"""
+
+    SECTION: ClassVar[str] = "rays"
+    epsilon: float
+
+
+@dataclass(frozen=True)
+class SubdivideSettings(_Section):
+    """radiosity.subdivide.*"""
+
+    SECTION: ClassVar[str] = "subdivide"
+    subpixel: int
+    max_depth: int
+    variant: str
+    unseen: str
+    unseen_factor: float
+    unseen_budget: float
+    subscenes: int
+    rays_per_task: int
+
+
+@dataclass(frozen=True)
+class PlanSettings(_Section):
+    """radiosity.plan.*"""
+
+    SECTION: ClassVar[str] = "plan"
+    max_facing_pairs: float
+    leaf_size: int
+
+
+@dataclass(frozen=True)
+class VisibilitySettings(_Section):
+    """radiosity.visibility.*"""
+
+    SECTION: ClassVar[str] = "visibility"
+    task_unit: str
+    stripe_threshold: int
+    window_per_worker: int
+    max_task_bits: int
+    min_task_bits: int
+    retries: int
+    method: str
+    hierarchical_above: int
+    hierarchical_min_per_original: int
+
+
+@dataclass(frozen=True)
+class SolveSettings(_Section):
+    """radiosity.solve.*"""
+
+    SECTION: ClassVar[str] = "solve"
+    solver: str
+    kernel: str
+    nxm_points: int
+    mc_samples: int
+    mc_seed: int
+    tol: float
+    max_iterations: int
+    closure: str | bool
+    normalise_rows: str | bool
+    near_field_factor: float
+    shoot_fraction: float
+    cache_bytes: int
+
+
+@dataclass(frozen=True)
+class HierarchySettings(_Section):
+    """radiosity.hierarchy.*"""
+
+    SECTION: ClassVar[str] = "hierarchy"
+    kernel: str
+    epsilon: float | str
+    epsilon_base: float
+    epsilon_resolution: int
+    link_rays: int
+    weight: str
+    oracle: str
+    far_kernel: str
+    final_gather: str
+    final_gather_levels: int
+    near_gauss_gap: float
+    kernel_weighted_rays: bool
+    shadow_factor: float
+    min_node_size: float
+    split_hidden: bool
+    task_unit: str
+    max_task_cost: int
+    driver_solve_links: int
+
+
+@dataclass(frozen=True)
+class ImageSettings(_Section):
+    """radiosity.render.*"""
+
+    SECTION: ClassVar[str] = "render"
+    filter: str
+    sigma: float
+    exposure: float | None
+
+
+@dataclass(frozen=True)
+class ClusterSettings(_Section):
+    """radiosity.cluster.*"""
+
+    SECTION: ClassVar[str] = "cluster"
+    kind: str
+    workers: int
+    threads_per_worker: int
+    host: str
+    dashboard_address: str
+    tls: bool | str
+    adaptive: bool | str
+    worker_timeout: int
+    processes: bool
+    malloc_trim_threshold: int
+    malloc_mmap_threshold: int
+    direct_scatter: str
+
+
+@dataclass(frozen=True)
+class ReferenceSettings(_Section):
+    """radiosity.reference.*"""
+
+    SECTION: ClassVar[str] = "reference"
+    variant: str
+    spp: int
+    passes: int
+    study_spp: int
+    seed: int
+    truncation: float
+    max_samples_per_call: int
+
+
+@dataclass(frozen=True)
+class ViewFactorSettings(_Section):
+    """radiosity.viewfactors.*"""
+
+    SECTION: ClassVar[str] = "viewfactors"
+    accuracy: float
+    cheap_share: float
+    max_points_per_side: int
+    seed: int
+    cutoff: float
+    leaf_size: int
+    task_pairs: int
+    tasks_per_worker: int
+    batch_pairs: int
+    ray_batch: int
+    window_per_worker: int
+    retries: int
+    enclosure: str
+    balance_tol: float
+    balance_max_iterations: int
+    csv_max_nonzeros: int
+
+SECTIONS = {c.SECTION: c for c in (SceneSettings, RaySettings, SubdivideSettings, PlanSettings,
+                                   VisibilitySettings, SolveSettings, HierarchySettings,
+                                   ImageSettings, ClusterSettings, ReferenceSettings,
+                                   ViewFactorSettings)}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Every section, frozen: `settings.solve.tol`, `settings.hierarchy.epsilon`, ..."""
+
+    scene: SceneSettings
+    rays: RaySettings
+    subdivide: SubdivideSettings
+    plan: PlanSettings
+    visibility: VisibilitySettings
+    solve: SolveSettings
+    hierarchy: HierarchySettings
+    render: ImageSettings
+    cluster: ClusterSettings
+    reference: ReferenceSettings
+    viewfactors: ViewFactorSettings
+
+    def replace(self, overrides: dict | None = None, **dotted) -> "Settings":
+        """A copy with `{"section.key": value}` applied (None values are skipped: not given)."""
+        items = {**(overrides or {}), **{k.replace("__", "."): v for k, v in dotted.items()}}
+        by_section: dict = {}
+        for key, value in items.items():
+            if value is None:
+                continue
+            section, _, name = key.partition(".")
+            cls = SECTIONS.get(section)
+            field = name.replace("-", "_")
+            if cls is None or field not in {f.name for f in dataclasses.fields(cls)}:
+                raise RadiosityError(f"unknown setting radiosity.{key}: see radiosity.yaml for "
+                                     "the keys")
+            kind = next(f.type for f in dataclasses.fields(cls) if f.name == field)
+            by_section.setdefault(section, {})[field] = _coerce(value, kind, f"radiosity.{key}")
+        if not by_section:
+            return self
+        return dataclasses.replace(self, **{s: dataclasses.replace(getattr(self, s), **kw)
+                                            for s, kw in by_section.items()})
+
+    def to_dict(self) -> dict:
+        return {s: getattr(self, s).to_dict() for s in SECTIONS}
+
+
+def resolve(overrides: dict | None = None, base: Settings | None = None) -> Settings:
+    """The settings of a run: `base` (or dask.config's radiosity.*, read here once) with
+    `overrides` ({"solve.tol": 1e-4, ...}; None values are not given) applied."""
+    if base is None:
+        base = Settings(**{s: cls.from_dict(config.section(s)) for s, cls in SECTIONS.items()})
+    return base.replace(overrides)
+
+
+def sampling_of(solve: SolveSettings, kernel: str | None = None):
+    """The sample points kernel `kernel` (default solve.kernel) needs: a kernels.Sampling, or
+    None for one ray between centres."""
+    from radiosity.core.kernels import make_sampling
+
+    return make_sampling(kernel or solve.kernel, solve.nxm_points, solve.mc_samples, solve.mc_seed)

@@ -1,6 +1,6 @@
-"""The whole run in one cluster: plan -> preprocess -> visibility -> solve -> image, and the
-preview from the original elements (the seed's first image). The stage masters (preprocess.py,
-visibility.py, solve.py, render.py) do the work; this module only strings them together.
+"""The whole run in one cluster: plan -> preprocess -> the method's stage -> solve -> image, and
+the preview from the original elements (the seed's first image). The stages (stages/) and the
+method chosen by name (methods/base.py) do the work; this module only strings them together.
 """
 
 from __future__ import annotations
@@ -14,17 +14,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radiosity import config
-from radiosity.scene.effects import plan_effects
-from radiosity.runtime.monitor import peak_rss_mb
-from radiosity.stages.preprocess import preprocess
-from radiosity.tracing.rays import RayCaster, raster_band
-from radiosity.stages.image import previewer, render_outputs
-from radiosity.settings import choose_method
-from radiosity.stages.solve import resolve_closure, run_solve, write_direct_solution
-from radiosity.runtime.store import RunStore, StageFigures, update_report
 from radiosity.core.bundles import Scene
-from radiosity.methods.pairs.visibility import compute_visibility
+from radiosity.methods.base import choose_method, get_method
+from radiosity.runtime.monitor import peak_rss_mb
+from radiosity.runtime.store import RunStore, StageFigures, update_report
+from radiosity.scene.effects import plan_effects
+from radiosity.settings import resolve
+from radiosity.stages.image import previewer, render_outputs
+from radiosity.stages.preprocess import preprocess
+from radiosity.stages.solve import resolve_closure, run_solve, write_direct_solution
+from radiosity.tracing.rays import RayCaster, raster_band
 
 
 @dataclass(frozen=True)
@@ -46,14 +45,11 @@ class RenderFigures(StageFigures):
         return key in self.report
 
     def rows(self):
-        pre, vis, sol = self.report["preprocess"], self.report.get("visibility"), self.report["solve"]
-        lk = self.report.get("links") if sol.get("method") == "hierarchical" else None
+        pre, sol = self.report["preprocess"], self.report["solve"]
         st = self.stages
         return [
             ("sub-elements", f"{pre['sub_elements']} (from {pre['original_elements']} originals)"),
-            ("links", f"{lk['links']} ({lk['links_per_leaf']:.1f} per leaf), {lk['rays']} rays")
-            if lk is not None else
-            ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)"),
+            get_method(sol.get("method", "pairs")).summary_row(self.report),
             ("solve", f"{sol['solver']}/{sol['kernel']}: {sol['iterations']} passes, residual "
                       f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"
                       + ("" if sol.get("converged", True) else f", NOT converged: solution "
@@ -81,13 +77,13 @@ class PlanFigures(StageFigures):
 
 
 def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = None,
-               full: bool = False, run_dir: str | None = None):
+               full: bool = False, run_dir: str | None = None, settings=None):
     """The effects plan of a scene (effects.py) and figures for its estimates.
 
     With a preprocessed `run_dir`, the estimates use its partition (sub-elements per original)
     and raster; otherwise one camera raster estimates them (about 1.4 sub-elements per pixel
     hit, seen on the built-in scenes). Returns PlanFigures."""
-    tol = float(config.get("solve.tol", tol))
+    s = resolve({"solve.tol": tol, "subdivide.subpixel": subpixel}, base=settings)
     el = scene.elements
     if run_dir is not None:
         rs = RunStore(run_dir)
@@ -95,17 +91,17 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
         elem = rs.read_arrays("raster")["orig"].ravel()
         pix = np.bincount(elem[elem >= 0], minlength=len(el))
     else:
-        subpixel = int(config.get("subdivide.subpixel", subpixel))
+        k = int(s.subdivide.subpixel)
         cam = scene.camera
-        rc = RayCaster(el.verts, el.nverts, float(config.get("rays.epsilon")))
-        elem, _ = raster_band(rc, el.normal, el.center, cam, subpixel, slice(0, cam.height * subpixel))
+        rc = RayCaster(el.verts, el.nverts, float(s.rays.epsilon))
+        elem, _ = raster_band(rc, el.normal, el.center, cam, k, slice(0, cam.height * k))
         pix = np.bincount(elem[elem >= 0], minlength=len(el))
         sizes = np.maximum(1.0, 1.4 * pix)
-    return PlanFigures(plan_effects(el, tol=tol, full=full, sizes=sizes,
-                                    max_pairs=int(float(config.get("plan.max-facing-pairs"))),
-                                    leaf=int(config.get("plan.leaf-size")), where=scene.path),
-                       resolve_closure(config.get("solve.closure"), el), int((pix == 0).sum()),
-                       int(sizes.sum()), estimated=run_dir is None)
+    return PlanFigures(plan_effects(el, tol=float(s.solve.tol), full=full, sizes=sizes,
+                                    max_pairs=int(s.plan.max_facing_pairs),
+                                    leaf=int(s.plan.leaf_size), where=scene.path),
+                       resolve_closure(s.solve.closure, el, s.rays.epsilon),
+                       int((pix == 0).sum()), int(sizes.sum()), estimated=run_dir is None)
 
 
 def scene_digest(scene: Scene) -> str:
@@ -123,21 +119,26 @@ def scene_digest(scene: Scene) -> str:
     return h.hexdigest()
 
 
-def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None, unit=None,
-                 solver=None, kernel=None, tol=None, filter=None, sigma=None, exposure=None,
-                 resume=False, preview=True, progress=True, echo=print,
+def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None, variant=None,
+                 unit=None, solver=None, kernel=None, tol=None, filter=None, sigma=None,
+                 exposure=None, resume=False, preview=True, progress=True, echo=print,
                  full=False, keep_unconverged=False, method=None, epsilon=None,
                  link_rays=None) -> RenderFigures:
-    """plan -> preprocess -> visibility -> solve -> image (+ the preview from the originals).
+    """plan -> preprocess -> the method's stage -> solve -> image (+ the preview).
 
-    method: "pairs" (the seed's visibility matrix), "hierarchical" (links between nodes of
-    the split trees, links.py; epsilon and link_rays are its settings) or "auto" (by the
-    number of sub-elements, settings.choose_method); default radiosity.visibility.method.
+    settings: a settings.Settings (None: resolved here from dask.config); the keyword
+    arguments override it. method: "pairs" (the seed's visibility matrix), "hierarchical"
+    (links between nodes of the split trees) or "auto" (by the scene, methods/base.py).
 
     The effects plan (effects.py) decides what is simulated; `full` forces every effect on.
     With `resume`, a run directory whose preprocessing matches (the same scene: file, contents
     and meshes by scene_digest; the same camera and subpixel) keeps its partition and the
-    finished visibility tasks."""
+    finished tasks of the method's stage."""
+    s = resolve({"subdivide.subpixel": subpixel, "subdivide.variant": variant,
+                 "solve.solver": solver, "solve.kernel": kernel, "solve.tol": tol,
+                 "render.filter": filter, "render.sigma": sigma, "render.exposure": exposure,
+                 "visibility.method": method, "hierarchy.epsilon": epsilon,
+                 "hierarchy.link-rays": link_rays}, base=settings)
     t0 = time.perf_counter()
     stages = {}
     reuse = False
@@ -148,8 +149,7 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
             at = rs.attrs
             reuse = (at.get("scene") == scene.path and at.get("scene_digest") == digest
                      and at.get("camera") == scene.camera.to_dict()
-                     and at.get("subpixel") == int(config.get("subdivide.subpixel", subpixel))
-                     and rs.has("raster"))
+                     and at.get("subpixel") == int(s.subdivide.subpixel) and rs.has("raster"))
         except Exception:
             reuse = False
     t = time.perf_counter()
@@ -159,49 +159,38 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
         if resume:
             echo("preprocess: nothing to reuse (no run, or another scene, camera or sub-pixel "
                  "factor): starting again")
-        preprocess(scene, out, client, subpixel=subpixel, variant=variant, progress=progress)
+        preprocess(scene, out, client, progress=progress, settings=s)
         RunStore(out, "r+").set_attrs(scene_digest=digest)
     stages["preprocess_s"] = time.perf_counter() - t
     # decide the effects before the heavy stages, from the partition just made
-    planned = scene_plan(scene, subpixel, tol, full, run_dir=out)
+    planned = scene_plan(scene, full=full, run_dir=out, settings=s)
     planned.write(out)
     effects = planned.effects
-    method, why = choose_method(len(RunStore(out).load_partition()), method, kernel,
-                                originals=len(scene.elements))
+    name, why = choose_method(len(RunStore(out).load_partition()), s, originals=len(scene.elements))
+    impl = get_method(name)
     echo(f"method: {why}")
-    update_report(out, "plan", {"method": method, "method_reason": why})
+    update_report(out, "plan", {"method": name, "method_reason": why})
     t = time.perf_counter()
-    if effects.interreflection and method == "hierarchical":
-        from radiosity.methods.hierarchical.links import compute_links
-
-        compute_links(out, client, kernel=kernel, epsilon=epsilon, rays=link_rays, unit=unit,
-                      resume=resume and reuse, progress=progress, occlusion=effects.occlusion)
-    elif effects.interreflection:
-        compute_visibility(out, client, unit=unit, resume=resume and reuse, progress=progress,
-                           occlusion=effects.occlusion, kernel=kernel)
+    if effects.interreflection:
+        impl.build(out, client, s, unit=unit, resume=resume and reuse, progress=progress,
+                   occlusion=effects.occlusion)
     else:
         echo("visibility: skipped (no interreflection: reflectance is 0 everywhere)")
         update_report(out, "visibility", {"skipped": True, "rays": 0, "pairs_total": 0})
     stages["visibility_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    if effects.interreflection and method == "hierarchical":
-        from radiosity.methods.hierarchical.operator import run_solve_links
-
-        run_solve_links(out, client, solver=solver, tol=tol, progress=progress, effects=effects,
-                        closure=planned.closure, keep_unconverged=keep_unconverged)
-    elif effects.interreflection:
-        run_solve(out, client, solver=solver, kernel=kernel, tol=tol, progress=progress,
-                  effects=effects, preview=previewer(out), closure=planned.closure,
-                  keep_unconverged=keep_unconverged)
+    if effects.interreflection:
+        run_solve(out, client, s, progress=progress, effects=effects, preview=previewer(out),
+                  closure=planned.closure, keep_unconverged=keep_unconverged, method=name)
     else:
         write_direct_solution(out)
     stages["solve_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    fig = render_outputs(out, filter=filter, sigma=sigma, exposure=exposure)
+    fig = render_outputs(out, settings=s)
     stages["image_s"] = time.perf_counter() - t
     if preview:
         t = time.perf_counter()
-        stages["preview"] = render_preview(scene, out, client, tol=tol, exposure=fig.exposure)
+        stages["preview"] = render_preview(scene, out, client, s, exposure=fig.exposure)
         stages["preview_s"] = time.perf_counter() - t
     stages["total_s"] = time.perf_counter() - t0
     stages["peak_rss_mb"] = peak_rss_mb(client)
@@ -209,19 +198,21 @@ def render_scene(scene: Scene, out: str, client, *, subpixel=None, variant=None,
     return RenderFigures(stages, report)
 
 
-def render_preview(scene: Scene, out: str, client, tol=None,
-                   exposure=None) -> str:
+def render_preview(scene: Scene, out: str, client, settings=None, exposure=None) -> str:
     """The same scene solved on its original elements only (no preprocessing), as the seed's
     first image: writes OUT/preview.png (and keeps its run in OUT/preview/). Large originals
     close together make the point kernel's rows sum past 1, so the preview uses the bounded
     disc kernel and at most 200 passes."""
+    s = resolve({"subdivide.subpixel": 1, "subdivide.variant": "none", "solve.solver": "jacobi",
+                 "solve.kernel": "disc", "solve.max-iterations": 200,
+                 "render.exposure": exposure}, base=settings)
     sub = os.path.join(out, "preview")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        preprocess(scene, sub, client, subpixel=1, variant="none", progress=False)
-        compute_visibility(sub, client, progress=False)
-        run_solve(sub, client, solver="jacobi", kernel="disc", tol=tol, max_iter=200, progress=False)
-        render_outputs(sub, exposure=exposure)
+        preprocess(scene, sub, client, progress=False, settings=s)
+        get_method("pairs").build(sub, client, s, progress=False)
+        run_solve(sub, client, s, progress=False, method="pairs")
+        render_outputs(sub, settings=s)
     dst = os.path.join(out, "preview.png")
     shutil.copyfile(os.path.join(sub, "image.png"), dst)
     return dst

@@ -25,7 +25,7 @@ import numpy as np
 from common import ROOT, table, write
 
 from radiosity.runtime.cluster import open_client
-from radiosity.methods.pairs.operator import open_operator
+from radiosity.methods.pairs.transport import open_operator
 from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore

@@ -22,8 +22,9 @@ from radiosity.runtime.cluster import open_client
 from radiosity.pipeline import render_scene
 from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
-from radiosity.methods.pairs.operator import all_task_bytes, open_operator, task_apply
-from radiosity.stages.solve import run_solve, side_vectors
+from radiosity.methods.pairs.transport import all_task_bytes, open_operator, task_apply
+from radiosity.methods.pairs.method import side_vectors
+from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.visibility import compute_visibility
 

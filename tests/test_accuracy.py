@@ -16,7 +16,7 @@ from radiosity.core.geometry import polygon_properties
 from radiosity.core.kernels import pair_form_factors
 from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
-from radiosity.methods.pairs.operator import open_operator
+from radiosity.methods.pairs.transport import open_operator
 from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.validation.study import accuracy, form_factor_of_run, pareto

@@ -126,6 +126,7 @@ def test_a_scene_without_an_emitter_is_said_up_front(tmp_path):
 def test_a_camera_that_sees_one_small_thing_is_not_refused(tmp_path):
     """The coarse ray grid misses a tiny element; the full raster then finds it."""
     from radiosity.runtime.checks import COARSE_RAYS, check_scene
+    from radiosity.settings import resolve
     from radiosity.scene.load import load_scene
 
     obj = "v 0.499 0.499 0\nv 0.501 0.499 0\nv 0.5 0.501 0\nf 1 2 3\n"
@@ -141,7 +142,7 @@ def test_a_camera_that_sees_one_small_thing_is_not_refused(tmp_path):
                                       "reflectance = [0.0, 0.0, 0.0]\n", camera=cam)
     sc = load_scene(path)
     assert 600 > COARSE_RAYS
-    assert check_scene(sc, 1)["hits"] >= 1
+    assert check_scene(sc, resolve())["hits"] >= 1
 
 
 # ----------------------------------------------------------------------------- meshes

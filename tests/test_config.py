@@ -42,3 +42,16 @@ def test_environment_reaches_the_command_and_a_flag_wins():
     assert "passes to tolerance (Jacobi bound): 10" in out
     out = _run(["-m", "radiosity.cli", "plan", cube, "--tol", "1e-6"], **env)
     assert "passes to tolerance (Jacobi bound): 20" in out
+
+
+def test_the_ray_module_default_offset_is_the_shipped_setting():
+    """tracing/rays.py may not read the configuration (worker side): its fallback offset must
+    equal radiosity.yaml's rays.epsilon as shipped."""
+    import yaml
+
+    import radiosity
+    from radiosity.tracing.rays import DEFAULT_EPSILON
+
+    with open(os.path.join(os.path.dirname(radiosity.__file__), "radiosity.yaml")) as f:
+        shipped = yaml.safe_load(f)["radiosity"]["rays"]["epsilon"]
+    assert DEFAULT_EPSILON == shipped

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 import naive
-from radiosity.methods.pairs.operator import BoundedCache, DaskOperator, LocalOperator, open_operator
+from radiosity.methods.pairs.transport import BoundedCache, DaskOperator, LocalOperator, open_operator
 from radiosity.methods.pairs.passes import CAP_MIN
-from radiosity.stages.solve import normalise_rows, side_vectors
+from radiosity.methods.pairs.method import side_vectors
+from radiosity.stages.solve import normalise_rows
 from radiosity.core.solvers import SOLVERS
 from radiosity.runtime.store import RunStore
 from conftest import prepared, scene_path

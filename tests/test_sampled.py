@@ -14,8 +14,8 @@ import naive
 from radiosity.cli.commands import main
 from radiosity.errors import RadiosityError, StoreError
 from radiosity.core.kernels import Sampling, sample_points
-from radiosity.settings import sampling_of
-from radiosity.methods.pairs.operator import open_operator
+from radiosity.settings import resolve, sampling_of
+from radiosity.methods.pairs.transport import open_operator
 from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore, read_partial
@@ -82,14 +82,16 @@ def test_mc_points_are_seeded_uniform_samples(rng):
 
 
 def test_sampling_settings_are_checked():
-    assert sampling_of("point") is None and sampling_of("disc-nf") is None
+    s = resolve().solve
+    assert sampling_of(s, "point") is None and sampling_of(s, "disc-nf") is None
     with dask.config.set({"radiosity.solve.nxm-points": 5}):
         with pytest.raises(RadiosityError, match="nxm-points must be a square"):
-            sampling_of("nxm")
+            sampling_of(resolve().solve, "nxm")
     with pytest.raises(RadiosityError, match="mc-samples must be at least 1"):
-        sampling_of("mc", samples=0)
-    assert sampling_of("nxm", points=9).rays_per_pair == 81
-    assert sampling_of("mc", samples=7, seed=2) == Sampling("mc", 7, 2)
+        sampling_of(resolve({"solve.mc-samples": 0}).solve, "mc")
+    assert sampling_of(resolve({"solve.nxm-points": 9}).solve, "nxm").rays_per_pair == 81
+    assert sampling_of(resolve({"solve.mc-samples": 7, "solve.mc-seed": 2}).solve,
+                       "mc") == Sampling("mc", 7, 2)
 
 
 @pytest.mark.parametrize("kernel", ["nxm", "mc"])
@@ -103,7 +105,7 @@ def test_sampled_operator_equals_brute_force_with_a_ray_per_sample_pair(client, 
     rs = RunStore(out)
     op, part, el = open_operator(rs, client, kernel)
     assert op.inp.pcrc[:, 1].sum() == fig["pairs_partial"]
-    pts, w = sample_points(part.verts, part.nverts, sampling_of(kernel))
+    pts, w = sample_points(part.verts, part.nverts, sampling_of(resolve().solve, kernel))
     F = naive.sampled_form_factor_matrix(part, el, kernel, pts, w)
     m = len(part)
     for _ in range(3):
@@ -143,7 +145,7 @@ def test_every_solver_applies_the_sparse_corrections(client, tmp_path, kernel):
     for solver, L in got.items():
         assert np.abs(L - got["cg"]).max() < 1e-8 * scale, solver
     if kernel == "nxm":
-        pts, w = sample_points(part.verts, part.nverts, sampling_of(kernel))
+        pts, w = sample_points(part.verts, part.nverts, sampling_of(resolve().solve, kernel))
         F = naive.sampled_form_factor_matrix(part, el, kernel, pts, w)
         ref = naive.dense_solution_of(naive.normalised(F, len(part)), el, part)  # rows capped as run_solve does
         assert np.abs(got["cg"] - ref).max() < 1e-8 * scale

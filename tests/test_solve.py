@@ -8,8 +8,9 @@ import pytest
 import naive
 from radiosity.errors import RadiosityError
 from radiosity.core.kernels import pair_form_factors
-from radiosity.methods.pairs.operator import open_operator
-from radiosity.stages.solve import run_solve, side_vectors
+from radiosity.methods.pairs.transport import open_operator
+from radiosity.methods.pairs.method import side_vectors
+from radiosity.stages.solve import run_solve
 from radiosity.core.solvers import SOLVERS
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.visibility import dense_visibility

@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 
 from radiosity.core.camera import pixel_directions, project
 from radiosity.core.geometry import polygon_properties
-from radiosity.methods.pairs.plan import subscene_ranges
+from radiosity.runtime.packing import subscene_ranges
 from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore

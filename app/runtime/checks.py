@@ -14,7 +14,6 @@ import warnings
 
 import numpy as np
 
-from radiosity import config
 from radiosity.errors import RadiosityError, SceneError, StoreError
 from radiosity.core.kernels import get_kernel
 from radiosity.settings import sampling_of
@@ -24,20 +23,21 @@ from radiosity.settings import sampling_of
 COARSE_RAYS = 128
 
 
-def check_solve(solver: str | None, kernel: str | None) -> tuple[str, str]:
-    """The solver and kernel a solve will use, checked: a known kernel with valid sampling
-    settings, a known solver, and cg only with a reciprocal kernel. Returns (solver, kernel)."""
+def check_solve(settings) -> tuple[str, str]:
+    """The solver and kernel a solve will use (settings.solve), checked: a known kernel with
+    valid sampling settings, a known solver, and cg only with a reciprocal kernel. Returns
+    (solver, kernel)."""
     from radiosity.core.solvers import choose_solver
 
-    kernel = config.get("solve.kernel", kernel)
+    kernel = settings.solve.kernel
     k = get_kernel(kernel)
-    sampling_of(kernel)  # a bad nxm-points / mc-samples fails here
-    solver = choose_solver(config.get("solve.solver", solver), kernel)
+    sampling_of(settings.solve)  # a bad nxm-points / mc-samples fails here
+    solver = choose_solver(settings.solve.solver, kernel)
     if solver == "cg" and not k.reciprocal:
         raise RadiosityError(f"the cg solver needs a reciprocal kernel (A_a F_ab = A_b F_ba); "
                              f"'{kernel}' is not: use --kernel point, or --solver jacobi, "
                              "gauss-seidel or progressive")
-    closure = config.get("solve.closure")
+    closure = settings.solve.closure
     if {True: "on", False: "off", None: "auto"}.get(closure, closure) not in ("auto", "on", "off"):
         raise RadiosityError(f"radiosity.solve.closure must be auto, on or off, got {closure!r}")
     return solver, kernel
@@ -118,11 +118,12 @@ def check_run_dir(run_dir: str, write: bool = True) -> None:
 
 # ----------------------------------------------------------------------------- the scene
 
-def check_scene(scene, subpixel: int | None = None) -> dict:
+def check_scene(scene, settings) -> dict:
     """Light and camera of a scene, before any cluster starts. A camera that sees no element is
     an error (the image would be empty); a scene without an emitter is a warning (it renders
     black, which is what it is, e.g. for a geometry check); a scene whose pairs of facing
-    originals (estimated) exceed radiosity.plan.max-facing-pairs is refused. Returns {"hits":
+    originals (estimated) exceed plan.max-facing-pairs is refused (settings: a
+    settings.Settings; its subdivide.subpixel sets the raster). Returns {"hits":
     rays that hit, "facing_pairs_estimate": originals.estimate_facing_pairs}."""
     from radiosity.tracing.rays import RayCaster
 
@@ -134,10 +135,10 @@ def check_scene(scene, subpixel: int | None = None) -> dict:
     # the work that grows as n^2 in the originals, refused up front when it would not fit
     from radiosity.scene.originals import check_budget, tree_of
 
-    est = check_budget(tree_of(el, int(config.get("plan.leaf-size"))),
-                       int(float(config.get("plan.max-facing-pairs"))), scene.path)
-    subpixel = int(config.get("subdivide.subpixel", subpixel))
-    rc = RayCaster(el.verts, el.nverts, float(config.get("rays.epsilon")))
+    est = check_budget(tree_of(el, int(settings.plan.leaf_size)),
+                       int(settings.plan.max_facing_pairs), scene.path)
+    subpixel = int(settings.subdivide.subpixel)
+    rc = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
     h, w = cam.height * subpixel, cam.width * subpixel
     # a coarse grid of fine pixels first (cheap), the whole raster only when it hits nothing
     ys = np.unique(np.linspace(0, h - 1, min(h, COARSE_RAYS)).round().astype(np.int64))

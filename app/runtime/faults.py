@@ -1,7 +1,7 @@
 """What the CLI says when a run stops early: one line with what was kept and what to run next.
 
-- an interrupted run (Ctrl-C): what the run directory keeps (partition, finished visibility
-  tasks, solution) and the command that continues it;
+- an interrupted run (Ctrl-C): the command that continues it (cli/summary.kept says what the
+  run directory keeps);
 - a task that failed on every attempt (runner.TaskFailed): the worker's traceback goes to a log
   file in the run directory (or the temporary directory when that cannot be written), and the
   line names the log;
@@ -17,30 +17,6 @@ import tempfile
 import time
 
 FAILURE_LOG = "radiosity-error.log"
-
-
-def kept(run_dir: str | None) -> str:
-    """What run_dir holds that a rerun reuses, as a short phrase ("" when nothing)."""
-    if not run_dir or not os.path.isdir(os.path.join(run_dir, "store.zarr")):
-        return ""
-    parts = []
-    try:
-        from radiosity.runtime.store import RunStore
-        from radiosity.methods.pairs.store import VisibilityStore
-
-        rs = RunStore(run_dir)
-        if rs.has("raster"):
-            parts.append("the partition")
-        vs = VisibilityStore(rs)
-        token = vs.token()
-        if token is not None:
-            done = len(vs.finished(token))
-            parts.append(f"{done} of {len(vs.plan().tasks)} visibility tasks")
-        if rs.has("solution"):
-            parts.append("the last solution")
-    except Exception:  # a half-written store: say nothing rather than something wrong
-        return ""
-    return ", ".join(parts)
 
 
 def write_failure_log(run_dir: str | None, title: str, text: str) -> str:

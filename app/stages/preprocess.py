@@ -13,11 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 from dask.base import tokenize
 
-from radiosity import config
 from radiosity.runtime.cluster import Scattered
 from radiosity.errors import SceneError
 from radiosity.runtime.monitor import Monitor, peak_rss_mb
-from radiosity.methods.pairs.plan import subscene_ranges
+from radiosity.runtime.packing import subscene_ranges
 from radiosity.tracing.rays import RayCaster, caster_for, raster_band
 from radiosity.runtime.runner import run_tasks
 from radiosity.runtime.store import RunStore, StageFigures
@@ -113,35 +112,39 @@ def task_seed_subscene(inp: RasterInputs, start, stop, max_depth, rows_per_batch
 
 def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
                variant: str | None = None, subscenes: int | None = None,
-               progress: bool = True) -> PreprocessFigures:
-    """Camera-driven subdivision as Dask tasks; writes elements, partition and raster to the store."""
+               progress: bool = True, settings=None) -> PreprocessFigures:
+    """Camera-driven subdivision as Dask tasks; writes elements, partition and raster to the
+    store. settings: a settings.Settings (None: resolved here); the other arguments override
+    its subdivide section."""
+    from radiosity.settings import resolve
+
+    st = resolve({"subdivide.subpixel": subpixel, "subdivide.variant": variant,
+                  "subdivide.subscenes": subscenes}, base=settings)
+    sd = st.subdivide
     t0 = time.perf_counter()
-    subpixel = int(config.get("subdivide.subpixel", subpixel))
-    variant = config.get("subdivide.variant", variant)
-    max_depth = int(config.get("subdivide.max-depth"))
+    subpixel, variant, max_depth = int(sd.subpixel), sd.variant, int(sd.max_depth)
     if subpixel < 1:
         raise SceneError(f"--subpixel must be 1 or more, got {subpixel}")
     if variant not in ("exact", "seed", "none"):
         raise SceneError(f"unknown subdivision variant {variant!r}: use exact, seed or none")
     el, cam = scene.elements, scene.camera
     threads = sum(client.nthreads().values()) or 1
-    ntasks = int(config.get("subdivide.subscenes", subscenes) or 2 * threads)
-    window = max(1, int(config.get("visibility.window-per-worker")) * threads)
-    retries = int(config.get("visibility.retries"))
+    ntasks = int(sd.subscenes or 2 * threads)
+    window = max(1, int(st.visibility.window_per_worker) * threads)
+    retries = int(st.visibility.retries)
     h, w = cam.height * subpixel, cam.width * subpixel
-    rows_per_task = max(1, int(config.get("subdivide.rays-per-task")) // w)
+    rows_per_task = max(1, int(sd.rays_per_task) // w)
 
     Monitor(client).stage("preprocess", out, scene.name)
     store = RunStore(out, "w")
     store.save_elements(el)
     store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(), subpixel=subpixel)
     key = tokenize(el.verts, el.nverts)
-    inp = RasterInputs(el, cam, subpixel, key, float(config.get("rays.epsilon")))
+    inp = RasterInputs(el, cam, subpixel, key, float(st.rays.epsilon))
     shared = Scattered(client, inp)
     # task keys: deterministic per run directory and inputs (never shared between two runs)
     token = tokenize(key, cam.to_dict(), subpixel, variant, max_depth, ntasks, rows_per_task,
-                     inp.epsilon, store.path, config.get("subdivide.unseen"),
-                     config.get("subdivide.unseen-factor"), config.get("subdivide.unseen-budget"))
+                     inp.epsilon, store.path, sd.unseen, sd.unseen_factor, sd.unseen_budget)
     repair = f"run radiosity preprocess again into {out}"
 
     # 1. the ID raster of the original scene (row bands), needed by both variants for the image
@@ -167,7 +170,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     t1 = time.perf_counter()
     seen = np.zeros(len(el), bool)
     seen[elem[hit]] = True
-    unseen_mode = config.get("subdivide.unseen")
+    unseen_mode = sd.unseen
     if unseen_mode not in ("refine", "keep"):
         raise SceneError(f"radiosity.subdivide.unseen must be refine or keep, got {unseen_mode!r}")
     up, ue = np.zeros((0, 3)), np.zeros(0, np.int64)
@@ -179,8 +182,8 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         pixel = float(np.median(cKDTree(hp_all).query(sample, k=2)[0][:, 1]))
         up, ue = importance_points(el.verts, el.nverts, el.normal, el.two_sided,
                                    np.nonzero(~seen)[0], hp_all, el.normal[he_all],
-                                   float(config.get("subdivide.unseen-factor")), pixel,
-                                   int(float(config.get("subdivide.unseen-budget")) * hit.sum())
+                                   float(sd.unseen_factor), pixel,
+                                   int(float(sd.unseen_budget) * hit.sum())
                                    + int((~seen).sum()), max_depth)
     if variant == "none":  # no preprocessing: every original is one element (seed §6, image 1)
         ranges = [(0, len(el))]

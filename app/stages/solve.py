@@ -1,5 +1,6 @@
-"""The solve stage: open the run's operator, handle rows that sum past 1, run a solver
-(solvers.py), write solution/radiance and the report (SPEC §2, §6).
+"""The solve stage, one for every method: open the run's operator through the method's seam,
+handle rows that sum past 1, run a solver (core/solvers.py), let the method finish (a final
+gather, or nothing), write solution/ and the report (SPEC §2, §6, §8).
 """
 
 from __future__ import annotations
@@ -12,14 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radiosity import config
 from radiosity.errors import RadiosityError
 from radiosity.scene.closure import Closure, detect_closure
 from radiosity.core.kernels import get_kernel
 from radiosity.runtime.monitor import Monitor, progress_bar
-from radiosity.methods.pairs.operator import open_operator
-from radiosity.methods.pairs.passes import CAP_MIN, CAP_PRODUCT
-from radiosity.settings import sampling_of
+from radiosity.methods.base import CAP_MIN, CAP_PRODUCT
 from radiosity.core.solvers import SOLVERS, anorm, choose_solver, get_solver  # noqa: F401  (SOLVERS: re-exported)
 from radiosity.runtime.store import RunStore, StageFigures
 
@@ -91,13 +89,6 @@ class _PassClock:
         return self._timed(self.op.gs_sweep, *args, **kw)
 
 
-def side_vectors(part, elements):
-    """Le, rho (2, 3, m) float64 and area (m,) of the sub-elements, per side."""
-    Le = np.ascontiguousarray(np.transpose(elements.emission[part.orig], (1, 2, 0)))
-    rho = np.ascontiguousarray(np.transpose(elements.reflectance[part.orig], (1, 2, 0)))
-    return Le, rho, part.area
-
-
 def row_mode(mode, closure) -> str:
     """The row handling to use: `mode` (radiosity.solve.normalise-rows) unless it is auto, then
     closed for a closed scene and cap for an open one (closure: a closure.Closure)."""
@@ -107,13 +98,14 @@ def row_mode(mode, closure) -> str:
     return mode
 
 
-def resolve_closure(setting, elements):
-    """closure.Closure for radiosity.solve.closure = auto (detected), on or off (stated)."""
+def resolve_closure(setting, elements, epsilon: float):
+    """closure.Closure for solve.closure = auto (detected with rays offset by `epsilon`, the
+    rays.epsilon setting), on or off (stated)."""
     setting = {True: "on", False: "off", None: "auto"}.get(setting, setting)
     if setting not in ("auto", "on", "off"):
         raise RadiosityError(f"radiosity.solve.closure must be auto, on or off, got {setting!r}")
     if setting == "auto":
-        return detect_closure(elements, float(config.get("rays.epsilon")))
+        return detect_closure(elements, float(epsilon))
     closed = setting == "on"
     return Closure(closed, 0, 0, -1, 0.0, f"{'closed' if closed else 'open'}: stated "
                    f"(closure: {setting})" + (": rows balanced to exactly 1" if closed else ""))
@@ -179,63 +171,73 @@ def write_direct_solution(run_dir: str) -> SolveFigures:
     return fig
 
 
-def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | None = None,
-              tol: float | None = None, max_iter: int | None = None, progress: bool = True,
-              callback=None, normalise: bool | None = None, effects=None,
-              preview=None, closure=None, keep_unconverged: bool = False) -> SolveFigures:
-    """Solve the run's radiosity system; write solution/radiance (m, 2, 3) and report figures.
+def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
+              kernel: str | None = None, tol: float | None = None, max_iter: int | None = None,
+              progress: bool = True, callback=None, normalise=None, effects=None, preview=None,
+              closure=None, keep_unconverged: bool = False, method: str | None = None,
+              where: str = "auto") -> SolveFigures:
+    """Solve the run's radiosity system with the method whose stage it holds (or `method`);
+    write solution/ and the report's "solve" section.
 
-    A solve that does not reach `tol` does not replace a converged solution already in the
-    store (fig.solution says "kept previous"), unless `keep_unconverged`; with none to keep it
-    is written, marked converged = False. The CLI exits with status 3 either way.
+    settings: a settings.Settings (None: resolved here from dask.config); solver, kernel, tol,
+    max_iter, normalise override it. A solve that does not reach `tol` does not replace a
+    converged solution already in the store (fig.solution says "kept previous"), unless
+    `keep_unconverged`; with none to keep it is written, marked converged = False.
 
     effects: an effects.EffectsPlan (grey scenes solve one channel, dead rows skip gathering,
     two-sided elements reached from one side are solved one-sided). preview: a function
-    (2, C, m) radiance -> (h, w, 3) uint8 image for the dashboard (render.previewer), or None.
-    closure: a closure.Closure already decided (the plan's), else radiosity.solve.closure."""
-    kernel = config.get("solve.kernel", kernel)
-    solver = choose_solver(config.get("solve.solver", solver), kernel)
-    tol = float(config.get("solve.tol", tol))
-    max_iter = int(config.get("solve.max-iterations", max_iter))
-    fn = get_solver(solver)
-    if solver == "progressive":
-        fn = functools.partial(fn, shoot_fraction=float(config.get("solve.shoot-fraction")))
-    get_kernel(kernel)
+    (2, C, m) radiance per sub-element -> (h, w, 3) uint8 image for the dashboard
+    (image.previewer), or None. closure: a closure.Closure already decided (the plan's), else
+    solve.closure. where: the hierarchical method's driver / cluster choice."""
+    from radiosity.methods.base import get_method, method_of_run
+    from radiosity.settings import resolve
+
+    s = resolve({"solve.solver": solver, "solve.kernel": kernel, "solve.tol": tol,
+                 "solve.max-iterations": max_iter, "solve.normalise-rows": normalise},
+                base=settings)
+    get_kernel(s.solve.kernel)
     t0 = time.perf_counter()
     rs = RunStore(run_dir, "r+")
-    op, part, el = open_operator(rs, client, kernel)
-    Le, rho, area = side_vectors(part, el)
-    mode = config.get("solve.normalise-rows", normalise)
+    impl = get_method(method) if method is not None else method_of_run(rs)
+    opened = impl.open(rs, client, s, where=where)
+    op = opened.op
+    solver = choose_solver(s.solve.solver, op.kernel)
+    fn = get_solver(solver)
+    if solver == "progressive":
+        fn = functools.partial(fn, shoot_fraction=float(s.solve.shoot_fraction))
+    tol, max_iter = float(s.solve.tol), int(s.solve.max_iterations)
+    Le, rho, area = opened.Le, opened.rho, opened.area
+    mode = s.solve.normalise_rows
     if mode in ("auto", None) and closure is None:
-        closure = resolve_closure(config.get("solve.closure"), el)
+        closure = resolve_closure(s.solve.closure, rs.load_elements(), s.rays.epsilon)
     rows, changes = normalise_rows(op, row_mode(mode, closure))
     channels = 3
     if effects is not None:
-        changes["sided"] = effects.two_sided[part.orig]
+        changes["sided"] = effects.two_sided[opened.orig]
         changes["need"] = effects.gather if not effects.gather.all() else np.zeros(0, np.bool_)
-    if changes:
-        op.configure(**changes)  # one scatter of the inputs
-    if effects is not None:
         if not effects.colour:  # grey: one channel, broadcast at the end
             channels = 1
             Le, rho = Le[:, :1].copy(), rho[:, :1].copy()
+    if changes:
+        op.configure(**changes)  # one scatter of the inputs
     mon = Monitor(client)
     mon.stage("solve", run_dir)
     history = []
-    make_image = preview or (lambda L: np.zeros((1, 1, 3), np.uint8))
-    bar = progress_bar(None, f"solve ({solver})", progress, unit="pass")
+    make_image = ((lambda L: preview(opened.to_sub(L).transpose(1, 2, 0))) if preview is not None
+                  else (lambda L: np.zeros((1, 1, 3), np.uint8)))
+    bar = progress_bar(None, f"solve ({solver}, {impl.name})", progress, unit="pass")
 
     def cb(k, r, L):
         if not np.isfinite(r) or r > 1e8:
             bar.close()
             raise RadiosityError(
                 f"{solver} diverged after {k} passes (residual {r:.3g}): rows of F sum to more "
-                f"than 1/rho with the {kernel} kernel (large elements close together); keep "
+                f"than 1/rho with the {op.kernel} kernel (large elements close together); keep "
                 "radiosity.solve.normalise-rows on, use --kernel disc, or subdivide more")
         bar.update()
         bar.set_postfix(residual=f"{r:.2e}")
         history.append(r)
-        mon.solve(solver, kernel, history)
+        mon.solve(solver, op.kernel, history)
         mon.preview(lambda: make_image(L))
         if callback:
             callback(k, r, L)
@@ -244,31 +246,26 @@ def run_solve(run_dir: str, client, solver: str | None = None, kernel: str | Non
     res = fn(clock, Le, rho, area, tol, max_iter, cb)
     t_iter, iter_terms = clock.seconds, op.terms - terms0
     bar.close()
-    mon.solve(solver, kernel, history, force=True)
+    mon.solve(solver, op.kernel, history, force=True)
     mon.preview(lambda: make_image(res.radiance), force=True)
     t_solve = time.perf_counter() - t0
     # one true-residual pass, the same measure for every solver
     y = op.apply(res.radiance)
     final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
-    L3 = np.broadcast_to(res.radiance, (2, 3, len(area))) if channels == 1 else res.radiance
-    radiance = np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))  # (m, 2, 3)
+    arrays, extra = impl.finish(opened, res.radiance, rows, s)
+    need = op.inp.need
     fig = SolveFigures(**{
-        "solver": solver, "kernel": kernel, "tol": tol, "iterations": res.iterations,
+        "solver": solver, "kernel": op.kernel, "tol": tol, "iterations": res.iterations,
         "converged": bool(res.converged), "residuals": [float(r) for r in res.residuals],
         "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
         "pair_terms_per_s": iter_terms / max(t_iter, 1e-9), "time_s": round(t_solve, 4),
-        "sub_elements": len(part), "row_sums": rows, "channels": channels,
-        "near_field": op.sparse["figures"] if op.sparse is not None else None,
-        "partial_visibility": ({"pairs": int(op.inp.pcrc[:, 1].sum()),
-                                "rays_per_pair": sampling_of(kernel).rays_per_pair}
-                               if len(op.inp.pcrc) else None),
-        "two_sided_sub_elements": int(op.inp.sided.sum()),
-        "gathering_elements": int(op.inp.need.sum()) if len(op.inp.need) else len(part.offsets) - 1,
+        "sub_elements": opened.sub_elements, "row_sums": rows, "channels": channels,
+        "gathering_elements": int(need.sum()) if len(need) else opened.state["originals"],
         "channel_terms": int(op.terms) * channels,
         "ambient": None if res.ambient is None else res.ambient.tolist(),
-        "closure": None if closure is None else closure.to_dict(),
+        "closure": None if closure is None else closure.to_dict(), **extra,
     })
-    return store_solution(rs, fig, res, {"radiance": radiance}, keep_unconverged, max_iter)
+    return store_solution(rs, fig, res, arrays, keep_unconverged, max_iter)
 
 
 def store_solution(rs, fig: SolveFigures, res, arrays: dict, keep_unconverged: bool,

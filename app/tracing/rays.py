@@ -15,7 +15,6 @@ import numba
 import numpy as np
 
 from radiosity.core.camera import hit_points, ray_directions32
-from radiosity.config import default
 from radiosity.core.geometry import polygon_properties
 
 BATCH = 1 << 20  # rays per Embree call: bounds the temporary float32 buffers
@@ -37,18 +36,23 @@ def element_triangles(verts: np.ndarray, nverts: np.ndarray):
     return tris, owner
 
 
+#: The ray offset where a caller gives none: radiosity.yaml's rays.epsilon as shipped (a test
+#: keeps the two equal; why 1e-6 is said there).
+DEFAULT_EPSILON = 1e-6
+
+
 class RayCaster:
     """Embree scene of a set of polygons (verts (n, 4, 3), nverts (n,)), queried in world units."""
 
     def __init__(self, verts: np.ndarray, nverts: np.ndarray, epsilon: float | None = None):
         """epsilon: ray offset in the normalised frame, resolved by the caller (the stage
-        masters pass radiosity.rays.epsilon); None takes the packaged default."""
+        masters pass the rays.epsilon setting); None takes DEFAULT_EPSILON."""
         rtcore_scene, mesh_construction = _embree()
         tris, self.owner = element_triangles(np.asarray(verts, float), np.asarray(nverts))
         lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
         self.origin = 0.5 * (lo + hi)
         self.scale = float(np.linalg.norm(hi - lo)) or 1.0
-        self.epsilon = float(default("rays.epsilon") if epsilon is None else epsilon)
+        self.epsilon = float(DEFAULT_EPSILON if epsilon is None else epsilon)
         self._local = threading.local()
         self.normal = polygon_properties(np.asarray(verts, float), np.asarray(nverts))[1]
         self._scene = rtcore_scene.EmbreeScene()

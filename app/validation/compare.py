@@ -1,15 +1,7 @@
-"""Image against reference: error figures, masks of pixels wholly inside one element, and a
-false-colour picture of the relative difference (`radiosity compare A.exr B.exr`).
+"""Image against reference: error figures (`errors`), masks of pixels wholly inside one element,
+and a false-colour picture of the relative difference (`radiosity compare A.exr B.exr`).
 
-Images are linear RGB radiance (H, W, 3). B is the reference. The relative error of a pixel
-and channel is |a - b| / b, defined where b > 0; figures are over those entries (and over a
-mask when one is given):
-
-- `mare`: mean absolute relative error; `max`: the largest; `rms`: root mean square;
-- `per_channel`: the mean for R, G and B;
-- `noise_floor` (when the reference's per-pixel standard error is known): the mean absolute
-  relative error an *exact* image would show against this reference, sqrt(2/pi) * mean(se / b)
-  (the mean of |N(0, se)|); errors near it are the reference's noise, not the image's.
+Images are linear RGB radiance (H, W, 3); B is the reference.
 """
 
 from __future__ import annotations
@@ -21,6 +13,7 @@ import os
 import numpy as np
 
 from radiosity.errors import RadiosityError
+from radiosity.settings import Settings
 
 CHANNELS = ("R", "G", "B")
 
@@ -104,7 +97,17 @@ def _entries(a, b, mask):
 
 def errors(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None,
            stderr: np.ndarray | None = None) -> dict:
-    """Error figures of image `a` against reference `b` (see the module doc)."""
+    """Error figures of image `a` against reference `b`. The relative error of a pixel and
+    channel is |a - b| / b, defined where b > 0; figures are over those entries (and over
+    `mask` when one is given):
+
+    - `mare`: mean absolute relative error; `max`: the largest; `rms`: root mean square;
+    - `per_channel`: the mean for R, G and B;
+    - `noise_floor` (when the reference's per-pixel standard error `stderr` is given): the mean
+      absolute relative error an *exact* image would show against this reference,
+      sqrt(2/pi) * mean(se / b) (the mean of |N(0, se)|); errors near it are the reference's
+      noise, not the image's.
+    """
     a, b, m = _entries(a, b, mask)
     rel = np.abs(a - b)[m] / b[m]
     out = {"pixels": int(m.any(axis=-1).sum()), "entries": int(m.sum())}
@@ -192,10 +195,12 @@ def write_difference_png(path: str, rel: np.ndarray, title: str = "") -> float:
     return lim
 
 
-def compare_files(a_path: str, b_path: str, out: str | None = None) -> dict:
+def compare_files(a_path: str, b_path: str, out: str | None = None,
+                  settings: Settings | None = None) -> dict:
     """Figures of image A against reference B (EXR files; the finer one is box-filtered to the
     coarser grid). B's standard error is used when `<B without .exr>-stderr.exr` exists (what
-    `radiosity reference` writes). With `out`: compare.json and compare.png there."""
+    `radiosity reference` writes). With `out`: compare.json and compare.png there. It reads no
+    setting: `settings` is taken for the entry points' common signature."""
     from radiosity.stages.image import read_exr
 
     a, b = read_exr(a_path), read_exr(b_path)

@@ -1,30 +1,9 @@
 """Ground truth from Mitsuba 3: the scene the project loads, path-traced by Mitsuba's `path`
 integrator (unbiased; SPEC §1 units: radiance in W sr^-1 m^-2, linear RGB).
 
-The conversion starts from `types.Scene` (the project's own loader), so the two renderers see the
-same elements, materials, emission, sides and camera:
-
-- one Mitsuba mesh per original element (a quad as two triangles (v0 v1 v2), (v0 v2 v3); the
-  winding, hence the front normal, is the engine's), loaded with `optimize=False` so that shapes
-  are never merged;
-- one-sided elements: a `diffuse` BSDF and an `area` emitter, both front-only in Mitsuba, which
-  makes the back black, as the engine treats it; two-sided elements: a `twosided` BSDF (front,
-  back) and, where the back emits, `radiosity_twosided_area` (below), which emits the front
-  radiance on the front and the back radiance on the back;
-- the camera: a `perspective` sensor whose `to_world` has the columns (-x, y, z, centre) of the
-  engine's basis (Mitsuba's camera looks along +z with +x to the left of the image) and whose
-  horizontal field of view is 2 atan(half_w / focal); a `box` pixel filter, so each pixel is the
-  exact average of the radiance over its area (the engine's pixel convention: row 0 at the top,
-  `types.Camera`). Square pixels only (half_w / half_h = width / height);
-- the `path` integrator with max_depth = rr_depth = D (no Russian roulette): paths of at most D
-  segments, so the light that bounces D times or more is dropped. With rho_max the largest
-  reflectance in the scene (any element, side, channel) that tail is
-  (rho F)^D L <= rho_max^D max(L) (rows of F sum to at most 1), and D is the smallest depth with
-  rho_max^D <= `reference.truncation` (1e-6): the truncation error is below 1e-6 of the largest
-  radiance in the scene.
-
-The standard error comes from K independent passes (different sampler seeds): per pixel,
-std over passes (ddof 1) / sqrt(K).
+The conversion (`mitsuba_scene`) starts from the project's own loaded Scene, so the two renderers
+see the same elements, materials, emission, sides and camera. The standard error comes from K
+independent passes (different sampler seeds): per pixel, std over passes (ddof 1) / sqrt(K).
 """
 
 from __future__ import annotations
@@ -38,9 +17,9 @@ import time
 
 import numpy as np
 
-from radiosity import config
 from radiosity.errors import RadiosityError
 from radiosity.core.bundles import Camera, Scene
+from radiosity.settings import Settings, resolve
 
 INSTALL = "pip install -e '.[reference]'"
 #: drjit's LLVM backend needs this major version or newer (older ones crash in its kernels).
@@ -76,14 +55,15 @@ def find_libllvm(min_major: int = MIN_LLVM) -> str | None:
 _LOADED: dict = {}
 
 
-def load_mitsuba(variant: str | None = None, echo=None):
-    """Import Mitsuba 3 and select its variant: `auto` (`reference.variant`) takes llvm_ad_rgb
-    when drjit's LLVM backend has libLLVM >= 16 (DRJIT_LIBLLVM_PATH is set to the newest one
-    found when it is unset), otherwise scalar_rgb, said in one line through `echo`.
+def load_mitsuba(variant: str | None = None, echo=None, settings: Settings | None = None):
+    """Import Mitsuba 3 and select its variant (None: `reference.variant` of `settings`, resolved
+    here when None): `auto` takes llvm_ad_rgb when drjit's LLVM backend has libLLVM >= 16
+    (DRJIT_LIBLLVM_PATH is set to the newest one found when it is unset), otherwise scalar_rgb,
+    said in one line through `echo`.
 
     Returns (mitsuba module, variant name).
     """
-    variant = config.get("reference.variant", variant)
+    variant = resolve({"reference.variant": variant}, base=settings).reference.variant
     if variant not in ("auto", "llvm_ad_rgb", "scalar_rgb"):
         raise ReferenceError(f"reference.variant {variant!r}: use auto, llvm_ad_rgb or scalar_rgb")
     if _LOADED.get("asked") == variant:
@@ -192,8 +172,11 @@ def _register_twosided_emitter(mi, dr) -> None:
 
 def path_depth(scene: Scene, truncation: float | None = None) -> tuple[int, float]:
     """(D, rho_max): the path integrator's max_depth D, the smallest with rho_max^D <= truncation
-    (at least 1: paths of one segment see the emitters), and the scene's largest reflectance."""
-    truncation = float(config.get("reference.truncation", truncation))
+    (at least 1: paths of one segment see the emitters), and the scene's largest reflectance.
+    truncation None: `reference.truncation`, resolved here."""
+    if truncation is None:
+        truncation = resolve().reference.truncation
+    truncation = float(truncation)
     rho = float(np.max(scene.elements.reflectance))
     if rho <= 0.0:
         return 1, rho
@@ -231,7 +214,12 @@ def _clip_range(scene: Scene) -> tuple[float, float]:
 
 
 def sensor_dict(scene: Scene, spp: int = 1) -> dict:
-    """Mitsuba `perspective` sensor that casts the engine's pixel rays (see the module doc)."""
+    """Mitsuba `perspective` sensor that casts the engine's pixel rays: its `to_world` has the
+    columns (-x, y, z, centre) of the engine's basis (Mitsuba's camera looks along +z with +x to
+    the left of the image) and its horizontal field of view is 2 atan(half_w / focal); a `box`
+    pixel filter, so each pixel is the exact average of the radiance over its area (the engine's
+    pixel convention: row 0 at the top, `bundles.Camera`). Square pixels only (half_w / half_h =
+    width / height)."""
     import mitsuba as mi
 
     cam = scene.camera
@@ -255,10 +243,24 @@ def _rgb(v) -> dict:
 
 
 def mitsuba_scene(scene: Scene, depth: int, spp: int = 1, meters=(), mi=None):
-    """The loaded scene as a Mitsuba scene (the module doc says how). `meters`: element indices
-    that carry an `irradiancemeter` sensor (one pixel) besides the camera.
+    """The loaded scene as a Mitsuba scene. `meters`: element indices that carry an
+    `irradiancemeter` sensor (one pixel) besides the camera. Returns (mitsuba Scene,
+    {element index: meter sensor}). The conversion:
 
-    Returns (mitsuba Scene, {element index: meter sensor}).
+    - one Mitsuba mesh per original element (a quad as two triangles (v0 v1 v2), (v0 v2 v3); the
+      winding, hence the front normal, is the engine's), loaded with `optimize=False` so that
+      shapes are never merged;
+    - one-sided elements: a `diffuse` BSDF and an `area` emitter, both front-only in Mitsuba,
+      which makes the back black, as the engine treats it; two-sided elements: a `twosided` BSDF
+      (front, back) and, where the back emits, `radiosity_twosided_area`, which emits the front
+      radiance on the front and the back radiance on the back;
+    - the camera: `sensor_dict`;
+    - the `path` integrator with max_depth = rr_depth = `depth` (no Russian roulette): paths of
+      at most D segments, so the light that bounces D times or more is dropped. With rho_max the
+      largest reflectance in the scene (any element, side, channel) that tail is
+      (rho F)^D L <= rho_max^D max(L) (rows of F sum to at most 1); `path_depth` gives the
+      smallest D with rho_max^D <= `reference.truncation` (1e-6): the truncation error is below
+      1e-6 of the largest radiance in the scene.
     """
     if mi is None:
         mi, _ = load_mitsuba()
@@ -334,8 +336,11 @@ def render_passes(mi, msc, spp: int, passes: int, seed: int = 0, sensor=None, ec
     """K = `passes` independent estimates of `spp // passes` samples per pixel each.
 
     Returns (mean (H, W, 3) float64, stderr (H, W, 3) float64 (std over passes / sqrt K, zero
-    when K = 1), seconds per pass (K,) list)."""
-    max_samples = int(config.get("reference.max-samples-per-call", max_samples))
+    when K = 1), seconds per pass (K,) list). max_samples None: `reference.max-samples-per-call`,
+    resolved here."""
+    if max_samples is None:
+        max_samples = resolve().reference.max_samples_per_call
+    max_samples = int(max_samples)
     per = spp // passes
     s = sensor if sensor is not None else msc.sensors()[0]
     size = s.film().size()
@@ -378,18 +383,23 @@ def _spp_per_pass(spp: int, passes: int) -> int:
 
 
 def make_reference(scene: Scene, out: str, spp: int | None = None, passes: int | None = None,
-                   seed: int | None = None, variant: str | None = None, echo=print) -> dict:
+                   seed: int | None = None, variant: str | None = None, echo=print,
+                   settings: Settings | None = None) -> dict:
     """Render `scene` with Mitsuba into `out`: reference.exr (mean radiance), reference-stderr.exr
     (per-pixel standard error) and reference.json (the figures, returned). `spp` is the total
-    per pixel, split into `passes` passes (rounded up to a multiple of it)."""
+    per pixel, split into `passes` passes (rounded up to a multiple of it). None: the
+    reference.* value of `settings` (resolved here when None)."""
     from radiosity.stages.image import write_exr
 
-    spp = int(config.get("reference.spp", spp))
-    passes = int(config.get("reference.passes", passes))
-    seed = int(config.get("reference.seed", seed))
+    s = resolve({"reference.spp": spp, "reference.passes": passes, "reference.seed": seed,
+                 "reference.variant": variant}, base=settings)
+    ref = s.reference
+    spp = int(ref.spp)
+    passes = int(ref.passes)
+    seed = int(ref.seed)
     per = _spp_per_pass(spp, passes)
-    mi, var = load_mitsuba(variant, echo=echo)
-    depth, rho = path_depth(scene)
+    mi, var = load_mitsuba(echo=echo, settings=s)
+    depth, rho = path_depth(scene, ref.truncation)
     os.makedirs(out, exist_ok=True)
     t0 = time.perf_counter()
     msc, _ = mitsuba_scene(scene, depth, mi=mi)
@@ -397,12 +407,13 @@ def make_reference(scene: Scene, out: str, spp: int | None = None, passes: int |
     echo(f"Mitsuba {mitsuba_version()} ({var}): {len(scene.elements)} shapes, path depth {depth} "
          f"(max reflectance {rho:.3g}), {per * passes} spp in {passes} passes, "
          f"{scene.camera.width}x{scene.camera.height}")
-    mean, se, times = render_passes(mi, msc, per * passes, passes, seed=seed, echo=echo)
+    mean, se, times = render_passes(mi, msc, per * passes, passes, seed=seed, echo=echo,
+                                    max_samples=ref.max_samples_per_call)
     total = time.perf_counter() - t0
     write_exr(os.path.join(out, "reference.exr"), mean)
     write_exr(os.path.join(out, "reference-stderr.exr"), se)
     med, p99 = relative_stderr(mean, se)
-    truncation = float(config.get("reference.truncation"))
+    truncation = float(ref.truncation)
     fig = {"scene": scene.path, "width": scene.camera.width, "height": scene.camera.height,
            "spp": per * passes, "passes": passes, "spp_per_pass": per, "seed": seed,
            "time_s": total, "time_load_s": t_load, "time_passes_s": times,
@@ -438,13 +449,15 @@ def reusable(out: str, scene: Scene, spp: int, passes: int) -> dict | None:
 
 
 def form_factor(scene: Scene, frm: str, to: str, spp: int, passes: int, seed: int = 0,
-                variant: str | None = None, echo=None) -> tuple[float, float]:
+                variant: str | None = None, echo=None,
+                settings: Settings | None = None) -> tuple[float, float]:
     """The form factor from material `frm` to material `to` measured by Mitsuba: irradiance
     meters on the `to` elements, the emitters being `frm` (Le must be grey and uniform on them,
     and nothing else may emit or reflect). F_frm->to = sum_j A_j E_j / (pi Le A_frm).
 
     Returns (F, its standard error over the passes)."""
-    mi, _ = load_mitsuba(variant, echo=echo)
+    s = resolve({"reference.variant": variant}, base=settings)
+    mi, _ = load_mitsuba(echo=echo, settings=s)
     el = scene.elements
     names = np.array(el.material_names)[el.material]
     src, dst = np.nonzero(names == frm)[0], np.nonzero(names == to)[0]
@@ -455,13 +468,13 @@ def form_factor(scene: Scene, frm: str, to: str, spp: int, passes: int, seed: in
             or np.any(el.emission[others] > 0) or np.any(el.reflectance > 0)):
         raise ReferenceError(f"{scene.path}: a form factor needs emitters {frm!r} of one grey radiance, "
                              f"receivers {to!r}, no other emitter and no reflection")
-    depth, _ = path_depth(scene)
+    depth, _ = path_depth(scene, s.reference.truncation)
     msc, meters = mitsuba_scene(scene, depth, meters=dst, mi=mi)
     per = _spp_per_pass(spp, passes)
     power, var = 0.0, 0.0
     for j, sensor in meters.items():  # independent renders: their variances add
         mean, se, _ = render_passes(mi, msc, per * passes, passes, seed=seed + 7919 * (j + 1),
-                                    sensor=sensor)
+                                    sensor=sensor, max_samples=s.reference.max_samples_per_call)
         power += el.area[j] * float(mean.mean())
         var += (el.area[j] * float(se.mean())) ** 2
     norm = math.pi * float(le[0, 0]) * float(el.area[src].sum())
@@ -470,41 +483,49 @@ def form_factor(scene: Scene, frm: str, to: str, spp: int, passes: int, seed: in
 
 # ----------------------------------------------------------------------------- for the accuracy study
 
-def reference_at(scene: Scene, out: str, spp: int, passes: int, echo=print):
+def reference_at(scene: Scene, out: str, spp: int, passes: int, echo=print,
+                 settings: Settings | None = None):
     """Make, or reuse when `out` holds one of this scene and camera with at least `spp` samples
-    in `passes` passes, a reference in `out`. Returns (mean (H, W, 3), stderr, figures)."""
+    in `passes` passes, a reference in `out` (the other reference.* values from `settings`,
+    resolved when None). Returns (mean (H, W, 3), stderr, figures)."""
     from radiosity.stages.image import read_exr
 
     fig = reusable(out, scene, spp, passes)
     if fig is None:
-        fig = make_reference(scene, out, spp=spp, passes=passes, echo=echo)
+        fig = make_reference(scene, out, spp=spp, passes=passes, echo=echo, settings=settings)
     else:
         echo(f"  reusing the reference in {out} ({fig['spp']} spp, {fig['variant']})")
     return (read_exr(os.path.join(out, "reference.exr")).astype(np.float64),
             read_exr(os.path.join(out, "reference-stderr.exr")).astype(np.float64), fig)
 
 
-def path_tracer_runs(scene: Scene, spps, seed: int = 12345, repeat: int = 2, echo=print) -> list[dict]:
+def path_tracer_runs(scene: Scene, spps, seed: int = 12345, repeat: int = 2, echo=print,
+                     settings: Settings | None = None) -> list[dict]:
     """The path tracer as a method of the study: for each sample count, a render of the scene's
     camera, timed (the conversion and scene build, measured once after a warm-up, plus the best
     of `repeat` renders; the kernel compilation is left out as the engine's numba warm-up is).
+    The image kept is the first render's (its seed, not the timing, decides it).
     Returns [{"spp", "time_s", "image" (H, W, 3) float64}]."""
-    mi, var = load_mitsuba(echo=echo)
-    depth, _ = path_depth(scene)
+    s = resolve(base=settings)
+    max_samples = s.reference.max_samples_per_call
+    mi, var = load_mitsuba(echo=echo, settings=s)
+    depth, _ = path_depth(scene, s.reference.truncation)
     msc, _ = mitsuba_scene(scene, depth, mi=mi)
-    render_passes(mi, msc, 2, 2, seed=seed)  # warm-up: compiles the kernel
+    render_passes(mi, msc, 2, 2, seed=seed, max_samples=max_samples)  # warm-up: compiles the kernel
     t = time.perf_counter()
     msc, _ = mitsuba_scene(scene, depth, mi=mi)
     t_build = time.perf_counter() - t
     runs = []
     for k, spp in enumerate(spps):
-        best = math.inf
+        best, image = math.inf, None
         for rep in range(repeat):  # best of `repeat`: the machine's other work only slows
             t = time.perf_counter()
-            img, _, _ = render_passes(mi, msc, int(spp), 1, seed=seed + 1 + 2 * k + rep)
+            img, _, _ = render_passes(mi, msc, int(spp), 1, seed=seed + 1 + 2 * k + rep,
+                                      max_samples=max_samples)
             best = min(best, time.perf_counter() - t)
-            mean = img if rep == 0 else mean
-        runs.append({"spp": int(spp), "time_s": t_build + best, "image": mean, "variant": var})
+            if rep == 0:
+                image = img
+        runs.append({"spp": int(spp), "time_s": t_build + best, "image": image, "variant": var})
         echo(f"  path tracer {scene.camera.width}x{scene.camera.height} {spp} spp: "
              f"{runs[-1]['time_s']:.2f} s")
     return runs

@@ -1,24 +1,7 @@
-"""What accuracy costs in time: `radiosity study accuracy` sweeps the settings and times them.
-
-For each camera resolution x sub-pixel factor x kernel x solver tolerance, the stages are run
-and timed and the error is measured against a reference:
-
-- validation scenes (a `[validation]` table in the scene TOML): `form_factor` is the exact form
-  factor between two materials (Howell's catalogue), compared with the one the run's operator
-  gives (sum of A_a F_ab over the pairs, divided by the area of `from`); `radiance` is the exact
-  radiance everywhere (furnace scenes: Le / (1 - rho));
-- otherwise the finest setting: every run's radiance is sampled where the finest setting's
-  camera rays hit (the two-level lookup into each run's own partition), so runs of different
-  resolutions are compared at the same points, without aliasing; the relative RMS difference;
-- or a reference image the user gives (EXR): the relative RMS difference of the images, the
-  finer one box-filtered to the coarser grid;
-- or, with `--reference auto`, ground truth path-traced by Mitsuba 3 (app/reference.py) at the
-  finest resolution (box-filtered to the coarser ones that divide it, rendered again at the
-  others), made once and reused: the mean absolute relative error per pixel over the pixels
-  wholly inside one original element (compare.interior), the mean per-surface error, and the
-  reference's own noise level. The path tracer itself joins the sweep at several sample counts
-  (its error against the higher-spp reference, its time), so the Pareto front shows where each
-  method wins.
+"""What accuracy costs in time: `radiosity study accuracy` sweeps the settings and times them
+(`accuracy`: each camera resolution x sub-pixel factor x kernel x solver tolerance, run, timed
+and measured against a reference, see its docstring). `seed`, the seed's experiments, lives in
+validation.seed_experiments (re-exported here).
 
 Outputs in OUT: results.csv, results.md (Markdown table) and accuracy.png (log-log error against
 time, the Pareto front marked: the settings no other setting beats in both).
@@ -35,11 +18,15 @@ import warnings
 import dask.config
 import numpy as np
 
-from radiosity import config
 from radiosity.errors import RadiosityError
 from radiosity.core.kernels import MC, NXM, get_kernel, kernel_id
 from radiosity.core.solvers import choose_solver
-from radiosity.settings import sampling_of
+from radiosity.settings import Settings, resolve, sampling_of
+from radiosity.validation.seed_experiments import seed
+
+__all__ = ["COLUMNS", "PATH_TRACER", "HIER", "pareto", "resample", "image_error",
+           "sampled_radiance", "kernel_setting", "overridden", "form_factor_of_run", "accuracy",
+           "against_mitsuba", "write_results", "plot", "seed"]
 
 COLUMNS = ["resolution", "subpixel", "kernel", "solver", "tol", "sub_elements", "passes", "time_preprocess_s",
            "time_visibility_s", "time_solve_s", "time_image_s", "time_total_s", "error", "pareto",
@@ -92,11 +79,12 @@ def sampled_radiance(part, L: np.ndarray, orig: np.ndarray, points: np.ndarray, 
 HIER = "hier"  # a sweep label hier:EPSILON:RAYS is --method hierarchical with those settings
 
 
-def kernel_setting(spec: str):
+def kernel_setting(spec: str, settings: Settings | None = None):
     """A kernel of a sweep: "point", or a sampled kernel with its sample count, "nxm:16"
     (points per element) or "mc:64" (sample pairs), or the hierarchical method with its
-    epsilon and link rays, "hier:1e-3:16" (kernel radiosity.hierarchy.kernel). Returns (kernel,
-    dask.config overrides)."""
+    epsilon and link rays, "hier:1e-3:16" (kernel: hierarchy.kernel of `settings`, resolved
+    when None). Returns (kernel, dask.config overrides {"radiosity.section.key": value};
+    `overridden` makes them a Settings)."""
     name, _, n = spec.partition(":")
     if name == HIER:
         eps, _, k = n.partition(":")
@@ -107,9 +95,9 @@ def kernel_setting(spec: str):
                                  "e.g. hier:1e-3:16") from None
         if not (eps >= 0 and k >= 1 and int(round(k ** 0.5)) ** 2 == k):
             raise RadiosityError(f"setting {spec!r}: epsilon >= 0 and a square number of link rays")
-        return config.get("hierarchy.kernel"), {"radiosity.visibility.method": "hierarchical",
-                                                "radiosity.hierarchy.epsilon": eps,
-                                                "radiosity.hierarchy.link-rays": k}
+        return resolve(base=settings).hierarchy.kernel, {
+            "radiosity.visibility.method": "hierarchical", "radiosity.hierarchy.epsilon": eps,
+            "radiosity.hierarchy.link-rays": k}
     kid = kernel_id(name)
     if not n:
         return name, {}
@@ -118,24 +106,31 @@ def kernel_setting(spec: str):
     return name, {"radiosity.solve." + ("nxm-points" if kid == NXM else "mc-samples"): int(n)}
 
 
-def _visibility_key(spec: str) -> str:
+def overridden(settings: Settings, overrides: dict) -> Settings:
+    """`settings` with kernel_setting's dask.config overrides ({"radiosity.solve.nxm-points": 16})
+    applied."""
+    return settings.replace({k.removeprefix("radiosity."): v for k, v in overrides.items()})
+
+
+def _visibility_key(spec: str, settings: Settings) -> str:
     """Which visibility matrix (or link set) `spec` needs ("" for one ray between centres)."""
     if spec.startswith(HIER + ":"):
         return spec
-    kernel, settings = kernel_setting(spec)
-    with dask.config.set(settings):
-        smp = sampling_of(kernel)
+    kernel, overrides = kernel_setting(spec, settings)
+    smp = sampling_of(overridden(settings, overrides).solve, kernel)
     return "" if smp is None else str(smp.to_dict())
 
 
-def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> float:
-    """F from material `frm` to material `to` as the run's operator computes it (front sides)."""
-    from radiosity.methods.pairs.operator import open_operator
+def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str,
+                       settings: Settings | None = None) -> float:
+    """F from material `frm` to material `to` as the run's operator computes it (front sides);
+    settings: the operator's (None: resolved by open_operator)."""
+    from radiosity.methods.pairs.transport import open_operator
     from radiosity.stages.solve import normalise_rows
     from radiosity.runtime.store import RunStore
 
     rs = RunStore(run_dir)
-    op, part, el = open_operator(rs, client, kernel)
+    op, part, el = open_operator(rs, client, kernel, settings=settings)
     _, scaling = normalise_rows(op)
     if scaling:
         op.configure(**scaling)
@@ -149,9 +144,33 @@ def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str) -> 
 
 def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels, tols,
              reference: str | None = None, solver: str | None = None, echo=print,
-             reference_spp: int | None = None, path_tracer_spp=None) -> list[dict]:
+             reference_spp: int | None = None, path_tracer_spp=None,
+             settings: Settings | None = None) -> list[dict]:
     """Run the sweep; write results.csv, results.md and accuracy.png into `out` (with
-    `reference="auto"` also surfaces.csv and the Mitsuba reference(s) in out/reference/)."""
+    `reference="auto"` also surfaces.csv and the Mitsuba reference(s) in out/reference/).
+
+    For each camera resolution x sub-pixel factor x kernel x solver tolerance, the stages are
+    run and timed and the error is measured against a reference:
+
+    - validation scenes (a `[validation]` table in the scene TOML): `form_factor` is the exact
+      form factor between two materials (Howell's catalogue), compared with the one the run's
+      operator gives (sum of A_a F_ab over the pairs, divided by the area of `from`); `radiance`
+      is the exact radiance everywhere (furnace scenes: Le / (1 - rho));
+    - otherwise the finest setting: every run's radiance is sampled where the finest setting's
+      camera rays hit (the two-level lookup into each run's own partition), so runs of different
+      resolutions are compared at the same points, without aliasing; the relative RMS difference;
+    - or a reference image the user gives (EXR): the relative RMS difference of the images, the
+      finer one box-filtered to the coarser grid;
+    - or, with `reference="auto"`, ground truth path-traced by Mitsuba 3 (validation.reference)
+      at the finest resolution (box-filtered to the coarser ones that divide it, rendered again
+      at the others), made once and reused: the mean absolute relative error per pixel over the
+      pixels wholly inside one original element (compare.interior), the mean per-surface error,
+      and the reference's own noise level. The path tracer itself joins the sweep at several
+      sample counts (its error against the higher-spp reference, its time), so the Pareto front
+      shows where each method wins.
+
+    solver: solve.solver (None: that of `settings`, resolved here when None).
+    """
     from radiosity.stages.preprocess import preprocess
     from radiosity.stages.image import read_exr, render_outputs
     from radiosity.scene.load import load_scene
@@ -161,23 +180,25 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
     from radiosity.runtime.store import RunStore
     from radiosity.methods.pairs.visibility import compute_visibility
 
+    s = resolve({"solve.solver": solver}, base=settings)
     os.makedirs(out, exist_ok=True)
-    base = load_scene(scene_path)
+    base = load_scene(scene_path, settings=s)
     val = base.validation
     if reference == "auto" and val:
         raise RadiosityError(f"{scene_path}: the scene has a [validation] table, whose exact answer is "
                              "the study's reference; --reference auto is for scenes without one")
     rows = []
     images = {}
-    settings = sorted(itertools.product(resolutions, subpixels))
+    grid = sorted(itertools.product(resolutions, subpixels))
     # warm-up (numba kernels load from cache, Embree and workers start): not timed
     warm = os.path.join(out, "runs", "warm-up")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        preprocess(load_scene(scene_path, resolution=min(resolutions)), warm, client, progress=False)
+        preprocess(load_scene(scene_path, resolution=min(resolutions), settings=s), warm, client,
+                   progress=False)
     compute_visibility(warm, client, progress=False)
-    for res, k in settings:
-        sc = load_scene(scene_path, resolution=res)
+    for res, k in grid:
+        sc = load_scene(scene_path, resolution=res, settings=s)
         run = os.path.join(out, "runs", f"r{res}-k{k}")
         t = time.perf_counter()
         with warnings.catch_warnings():
@@ -186,10 +207,14 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         t_pre = time.perf_counter() - t
         t_vis = {}  # per sampling: one-ray kernels share one matrix, nxm / mc cast their own
         current = "none yet"
-        specs = sorted(kernels, key=_visibility_key)  # one matrix per sampling, each made once
+        # one matrix per sampling, each made once
+        specs = sorted(kernels, key=lambda spec: _visibility_key(spec, s))
         for label, tol in itertools.product(specs, tols):
-            kernel, settings = kernel_setting(label)
-            with dask.config.set(settings):  # the sample count of nxm:N / mc:k, for this row
+            kernel, overrides = kernel_setting(label, s)
+            row = overridden(s, overrides)  # the sample count of nxm:N / mc:k, for this row
+            # compute_links, compute_visibility, run_solve_links and run_solve take no settings
+            # yet: they read the row's overrides from dask.config
+            with dask.config.set(overrides):
                 hier = label.startswith(HIER + ":")
                 key = _visibility_key(label)
                 if key != current:
@@ -203,7 +228,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                 t = time.perf_counter()
                 passes = 0
                 # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
-                solve_with = config.get("solve.solver", solver)
+                solve_with = row.solve.solver
                 if solve_with == "cg" and not get_kernel(kernel).reciprocal:
                     solve_with = "auto"
                 solve_with = choose_solver(solve_with, kernel)
@@ -212,7 +237,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                                          "solve to compare; sweep the hierarchical method on a "
                                          "scene with a radiance answer or an image reference")
                 if "form_factor" in val:
-                    f = form_factor_of_run(run, client, kernel, val["from"], val["to"])
+                    f = form_factor_of_run(run, client, kernel, val["from"], val["to"], settings=row)
                     err = abs(f / val["form_factor"] - 1.0)
                     t_solve, t_img = time.perf_counter() - t, 0.0
                 else:
@@ -222,7 +247,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                     passes = fig.iterations
                     t_solve = time.perf_counter() - t
                     t = time.perf_counter()
-                    render_outputs(run, exposure="auto")
+                    render_outputs(run, exposure="auto", settings=row)
                     t_img = time.perf_counter() - t
                     rs = RunStore(run)
                     if "radiance" in val:
@@ -245,7 +270,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                  f"{rows[-1]['time_total_s']:.2f} s")
     if images and reference == "auto":  # against Mitsuba; the path tracer joins the sweep
         rows += against_mitsuba(scene_path, out, rows, images, resolutions, reference_spp,
-                                path_tracer_spp, echo)
+                                path_tracer_spp, echo, settings=s)
     elif images and reference:  # against the user's EXR
         ref = read_exr(reference)
         for r in rows:
@@ -256,8 +281,8 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
 
         key = max(images, key=lambda q: (q[0] * q[1], -q[3], q[2] == "point-nf", q[2] == "point"))
         echo(f"  reference: the finest setting {key[0]}x{key[0]} K={key[1]} {key[2]} tol={key[3]:g}")
-        fine = load_scene(scene_path, resolution=key[0])
-        rc = RayCaster(fine.elements.verts, fine.elements.nverts, float(config.get("rays.epsilon")))
+        fine = load_scene(scene_path, resolution=key[0], settings=s)
+        rc = RayCaster(fine.elements.verts, fine.elements.nverts, float(s.rays.epsilon))
         h = fine.camera.height * key[1]
         orig, pts = raster_band(rc, fine.elements.normal, fine.elements.center, fine.camera, key[1],
                                 slice(0, h))
@@ -288,32 +313,37 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
 
 
 def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, resolutions,
-                    spp: int | None = None, path_tracer_spp=None, echo=print) -> list[dict]:
+                    spp: int | None = None, path_tracer_spp=None, echo=print,
+                    settings: Settings | None = None) -> list[dict]:
     """Measure every row's image (images[(res, K, kernel, tol)], (res, res, 3)) against Mitsuba
     ground truth, in place: `error` (mean absolute relative error over the pixels wholly inside
     one element), `error_surface` (mean over the elements seen of their mean's relative error),
     `noise_floor` (what an exact image would show against this reference). Renders the path
     tracer at `path_tracer_spp` (default: 1, 4, 16, ... up to spp / 16) at every resolution of
-    the sweep and returns its rows; writes surfaces.csv (per element, per setting)."""
+    the sweep and returns its rows; writes surfaces.csv (per element, per setting). spp None:
+    reference.study-spp of `settings` (resolved here when None)."""
     from radiosity.validation.compare import box_down, box_down_stderr, element_raster, errors, interior, noise_floor, surface_errors
     from radiosity.validation.reference import path_tracer_runs, reference_at
     from radiosity.scene.load import load_scene
 
-    spp = int(config.get("reference.study-spp", spp))
-    passes = int(config.get("reference.passes"))
+    s = resolve({"reference.study-spp": spp}, base=settings)
+    spp = int(s.reference.study_spp)
+    passes = int(s.reference.passes)
     finest = max(resolutions)
-    fine_scene = load_scene(scene_path, resolution=finest)
-    refs = {finest: reference_at(fine_scene, os.path.join(out, "reference", f"r{finest}"), spp, passes, echo)[:2]}
+    fine_scene = load_scene(scene_path, resolution=finest, settings=s)
+    refs = {finest: reference_at(fine_scene, os.path.join(out, "reference", f"r{finest}"), spp, passes, echo,
+                                 settings=s)[:2]}
     truth = {}
     for res in sorted(set(resolutions)):
-        sc = load_scene(scene_path, resolution=res)
+        sc = load_scene(scene_path, resolution=res, settings=s)
         if res not in refs:
             h, w = sc.camera.height, sc.camera.width
             m, se = refs[finest]
             if m.shape[0] % h == 0 and m.shape[1] % w == 0:  # a box-filtered pixel is the exact mean
                 refs[res] = box_down(m, h, w), box_down_stderr(se, h, w)
             else:
-                refs[res] = reference_at(sc, os.path.join(out, "reference", f"r{res}"), spp, passes, echo)[:2]
+                refs[res] = reference_at(sc, os.path.join(out, "reference", f"r{res}"), spp, passes, echo,
+                                         settings=s)[:2]
         raster = element_raster(sc)
         mask = interior(raster)
         truth[res] = (*refs[res], raster, mask, noise_floor(refs[res][0], refs[res][1], mask))
@@ -341,8 +371,8 @@ def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, r
         path_tracer_spp = [4 ** i for i in range(12) if 4 ** i <= max(1, spp // 16)]
     pt = []
     for res in sorted(set(resolutions)):  # at every resolution, so equal images are compared
-        for run in path_tracer_runs(load_scene(scene_path, resolution=res), path_tracer_spp,
-                                    echo=lambda *a: None):
+        for run in path_tracer_runs(load_scene(scene_path, resolution=res, settings=s),
+                                    path_tracer_spp, echo=lambda *a: None, settings=s):
             r = {"resolution": res, "subpixel": 1, "kernel": PATH_TRACER, "solver": f"mitsuba {run['variant']}",
                  "tol": float("nan"), "sub_elements": 0, "passes": 0, "time_preprocess_s": 0.0,
                  "time_visibility_s": 0.0, "time_solve_s": run["time_s"], "time_image_s": 0.0,
@@ -444,131 +474,3 @@ def plot(path: str, rows: list[dict], title: str) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
-
-
-# ----------------------------------------------------------------------------- the seed's experiments
-
-def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256), workers=(1, 2),
-         speedup_res: int = 96, echo=print) -> dict:
-    """Reproduce the seed's experiments on SCENE (seed §5, §6): preprocessing time against camera
-    resolution (Fig. 3), visibility time against the number of sub-elements (Fig. 4), speedup
-    against workers (§5.2 table), and the image series (no preprocessing / 50x50 / 70x70 with a
-    Gaussian filter, §6). `open_cluster(n)` is a context manager giving a Client of n workers.
-    Writes seed-fig3.png, seed-fig4.png, seed-speedup.png, seed-images.png and seed.md."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from radiosity.pipeline import render_preview, render_scene
-    from radiosity.stages.preprocess import preprocess
-    from radiosity.scene.load import load_scene
-    from radiosity.methods.pairs.visibility import compute_visibility
-
-    os.makedirs(out, exist_ok=True)
-    runs = os.path.join(out, "runs")
-    rows = []
-    with open_cluster(max(workers)) as client:
-        warm = os.path.join(runs, "warm")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            preprocess(load_scene(scene_path, resolution=min(resolutions)), warm, client, progress=False)
-        compute_visibility(warm, client, progress=False)
-        for res in resolutions:
-            d = os.path.join(runs, f"r{res}")
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                t = time.perf_counter()
-                pre = preprocess(load_scene(scene_path, resolution=res), d, client, progress=False)
-                t_pre = time.perf_counter() - t
-            t = time.perf_counter()
-            vis = compute_visibility(d, client, progress=False)
-            rows.append({"resolution": res, "sub_elements": pre["sub_elements"], "preprocess_s": t_pre,
-                         "visibility_s": time.perf_counter() - t, "rays": vis["rays"]})
-            echo(f"  {res}x{res}: {pre['sub_elements']} sub-elements, preprocess {t_pre:.2f} s, "
-                 f"visibility {rows[-1]['visibility_s']:.2f} s")
-        # the image series
-        series = []
-        sc = load_scene(scene_path, resolution=70)
-        render_preview(sc, os.path.join(runs, "series"), client)
-        series.append(("no preprocessing", os.path.join(runs, "series", "preview", "image.png")))
-        for res, k, filt, label in ((50, 1, "box", "50 x 50"), (70, 2, "gaussian", "70 x 70, Gaussian")):
-            d = os.path.join(runs, f"series{res}")
-            render_scene(load_scene(scene_path, resolution=res), d, client, subpixel=k, filter=filt,
-                         preview=False, progress=False, echo=lambda *a: None)
-            series.append((label, os.path.join(d, "image.png")))
-    speed = []
-    for w in workers:
-        with open_cluster(w) as client:
-            d = os.path.join(runs, f"speed{w}")
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                preprocess(load_scene(scene_path, resolution=speedup_res), d, client, progress=False)
-            compute_visibility(d, client, progress=False)  # warm
-            t = time.perf_counter()
-            compute_visibility(d, client, progress=False)
-            speed.append({"workers": w, "visibility_s": time.perf_counter() - t})
-    for s in speed:
-        s["speedup"] = speed[0]["visibility_s"] / s["visibility_s"]
-        s["efficiency"] = s["speedup"] / s["workers"]
-
-    name = os.path.basename(os.path.dirname(os.path.abspath(scene_path)))
-    m = np.array([r["sub_elements"] for r in rows], float)
-    tv = np.array([r["visibility_s"] for r in rows])
-    order = float(np.polyfit(np.log(m[-3:]), np.log(tv[-3:]), 1)[0]) if len(m) >= 3 else float("nan")
-    fig, ax = plt.subplots(figsize=(5, 3.6), dpi=110)
-    ax.plot([r["resolution"] for r in rows], [r["preprocess_s"] for r in rows], "o-")
-    ax.set_xlabel("camera resolution (N x N)")
-    ax.set_ylabel("preprocessing time (s)")
-    ax.set_title(f"{name}: preprocessing (seed Fig. 3)")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "seed-fig3.png"))
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(5, 3.6), dpi=110)
-    ax.loglog(m, tv, "o-", label=f"measured (slope {order:.2f})")
-    ax.loglog(m, tv[0] * (m / m[0]) ** 3, "--", color="grey", label="classical method: cubic")
-    ax.set_xlabel("sub-elements")
-    ax.set_ylabel("visibility time (s)")
-    ax.set_title(f"{name}: visibility (seed Fig. 4)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "seed-fig4.png"))
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(4.2, 3.4), dpi=110)
-    ax.plot([s["workers"] for s in speed], [s["speedup"] for s in speed], "o-", label="measured")
-    ax.plot([s["workers"] for s in speed], [s["workers"] for s in speed], "--", color="grey", label="linear")
-    ax.set_xlabel("workers")
-    ax.set_ylabel("speedup")
-    ax.set_title("visibility speedup (seed §5.2)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "seed-speedup.png"))
-    plt.close(fig)
-    from PIL import Image
-
-    fig, axs = plt.subplots(1, len(series), figsize=(3.2 * len(series), 3.4), dpi=110)
-    for ax, (label, fn) in zip(np.atleast_1d(axs), series):
-        ax.imshow(np.asarray(Image.open(fn)), interpolation="nearest")
-        ax.set_title(label, fontsize=9)
-        ax.axis("off")
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "seed-images.png"))
-    plt.close(fig)
-    with open(os.path.join(out, "seed.md"), "w") as f:
-        f.write(f"# The seed's experiments on {name}\n\n| resolution | sub-elements | preprocess s | "
-                "visibility s | rays |\n|---:|---:|---:|---:|---:|\n")
-        for r in rows:
-            f.write(f"| {r['resolution']} | {r['sub_elements']} | {r['preprocess_s']:.2f} | "
-                    f"{r['visibility_s']:.2f} | {r['rays']} |\n")
-        f.write(f"\nVisibility time grows as (sub-elements)^{order:.2f} over the last three sizes.\n\n"
-                "The first table times the first visibility run of each fresh run directory (what "
-                "a user waits for); the speedup table times a second run on a directory already "
-                "computed once (caches warm), so the two differ at the same size.\n\n"
-                "| workers | visibility s | speedup | efficiency |\n|---:|---:|---:|---:|\n")
-        for s in speed:
-            f.write(f"| {s['workers']} | {s['visibility_s']:.2f} | {s['speedup']:.2f} | {s['efficiency']:.2f} |\n")
-        f.write("\n![Fig. 3](seed-fig3.png) ![Fig. 4](seed-fig4.png) ![speedup](seed-speedup.png)\n\n"
-                "![images](seed-images.png)\n")
-    return {"rows": rows, "speedup": speed, "order": order}

@@ -1,22 +1,22 @@
 """A bounding-volume tree over facets (pure numpy): the spatial structure the view-factor stage
-(viewfactor.py) uses instead of anything n x n.
+uses instead of anything n x n.
 
-Facets are reordered so that every node is a contiguous range of the new order: first by the
-dominant direction of their normal (six classes, +-x, +-y, +-z, so that clusters of facets face
-one way and whole clusters can be culled by orientation), then by recursive median splits of
-their centroids along the longest axis, down to leaves of at most `leaf_size` facets. The six
-class subtrees are joined under one root.
-
-Each node stores its facet range, its box, the area of its facets and a cone of their normals:
-an axis `a` (unit) and `spread` = max |n_i - a|, so that for every facet normal n of the node and
-any vector y, n . y <= a . y + spread |y| (vfkernels.behind uses it).
+Facets are reordered so that every node is a contiguous range: first by the dominant direction
+of their normal (six classes), then by recursive median splits of their centroids, down to
+leaves of at most `leaf_size` facets. Each node stores its facet range, its box, the area of
+its facets and a cone of their normals (axis, spread; loops.behind uses it). The details:
+docs/viewfactors-method.md ("The facet tree").
 """
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass
 
 import numpy as np
+
+#: The node arrays of a FacetTree as one argument of the numba kernels (loops, occlusion).
+Nodes = namedtuple("Nodes", "start end left right lo hi axis spread area root")
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,11 @@ class FacetTree:
 
     def __len__(self) -> int:
         return len(self.start)
+
+    def nodes(self) -> Nodes:
+        """The node arrays as one Nodes tuple (the tree argument of the numba kernels)."""
+        return Nodes(self.start, self.end, self.left, self.right, self.lo, self.hi, self.axis,
+                     self.spread, self.area, self.root)
 
 
 def normal_class(normal: np.ndarray) -> np.ndarray:

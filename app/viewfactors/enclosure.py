@@ -1,23 +1,10 @@
 """Enclosures: is a set of facets closed, and balancing a view-factor matrix so that its rows sum
 to 1 while reciprocity is kept (pure numpy / scipy; no Dask).
 
-Closed: every edge is shared by exactly two facets that run it in opposite directions
-(consistent winding; vertices are identified by their exact coordinates, so a T-junction or a
-crack makes the mesh open), and the normals point into the enclosed volume (the signed volume
-of the facets, outward-normal convention, is negative). Only then does every ray leaving a
-facet's front hit another facet, so that every row of F sums to 1.
-
-Balancing (symmetric Sinkhorn-Knopp scaling). Reciprocity makes S = diag(A) F symmetric. Find
-d > 0 with d_i sum_j F_ij d_j = 1 for every row, and replace
-
-    F_ij  <-  d_i F_ij d_j.
-
-Then every row sums to 1, A_i F'_ij = d_i d_j (A_i F_ij) is symmetric whenever A_i F_ij is
-(reciprocity kept), the sparsity pattern is unchanged (no self factor appears), and every
-factor stays in [0, 1] (non-negative entries of a row that sums to 1). The iteration
-d <- sqrt(d / (F d)) (Knight 2008, the symmetric form of Sinkhorn-Knopp) starts at d = 1; each
-step is one sparse product. Where the rows are within 1e-3 of 1 (a well computed enclosure),
-d moves by about as much.
+Closed: every edge is shared by exactly two facets that run it in opposite directions, and the
+normals point into the enclosed volume. Balancing: symmetric Sinkhorn-Knopp scaling
+F_ij <- d_i F_ij d_j (Knight 2008), which keeps reciprocity, the sparsity pattern and every
+factor in [0, 1]. Why, and how: docs/viewfactors-method.md ("Enclosures and balancing").
 """
 
 from __future__ import annotations
@@ -115,8 +102,8 @@ class Balance:
 
 def balance(F, tol: float = 1e-13, max_iterations: int = 10000):
     """Scale the CSR matrix F (n x n, rows summing to about 1, A F symmetric) to
-    F'_ij = d_i F_ij d_j with every row summing to 1 (module docstring). Rows that are all zero
-    are left alone (d_i = 1). Returns (F' as a new CSR matrix, Balance)."""
+    F'_ij = d_i F_ij d_j with every row summing to 1 (docs/viewfactors-method.md). Rows that
+    are all zero are left alone (d_i = 1). Returns (F' as a new CSR matrix, Balance)."""
     import scipy.sparse as sp
 
     F = sp.csr_matrix(F)

@@ -1,15 +1,8 @@
-"""The view-factor stage's part of the run store: per-task pairs, the manifest, the CSR matrix.
-   viewfactors/tasks/<task>-ij  (k, 2) int32: facet pairs (i, j), original facet ids, i != j
-   viewfactors/tasks/<task>-f   (k, 3) float64: [F_ij (obstructed), F_ij unobstructed, proven
-                                bound of the cheap kernel's error on the unobstructed value (0
-                                where the exact integral was used)]; F_ji = F_ij A_i / A_j
-   viewfactors/tasks/<task>-drop (d, 4) float64: cluster pairs dropped by the cut-off: [node a,
-                                node b, bound from any facet of a to b, from any facet of b to a]
-   viewfactors/matrix/          indptr (n + 1,) int64, indices (nnz,) int32, data (nnz,) float64:
-                                the CSR matrix F (row i: from facet i), balanced if an enclosure;
-                                scale (n,) float64: the balancing factors d (F = d_i d_j F_raw)
-   RUN_DIR/viewfactors.manifest.jsonl: one line per finished task (crc32, counts), after a head
-                                line naming the inputs it belongs to
+"""The view-factor stage's part of the run store: per-task pairs (viewfactors/tasks/<task>-ij,
+-f, -drop), the CSR matrix (viewfactors/matrix/), and the manifest of finished tasks
+(RUN_DIR/viewfactors.manifest.jsonl, one line per task with its crc32); `VFLedger` is that
+store and manifest as the ledger of runtime.stage.run_stage. The arrays' shapes and meaning:
+docs/viewfactors-method.md ("Store layout").
 """
 
 from __future__ import annotations
@@ -20,7 +13,12 @@ import zlib
 import numpy as np
 
 from radiosity.errors import StoreError
-from radiosity.runtime.store import Manifest, RunStore, chunks_of, create_array, zarr_module
+from radiosity.runtime.store import (STORE, Manifest, RunStore, chunks_of, create_array,
+                                     zarr_module)
+
+#: What the manifest keeps of a task's result (the rest: timing for the busy figures).
+ENTRY_KEYS = ("task", "crc", "n", "nd", "counts", "times", "cpu")
+
 
 def _vf_tasks(store_path: str) -> str:
     return os.path.join(store_path, "viewfactors", "tasks")
@@ -82,6 +80,48 @@ def create_vf(rs: RunStore, token: str, attrs: dict) -> None:
     g.create_group("tasks")
     g.update_attributes({"token": token, **attrs})
     vf_manifest(rs.run_dir).create(token)
+
+
+class VFLedger:
+    """The view factors of run directory `run_dir` as a runtime.stage.Ledger: the store's
+    viewfactors group (its token, its tasks) and the manifest. `rs`: the open RunStore, once
+    token() found one or create() made one."""
+
+    def __init__(self, run_dir: str):
+        self.run_dir = os.path.abspath(run_dir)
+        self.path = os.path.join(self.run_dir, STORE)
+        self.manifest = vf_manifest(self.run_dir)
+        self.rs: RunStore | None = None
+
+    def token(self) -> str | None:
+        if not os.path.exists(self.path):
+            return None
+        self.rs = RunStore(self.run_dir, "r+")
+        return vf_token(self.rs)
+
+    def finished(self, token: str) -> dict:
+        return self.manifest.finished(token)
+
+    def verify(self, task: int, entry: dict) -> bool:
+        try:
+            read_vf_task(self.path, task, entry)
+        except StoreError:
+            return False
+        return True
+
+    def rewrite_manifest(self, token: str, entries: dict) -> None:
+        self.manifest.rewrite(token, entries)
+
+    def record(self, task: int, result: dict) -> None:
+        self.manifest.record({k: result[k] for k in ENTRY_KEYS})
+
+    def create(self, token: str, attrs: dict, sources, facets: dict) -> None:
+        """A fresh store: the facets' arrays (`facets`, name -> array) and an empty
+        viewfactors group with its manifest."""
+        self.rs = RunStore(self.run_dir, "w")
+        self.rs.set_attrs(kind="viewfactors", sources=list(sources))
+        self.rs.write_arrays("facets", facets)
+        create_vf(self.rs, token, attrs)
 
 
 def write_vf_matrix(rs: RunStore, indptr, indices, data, scale, attrs: dict) -> None:

@@ -31,13 +31,12 @@ import dask
 import numba
 import numpy as np
 
-from radiosity import config
-from radiosity.runtime.cluster import default_workers, scatter, scatterable
+from radiosity.runtime.cluster import default_workers, scatterable
 from radiosity.errors import RadiosityError, StoreError
 from radiosity.core.exact import _point_ff, point_ff
 from radiosity.runtime.monitor import progress_bar
-from radiosity.methods.pairs.operator import CACHE
-from radiosity.methods.pairs.passes import CAP_MIN, CAP_PRODUCT
+from radiosity.methods.base import CAP_MIN, CAP_PRODUCT, GroupExecutor
+from radiosity.runtime.cache import CACHE
 
 LINK_CACHE_KEY = "links"
 # The linear final gather's far links: a source farther than FG_FAR times both nodes' sizes,
@@ -764,28 +763,21 @@ class LocalLinkOperator(_Base):
 
 
 class LinkOperator(_Base):
-    """K by Dask tasks over groups of link tasks, each group pinned to one worker (its link
-    cache stays warm across passes); a failed group is resubmitted anywhere."""
+    """K by Dask tasks over groups of link tasks, run by the methods' GroupExecutor (each group
+    pinned to one worker, so its link cache stays warm across passes; a failed group is
+    resubmitted anywhere; data lost with a worker is sent again)."""
 
-    def __init__(self, client, inp_future, inp: LinkSolveInputs, kernel: str,
-                 groups: int | None = None):
+    def __init__(self, client, inp: LinkSolveInputs, kernel: str, groups: int | None = None,
+                 retries: int = 3):
         ngroups = groups or max(1, 2 * (sum(client.nthreads().values()) or 1))
         super().__init__(inp, kernel, ngroups)
         self.client = client
-        self.inp_f = inp_future
-        workers = sorted(client.scheduler_info()["workers"])
-        self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
-        self.retries = int(config.get("visibility.retries"))
-        self._gs_fixed = None
+        self.executor = GroupExecutor(client, inp, len(self.groups), retries)
 
     def apply(self, L, live=None, use_need: bool = True):
-        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
-        futs = [self.client.submit(task_apply, self.inp_f, g, Lf, use_need, pure=False,
-                                   workers=[w] if w else None, allow_other_workers=True,
-                                   retries=self.retries)
-                for g, w in zip(self.groups, self.workers or [None] * len(self.groups))]
         y = np.zeros_like(L)
-        for yp, t in self.client.gather(futs):
+        for yp, t in self.executor.run(task_apply, lambda i, Lf: (self.groups[i], Lf, use_need),
+                                       (L,), name="solve group"):
             y += yp
             self.terms += t
         self.passes += 1
@@ -794,33 +786,22 @@ class LinkOperator(_Base):
     def configure(self, **arrays) -> None:
         for k, v in arrays.items():
             setattr(self.inp, k, v)
-        [self.inp_f] = scatter(self.client, [self.inp], broadcast=True)
+        self.executor.replace_inputs(self.inp)
 
     def final_gather(self, L):
         """The final gather of the solved L, one task per group of originals."""
-        [Lf] = self.client.scatter([L], broadcast=False, hash=False)
         groups = self.orig_groups(len(self.groups))
-        futs = [self.client.submit(task_final_gather, self.inp_f, g, Lf, pure=False,
-                                   workers=[w] if w else None, allow_other_workers=True,
-                                   retries=self.retries)
-                for g, w in zip(groups, self.workers or [None] * len(groups))]
         y = np.zeros_like(L)
         self.evals = 0
-        for yp, e in self.client.gather(futs):
+        for yp, e in self.executor.run(task_final_gather, lambda i, Lf: (groups[i], Lf), (L,),
+                                       name="final gather", count=len(groups)):
             y += yp
             self.evals += e
         return y
 
     def gs_sweep(self, L, Le, rho):
-        w = self.workers[0] if self.workers else None
-        if self._gs_fixed is None or self._gs_fixed[0] is not Le:
-            self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
-        Lf = self.client.scatter([L], hash=False)[0]
-        Lef, rhof = self._gs_fixed[1]
-        f = self.client.submit(task_gs_sweep, self.inp_f, Lf, Lef, rhof, pure=False,
-                               workers=[w] if w else None, allow_other_workers=True,
-                               retries=self.retries)
-        new, t = f.result()
+        [(new, t)] = self.executor.run(task_gs_sweep, lambda i, Lf, Lef, rhof: (Lf, Lef, rhof),
+                                       (L, Le, rho), name="Gauss-Seidel sweep", count=1)
         self.terms += t
         self.passes += 1
         return new
@@ -828,8 +809,9 @@ class LinkOperator(_Base):
 
 # ----------------------------------------------------------------------------- the stage
 
-def solve_inputs(rs, elements) -> tuple:
-    """(LinkSolveInputs, node table dict, kernel) of a run whose link stage finished."""
+def solve_inputs(rs, elements, cache_bytes: int) -> tuple:
+    """(LinkSolveInputs, node table dict, kernel) of a run whose link stage finished; the
+    workers' link caches hold at most `cache_bytes` each."""
     from radiosity.methods.hierarchical.store import LinkStore
 
     ls = LinkStore(rs)
@@ -847,7 +829,7 @@ def solve_inputs(rs, elements) -> tuple:
     entries = np.array([[done[t]["crc"], done[t]["n"], done[t]["nx"]] for t in range(ntasks)],
                        np.int64).reshape(-1, 3)
     inp = LinkSolveInputs(table, entries, rs.path, token, elements.normal)
-    inp.cache_bytes = int(config.get("solve.cache-bytes"))
+    inp.cache_bytes = int(cache_bytes)
     return inp, table, ls.attrs().get("kernel")
 
 
@@ -882,130 +864,23 @@ def to_sub_elements(L: np.ndarray, table: dict, m: int) -> np.ndarray:
     return out
 
 
-def open_link_operator(rs, client=None, where: str = "auto"):
+def open_link_operator(rs, client=None, where: str = "auto", settings=None):
     """The operator of a run's links: in this process (client None, or where "driver", or
-    "auto" with at most radiosity.hierarchy.driver-solve-links links: no round trips per pass)
-    or a LinkOperator over `client` (where "cluster", or "auto" above that). Returns (op, table,
-    elements, partition)."""
+    "auto" with at most hierarchy.driver-solve-links links: no round trips per pass) or a
+    LinkOperator over `client` (where "cluster", or "auto" above that). settings: a
+    settings.Settings (None: resolved here). Returns (op, table, elements, partition)."""
+    from radiosity.settings import resolve
+
+    s = settings if settings is not None else resolve()
     el = rs.load_elements()
-    inp, table, kernel = solve_inputs(rs, el)
+    inp, table, kernel = solve_inputs(rs, el, s.solve.cache_bytes)
     links = int(inp.entries[:, 1].sum()) if len(inp.entries) else 0
     if where not in ("auto", "driver", "cluster"):
         raise ValueError(f"where must be auto, driver or cluster, got {where!r}")
     if where == "auto":
-        where = "driver" if links <= int(float(config.get("hierarchy.driver-solve-links"))) \
-            else "cluster"
+        where = "driver" if links <= int(s.hierarchy.driver_solve_links) else "cluster"
     if client is None or where == "driver":
         op = LocalLinkOperator(inp, kernel)
     else:
-        [inp_f] = scatter(client, [inp], broadcast=True)
-        op = LinkOperator(client, inp_f, inp, kernel)
+        op = LinkOperator(client, inp, kernel, retries=int(s.visibility.retries))
     return op, table, el, rs.load_partition()
-
-
-def run_solve_links(run_dir: str, client, solver: str | None = None, tol: float | None = None,
-                    max_iter: int | None = None, progress: bool = True, callback=None,
-                    normalise=None, effects=None, closure=None, keep_unconverged: bool = False,
-                    where: str = "auto"):
-    """Solve a hierarchical run (after the link stage) on its leaves; then, with
-    radiosity.hierarchy.final-gather, one final gather that re-evaluates every link into a node
-    above the leaves at each of its leaves (the uniform push leaves a saw-tooth over coarse
-    receivers). Writes solution/radiance (m, 2, 3) per sub-element (to_sub_elements of the
-    final gather), solution/leaf_radiance (M, 2, 3) (the solver's fixed point L = Le + rho K L)
-    and the report's "solve" section; returns solve.SolveFigures. Closure, row normalisation
-    and an unconverged solve are handled as by solve.run_solve. client None: in-process; where:
-    open_link_operator's choice of driver or cluster."""
-    from radiosity.stages.solve import SolveFigures, normalise_rows, resolve_closure, row_mode, store_solution
-    from radiosity.core.solvers import anorm, choose_solver, get_solver
-    from radiosity.runtime.store import RunStore
-
-    tol = float(config.get("solve.tol", tol))
-    max_iter = int(config.get("solve.max-iterations", max_iter))
-    t0 = time.perf_counter()
-    rs = RunStore(run_dir, "r+")
-    op, table, el, part = open_link_operator(rs, client, where)
-    solver = choose_solver(config.get("solve.solver", solver), op.kernel)
-    fn = get_solver(solver)
-    if solver == "progressive":
-        import functools
-
-        fn = functools.partial(fn, shoot_fraction=float(config.get("solve.shoot-fraction")))
-    Le, rho, area = leaf_vectors(table, el)
-    mode = config.get("solve.normalise-rows", normalise)
-    if mode in ("auto", None) and closure is None:
-        closure = resolve_closure(config.get("solve.closure"), el)
-    rows, changes = normalise_rows(op, row_mode(mode, closure))
-    channels = 3
-    if effects is not None:
-        changes["sided"] = effects.two_sided[table["orig"][table["leaf_node"]]]
-        changes["need"] = effects.gather if not effects.gather.all() else np.zeros(0, np.bool_)
-        if not effects.colour:
-            channels = 1
-            Le, rho = Le[:, :1].copy(), rho[:, :1].copy()
-    if changes:
-        op.configure(**changes)
-    bar = progress_bar(None, f"solve ({solver}, links)", progress, unit="pass")
-    history = []
-
-    def cb(k, r, L):
-        if not np.isfinite(r) or r > 1e8:
-            bar.close()
-            raise RadiosityError(f"{solver} diverged after {k} passes (residual {r:.3g}) on the "
-                                 "links: keep radiosity.solve.normalise-rows on")
-        bar.update()
-        history.append(r)
-        if callback:
-            callback(k, r, L)
-
-    t_iter, terms0 = time.perf_counter(), op.terms
-    res = fn(op, Le, rho, area, tol, max_iter, cb)
-    t_iter, iter_terms = time.perf_counter() - t_iter, op.terms - terms0
-    bar.close()
-    t_solve = time.perf_counter() - t0
-    y = op.apply(res.radiance)
-    final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
-    M = len(area)
-    t_fg = time.perf_counter()
-    fg = config.get("hierarchy.final-gather")
-    gather_final = fg not in (False, None, "none")
-    Lf = res.radiance
-    if gather_final:
-        if fg not in ("exact", "linear"):
-            raise RadiosityError(f"radiosity.hierarchy.final-gather must be none, linear or exact, "
-                                 f"got {fg!r}")
-        # the final gather evaluates form factors afresh (exact, from each leaf's centroid):
-        # the solve's row caps and balancing, made for the links' approximate form factors, do
-        # not apply to them (MEASURED, Cornell box against Mitsuba: with the caps kept 5.6 %
-        # at 128^2 and 5.8 % at 512^2, without 5.2 % and 3.8 %); in a closed scene its rows are
-        # balanced to 1 in turn (every leaf sees the whole enclosure; else rho -> 1 turns their
-        # row error into the answer's)
-        closed = rows.get("mode") == "closed"
-        op.configure(fg_levels=int(config.get("hierarchy.final-gather-levels")), fg_mode=fg,
-                     cap=np.ones(M), cmode=CAP_MIN)
-        G = op.final_gather(res.radiance)
-        if closed:
-            r = op.final_gather(np.ones_like(res.radiance[:, :1]))
-            G = G / np.where(r > 0, r, 1.0)
-        Lf = Le + rho * G
-    t_fg = time.perf_counter() - t_fg
-    L3 = np.broadcast_to(res.radiance, (2, 3, M)) if channels == 1 else res.radiance
-    F3 = np.broadcast_to(Lf, (2, 3, M)) if channels == 1 else Lf
-    radiance = to_sub_elements(F3, table, len(part))
-    fig = SolveFigures(
-        solver=solver, kernel=op.kernel, tol=tol, iterations=res.iterations,
-        converged=bool(res.converged), residuals=[float(r) for r in res.residuals],
-        final_residual=final, passes=op.passes, pair_terms=int(op.terms),
-        pair_terms_per_s=iter_terms / max(t_iter, 1e-9), time_s=round(t_solve, 4),
-        sub_elements=len(part), row_sums=rows, channels=channels,
-        gathering_elements=int(op.inp.need.sum()) if len(op.inp.need) else len(el),
-        channel_terms=int(op.terms) * channels,
-        ambient=None if res.ambient is None else res.ambient.tolist(),
-        closure=None if closure is None else closure.to_dict(), method="hierarchical",
-        hierarchy={"leaves": M, "link_terms": int(op.terms),
-                   "passes_on": "driver" if isinstance(op, LocalLinkOperator) else "workers",
-                   "final_gather": fg if gather_final else "none",
-                   "final_gather_evaluations": int(getattr(op, "evals", 0)),
-                   "time_final_gather_s": round(t_fg, 4)})
-    leaf = np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))
-    return store_solution(rs, fig, res, {"radiance": radiance, "leaf_radiance": leaf},
-                          keep_unconverged, max_iter)

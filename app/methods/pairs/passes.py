@@ -12,17 +12,14 @@ import numpy as np
 
 from radiosity.core.kernels import NXM, _f, _facing_signs, _pair_sampled, _sampled
 
+from radiosity.methods.base import CAP_MIN, CAP_PRODUCT  # noqa: F401  (CAP_PRODUCT: re-exported)
+
 BOTH, ROWS, COLS = 0, 1, 2  # which directions of a tile a pass applies
-# how a pair's form factors are scaled by the per-sub-element factors `cap` (solve.py's row
-# normalisation): CAP_MIN by min(cap_a, cap_b) (rows capped at 1; 1 = none), CAP_PRODUCT by
-# cap_a cap_b (closed scenes: symmetric balancing of every row to exactly 1)
-CAP_MIN, CAP_PRODUCT = 0, 1
 
 
 @numba.njit(cache=True, inline="always")
 def _scale(cmode, ca, cb):
     return min(ca, cb) if cmode == CAP_MIN else ca * cb
-
 
 
 @numba.njit(cache=True, fastmath=True, error_model="numpy")

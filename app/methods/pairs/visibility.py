@@ -30,13 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 from dask.base import tokenize
 
-from radiosity import config
 from radiosity.runtime.cluster import Scattered
 from radiosity.core.kernels import MC, NXM, Sampling, sample_points, sample_rays
 from radiosity.runtime.monitor import Monitor, peak_rss_mb, worker_address
-from radiosity.methods.pairs.plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, choose_unit, make_plan
+from radiosity.methods.pairs.plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, make_plan
+from radiosity.runtime.packing import choose_unit
 from radiosity.tracing.rays import caster_for
-from radiosity.runtime.runner import run_tasks
+from radiosity.runtime.stage import StagePlan, run_stage
 from radiosity.settings import sampling_of
 from radiosity.tracing.shafts import block_candidates, classify, occluders, set_bits, small_tile_pairs
 from radiosity.runtime.store import RunStore, StageFigures
@@ -273,117 +273,96 @@ def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: 
 
 # ----------------------------------------------------------------------------- the master
 
-def plan_for(part, elements, unit: str | None, where: str = "the scene"):
-    """The visibility plan of a partition, with the task unit and sizes from the config. The
+def plan_for(part, elements, unit: str | None, settings, where: str = "the scene"):
+    """The visibility plan of a partition, with the task unit and sizes from `settings`. The
     blocks that face each other come from the hierarchy over the originals (originals.py):
-    nothing n x n, and at most radiosity.plan.max-facing-pairs of them (refused beyond)."""
+    nothing n x n, and at most plan.max-facing-pairs of them (refused beyond)."""
     from radiosity.scene.originals import pairs_within_budget, tree_of
 
-    unit = choose_unit(config.get("visibility.task-unit", unit), len(elements),
-                       int(config.get("visibility.stripe-threshold")))
-    tree = tree_of(elements, int(config.get("plan.leaf-size")))
-    bi, bj, _ = pairs_within_budget(tree, int(float(config.get("plan.max-facing-pairs"))), where)
-    return make_plan(part.offsets, (bi, bj), unit, int(config.get("visibility.max-task-bits")),
-                     min_task_bits=int(config.get("visibility.min-task-bits")))
+    vis = settings.visibility
+    unit = choose_unit(unit or vis.task_unit, len(elements), int(vis.stripe_threshold))
+    tree = tree_of(elements, int(settings.plan.leaf_size))
+    bi, bj, _ = pairs_within_budget(tree, int(settings.plan.max_facing_pairs), where)
+    return make_plan(part.offsets, (bi, bj), unit, int(vis.max_task_bits),
+                     min_task_bits=int(vis.min_task_bits))
 
 
-def compute_visibility(run_dir: str, client, unit: str | None = None, resume: bool = False,
-                       progress: bool = True, on_done=None, occlusion: bool = True,
-                       kernel: str | None = None) -> VisibilityFigures:
-    """The dynamic master (seed §4.3) through the one runner (runner.py): a bounded window of
-    tasks in flight per worker thread, most expensive first; failed tasks are resubmitted;
-    every finished task is recorded with its checksum, so `resume` recomputes only what is
-    missing or corrupted. `on_done(n_finished)` is called after each task (for tests).
-    occlusion=False (effects.py: nothing can block) makes the bits orientation alone.
-    kernel: the form-factor kernel the matrix is for (default radiosity.solve.kernel): the
-    sampled ones (nxm, mc) cast one ray per sample pair (kernels.sampling_of).
-    """
-    sampling = sampling_of(config.get("solve.kernel", kernel))
-    epsilon = float(config.get("rays.epsilon"))
+class _Ledger:
+    """The visibility group as run_stage's ledger (verify needs the plan)."""
+
+    def __init__(self, vs: VisibilityStore, plan):
+        self.vs, self.plan = vs, plan
+
+    def token(self):
+        return self.vs.token()
+
+    def finished(self, token):
+        return self.vs.finished(token)
+
+    def verify(self, task, entry):
+        return self.vs.verify(self.plan, task, entry)
+
+    def rewrite_manifest(self, token, entries):
+        self.vs.rewrite_manifest(token, entries)
+
+    def record(self, task, result):
+        self.vs.record(task, result)
+
+
+def compute_visibility(run_dir: str, client, settings=None, *, unit: str | None = None,
+                       resume: bool = False, progress: bool = True, on_done=None,
+                       occlusion: bool = True, kernel: str | None = None) -> VisibilityFigures:
+    """The dynamic master (seed §4.3) on the one stage executor (runtime/stage.py): a bounded
+    window of tasks per worker thread, most expensive first, failed tasks resubmitted, every
+    finished task recorded with its checksum, so `resume` recomputes only what is missing or
+    corrupted. occlusion=False (effects.py: nothing can block) makes the bits orientation
+    alone. kernel (default solve.kernel): the sampled ones (nxm, mc) cast one ray per sample
+    pair. settings: a settings.Settings (None: resolved here)."""
+    from radiosity.settings import resolve
+
+    s = resolve({"solve.kernel": kernel}, base=settings)
+    sampling = sampling_of(s.solve)
+    epsilon = float(s.rays.epsilon)
     t_start = time.perf_counter()
     rs = RunStore(run_dir, "r+")
-    part = rs.load_partition()
-    el = rs.load_elements()
-    plan = plan_for(part, el, unit, where=rs.attrs.get("scene") or run_dir)
+    part, el = rs.load_partition(), rs.load_elements()
+    plan = plan_for(part, el, unit, s, where=rs.attrs.get("scene") or run_dir)
+    sampled = None if sampling is None else sampling.to_dict()
     token = tokenize(plan.tiles, plan.tasks, plan.chunk, part.center, part.normal, el.verts,
-                     epsilon, occlusion, None if sampling is None else sampling.to_dict())
+                     epsilon, occlusion, sampled)
     vs = VisibilityStore(rs)
-    done = {}
-    corrupted = 0
-    if resume and vs.token() == token:
-        done = vs.finished(token)
-        good = {}
-        for task, entry in done.items():
-            if vs.verify(plan, task, entry):
-                good[task] = entry
-            else:
-                corrupted += 1
-        done = good
-        # corrupted entries are never trusted again, and a line torn by a crash or a full disk
-        # must not swallow the next one: the manifest is rewritten clean before appending
-        vs.rewrite_manifest(token, done)
-    else:
+
+    def create():
         rs.drop_after("raster")
-        vs.create(plan, token, {"rays_epsilon": epsilon,
-                                "sampling": None if sampling is None else sampling.to_dict()})
-    todo = [t for t in range(len(plan.tasks)) if t not in done]
-    key = tokenize(el.verts, el.nverts)
-    threads = sum(client.nthreads().values()) or 1
-    counts = np.zeros(len(COUNTERS), np.int64)
-    for e in done.values():
-        counts += np.asarray(e["counts"], np.int64)
-    busy: dict = {}
-    computed = [0]
-    t_loop = time.perf_counter()
+        vs.create(plan, token, {"rays_epsilon": epsilon, "sampling": sampled})
+
     mon = Monitor(client)
     mon.stage("visibility", run_dir)
-    mon.visibility(plan, done, len(el), force=True)
+    shared = Scattered(client, vis_inputs(part, el, tokenize(el.verts, el.nverts), epsilon,
+                                          occlusion, sampling), straight=False)
 
-    def finished(task, res):
-        nonlocal counts
-        vs.record(task, res)  # in the manifest only after its bytes were written
-        done[task] = res
-        computed[0] += 1
-        counts += res["counts"]
-        busy[res["worker"]] = busy.get(res["worker"], 0.0) + (res["stop"] - res["start"])
-        mon.visibility(plan, done, len(el))
-        if on_done is not None:
-            on_done(computed[0])
+    def args(task):
+        t = plan.tasks[task]
+        return (shared.future(), plan.tiles_of(task), rs.path, int(t[TSTART]), int(t[TBYTES]), task)
 
-    if todo:
-        inp = vis_inputs(part, el, key, epsilon, occlusion, sampling)
-        shared = Scattered(client, inp, straight=False)
-
-        def args(task):
-            t = plan.tasks[task]
-            return (shared.future(), plan.tiles_of(task), rs.path, int(t[TSTART]),
-                    int(t[TBYTES]), task)
-
-        run_tasks(client, task_visibility, todo, args, name="visibility",
-                  token=tokenize(token, rs.path), cost=plan.task_bits(),
-                  window=max(1, int(config.get("visibility.window-per-worker")) * threads),
-                  retries=int(config.get("visibility.retries")), on_result=finished,
-                  progress=progress, done=len(done),
-                  repair=f"rerun with: radiosity visibility {run_dir} --resume")
-    mon.visibility(plan, done, len(el), force=True)
-    wall = time.perf_counter() - t_loop
-    c = dict(zip(COUNTERS, counts.tolist()))
+    stage = StagePlan("visibility", token, rs.path, len(plan.tasks), plan.task_bits(),
+                      f"rerun with: radiosity visibility {run_dir} --resume",
+                      int(s.visibility.window_per_worker), int(s.visibility.retries))
+    run = run_stage(client, stage, task_visibility, args, _Ledger(vs, plan), resume=resume,
+                    create=create, ncounters=len(COUNTERS), progress=progress, on_done=on_done,
+                    on_result=lambda task, res, done: mon.visibility(plan, done, len(el)))
+    mon.visibility(plan, run.done, len(el), force=True)
+    c = dict(zip(COUNTERS, run.counts.tolist()))
     m = len(part)
-    naive = m * (m - 1)  # ordered pairs a brute force would trace
-    nworkers = len(client.scheduler_info()["workers"]) or 1
     fig = VisibilityFigures(**{
-        "task_unit": plan.unit, "tasks": int(len(plan.tasks)), "tasks_computed": computed[0],
-        "tasks_reused": int(len(plan.tasks) - computed[0]), "tasks_corrupted_recomputed": corrupted,
+        "task_unit": plan.unit, "tasks": int(len(plan.tasks)), **run.figures(),
         "tiles": int(len(plan.tiles)), "chunk_bytes": plan.chunk, "store_bytes": plan.total,
         "sub_elements": m, "blocks_culled": int(plan.blocks_culled),
         "pairs_total": m * (m - 1) // 2, **c,
         "pairs_culled_by_orientation": m * (m - 1) // 2 - c["pairs_facing"],
         "rays_fraction_of_pairs": c["rays"] / max(1, m * (m - 1) // 2),
-        "naive_ordered_rays": naive,
-        "time_s": round(time.perf_counter() - t_start, 4), "time_tasks_s": round(wall, 4),
-        "busy_s_per_worker": {str(k): round(v, 4) for k, v in busy.items()},
-        "idle_fraction": (1.0 - sum(busy.values()) / (nworkers * wall)) if wall > 0 and busy else None,
-        "workers": nworkers, "occlusion": occlusion,
+        "naive_ordered_rays": m * (m - 1),  # ordered pairs a brute force would trace
+        "time_s": round(time.perf_counter() - t_start, 4), "occlusion": occlusion,
         "sampling": None if sampling is None else sampling.describe(),
         "rays_per_pair": 1 if sampling is None else sampling.rays_per_pair,
         "peak_rss_mb": peak_rss_mb(client),

@@ -14,40 +14,19 @@ inputs are frozen dataclasses with every value resolved on the driver.
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass, replace
-from typing import Protocol
 
 import numpy as np
 
-from radiosity import config
 from radiosity.errors import RadiosityError
 from radiosity.core.kernels import get_kernel, kernel_id, sample_points, sampled_pairs
-from radiosity.methods.pairs.passes import BOTH, CAP_MIN, gs_sweep, partial_apply, sparse_by_target, tiles_apply
-from radiosity.methods.pairs.plan import I, J, TSTART, TBYTES, VisibilityPlan, pack_groups
+from radiosity.methods.base import CAP_MIN, GroupExecutor, Operator  # noqa: F401
+from radiosity.methods.pairs.passes import BOTH, gs_sweep, partial_apply, sparse_by_target, tiles_apply
+from radiosity.methods.pairs.plan import I, J, TSTART, TBYTES, VisibilityPlan
+from radiosity.runtime.packing import pack_groups
 from radiosity.settings import sampling_of
-from radiosity.runtime.runner import gather_retrying
+from radiosity.runtime.cache import CACHE, BoundedCache  # noqa: F401  (BoundedCache: re-exported)
 from radiosity.methods.pairs.store import VisibilityStore, read_partial, read_task_checked
-
-
-class Operator(Protocol):
-    """What the solvers need: F applied to (2, C, m) vectors [side, channel, sub-element]."""
-
-    kernel: str
-    passes: int
-    terms: int
-
-    def apply(self, L: np.ndarray, live: np.ndarray | None = None,
-              use_need: bool = True) -> np.ndarray:
-        """F L; `live` (m,) bool marks the sub-elements whose L may be non-zero; with use_need,
-        the rows of originals that do not gather stay 0."""
-
-    def row_sums(self) -> np.ndarray:
-        """sum_b F_ab for every sub-element and side, (2, m) (one pass)."""
-
-    def gs_sweep(self, L: np.ndarray, Le: np.ndarray, rho: np.ndarray) -> np.ndarray:
-        """One block Gauss-Seidel sweep from L; returns the new L."""
 
 
 @dataclass(frozen=True)
@@ -110,46 +89,6 @@ def solve_inputs(part, elements, plan: VisibilityPlan, crc, store_path: str, tok
         cache_bytes=int(cache_bytes))
 
 
-# ----------------------------------------------------------------------------- worker cache
-
-class BoundedCache:
-    """A least-recently-used cache bounded in bytes, safe under several threads per worker
-    (the loads run outside the lock: two threads may load the same key once each)."""
-
-    def __init__(self):
-        self._items: OrderedDict = OrderedDict()  # key -> (value, bytes)
-        self._bytes = 0
-        self._lock = threading.Lock()
-
-    def get(self, key, load, nbytes, cap: int):
-        with self._lock:
-            got = self._items.get(key)
-            if got is not None:
-                self._items.move_to_end(key)
-                return got[0]
-        value = load()
-        size = int(nbytes(value))
-        if size <= cap:
-            with self._lock:
-                if key not in self._items:
-                    self._items[key] = (value, size)
-                    self._bytes += size
-                while self._bytes > cap and self._items:
-                    _, (_, old) = self._items.popitem(last=False)
-                    self._bytes -= old
-        return value
-
-    @property
-    def nbytes(self) -> int:
-        return self._bytes
-
-    def clear(self) -> None:
-        with self._lock:
-            self._items.clear()
-            self._bytes = 0
-
-
-CACHE = BoundedCache()  # one per worker process: what passes read from the store
 
 
 def _task_bytes(inp: SolveInputs, task: int) -> np.ndarray:
@@ -314,88 +253,31 @@ class LocalOperator(_Base):
 
 
 class DaskOperator(_Base):
-    """The task functions as Dask tasks over groups of visibility tasks. Each group is pinned to
-    one worker (its tile cache stays warm across passes); a group that fails is resubmitted
-    anywhere, up to `retries` times, and a pass whose scattered data died with a worker is
-    scattered again and rerun."""
+    """The task functions as Dask tasks over groups of visibility tasks, run by the methods'
+    GroupExecutor (groups pinned to workers, failed groups resubmitted, data lost with a worker
+    sent again)."""
 
     def __init__(self, client, inp: SolveInputs, kernel: str, groups: int | None = None,
                  retries: int = 3):
         ngroups = groups or max(1, 2 * (sum(client.nthreads().values()) or 1))
         super().__init__(inp, kernel, ngroups)
         self.client = client
-        workers = sorted(client.scheduler_info()["workers"])
-        self.workers = [workers[g % len(workers)] for g in range(len(self.groups))] if workers else None
-        self.retries = retries
-        [self.inp_f] = client.scatter([inp], broadcast=True, hash=False)
-        self._gs_fixed = None  # (Le, [futures of Le, rho]) scattered once for Gauss-Seidel
-
-    def _lost_data_retried(self, run):
-        """run() one pass; if a worker died holding the only copy of scattered data (the vector,
-        or the inputs it was given), the pass's futures are cancelled (scattered data has no
-        lineage to recompute it from): scatter again to the workers alive now and rerun, up to
-        `retries` times. Errors of the tasks themselves (a corrupted store) pass through."""
-        from concurrent.futures import CancelledError
-
-        for attempt in range(self.retries + 1):
-            try:
-                return run()
-            except (CancelledError, OSError) as e:  # FutureCancelledError, CommClosedError
-                if attempt == self.retries:
-                    raise RadiosityError(f"a solver pass failed {attempt + 1} times: workers were "
-                                         f"lost ({type(e).__name__}: {e})") from None
-                alive = sorted(self.client.scheduler_info()["workers"])
-                self.workers = ([alive[g % len(alive)] for g in range(len(self.groups))]
-                                if alive else None)
-                [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
-                self._gs_fixed = None
+        self.executor = GroupExecutor(client, inp, len(self.groups), retries)
 
     def _run_groups(self, L, live_orig, use_need) -> list:
-        def run():
-            Lf = self.client.scatter([L], broadcast=False, hash=False)
-            workers = self.workers or [None] * len(self.groups)
-
-            def submit(i, attempt):
-                if attempt and Lf[0].status != "finished":  # its only copy died with a worker
-                    Lf[:] = self.client.scatter([L], broadcast=False, hash=False)
-                return self.client.submit(task_apply, self.inp_f, self.groups[i], Lf[0], self.kid,
-                                          live_orig, use_need, pure=False,
-                                          workers=[workers[i]] if workers[i] else None,
-                                          allow_other_workers=True)
-
-            return gather_retrying(self.client, submit, len(self.groups), self.retries,
-                                   name="solve group")
-
-        return self._lost_data_retried(run)
+        return self.executor.run(
+            task_apply, lambda i, Lf: (self.groups[i], Lf, self.kid, live_orig, use_need), (L,),
+            name="solve group")
 
     def configure(self, **arrays) -> None:
         """Replace input arrays and re-scatter the inputs to the workers (one scatter)."""
         super().configure(**arrays)
-        [self.inp_f] = self.client.scatter([self.inp], broadcast=True, hash=False)
+        self.executor.replace_inputs(self.inp)
 
     def gs_sweep(self, L, Le, rho) -> np.ndarray:
-        def run():
-            w = self.workers[0] if self.workers else None
-            if self._gs_fixed is None or self._gs_fixed[0] is not Le:
-                self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
-            Lf = self.client.scatter([L], hash=False)
-
-            def submit(i, attempt):
-                if attempt:  # scattered inputs whose only copy died with a worker: again
-                    if Lf[0].status != "finished":
-                        Lf[:] = self.client.scatter([L], hash=False)
-                    if any(f.status != "finished" for f in self._gs_fixed[1]):
-                        self._gs_fixed = (Le, self.client.scatter([Le, rho], hash=False))
-                Lef, rhof = self._gs_fixed[1]
-                return self.client.submit(task_gs_sweep, self.inp_f, Lf[0], Lef, rhof, self.kid,
-                                          pure=False, workers=[w] if w else None,
-                                          allow_other_workers=True)
-
-            [out] = gather_retrying(self.client, submit, 1, self.retries,
-                                    name="Gauss-Seidel sweep")
-            return out
-
-        new, terms = self._lost_data_retried(run)
+        [(new, terms)] = self.executor.run(
+            task_gs_sweep, lambda i, Lf, Lef, rhof: (Lf, Lef, rhof, self.kid), (L, Le, rho),
+            name="Gauss-Seidel sweep", count=1)
         self.terms += terms
         self.passes += 1
         return new
@@ -403,13 +285,15 @@ class DaskOperator(_Base):
 
 # ----------------------------------------------------------------------------- opening a run
 
-def open_operator(rs, client, kernel: str, *, near_field_factor: float | None = None,
-                  cache_bytes: int | None = None, retries: int | None = None, sampling=...):
+def open_operator(rs, client, kernel: str, settings=None, *, sampling=...):
     """The operator of run store `rs` for `kernel`: a DaskOperator on `client`, or a
     LocalOperator when client is None; with the kernel's near-field corrections (the partly
     visible pairs of the sampled kernels are read and applied on the workers, task by task, like
-    the bits). Values left None come from radiosity.solve.* / visibility.retries (read here, on
-    the driver). Returns (operator, partition, elements)."""
+    the bits). settings: a settings.Settings (solve.cache-bytes, near-field-factor,
+    visibility.retries; None: resolved here). Returns (operator, partition, elements)."""
+    from radiosity.settings import resolve
+
+    s = settings if settings is not None else resolve()
     vs = VisibilityStore(rs)
     token, plan, done = vs.require()
     missing = [t for t in range(len(plan.tasks)) if t not in done]
@@ -418,7 +302,7 @@ def open_operator(rs, client, kernel: str, *, near_field_factor: float | None = 
                              f"of {len(plan.tasks)} tasks missing): run radiosity visibility "
                              f"{rs.run_dir} --resume")
     if sampling is ...:
-        sampling = sampling_of(kernel)
+        sampling = sampling_of(s.solve, kernel)
     stored = vs.sampling()
     if stored != sampling:
         have = stored.describe() if stored else "one ray between centres"
@@ -434,20 +318,18 @@ def open_operator(rs, client, kernel: str, *, near_field_factor: float | None = 
                          for t in range(len(plan.tasks))], np.int64).reshape(-1, 2)
     part = rs.load_partition()
     el = rs.load_elements()
-    cache = int(config.get("solve.cache-bytes", cache_bytes))
+    cache = int(s.solve.cache_bytes)
     inp = solve_inputs(part, el, plan, crc, rs.path, token, sampling, pcrc, cache)
     sparse = None
     k = get_kernel(kernel)
     if k.near_field:
         from radiosity.methods.pairs import nearfield
 
-        sparse = nearfield.corrections(rs, k.base,
-                                       float(config.get("solve.near-field-factor", near_field_factor)))
+        sparse = nearfield.corrections(rs, k.base, float(s.solve.near_field_factor))
         inp = replace(inp, sparse=sparse_by_target(sparse, part.orig, len(part.offsets) - 1))
     if client is None:
         op = LocalOperator(inp, kernel)
     else:
-        op = DaskOperator(client, inp, kernel,
-                          retries=int(config.get("visibility.retries", retries)))
+        op = DaskOperator(client, inp, kernel, retries=int(s.visibility.retries))
     op.sparse = sparse
     return op, part, el

@@ -1,0 +1,215 @@
+"""The CLI's options: validators, the shared option groups, and flags as overrides of the
+settings (recorded on the click context, resolved once by settings_from_flags; no flag writes
+dask.config)."""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+from radiosity.errors import RadiosityError
+
+OVERRIDES = "radiosity.overrides"  # ctx.meta key: {"section.key": value} of the flags given
+CLUSTER = "radiosity.cluster"      # ctx.meta key: open_client keywords of the cluster flags
+
+
+class _Finite(click.FloatRange):
+    """A float in a range that is also finite (click's FloatRange lets NaN through)."""
+
+    def convert(self, value, param, ctx):
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return v
+
+
+POSITIVE_INT = click.IntRange(min=1)
+POSITIVE = _Finite(min=0.0, min_open=True)
+TOL = _Finite(min=0.0, max=1.0, min_open=True, max_open=True)
+
+
+def _resolution(ctx, param, value):
+    """--resolution N|WxH, checked before anything starts (the scene loader takes the pair)."""
+    from radiosity.errors import SceneError
+    from radiosity.scene.load import parse_resolution
+
+    if value is None:
+        return None
+    try:
+        return parse_resolution(value, "--resolution")
+    except SceneError as e:
+        raise click.UsageError(str(e), ctx) from None
+
+
+def _exposure(ctx, param, value):
+    if value is None or str(value).lower() == "auto":
+        return value
+    try:
+        v = float(value)
+    except ValueError:
+        v = float("nan")
+    if not (math.isfinite(v) and v > 0):
+        raise click.BadParameter(f"must be a positive number or 'auto', got {value!r}", ctx, param)
+    return v
+
+
+def _adaptive(ctx, param, value):
+    from radiosity.runtime.cluster import adaptive_bounds
+
+    if value is not None:
+        try:
+            adaptive_bounds(value, 1)
+        except RadiosityError as e:
+            raise click.BadParameter(str(e), ctx, param) from None
+        ctx.meta.setdefault(CLUSTER, {})["adaptive"] = value
+    return value
+
+
+def _number_list(kind, lo, what):
+    """A callback for comma-separated lists (study accuracy): every item a `kind` > lo."""
+
+    def cb(ctx, param, value):
+        if value is None:  # an optional list not given
+            return None
+        try:
+            items = [kind(x) for x in value.split(",") if x.strip()]
+        except ValueError:
+            raise click.BadParameter(f"expected comma-separated {what}, got {value!r}", ctx, param) from None
+        bad = [x for x in items if not (math.isfinite(x) and x > lo)]
+        if not items or bad:
+            raise click.BadParameter(f"expected comma-separated {what}, got {value!r}", ctx, param)
+        return value
+
+    return cb
+
+
+
+def _setting(key: str):
+    """A click callback that records a flag's value as the override of radiosity.<key>
+    (None or an unset flag: not given); settings_from_flags() resolves them once."""
+
+    def cb(ctx, param, value):
+        if value is not None and value is not False:
+            ctx.meta.setdefault(OVERRIDES, {})[key] = value
+        return value
+
+    return cb
+
+
+def _cluster(key: str, value=None):
+    """A click callback that records a cluster flag for open_client (cluster_from_flags)."""
+
+    def cb(ctx, param, v):
+        if v is not None and v is not False:
+            ctx.meta.setdefault(CLUSTER, {})[key] = v if value is None else value
+        return v
+
+    return cb
+
+
+def settings_from_flags(**explicit):
+    """The command's settings: dask.config's radiosity.* with the flags applied (resolved once,
+    here; `explicit` adds section__key=value for flags the command reads itself)."""
+    from radiosity.settings import resolve
+
+    ctx = click.get_current_context(silent=True)
+    given = dict(ctx.meta.get(OVERRIDES, {})) if ctx is not None else {}
+    return resolve({**given, **{k.replace("__", "."): v for k, v in explicit.items()}})
+
+
+def cluster_from_flags() -> dict:
+    """open_client's keywords from the cluster flags (adaptive, tls, batch-job options)."""
+    ctx = click.get_current_context(silent=True)
+    return dict(ctx.meta.get(CLUSTER, {})) if ctx is not None else {}
+
+
+def kernel_options(fn, help_="Form-factor kernel (default: radiosity.solve.kernel)."):
+    """--kernel and the sampled kernels' --nxm-points / --mc-samples / --mc-seed."""
+    from radiosity.core.kernels import KERNELS
+
+    for name, key, help2 in (
+            ("--mc-seed", "mc-seed", "mc kernel: seed of the random sample points."),
+            ("--mc-samples", "mc-samples", "mc kernel: random sample pairs (rays) per pair."),
+            ("--nxm-points", "nxm-points", "nxm kernel: sample points per element (a square).")):
+        kind = click.IntRange(min=0) if key == "mc-seed" else POSITIVE_INT
+        fn = click.option(name, type=kind, default=None, expose_value=False, help=help2,
+                          callback=_setting(f"solve.{key}"))(fn)
+    return click.option("--kernel", type=click.Choice(list(KERNELS)), default=None, help=help_)(fn)
+
+
+def cluster_options(fn):
+    """--workers / --scheduler / --cluster and the batch-job and security flags, shared by every
+    heavy command; the flags reach open_client as its keywords (cluster_from_flags)."""
+    for name, key, kind, help_ in (
+            ("--account", "account", str, "Batch jobs: account (project on SGE/LSF)."),
+            ("--queue", "queue", str, "Batch jobs: queue / partition."),
+            ("--walltime", "walltime", str, "Batch jobs: walltime, e.g. 02:00:00."),
+            ("--memory", "memory", str, "Batch jobs: memory per job, e.g. 16GB."),
+            ("--cores", "cores", POSITIVE_INT, "Batch jobs: cores per job.")):
+        fn = click.option(name, type=kind, default=None, expose_value=False, help=help_,
+                          callback=_cluster(key))(fn)
+    fn = click.option("--tls", is_flag=True, default=False, expose_value=False,
+                      help="TLS with temporary certificates (multi-host runs).",
+                      callback=_cluster("tls", "temporary"))(fn)
+    fn = click.option("--adaptive", default=None, metavar="MIN:MAX", expose_value=False,
+                      help="Scale the cluster adaptively between MIN and MAX workers.",
+                      callback=_adaptive)(fn)
+    fn = click.option("--cluster", "cluster_kind", type=click.Choice(["local", "slurm", "pbs", "sge", "lsf"]),
+                      default=None, help="Where workers run (default: radiosity.cluster.kind, local).")(fn)
+    fn = click.option("--scheduler", default=None, metavar="ADDRESS",
+                      help="Use a running Dask scheduler instead of starting a cluster.")(fn)
+    fn = click.option("--workers", type=POSITIVE_INT, default=None,
+                      help="Number of workers (default: one per core).")(fn)
+    return fn
+
+
+def method_options(fn, links: bool = True):
+    """--method pairs|hierarchical, and the hierarchical method's --epsilon / --link-rays
+    (overrides of radiosity.visibility.method and radiosity.hierarchy.*)."""
+    if links:
+        fn = click.option("--link-rays", type=POSITIVE_INT, default=None, expose_value=False,
+                          help="hierarchical: sample rays per link not proven visible (a square).",
+                          callback=_setting("hierarchy.link-rays"))(fn)
+        fn = click.option("--epsilon", type=click.FloatRange(min=0.0), default=None, expose_value=False,
+                          help="hierarchical: refine links while their error estimate exceeds this.",
+                          callback=_setting("hierarchy.epsilon"))(fn)
+    return click.option("--method", type=click.Choice(["auto", "pairs", "hierarchical"]), default=None,
+                        expose_value=False,
+                        help="pairs: one visibility bit per pair of sub-elements (the seed's); "
+                             "hierarchical: links between nodes of the split trees; auto (the "
+                             "default, radiosity.visibility.method): hierarchical above "
+                             "radiosity.visibility.hierarchical-above sub-elements.",
+                        callback=_setting("visibility.method"))(fn)
+
+
+
+def solve_options(fn):
+    """--solver / --kernel (and its sampling) / --tol / --max-iterations / --closure."""
+    from radiosity.core.solvers import SOLVERS
+
+    fn = click.option("--closure", type=click.Choice(["auto", "on", "off"]), default=None,
+                      expose_value=False,
+                      help="Is the scene closed (rows balanced to exactly 1)? auto: from the geometry.",
+                      callback=_setting("solve.closure"))(fn)
+    fn = click.option("--keep-unconverged", is_flag=True,
+                      help="Write the solution even when the solver did not converge (by default "
+                           "a converged solution already in the run is kept; exit status 3 "
+                           "either way).")(fn)
+    fn = click.option("--max-iterations", type=POSITIVE_INT, default=None, help="Pass limit.")(fn)
+    fn = click.option("--tol", type=TOL, default=None,
+                      help="Relative residual to stop at, in (0, 1).")(fn)
+    fn = kernel_options(fn)
+    fn = click.option("--solver", type=click.Choice(["auto", *SOLVERS]), default=None,
+                      help="Solver (default: radiosity.solve.solver, auto: CG for reciprocal "
+                           "kernels, Gauss-Seidel otherwise).")(fn)
+    return fn
+
+
+def image_options(fn):
+    fn = click.option("--exposure", default=None, callback=_exposure,
+                      help="Exposure for PNG/mesh colours, or 'auto'.")(fn)
+    fn = click.option("--sigma", type=POSITIVE, default=None, help="Gaussian sigma in fine pixels.")(fn)
+    fn = click.option("--filter", "filter_", type=click.Choice(["box", "gaussian"]), default=None,
+                      help="Sub-pixel reconstruction filter.")(fn)
+    return fn

@@ -1,0 +1,114 @@
+"""The hierarchical method behind the methods' seam (methods/base.py): the link stage, the
+push-pull operator on the leaves, and the final gather after the solve."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radiosity.errors import RadiosityError
+from radiosity.methods.base import CAP_MIN, Opened
+
+
+class HierarchicalMethod:
+    name = "hierarchical"
+    section = "links"
+
+    def check(self, rs, settings) -> None:
+        """Settings that would fail the stage, failed before any cluster starts."""
+        from radiosity.methods.hierarchical.links import resolve_params
+
+        resolve_params(rs.load_elements(), settings)
+
+    def build(self, run_dir, client, settings, *, resume=False, progress=True, occlusion=True,
+              unit=None, on_done=None):
+        from radiosity.methods.hierarchical.links import compute_links
+
+        return compute_links(run_dir, client, settings, unit=unit, resume=resume,
+                             progress=progress, occlusion=occlusion, on_done=on_done)
+
+    def rows(self, fig) -> list:
+        from radiosity.methods.hierarchical.links import links_rows
+
+        return links_rows(fig)
+
+    def built(self, rs) -> bool:
+        from radiosity.methods.hierarchical.store import LinkStore
+
+        return LinkStore(rs).token() is not None
+
+    def require(self, rs) -> None:
+        from radiosity.methods.hierarchical.store import LinkStore
+
+        LinkStore(rs).require()
+
+    def open(self, rs, client, settings, where: str = "auto", **options) -> Opened:
+        from radiosity.methods.hierarchical.operator import (leaf_vectors, open_link_operator,
+                                                             to_sub_elements)
+
+        op, table, el, part = open_link_operator(rs, client, where, settings)
+        Le, rho, area = leaf_vectors(table, el)
+        m = len(part)
+        return Opened(op, Le, rho, area, table["orig"][table["leaf_node"]], m,
+                      lambda L: to_sub_elements(L, table, m),
+                      {"table": table, "originals": len(el)})
+
+    def finish(self, opened: Opened, L: np.ndarray, rows: dict, settings) -> tuple[dict, dict]:
+        """With hierarchy.final-gather, one final gather that re-evaluates every link into a
+        node above the leaves at each of its leaves (the uniform push leaves a saw-tooth over
+        coarse receivers): solution/radiance per sub-element comes from it, and
+        solution/leaf_radiance (M, 2, 3) keeps the solver's fixed point L = Le + rho K L."""
+        import time
+
+        from radiosity.methods.hierarchical.operator import LocalLinkOperator
+
+        op, Le, rho = opened.op, opened.Le[:, :L.shape[1]], opened.rho[:, :L.shape[1]]
+        M = L.shape[2]
+        t_fg = time.perf_counter()
+        fg = settings.hierarchy.final_gather
+        gather_final = fg not in (False, None, "none")
+        Lf = L
+        if gather_final:
+            if fg not in ("exact", "linear"):
+                raise RadiosityError(f"radiosity.hierarchy.final-gather must be none, linear or "
+                                     f"exact, got {fg!r}")
+            # the final gather evaluates form factors afresh (exact, from each leaf's centroid):
+            # the solve's row caps and balancing, made for the links' approximate form factors,
+            # do not apply to them (docs/measurements.md); in a closed scene its rows are
+            # balanced to 1 in turn (every leaf sees the whole enclosure; else rho -> 1 turns
+            # their row error into the answer's)
+            op.configure(fg_levels=int(settings.hierarchy.final_gather_levels), fg_mode=fg,
+                         cap=np.ones(M), cmode=CAP_MIN)
+            G = op.final_gather(L)
+            if rows.get("mode") == "closed":
+                r = op.final_gather(np.ones_like(L[:, :1]))
+                G = G / np.where(r > 0, r, 1.0)
+            Lf = Le + rho * G
+        t_fg = time.perf_counter() - t_fg
+        L3 = np.broadcast_to(L, (2, 3, M)) if L.shape[1] == 1 else L
+        F3 = np.broadcast_to(Lf, (2, 3, M)) if Lf.shape[1] == 1 else Lf
+        arrays = {"radiance": opened.to_sub(F3),
+                  "leaf_radiance": np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))}
+        figures = {"method": "hierarchical",
+                   "hierarchy": {"leaves": M, "link_terms": int(op.terms),
+                                 "passes_on": "driver" if isinstance(op, LocalLinkOperator)
+                                 else "workers",
+                                 "final_gather": fg if gather_final else "none",
+                                 "final_gather_evaluations": int(getattr(op, "evals", 0)),
+                                 "time_final_gather_s": round(t_fg, 4)}}
+        return arrays, figures
+
+    def kept(self, rs) -> str | None:
+        from radiosity.methods.hierarchical.store import LinkStore
+
+        ls = LinkStore(rs)
+        token = ls.token()
+        if token is None:
+            return None
+        return f"{len(ls.finished(token))} of {len(ls.plan()[1]) - 1} link tasks"
+
+    def summary_row(self, report: dict) -> tuple[str, str]:
+        lk = report["links"]
+        return ("links", f"{lk['links']} ({lk['links_per_leaf']:.1f} per leaf), {lk['rays']} rays")
+
+
+HIERARCHICAL = HierarchicalMethod()

@@ -1,0 +1,90 @@
+"""The pairs method behind the methods' seam (methods/base.py): the visibility stage, the
+operator over the bit-packed matrix, and nothing after the solve (the sub-elements are the
+unknowns)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radiosity.methods.base import Opened
+
+
+def side_vectors(part, elements):
+    """Le, rho (2, 3, m) float64 and area (m,) of the sub-elements, per side."""
+    Le = np.ascontiguousarray(np.transpose(elements.emission[part.orig], (1, 2, 0)))
+    rho = np.ascontiguousarray(np.transpose(elements.reflectance[part.orig], (1, 2, 0)))
+    return Le, rho, part.area
+
+
+def per_sub_element(L: np.ndarray) -> np.ndarray:
+    """(2, C, m) -> (m, 2, C)."""
+    return np.ascontiguousarray(np.transpose(L, (2, 0, 1)))
+
+
+class PairsMethod:
+    name = "pairs"
+    section = "visibility"
+
+    def check(self, rs, settings) -> None:
+        """Settings that would fail the stage, failed before any cluster starts."""
+        from radiosity.settings import sampling_of
+
+        sampling_of(settings.solve)
+
+    def build(self, run_dir, client, settings, *, resume=False, progress=True, occlusion=True,
+              unit=None, on_done=None):
+        from radiosity.methods.pairs.visibility import compute_visibility
+
+        return compute_visibility(run_dir, client, settings, unit=unit, resume=resume,
+                                  progress=progress, occlusion=occlusion, on_done=on_done)
+
+    def rows(self, fig) -> list:
+        return fig.rows()
+
+    def built(self, rs) -> bool:
+        from radiosity.methods.pairs.store import VisibilityStore
+
+        return VisibilityStore(rs).token() is not None
+
+    def require(self, rs) -> None:
+        from radiosity.methods.pairs.store import VisibilityStore
+
+        VisibilityStore(rs).require()
+
+    def open(self, rs, client, settings, **options) -> Opened:
+        from radiosity.methods.pairs.transport import open_operator
+
+        op, part, el = open_operator(rs, client, settings.solve.kernel, settings)
+        Le, rho, area = side_vectors(part, el)
+        return Opened(op, Le, rho, area, part.orig, len(part), per_sub_element,
+                      {"originals": len(el)})
+
+    def finish(self, opened: Opened, L: np.ndarray, rows: dict, settings) -> tuple[dict, dict]:
+        from radiosity.settings import sampling_of
+
+        op, inp = opened.op, opened.op.inp
+        L3 = np.broadcast_to(L, (2, 3, L.shape[2])) if L.shape[1] == 1 else L
+        figures = {
+            "near_field": op.sparse["figures"] if op.sparse is not None else None,
+            "partial_visibility": ({"pairs": int(inp.pcrc[:, 1].sum()),
+                                    "rays_per_pair": sampling_of(settings.solve).rays_per_pair}
+                                   if len(inp.pcrc) else None),
+            "two_sided_sub_elements": int(inp.sided.sum()),
+        }
+        return {"radiance": per_sub_element(L3)}, figures
+
+    def kept(self, rs) -> str | None:
+        from radiosity.methods.pairs.store import VisibilityStore
+
+        vs = VisibilityStore(rs)
+        token = vs.token()
+        if token is None:
+            return None
+        return f"{len(vs.finished(token))} of {len(vs.plan().tasks)} visibility tasks"
+
+    def summary_row(self, report: dict) -> tuple[str, str]:
+        vis = report["visibility"]
+        return ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)")
+
+
+PAIRS = PairsMethod()

@@ -1,0 +1,217 @@
+"""The image itself: the radiance each fine pixel sees, its reconstruction to the camera's grid
+(box or Gaussian), tone mapping to 8-bit sRGB, and the EXR and PNG files.
+
+Colour pipeline: linear radiance x exposure, clipped to [0, 1], encoded with the sRGB transfer
+curve (IEC 61966-2-1), rounded to 8 bits; the image stage (stages.image) and the exports
+(stages.export) use the same exposure, so all of them show the same colours.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from radiosity.errors import RadiosityError, StoreError
+from radiosity.core.bundles import Camera, Elements, Partition
+
+#: Rec. 709 / sRGB luminance weights of linear RGB.
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+#: Automatic exposure maps the 99th percentile of the non-zero luminances to this linear value.
+AUTO_KEY = 0.9
+AUTO_PERCENTILE = 99.0
+
+
+class RenderError(RadiosityError):
+    """Bad render input: an unreadable image file, an unknown filter, a bad parameter."""
+
+
+# ----------------------------------------------------------------------------- the fine image
+
+def facing_side(part: Partition, camera: Camera) -> np.ndarray:
+    """Side of each sub-element that faces the camera centre: (m,) intp, 0 front, 1 back.
+
+    Front iff dot(normal, camera.center - center) > 0. Every point of a planar element gives
+    the same sign, so the sub-element's centre decides for all its pixels.
+    """
+    d = np.asarray(camera.center, np.float64)[None, :] - part.center
+    return (np.einsum("ij,ij->i", part.normal, d) <= 0.0).astype(np.intp)
+
+
+def pixel_radiance(part: Partition, elements: Elements, camera: Camera, raster_sub: np.ndarray,
+                   radiance: np.ndarray) -> np.ndarray:
+    """Linear radiance seen through each fine pixel: (H*K, W*K, 3) float64.
+
+    part, elements, camera: from the run store. raster_sub (H*K, W*K) int32: sub-element hit
+    by each fine pixel's ray, -1 for none. radiance (m, 2, 3): [front, back] RGB per
+    sub-element. A pixel shows the side of its sub-element that faces the camera (see
+    `facing_side`); the back of a one-sided element is 0 (black) whatever `radiance` holds
+    there; pixels that hit nothing are 0 (black, no background colour).
+    """
+    radiance = np.asarray(radiance, np.float64)
+    m = len(part)
+    if radiance.shape != (m, 2, 3):
+        raise StoreError(f"the solution has radiance of shape {radiance.shape}, the partition "
+                         f"has {m} sub-elements (expected ({m}, 2, 3)): run solve again")
+    side = facing_side(part, camera)
+    lum = radiance[np.arange(m), side]  # (m, 3)
+    lum[(side == 1) & ~np.asarray(elements.two_sided, bool)[part.orig]] = 0.0
+    sub = np.asarray(raster_sub)
+    out = np.zeros(sub.shape + (3,), np.float64)
+    hit = sub >= 0
+    out[hit] = lum[sub[hit]]
+    return out
+
+
+# ----------------------------------------------------------------------------- reconstruction
+
+def _gauss_taps(n_out: int, k: int, sigma: float):
+    """Gather indices (n_out, T) and weights (n_out, T) of a Gaussian sampled at block centres.
+
+    Output b sits at the centre of fine block b, x = (b + 0.5) k in fine-pixel units (fine
+    pixel i has its centre at i + 0.5), so even K has no half-pixel shift. Taps within
+    4 sigma (+ half a pixel); weights normalised to 1; indices folded back by half-sample
+    reflection (d c b a | a b c d | d c b a), which is scipy.ndimage's 'reflect'.
+    """
+    n = n_out * k
+    c = (np.arange(n_out) + 0.5) * k
+    r = int(math.ceil(4.0 * sigma)) + 1
+    t = np.floor(c).astype(np.int64)[:, None] + np.arange(-r, r + 1)[None, :]
+    d = t + 0.5 - c[:, None]
+    w = np.exp(-0.5 * (d / sigma) ** 2)
+    w[np.abs(d) > 4.0 * sigma + 0.5] = 0.0
+    w /= w.sum(axis=1, keepdims=True)
+    t = np.mod(t, 2 * n)
+    t = np.where(t >= n, 2 * n - 1 - t, t)
+    return t, w
+
+
+def downsample(fine: np.ndarray, K: int, filter: str = "box", sigma: float = 1.5) -> np.ndarray:
+    """K x K supersampled image (H*K, W*K, 3) -> (H, W, 3) float64.
+
+    box: the mean of each K x K block. gaussian: a Gaussian of standard deviation `sigma` in
+    FINE pixels (separable, reflecting boundary, truncated at 4 sigma, weights normalised)
+    evaluated at the centre of each K x K block; with K = 1 this just blurs the image by sigma
+    pixels. The seed uses sigma > 1 (default 1.5, `render.sigma`).
+    """
+    fine = np.asarray(fine, np.float64)
+    K = int(K)
+    if K < 1 or fine.ndim != 3 or fine.shape[0] % K or fine.shape[1] % K:
+        raise RenderError(f"cannot downsample an image of shape {fine.shape} by K = {K}")
+    h, w = fine.shape[0] // K, fine.shape[1] // K
+    if filter == "box":
+        if K == 1:
+            return fine.copy()
+        return fine.reshape(h, K, w, K, fine.shape[2]).mean(axis=(1, 3))
+    if filter != "gaussian":
+        raise RenderError(f"unknown render filter {filter!r}: use box or gaussian")
+    sigma = float(sigma)
+    if not sigma > 0.0 or not math.isfinite(sigma):
+        raise RenderError(f"the Gaussian filter needs sigma > 0 (fine pixels), got {sigma}")
+    ti, wi = _gauss_taps(h, K, sigma)
+    rows = np.zeros((h, fine.shape[1], fine.shape[2]))
+    for j in range(ti.shape[1]):
+        rows += wi[:, j, None, None] * fine[ti[:, j]]
+    tj, wj = _gauss_taps(w, K, sigma)
+    out = np.zeros((h, w, fine.shape[2]))
+    for j in range(tj.shape[1]):
+        out += wj[None, :, j, None] * rows[:, tj[:, j]]
+    return out
+
+
+# ----------------------------------------------------------------------------- tone mapping
+
+def srgb_encode(x: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve (IEC 61966-2-1) of linear values in [0, 1] (clipped first)."""
+    x = np.clip(np.asarray(x, np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+
+
+def auto_exposure(img: np.ndarray) -> float:
+    """Exposure that maps the 99th percentile of the luminance of the non-zero pixels to 0.9.
+
+    img (..., 3) linear RGB. 0.9 is linear (before the sRGB curve: 0.955 encoded), so about 1 %
+    of the lit pixels clip. 1.0 when no pixel is lit.
+    """
+    y = np.asarray(img, np.float64).reshape(-1, 3) @ LUMA
+    y = y[y > 0.0]
+    if y.size == 0:
+        return 1.0
+    p = float(np.percentile(y, AUTO_PERCENTILE))
+    return AUTO_KEY / p if p > 0.0 and math.isfinite(p) else 1.0
+
+
+def tonemap(img: np.ndarray, exposure: float | None = None) -> np.ndarray:
+    """Linear RGB (..., 3) -> 8-bit sRGB uint8 (..., 3): round(255 srgb(clip(exposure * img))).
+
+    exposure None: `auto_exposure(img)`.
+    """
+    img = np.asarray(img, np.float64)
+    e = auto_exposure(img) if exposure is None else float(exposure)
+    return np.rint(srgb_encode(img * e) * 255.0).astype(np.uint8)
+
+
+# ----------------------------------------------------------------------------- image files
+
+def temp_path(path: str) -> str:
+    """A name next to `path` to write to first and os.replace onto it (no half-written file)."""
+    root, ext = os.path.splitext(path)
+    return f"{root}.tmp{os.getpid()}{ext}"
+
+
+def write_exr(path: str, img: np.ndarray) -> None:
+    """Linear RGB (H, W, 3) -> OpenEXR scanline file, float32 channels R, G, B, ZIP (lossless)."""
+    import OpenEXR
+
+    a = np.ascontiguousarray(np.asarray(img, np.float32))
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise RenderError(f"write_exr needs an (H, W, 3) image, got shape {a.shape}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    tmp = temp_path(path)
+    with OpenEXR.File(header, {"RGB": a}) as f:
+        f.write(tmp)
+    os.replace(tmp, path)
+
+
+def read_exr(path: str) -> np.ndarray:
+    """An OpenEXR file's RGB (its data window) as (H, W, 3) float32, linear.
+
+    Reads R, G, B (also 'layer.R' names of the first layer); a grey file (Y only) is repeated
+    into three channels; half and uint channels are converted to float32.
+    """
+    import OpenEXR
+
+    if not os.path.isfile(path):
+        raise RenderError(f"{path}: no such EXR file")
+    try:
+        with OpenEXR.File(path, separate_channels=True) as f:
+            ch = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
+    except Exception as e:
+        raise RenderError(f"{path}: cannot read as OpenEXR ({e})") from None
+
+    def find(c):
+        if c in ch:
+            return ch[c]
+        named = sorted(k for k in ch if k.endswith("." + c))
+        return ch[named[0]] if named else None
+
+    rgb = [find(c) for c in "RGB"]
+    if any(x is None for x in rgb):
+        y = find("Y")
+        if y is None:
+            raise RenderError(f"{path}: no R, G, B (or Y) channels, only {sorted(ch)}")
+        rgb = [y, y, y]
+    return np.stack([np.asarray(x, np.float32) for x in rgb], axis=-1)
+
+
+def write_png(path: str, img8: np.ndarray) -> None:
+    """8-bit sRGB (H, W, 3) uint8 -> PNG (no timestamp: identical input, identical bytes)."""
+    from PIL import Image
+
+    a = np.ascontiguousarray(img8)
+    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 3:
+        raise RenderError(f"write_png needs an (H, W, 3) uint8 image, got {a.dtype} {a.shape}")
+    tmp = temp_path(path)
+    Image.fromarray(a, "RGB").save(tmp, format="PNG")
+    os.replace(tmp, path)

@@ -1,0 +1,172 @@
+"""The view-factor stage's master (driver side): resolve the parameters, build the facet tree
+and the worker inputs, plan the tasks, run them through runtime.stage.run_stage (resume,
+checksums, retries), assemble the CSR matrix from the store and write the outputs.
+The method: docs/viewfactors-method.md.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from radiosity.errors import RadiosityError
+from radiosity.settings import Settings, ViewFactorSettings, resolve
+from radiosity.viewfactors.facets import Facets, load_facets
+from radiosity.viewfactors.store import read_vf_task
+from radiosity.viewfactors.task import COUNTERS, STAGES, Inputs, Params, task_viewfactors
+
+VERSION = 1   # of the stored task format and method (part of the resume token)
+ENCLOSURE_MODES = ("auto", "on", "off")
+FORMATS = ("npz", "csv")
+PLANE_TOL = 1e-9   # facing and plane tests: lengths below this fraction of the scene size are 0
+
+
+def resolve_params(accuracy=None, cutoff=None, settings: Settings | None = None) -> Params:
+    """The task parameters of `settings` (default: resolved from dask.config) with the flags
+    --accuracy and --cutoff (None: not given); RadiosityError names a bad value."""
+    s = resolve({"viewfactors.accuracy": accuracy, "viewfactors.cutoff": cutoff}, base=settings)
+    return params_of(s.viewfactors)
+
+
+def params_of(vf: ViewFactorSettings) -> Params:
+    acc = float(vf.accuracy)
+    if not 0 < acc < 1:
+        raise RadiosityError(f"--accuracy must be in (0, 1), got {acc}")
+    cut = float(vf.cutoff)
+    if cut < 0:
+        raise RadiosityError(f"radiosity.viewfactors.cutoff must be >= 0, got {cut}")
+    smax = int(vf.max_points_per_side)
+    if smax < 1 or smax & (smax - 1):
+        raise RadiosityError("radiosity.viewfactors.max-points-per-side must be a power of 2, "
+                             f"got {smax}")
+    return Params(acc, float(vf.cheap_share) * acc, smax, int(vf.seed), cut,
+                  int(vf.batch_pairs), int(vf.ray_batch))
+
+
+# ----------------------------------------------------------------------------- inputs and plan
+
+def make_inputs(fac: Facets, leaf_size: int, epsilon: float):
+    """The tree (leaves of at most `leaf_size` facets) and the worker inputs of facets `fac`;
+    epsilon: the ray offset (radiosity.rays.epsilon)."""
+    from dask.base import tokenize
+
+    from radiosity.viewfactors.bvh import build_tree
+    from radiosity.viewfactors.loops import facet_quadrature, second_moments
+
+    verts = np.ascontiguousarray(fac.verts, np.float64)
+    flo, fhi = verts.min(axis=1), verts.max(axis=1)
+    tree = build_tree(flo, fhi, fac.center, fac.normal, fac.area, leaf_size)
+    p = tree.perm
+    v = verts[p]
+    nv = fac.nverts[p].astype(np.int64)
+    normal, center, area = fac.normal[p], fac.center[p], fac.area[p]
+    doff = np.einsum("ic,ic->i", normal, center)
+    dev = np.abs(np.einsum("ic,ikc->ik", normal, v) - doff[:, None]).max(axis=1)
+    size = float(np.linalg.norm(fhi.max(0) - flo.min(0))) or 1.0
+    tol = PLANE_TOL * size + float(dev.max(initial=0.0))
+    J, R = second_moments(v, nv, center, area)
+    qn, qw, qc = facet_quadrature(v, nv, area)
+    inp = Inputs(verts=v, nv=nv, normal=normal, center=center, area=area, doff=doff,
+                 flo=flo[p], fhi=fhi[p], gid=p, J=J, R=R, qn=qn, qw=qw, qc=qc,
+                 nodes=tree.nodes(), n_leaves=len(tree.leaves), tol=tol, pad=tol,
+                 key="vf-" + tokenize(v, nv), epsilon=float(epsilon))
+    return tree, inp
+
+
+def plan_tasks(tree, n: int, task_pairs: int, min_tasks: int) -> list:
+    """Runs of consecutive leaves (tree order), each about the same number of pairs (i < j
+    with i in the run), at most task_pairs unless one leaf holds more, and at least
+    min_tasks runs when there are enough leaves. Returns a list of leaf-id arrays."""
+    lv = tree.leaves
+    na = tree.end[lv] - tree.start[lv]
+    cost = na * (na - 1) // 2 + na * (n - tree.end[lv])
+    total = int(cost.sum())
+    target = max(1, min(int(task_pairs), -(-total // max(1, min_tasks))))
+    tasks, cur, acc = [], [], 0
+    for leaf, c in zip(lv.tolist(), cost.tolist()):
+        if cur and acc + c > target:
+            tasks.append(np.array(cur, np.int64))
+            cur, acc = [], 0
+        cur.append(leaf)
+        acc += c
+    if cur:
+        tasks.append(np.array(cur, np.int64))
+    return tasks
+
+
+def task_cost(tree, n: int, leaves: np.ndarray) -> int:
+    na = tree.end[leaves] - tree.start[leaves]
+    return int((na * (na - 1) // 2 + na * (n - tree.end[leaves])).sum())
+
+
+# ----------------------------------------------------------------------------- the master
+
+@dataclass
+class ViewFactors:
+    """matrix: CSR (n, n) float64, F[i, j] from facet i to facet j (load order; balanced when
+    the facets were treated as an enclosure); area (n,); facets; figures (the report section)."""
+
+    matrix: object
+    area: np.ndarray
+    facets: Facets
+    figures: dict
+
+
+MASTER_BODY
+
+# ----------------------------------------------------------------------------- assembly
+
+@dataclass
+class Assembled:
+    """matrix: CSR F (unbalanced); violations: pairs with F > unobstructed F; cheap_bound,
+    dropped_bound (n,): per row, the proven bounds of the cheap kernel's and the cut-off's
+    contributions to the row's error."""
+
+    matrix: object
+    violations: int
+    cheap_bound: np.ndarray
+    dropped_bound: np.ndarray
+
+
+def assemble(rs, fac: Facets, tree, entries: dict) -> Assembled:
+    """The CSR matrix from the tasks' pairs (both directions; F_ji = F_ij A_i / A_j), in two
+    streaming passes (row counts, then fill): memory is the matrix plus one task."""
+    import scipy.sparse as sp
+
+    from radiosity.viewfactors.loops import scatter_rows
+
+    n = len(fac)
+    A = fac.area
+    rowcount = np.zeros(n, np.int64)
+    cheap = np.zeros(n)
+    dropdiff = np.zeros(n + 1)
+    violations = 0
+    for task in sorted(entries):
+        ij, f, drop = read_vf_task(rs.path, task, entries[task])
+        i, j = ij[:, 0], ij[:, 1]
+        rowcount += np.bincount(i, minlength=n) + np.bincount(j, minlength=n)
+        violations += int(np.count_nonzero(f[:, 0] > f[:, 1]))
+        eb = f[:, 2] * np.where(f[:, 1] > 0, f[:, 0] / np.where(f[:, 1] > 0, f[:, 1], 1.0), 0.0)
+        cheap += np.bincount(i, weights=eb, minlength=n) + np.bincount(j, weights=eb * A[i] / A[j], minlength=n)
+        for a, b, bab, bba in drop:
+            a, b = int(a), int(b)
+            dropdiff[tree.start[a]] += bab
+            dropdiff[tree.end[a]] -= bab
+            dropdiff[tree.start[b]] += bba
+            dropdiff[tree.end[b]] -= bba
+    dropped = np.zeros(n)
+    dropped[tree.perm] = np.cumsum(dropdiff)[:n]
+    indptr = np.concatenate([[0], np.cumsum(rowcount)])
+    indices = np.empty(int(indptr[-1]), np.int32)
+    data = np.empty(int(indptr[-1]))
+    fill = indptr[:-1].copy()
+    for task in sorted(entries):
+        ij, f, _ = read_vf_task(rs.path, task, entries[task])
+        i, j = ij[:, 0].astype(np.int64), ij[:, 1].astype(np.int64)
+        scatter_rows(i, j, f[:, 0], fill, indices, data)
+        scatter_rows(j, i, f[:, 0] * A[i] / A[j], fill, indices, data)
+    M = sp.csr_matrix((data, indices, indptr), shape=(n, n))
+    M.sort_indices()
+    return Assembled(M, violations, cheap, dropped)

@@ -1,0 +1,326 @@
+"""Numba kernels of the view-factor task's visibility (task.py): shafts between boxes
+(Haines & Wallace) that prove pairs unobstructed, and the jittered stratified sample points,
+rays and visible fractions of the pairs that need rays. Small, no I/O, no configuration.
+
+Facet arrays are in the tree order of bvh.FacetTree; tree arguments are bvh.Nodes tuples.
+The method: docs/viewfactors-method.md.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+
+# ----------------------------------------------------------------------------- shafts
+
+@numba.njit(cache=True, inline="always")
+def shaft_out(alo, ahi, blo, bhi, clo, chi):
+    """Is box C outside the shaft between boxes A and B (their box hull, cut by the planes that
+    join the two boxes' corners in each coordinate plane; Haines & Wallace 1991)? Then no
+    segment from A to B meets C."""
+    for k in range(3):
+        if chi[k] < min(alo[k], blo[k]) or clo[k] > max(ahi[k], bhi[k]):
+            return True
+    for i in range(3):
+        for j in range(i + 1, 3):
+            for si in range(2):
+                for sj in range(2):
+                    gi = 1.0 if si == 1 else -1.0
+                    gj = 1.0 if sj == 1 else -1.0
+                    ai = ahi[i] if si == 1 else alo[i]
+                    aj = ahi[j] if sj == 1 else alo[j]
+                    bi = bhi[i] if si == 1 else blo[i]
+                    bj = bhi[j] if sj == 1 else blo[j]
+                    if (gi * (ai - bi) > 0) == (gj * (aj - bj) > 0):
+                        continue   # one corner is outermost both ways: the box hull suffices
+                    ni = -(bj - aj)
+                    nj = bi - ai
+                    if ni * gi + nj * gj < 0:
+                        ni = -ni
+                        nj = -nj
+                    d = ni * ai + nj * aj
+                    x = clo[i] if ni > 0 else chi[i]
+                    y = clo[j] if nj > 0 else chi[j]
+                    if ni * x + nj * y > d + 1e-12 * (abs(d) + (abs(ni) + abs(nj))
+                                                      * (abs(x) + abs(y))):
+                        return True
+    return False
+
+
+@numba.njit(cache=True, inline="always")
+def _box_side(lo, hi, n, d, pad):
+    """+1: box in the closed front half-space of plane (n, d) within pad; -1 closed back;
+    2 both (within pad of the plane); 0 neither."""
+    mn = 0.0
+    mx = 0.0
+    for k in range(3):
+        if n[k] > 0:
+            mn += n[k] * lo[k]
+            mx += n[k] * hi[k]
+        else:
+            mn += n[k] * hi[k]
+            mx += n[k] * lo[k]
+    front = mn - d >= -pad
+    back = mx - d <= pad
+    if front and back:
+        return 2
+    if front:
+        return 1
+    if back:
+        return -1
+    return 0
+
+
+@numba.njit(cache=True, inline="always")
+def _closed_apart(sa, sb):
+    """Both on one closed side: a segment between them meets the plane only where it lies in
+    it, which has measure zero (or zero kernel) in the form-factor integral."""
+    return (sa == 2 or sb == 2 or sa == sb) and sa != 0 and sb != 0
+
+
+@numba.njit(cache=True)
+def block_occluders(nodes, flo, fhi, normal, doff, pad, alo, ahi, blo, bhi, out):
+    """Facets that may cut a segment between boxes A and B: their box enters the shaft and
+    their plane does not hold both boxes on one closed side. Traversal of the tree `nodes`
+    (bvh.Nodes) with the shaft test on node boxes. Writes facet ids (tree order) into out;
+    returns their count."""
+    start, end, left, right, lo, hi = (nodes.start, nodes.end, nodes.left, nodes.right,
+                                       nodes.lo, nodes.hi)
+    stack = np.empty(512, np.int64)
+    stack[0] = nodes.root
+    sp = 1
+    m = 0
+    while sp > 0:
+        sp -= 1
+        v = stack[sp]
+        if shaft_out(alo, ahi, blo, bhi, lo[v], hi[v]):
+            continue
+        if left[v] >= 0:
+            stack[sp] = right[v]
+            stack[sp + 1] = left[v]
+            sp += 2
+            continue
+        for o in range(start[v], end[v]):
+            if _closed_apart(_box_side(alo, ahi, normal[o], doff[o], pad),
+                             _box_side(blo, bhi, normal[o], doff[o], pad)):
+                continue
+            if shaft_out(alo, ahi, blo, bhi, flo[o], fhi[o]):
+                continue
+            out[m] = o
+            m += 1
+    return m
+
+
+@numba.njit(cache=True, inline="always")
+def _verts_side(verts, nv, i, n, d, pad):
+    """Side of facet i's vertices with respect to plane (n, d), as _box_side."""
+    mn = 1e300
+    mx = -1e300
+    for q in range(nv[i]):
+        s = n[0] * verts[i, q, 0] + n[1] * verts[i, q, 1] + n[2] * verts[i, q, 2] - d
+        mn = min(mn, s)
+        mx = max(mx, s)
+    front = mn >= -pad
+    back = mx <= pad
+    if front and back:
+        return 2
+    if front:
+        return 1
+    if back:
+        return -1
+    return 0
+
+
+@numba.njit(cache=True)
+def prove_unobstructed(ia, ib, blk, need, bleaf, aleaf, nodes, verts, nv, flo, fhi, normal, doff,
+                       pad, proven):
+    """For pairs sorted by block (blk indexes bleaf; all rows in leaf aleaf): proven[p] = True
+    when no facet can cut a segment between facets ia[p] and ib[p]. Blocks with a pair that
+    needs it (need[p]: pairs that would otherwise take many rays) are tested: a block whose
+    shaft holds no candidate at all is proven whole; otherwise each needing pair is proven when
+    none of the block's candidates survives the pair's own tests (its plane holds both facets'
+    vertices on one closed side, or its box is outside the shaft of the two facets' boxes).
+    Returns the number of facet tests made."""
+    cand = np.empty(flo.shape[0], np.int64)
+    tests = 0
+    p = 0
+    n = ia.shape[0]
+    while p < n:
+        k = blk[p]
+        q = p
+        any_need = False
+        while q < n and blk[q] == k:
+            any_need = any_need or need[q]
+            q += 1
+        if not any_need:   # one ray each decides them as well as a proof would
+            p = q
+            continue
+        b = bleaf[k]
+        nc = block_occluders(nodes, flo, fhi, normal, doff, pad, nodes.lo[aleaf],
+                             nodes.hi[aleaf], nodes.lo[b], nodes.hi[b], cand)
+        if nc == 0:
+            for r in range(p, q):
+                proven[r] = True
+        else:
+            for r in range(p, q):
+                if not need[r]:
+                    continue
+                i, j = ia[r], ib[r]
+                ok = True
+                for c in range(nc):
+                    o = cand[c]
+                    if o == i or o == j:
+                        continue
+                    tests += 1
+                    if _closed_apart(_verts_side(verts, nv, i, normal[o], doff[o], pad),
+                                     _verts_side(verts, nv, j, normal[o], doff[o], pad)):
+                        continue
+                    if shaft_out(flo[i], fhi[i], flo[j], fhi[j], flo[o], fhi[o]):
+                        continue
+                    ok = False
+                    break
+                proven[r] = ok
+        p = q
+    return tests
+
+
+# ----------------------------------------------------------------------------- sampling
+
+@numba.njit(cache=True, inline="always")
+def _mix(z):
+    """splitmix64 finaliser (uint64 -> uint64)."""
+    z = z + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@numba.njit(cache=True, inline="always")
+def _u01(seed, facet, s, cell, comp):
+    """A uniform double in [0, 1) that depends only on its arguments (counter-based)."""
+    z = _mix(np.uint64(seed) ^ np.uint64(0x5851F42D4C957F2D))
+    z = _mix(z ^ np.uint64(facet))
+    z = _mix(z ^ (np.uint64(s) << np.uint64(40)) ^ (np.uint64(cell) << np.uint64(2))
+             ^ np.uint64(comp))
+    return float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@numba.njit(cache=True, inline="always")
+def _bilinear_jacobian(P, u, v):
+    """|dB/du x dB/dv| at (u, v) of the bilinear map B of the quad P (4, 3)."""
+    ax = (1 - v) * (P[1, 0] - P[0, 0]) + v * (P[2, 0] - P[3, 0])
+    ay = (1 - v) * (P[1, 1] - P[0, 1]) + v * (P[2, 1] - P[3, 1])
+    az = (1 - v) * (P[1, 2] - P[0, 2]) + v * (P[2, 2] - P[3, 2])
+    bx = (1 - u) * (P[3, 0] - P[0, 0]) + u * (P[2, 0] - P[1, 0])
+    by = (1 - u) * (P[3, 1] - P[0, 1]) + u * (P[2, 1] - P[1, 1])
+    bz = (1 - u) * (P[3, 2] - P[0, 2]) + u * (P[2, 2] - P[1, 2])
+    cx = ay * bz - az * by
+    cy = az * bx - ax * bz
+    cz = ax * by - ay * bx
+    return math.sqrt(cx * cx + cy * cy + cz * cz)
+
+
+@numba.njit(cache=True)
+def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
+    """Jittered stratified points of facets fids (tree order): s * s per facet, pts
+    (len(fids) * s * s, 3), weights w (same count; each facet's sum to 1 in expectation).
+
+    Triangles: one uniform point in each of the s^2 congruent sub-triangles of the regular
+    subdivision, weight 1 / s^2. Quads: one point in each cell of an s x s grid of the bilinear
+    map, weight = its Jacobian / (s^2 area) (unbiased for any planar convex quad). s = 1: the
+    centroid (measured: one random point instead doubles the rows' errors on the urban scene of
+    benchmarks/bench_viewfactors.py). The jitter depends on (seed, gid[facet], s, cell) only
+    (gid: the facets' original ids), so every task draws the same points."""
+    S = s * s
+    for t in range(fids.shape[0]):
+        f = fids[t]
+        base = t * S
+        if s == 1:
+            for k in range(3):
+                pts[base, k] = center[f, k]
+            w[base] = 1.0
+            continue
+        g = gid[f]
+        if nv[f] == 3:
+            c = 0
+            for a in range(s):
+                for b in range(s - a):
+                    for up in range(2):
+                        if up == 1 and a + b > s - 2:
+                            continue
+                        r1 = _u01(seed, g, s, c, 0)
+                        r2 = _u01(seed, g, s, c, 1)
+                        if r1 + r2 > 1.0:
+                            r1 = 1.0 - r1
+                            r2 = 1.0 - r2
+                        # sub-triangle corners in (e1, e2) units of 1/s
+                        if up == 0:
+                            u0, v0, u1, v1, u2, v2 = a, b, a + 1, b, a, b + 1
+                        else:
+                            u0, v0, u1, v1, u2, v2 = a + 1, b + 1, a, b + 1, a + 1, b
+                        uu = (u0 + r1 * (u1 - u0) + r2 * (u2 - u0)) / s
+                        vv = (v0 + r1 * (v1 - v0) + r2 * (v2 - v0)) / s
+                        for k in range(3):
+                            p0 = verts[f, 0, k]
+                            pts[base + c, k] = (p0 + uu * (verts[f, 1, k] - p0)
+                                                + vv * (verts[f, 2, k] - p0))
+                        w[base + c] = 1.0 / S
+                        c += 1
+        else:
+            c = 0
+            for a in range(s):
+                for b in range(s):
+                    u = (a + _u01(seed, g, s, c, 0)) / s
+                    v = (b + _u01(seed, g, s, c, 1)) / s
+                    for k in range(3):
+                        pts[base + c, k] = ((1 - u) * (1 - v) * verts[f, 0, k]
+                                            + u * (1 - v) * verts[f, 1, k]
+                                            + u * v * verts[f, 2, k] + (1 - u) * v * verts[f, 3, k])
+                    w[base + c] = _bilinear_jacobian(verts[f], u, v) / (S * area[f])
+                    c += 1
+
+
+@numba.njit(cache=True)
+def sample_rays(pi, pj, S, pts, w, normal, fi, fj, ptr, ra, rb, term):
+    """Rays of the sample pairs of pairs p: facet fi[p] has points pi[p] * S ... + S - 1 of
+    pts, fj[p] likewise. A ray (k, l) is kept when its term w_k w_l c_i c_j / r^4 > 0 (else
+    it adds nothing). Fills ptr (pairs + 1,) (the rays of pair p are ptr[p]:ptr[p + 1]), ra,
+    rb (point indices), term; returns the number of rays."""
+    m = 0
+    for p in range(pi.shape[0]):
+        ptr[p] = m
+        i, j = fi[p], fj[p]
+        for k in range(S):
+            x = pi[p] * S + k
+            for l in range(S):
+                y = pj[p] * S + l
+                dx = pts[y, 0] - pts[x, 0]
+                dy = pts[y, 1] - pts[x, 1]
+                dz = pts[y, 2] - pts[x, 2]
+                ci = normal[i, 0] * dx + normal[i, 1] * dy + normal[i, 2] * dz
+                cj = -(normal[j, 0] * dx + normal[j, 1] * dy + normal[j, 2] * dz)
+                if ci <= 0.0 or cj <= 0.0:
+                    continue
+                r2 = dx * dx + dy * dy + dz * dz
+                ra[m] = x
+                rb[m] = y
+                term[m] = w[x] * w[y] * ci * cj / (r2 * r2)
+                m += 1
+    ptr[pi.shape[0]] = m
+    return m
+
+
+@numba.njit(cache=True)
+def visible_fraction(ptr, term, vis, phi):
+    """phi[p] = sum term V / sum term over the rays of pair p (NaN when it has none)."""
+    for p in range(ptr.shape[0] - 1):
+        tot = 0.0
+        seen = 0.0
+        for r in range(ptr[p], ptr[p + 1]):
+            tot += term[r]
+            if vis[r]:
+                seen += term[r]
+        phi[p] = seen / tot if tot > 0.0 else np.nan

@@ -28,10 +28,12 @@ class _Section:
         kw = {}
         for f in dataclasses.fields(cls):
             key = f.name.replace("_", "-")
-            if key not in values:
+            # environment variables (DASK_RADIOSITY__PLAN__LEAF_SIZE) arrive as leaf_size
+            name = key if key in values else f.name
+            if name not in values:
                 raise RadiosityError(f"radiosity.{cls.SECTION}.{key} is not set (radiosity.yaml "
                                      "holds every key: reinstall the package?)")
-            kw[f.name] = _coerce(values[key], f.type, f"radiosity.{cls.SECTION}.{key}")
+            kw[f.name] = _coerce(values[name], f.type, f"radiosity.{cls.SECTION}.{key}")
         return cls(**kw)
 
     def to_dict(self) -> dict:

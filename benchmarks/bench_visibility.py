@@ -56,10 +56,11 @@ def ray_throughput(scene, res):
     B = np.array([inp.lo[b0:b1].min(0), inp.hi[b0:b1].max(0)])
     pad = inp.pad
     cand = block_candidates(A, B, inp.elo, inp.ehi, inp.enormal, inp.eoffset, pad, i, j)
-    code, _ = classify(inp.center[a0:a1], inp.normal[a0:a1], inp.two_sided[a0:a1], inp.lo[a0:a1],
-                       inp.hi[a0:a1], inp.center[b0:b1], inp.normal[b0:b1], inp.two_sided[b0:b1],
-                       inp.lo[b0:b1], inp.hi[b0:b1], inp.elo, inp.ehi, inp.enormal, inp.eoffset, pad, cand,
-                       False)
+    code, _ = classify((inp.center[a0:a1], inp.normal[a0:a1], inp.two_sided[a0:a1], inp.lo[a0:a1],
+                        inp.hi[a0:a1]),
+                       (inp.center[b0:b1], inp.normal[b0:b1], inp.two_sided[b0:b1], inp.lo[b0:b1],
+                        inp.hi[b0:b1]),
+                       (inp.elo, inp.ehi, inp.enormal, inp.eoffset, pad), cand, False)
     need = np.nonzero(code == 2)[0]
     if len(need) < 1000:  # an unoccluded pair of blocks: take all facing pairs instead
         need = np.nonzero(code > 0)[0]

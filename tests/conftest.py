@@ -1,51 +1,20 @@
-"""Shared fixtures: a real LocalCluster (dashboard on a free loopback port), seeded rng, tiny
-scenes on disk, a preprocessed run, and the external components some tests drive (Slurm,
-Chromium, Mitsuba): `@pytest.mark.needs("chromium")` skips a test, saying why, when the
+"""Shared fixtures: a real LocalCluster (dashboard on a free loopback port), a seeded rng, a
+tiny scene on disk, and the external components some tests drive (Slurm, Chromium, Mitsuba;
+shared helpers are in helpers.py): `@pytest.mark.needs("chromium")` skips a test, saying why, when the
 component is missing, except under CI (CI=true, as .ci/run sets it), where it fails: .ci/run
 provides them, so a missing one there means CI is broken, not that the test may pass."""
 
 from __future__ import annotations
 
-import functools
 import os
-import shutil
-import textwrap
+import sys
 
 import numpy as np
 import pytest
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SCENES = os.path.join(ROOT, "scenes")
-# the one place that says where headless Chromium is (viewer and dashboard tests)
-CHROMIUM = os.environ.get("RADIOSITY_CHROMIUM", "/usr/bin/chromium")
-IN_CI = os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # helpers, naive
 
-
-@functools.lru_cache(maxsize=None)
-def missing(component: str) -> str | None:
-    """Why `component` cannot be used here (None: it can). Checked once per session: asking a
-    Slurm that does not run takes `sinfo` about 9 s."""
-    if component == "chromium":
-        if os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK):
-            return None
-        return (f"headless Chromium not found at {CHROMIUM} (apt-get install chromium, or point "
-                "RADIOSITY_CHROMIUM at it)")
-    if component == "slurm":
-        from radiosity.runtime.cluster import slurm_unavailable
-
-        why = slurm_unavailable()
-        if why is None:
-            return None
-        return f"Slurm is not running here: start it with bash deploy/slurm-up.sh ({why})"
-    if component == "mitsuba":
-        try:
-            import mitsuba  # noqa: F401
-        except ImportError as e:
-            return f"mitsuba is not installed ({e}): pip install mitsuba"
-        return None
-    if component in ("sbatch", "squeue"):
-        return None if shutil.which(component) else f"{component} is not on PATH"
-    raise ValueError(f"unknown component {component!r}")
+from helpers import FLOOR_AND_TRIANGLE, IN_CI, missing, write_scene  # noqa: E402
 
 
 def pytest_configure(config):
@@ -66,10 +35,6 @@ def _needs(request):
         pytest.skip(why)
 
 
-def scene_path(name: str) -> str:
-    return os.path.join(SCENES, name, "scene.toml")
-
-
 @pytest.fixture(scope="session")
 def client():
     """Two worker processes on 127.0.0.1 (dashboard on a free loopback port): the real thing,
@@ -84,62 +49,6 @@ def client():
 @pytest.fixture
 def rng():
     return np.random.default_rng(20261122)
-
-
-def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibility: bool = True,
-             **kw) -> str:
-    """A run directory of `scene` (a TOML path) preprocessed at `res` (kw: preprocess options),
-    with its one-ray visibility matrix unless `visibility` is False."""
-    from radiosity.stages.preprocess import preprocess
-    from radiosity.scene.load import load_scene
-    from radiosity.methods.pairs.visibility import compute_visibility
-
-    out = str(tmp_path / name)
-    preprocess(load_scene(scene, resolution=res), out, client, progress=False, **kw)
-    if visibility:
-        compute_visibility(out, client, progress=False)
-    return out
-
-
-def radiance(out: str) -> np.ndarray:
-    """The solved radiance (m, 2, 3) of a run directory."""
-    from radiosity.runtime.store import RunStore
-
-    return RunStore(out).read_arrays("solution")["radiance"]
-
-
-def write_scene(tmp_path, obj: str, toml_extra: str = "", camera: str | None = None,
-                mtl: str | None = None, name: str = "scene.toml") -> str:
-    """Write an OBJ (and MTL) plus a scene TOML into tmp_path; return the TOML path."""
-    (tmp_path / "mesh.obj").write_text(textwrap.dedent(obj))
-    if mtl is not None:
-        (tmp_path / "mesh.mtl").write_text(textwrap.dedent(mtl))
-    if camera is None:
-        camera = """
-        [camera]
-        position = [0.5, 2.0, -1.5]
-        look_at = [0.5, 0.0, 0.5]
-        up = [0.0, 1.0, 0.0]
-        fov_y = 50.0
-        resolution = [32, 24]
-        """
-    text = '[[mesh]]\npath = "mesh.obj"\n' + textwrap.dedent(toml_extra) + textwrap.dedent(camera)
-    p = tmp_path / name
-    p.write_text(text)
-    return str(p)
-
-
-FLOOR_AND_TRIANGLE = """
-v 0 0 0
-v 1 0 0
-v 1 0 1
-v 0 0 1
-v 0 0.5 0.2
-v 0.5 0.6 0.2
-v 0.2 0.9 0.3
-f 1 4 3 2
-f 5 6 7
-"""
 
 
 @pytest.fixture

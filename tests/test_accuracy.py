@@ -222,7 +222,7 @@ def test_pass_accumulates_1e5_elements_in_float64(rng):
     precision (longdouble) sum of the same form factors to 1e-12. Summing these terms in float32
     is off by 1.1e-4 (measured once, when the data were chosen): a pass that accumulated in float32
     fails by eight orders of magnitude; float64 rounding over 10^5 terms stays below 1e-13."""
-    from radiosity.methods.pairs.passes import BOTH, CAP_MIN, tile_apply
+    from radiosity.methods.pairs.passes import BOTH, CAP_MIN, Caps, Geometry, Samples, tile_apply
 
     C = 100_000
     m = C + 1
@@ -239,8 +239,8 @@ def test_pass_accumulates_1e5_elements_in_float64(rng):
     packed = np.packbits(np.ones(C, bool), bitorder="little")
     cx, cy, cz = (np.ascontiguousarray(c[:, k]) for k in range(3))
     nx, ny, nz = (np.ascontiguousarray(n[:, k]) for k in range(3))
-    tile_apply(0, packed, 1, C, 0, 1, cx, cy, cz, nx, ny, nz, area, np.ones(m), CAP_MIN, np.zeros(m, bool),
-               np.zeros((m, 0, 3)), np.zeros((m, 0)), L, y, BOTH, True, True)
+    tile_apply(0, packed, 1, C, 0, 1, Geometry(cx, cy, cz, nx, ny, nz, area), Caps(np.ones(m), CAP_MIN),
+               np.zeros(m, bool), Samples(np.zeros((m, 0, 3)), np.zeros((m, 0))), L, y, BOTH, True, True)
     fab, _ = pair_form_factors("point", np.repeat(c[:1], C, 0), np.repeat(n[:1], C, 0),
                                np.repeat(area[:1], C), c[1:], n[1:], area[1:])
     terms = fab.astype(np.longdouble) * L[0, 0, 1:].astype(np.longdouble)

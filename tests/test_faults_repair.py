@@ -58,15 +58,21 @@ def killable():
         yield c
 
 
+@pytest.mark.parametrize("method", ["pairs", "hierarchical"])
 @pytest.mark.parametrize("solver", ["cg", "gauss-seidel"])
-def test_worker_killed_during_solve_gives_the_same_answer(killable, tmp_path, solver):
+def test_worker_killed_during_solve_gives_the_same_answer(killable, tmp_path, solver, method):
     """SIGKILL one worker shortly after the second pass has started (Gauss-Seidel runs each sweep
-    on the first worker: that one is killed). The pass tasks it held are resubmitted; the
-    solve converges to the answer of an undisturbed run, pass for pass the same arithmetic."""
+    on the first worker: that one is killed), for both methods (the hierarchical one with its
+    passes on the workers). The pass tasks it held are resubmitted and the data it held is sent
+    again; the solve converges to the answer of an undisturbed run, pass for pass the same
+    arithmetic."""
+    from radiosity.methods.base import get_method
+
     c = killable
     c.wait_for_workers(2, timeout=60)
-    out = prepared(c, tmp_path, scene_path("cornell-box"), 12)
-    ref = run_solve(out, c, solver=solver, tol=1e-10, progress=False)
+    out = prepared(c, tmp_path, scene_path("cornell-box"), 12, visibility=False)
+    get_method(method).build(out, c, None, progress=False)
+    ref = run_solve(out, c, solver=solver, tol=1e-10, progress=False, where="cluster")
     L_ref = radiance(out)
     workers = sorted(c.scheduler_info()["workers"])
     pids = c.run(os.getpid)
@@ -81,7 +87,8 @@ def test_worker_killed_during_solve_gives_the_same_answer(killable, tmp_path, so
             killed.append(threading.Thread(target=later))
             killed[0].start()
 
-    fig = run_solve(out, c, solver=solver, tol=1e-10, progress=False, callback=kill_soon)
+    fig = run_solve(out, c, solver=solver, tol=1e-10, progress=False, callback=kill_soon,
+                    where="cluster")
     killed[0].join()
     assert victim not in c.run(os.getpid).values()  # it really died (the nanny started another)
     assert fig["converged"] and fig["iterations"] == ref["iterations"]

@@ -13,13 +13,14 @@ import pytest
 from radiosity.core.exact import differential_to_rectangle, pair_form_factors_exact
 from radiosity.scene.splittrees import decode, node_table, seen_originals, tree_nodes
 from radiosity.methods.hierarchical.links import COUNTERS, LinkInputs, compute_links, refine_pairs, resolve_params
-from radiosity.methods.hierarchical.operator import (LinkOperator, LocalLinkOperator, leaf_vectors,
-                                  open_link_operator, run_solve_links, task_link_arrays)
+from radiosity.methods.hierarchical.transport import (LinkOperator, LocalLinkOperator, leaf_vectors,
+                                                      open_link_operator, task_link_arrays)
 from radiosity.tracing.rays import RayCaster
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
 from radiosity.scene.subdivide import split_polygons, subdivide_scene
-from conftest import prepared, radiance, scene_path, write_scene
+from radiosity.settings import resolve
+from helpers import prepared, radiance, scene_path, write_scene
 
 ALL_PAIRS = {"radiosity.hierarchy.min-node-size": 1e9, "radiosity.hierarchy.weight": "none",
              "radiosity.hierarchy.near-gauss-gap": float("inf"),
@@ -30,6 +31,13 @@ def _count(counts, name):
     return int(counts[COUNTERS.index(name)])
 
 
+def run_solve_links(out, client, **kw):
+    """The solve of a run's links: the solve stage through the hierarchical method's seam."""
+    from radiosity.stages.solve import run_solve
+
+    return run_solve(out, client, method="hierarchical", **kw)
+
+
 def in_process(path, res=None, kernel="point-nf", epsilon=None, rays=None, seen=None, cfg=None):
     """A scene's LinkInputs without a cluster: (scene, partition, tree, inputs)."""
     sc = load_scene(path, resolution=res)
@@ -37,8 +45,9 @@ def in_process(path, res=None, kernel="point-nf", epsilon=None, rays=None, seen=
     part, raster, _, _ = subdivide_scene(el, sc.camera)
     tree = tree_nodes(part, el)
     seen = seen_originals(raster, len(el)) if seen is None else seen
-    with dask.config.set({f"radiosity.hierarchy.{k}": v for k, v in (cfg or {}).items()}):
-        prm, weight = resolve_params(el, kernel, epsilon, rays)
+    s = resolve({"hierarchy.kernel": kernel, "hierarchy.epsilon": epsilon, "hierarchy.link-rays": rays,
+                 **{f"hierarchy.{k}": v for k, v in (cfg or {}).items()}})
+    prm, weight = resolve_params(el, s)
     return sc, part, tree, LinkInputs(tree, part, el, seen, prm, weight, "test", 1e-6)
 
 
@@ -514,18 +523,16 @@ def test_epsilon_auto_scales_with_the_raster_and_reaches_the_links(client, tmp_p
     from radiosity.errors import RadiosityError
     from radiosity.methods.hierarchical.links import choose_epsilon
 
-    with dask.config.set({"radiosity.hierarchy.epsilon": "auto",
-                          "radiosity.hierarchy.epsilon-base": 5e-4,
-                          "radiosity.hierarchy.epsilon-resolution": 128}):
-        assert choose_epsilon(None, 64 * 64)[0] == 5e-4
-        assert choose_epsilon(None, 128 * 128)[0] == 5e-4
-        eps, why = choose_epsilon(None, 512 * 512)
-        assert eps == pytest.approx(1.25e-4) and why.startswith("auto: 0.0005 x 128 / 512")
-        assert choose_epsilon(None, None)[0] == 5e-4  # before the raster exists: the base
-        assert choose_epsilon(2e-3, 512 * 512) == (2e-3, "stated")
-    with dask.config.set({"radiosity.hierarchy.epsilon": "fine"}):
-        with pytest.raises(RadiosityError, match="number >= 0 or auto, got 'fine'"):
-            choose_epsilon(None, 100)
+    s = resolve({"hierarchy.epsilon": "auto", "hierarchy.epsilon-base": 5e-4,
+                 "hierarchy.epsilon-resolution": 128})
+    assert choose_epsilon(s, 64 * 64)[0] == 5e-4
+    assert choose_epsilon(s.hierarchy, 128 * 128)[0] == 5e-4  # the section does as well
+    eps, why = choose_epsilon(s, 512 * 512)
+    assert eps == pytest.approx(1.25e-4) and why.startswith("auto: 0.0005 x 128 / 512")
+    assert choose_epsilon(s, None)[0] == 5e-4  # before the raster exists: the base
+    assert choose_epsilon(s.replace({"hierarchy.epsilon": 2e-3}), 512 * 512) == (2e-3, "stated")
+    with pytest.raises(RadiosityError, match="number >= 0 or auto, got 'fine'"):
+        choose_epsilon(resolve({"hierarchy.epsilon": "fine"}), 100)
     out = prepared(client, tmp_path, scene_path("cornell-box"), 24)
     figs = {}
     for res0 in (24, 6):  # 24^2 pixels: the base; 6: a quarter of it
@@ -562,7 +569,7 @@ def test_far_links_gradient_in_the_final_gather_matches_exact_evaluation(client,
     polygon evaluations. Against the exact evaluations everywhere (FG_FAR = 0) on the Cornell
     box: far fewer evaluations, the same sub-element radiance to 0.05 % on average and 1.5 % at
     worst (the error of the method against Mitsuba is about 1 % on average)."""
-    import radiosity.methods.hierarchical.operator as ls
+    import radiosity.methods.hierarchical.transport as ls
     from radiosity.pipeline import render_scene
 
     out = str(tmp_path / "cb")

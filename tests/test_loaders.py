@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from radiosity.scene.load import SceneWarning, load_scene
-from conftest import prepared, radiance, write_scene
+from helpers import prepared, radiance, write_scene
 
 CAMERA = ('[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nup = [0, 1, 0]\nfov_y = 60\n'
           'resolution = 8\n')

@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from conftest import ROOT, scene_path, write_scene
+from helpers import ROOT, scene_path, write_scene
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +82,7 @@ resolution = [20, 20]
 
 
 def _camera_scenes(tmp_path):
-    from conftest import FLOOR_AND_TRIANGLE
+    from helpers import FLOOR_AND_TRIANGLE
 
     seed = write_scene(tmp_path, FLOOR_AND_TRIANGLE, camera=SEED_CAMERA, name="seed.toml")
     return [_scene("cornell-box", (24, 16)), _scene("furnace-cube", 12), _scene(seed)]
@@ -122,7 +122,7 @@ def test_pixel_rays_agree_with_the_engine(mitsuba, tmp_path):
 
 def test_non_square_pixels_are_refused(mitsuba, tmp_path):
     from radiosity.validation.reference import ReferenceError, sensor_dict
-    from conftest import FLOOR_AND_TRIANGLE
+    from helpers import FLOOR_AND_TRIANGLE
 
     p = write_scene(tmp_path, FLOOR_AND_TRIANGLE, camera=SEED_CAMERA.replace("[20, 20]", "[32, 16]"))
     with pytest.raises(ReferenceError, match="pixels are not square"):

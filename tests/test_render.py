@@ -21,7 +21,7 @@ from radiosity.stages import image as render
 from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
-from conftest import CHROMIUM, scene_path, write_scene
+from helpers import CHROMIUM, scene_path, write_scene
 
 # Three vertical unit panels in the plane z = 0, the camera in front at z = -3 looking +z.
 # "twosided" (left) and "onesided" (right) face +z, away from the camera: we see their backs.

@@ -10,7 +10,7 @@ import pytest
 
 from radiosity.errors import SceneError
 from radiosity.scene.load import SceneWarning, load_scene, merge_parallelograms, parse_camera
-from conftest import FLOOR_AND_TRIANGLE, write_scene
+from helpers import FLOOR_AND_TRIANGLE, write_scene
 
 QUAD = """
 v 0 0 0

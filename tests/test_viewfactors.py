@@ -334,22 +334,25 @@ def test_facets_load_as_the_scene_loader_would(recwarn):
     hands any other mesh to it (repairs with a warning; errors name the face)."""
     from radiosity.errors import SceneError
     from radiosity.scene.load import RawMesh, polygons_from_raw
-    from radiosity.viewfactors.api import _polygons
+    from radiosity.settings import resolve
+    from radiosity.viewfactors.facets import _polygons
 
+    settings = resolve()
     rng = np.random.default_rng(4)
     for V, F in (box([0, 0, 0], [1, 2, 3], 3), _random_scene(rng)):
         raw = RawMesh(np.asarray(V, float), F, ["default"] * len(F))
-        got, want = _polygons(raw, "m"), polygons_from_raw(raw, "m", merge=False)
+        got = _polygons(raw, "m", settings)
+        want = polygons_from_raw(raw, "m", merge=False, settings=settings)
         assert all(np.array_equal(a, b) for a, b in zip(got, want[:3]))
     # two triangles forming a square stay two facets (no merge)
     tri = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.]]), [[0, 1, 2], [0, 2, 3]], ["d"] * 2)
     assert len(load_facets((tri.vertices, tri.faces))) == 2
     bent = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.3], [0, 1, 0]]), [[0, 1, 2, 3]], ["default"])
-    assert list(_polygons(bent, "bent.obj")[1]) == [3, 3]
+    assert list(_polygons(bent, "bent.obj", settings)[1]) == [3, 3]
     assert any("non-planar quad" in str(w.message) for w in recwarn)
     flat = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.]]), [[0, 1, 2]], ["default"])
     with pytest.raises(SceneError, match="face 1 .* zero area"):
-        _polygons(flat, "flat.obj")
+        _polygons(flat, "flat.obj", settings)
 
 
 def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
@@ -369,10 +372,11 @@ def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
     assert (lost >= 0).all() and lost[:8, :8].max() == 0           # near pairs untouched
     assert lost[:4, 8:].min() > 0                                  # the floor no longer sees the far group
     from radiosity.runtime.store import RunStore
-    from radiosity.viewfactors.api import assemble, make_inputs
+    from radiosity.settings import resolve
+    from radiosity.viewfactors.master import assemble, make_inputs
 
     fac = load_facets(mesh)
-    tree, _ = make_inputs(fac, 4)
+    tree, _ = make_inputs(fac, 4, resolve().rays.epsilon)
     lines = (tmp_path / "cut" / "viewfactors.manifest.jsonl").read_text().splitlines()[1:]
     entries = {e["task"]: e for e in map(json.loads, lines)}
     asm = assemble(RunStore(str(tmp_path / "cut")), fac, tree, entries)
@@ -385,7 +389,7 @@ def test_tree_and_task_plan_cover_every_facet_once(rng):
     lies in its nodes' cones; the task plan takes every leaf once, in order, within the pair
     budget (a single leaf may exceed it), with at least the requested number of tasks."""
     from radiosity.viewfactors.bvh import build_tree
-    from radiosity.viewfactors.api import plan_tasks
+    from radiosity.viewfactors.master import plan_tasks
 
     n = 3000
     center = rng.random((n, 3)) * [100, 100, 20]
@@ -417,7 +421,7 @@ def test_jittered_points_lie_on_their_facets_and_integrate(rng):
     weights are the bilinear map's Jacobian), and the same (seed, facet, level) gives the same
     points."""
     from radiosity.core.geometry import polygon_properties
-    from radiosity.viewfactors.loops import sample_facets
+    from radiosity.viewfactors.occlusion import sample_facets
 
     tri = [[0, 0, 0], [2, 0, 0], [0.5, 1.5, 0], [0.5, 1.5, 0]]
     trap = [[0, 0, 0], [3, 0, 0], [2, 1, 0], [1, 1, 0]]

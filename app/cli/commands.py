@@ -14,7 +14,7 @@ import click
 
 from radiosity.cli.options import (POSITIVE, POSITIVE_INT, TOL, _Finite, _number_list,
                                    _resolution, cluster_from_flags, cluster_options,
-                                   image_options, kernel_options, method_options,
+                                   force_option, image_options, kernel_options, method_options,
                                    settings_from_flags, solve_options)
 from radiosity.cli.summary import (_ARGV, _T0, NOT_CONVERGED, _command_line, _finish, _friendly,
                                    _record_run, _started, _table, _viewfactors_summary)
@@ -79,9 +79,11 @@ def main():
               help="exact: equals the sequential partition; seed: each subscene renders alone "
                    "(seed §4.2); none: no subdivision (the seed's image without preprocessing).")
 @click.option("--subscenes", type=POSITIVE_INT, default=None, help="Number of subscene tasks.")
+@force_option
 @cluster_options
 @_friendly
-def preprocess(scene, out, resolution, subpixel, variant, subscenes, workers, scheduler, cluster_kind):
+def preprocess(scene, out, resolution, subpixel, variant, subscenes, force, workers, scheduler,
+               cluster_kind):
     """Camera-driven subdivision of SCENE (seed §3) into the run directory OUT."""
     from radiosity.runtime.checks import check_new_run_dir, check_scene
     from radiosity.runtime.runlock import run_lock
@@ -92,7 +94,7 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, workers, sc
                              subdivide__subscenes=subscenes)
     sc = load_scene(scene, resolution=resolution, settings=st)
     check_scene(sc, st)
-    check_new_run_dir(out)
+    check_new_run_dir(out, force)
     _started(out, resume=False)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
@@ -236,12 +238,13 @@ def plan(scene, resolution, subpixel, tol):
 @click.option("--resume", is_flag=True, help="Reuse the partition and finished visibility tasks in OUT.")
 @click.option("--no-preview", is_flag=True, help="Skip preview.png (the original elements only).")
 @click.option("--full", is_flag=True, help="Simulate every effect, whatever the plan says.")
+@force_option
 @solve_options
 @method_options
 @image_options
 @cluster_options
 @_friendly
-def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full, solver, kernel,
+def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full, force, solver, kernel,
            tol, max_iterations, keep_unconverged, filter_, sigma, exposure, workers, scheduler,
            cluster_kind):
     """Preprocess, visibility, solve and image of SCENE into the run directory OUT."""
@@ -257,7 +260,7 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
     sc = load_scene(scene, resolution=resolution, settings=st)
     check_solve(st)
     check_scene(sc, st)
-    check_new_run_dir(out)
+    check_new_run_dir(out, force)
     _started(out)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
@@ -287,8 +290,9 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Seed of the first pass.")
 @click.option("--variant", type=click.Choice(["auto", "llvm_ad_rgb", "scalar_rgb"]), default=None,
               help="Mitsuba variant (default: radiosity.reference.variant, auto).")
+@force_option
 @_friendly
-def reference(scene, out, spp, passes, resolution, seed, variant):
+def reference(scene, out, spp, passes, resolution, seed, variant, force):
     """Ground truth: SCENE path-traced by Mitsuba 3 (the same elements, materials, sides and
     camera); mean radiance, per-pixel standard error and figures into OUT."""
     from radiosity.runtime.checks import check_new_run_dir
@@ -297,7 +301,7 @@ def reference(scene, out, spp, passes, resolution, seed, variant):
 
     st = settings_from_flags()
     sc = load_scene(scene, resolution=resolution, settings=st)
-    check_new_run_dir(out)
+    check_new_run_dir(out, force)
     fig = make_reference(sc, out, spp=spp, passes=passes, seed=seed, variant=variant,
                          echo=click.echo, settings=st)
     click.echo(_table([
@@ -316,15 +320,16 @@ def reference(scene, out, spp, passes, resolution, seed, variant):
 @click.argument("b", type=click.Path())
 @click.option("--out", "-o", default=None, type=click.Path(),
               help="Directory for compare.png (false-colour relative difference) and compare.json.")
+@force_option
 @_friendly
-def compare(a, b, out):
+def compare(a, b, out, force):
     """Error of image A against reference B (EXR, linear RGB): mean absolute relative error,
     max, per channel; B's noise when B-stderr.exr lies beside it."""
     from radiosity.validation.compare import compare_files
     from radiosity.runtime.checks import check_new_run_dir
 
     if out:
-        check_new_run_dir(out)
+        check_new_run_dir(out, force)
     fig = compare_files(a, b, out)
     pc = fig["per_channel"]
     rows = [("pixels", f"{fig['pixels']} of {fig['width']}x{fig['height']} (where B > 0)"),
@@ -351,9 +356,11 @@ def compare(a, b, out):
 @click.option("--cutoff", type=_Finite(min=0.0), default=None,
               help="Drop cluster pairs whose form-factor bound is at most this (default 0: none).")
 @click.option("--resume", is_flag=True, help="Keep the finished tasks of an interrupted run in OUT.")
+@force_option
 @cluster_options
 @_friendly
-def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, workers, scheduler, cluster_kind):
+def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, workers, scheduler,
+                cluster_kind):
     """View factors between the facets of MESH (OBJ, glTF, PLY or a scene TOML): sparse,
     obstructed, reciprocal; rows balanced to 1 for enclosures."""
     from radiosity.runtime.checks import check_new_run_dir
@@ -364,12 +371,13 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, workers, sc
                              viewfactors__enclosure=enclosure)
     resolve_params(settings=st)  # bad values fail before the cluster starts
     fac = load_facets(mesh, settings=st)
-    check_new_run_dir(out)
+    check_new_run_dir(out, force)
     _started(out)
     click.echo(f"{len(fac)} facets from {', '.join(fac.sources)}")
     with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind) as client:
         res = compute_viewfactors(fac, out, client, fmt=fmt, resume=resume, settings=st)
-    click.echo(_viewfactors_summary(res.figures))
+        _record_run(out, os.path.basename(mesh))
+    click.echo(_viewfactors_summary(res.figures, _finish(out, [])))
     click.echo(f"wrote {out}/" + f", {out}/".join(res.figures["files"] + ["report.json"]))
 
 

@@ -213,3 +213,10 @@ def image_options(fn):
     fn = click.option("--filter", "filter_", type=click.Choice(["box", "gaussian"]), default=None,
                       help="Sub-pixel reconstruction filter.")(fn)
     return fn
+
+
+def force_option(fn):
+    """--force: write into a non-empty folder that is not a run directory (refused otherwise)."""
+    return click.option("--force", is_flag=True,
+                        help="Write into OUT even when it is a non-empty folder that is not a "
+                             "run directory (its files of the same names are replaced).")(fn)

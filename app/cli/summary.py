@@ -156,7 +156,8 @@ def _table(rows: list[tuple[str, object]]) -> str:
 
 
 
-def _viewfactors_summary(fig: dict) -> str:
+def _viewfactors_summary(fig: dict, extra: list = ()) -> str:
+    """The view-factor stage's summary table (extra: rows after it, e.g. the wall time)."""
     pt = max(1, fig["pairs_total"])
 
     def part(k):
@@ -179,5 +180,5 @@ def _viewfactors_summary(fig: dict) -> str:
             ("row sum histogram", ", ".join(f"{k}: {v}" for k, v in hist.items() if v)),
             ("reciprocity residual", f"{fig['reciprocity_residual_max']:.3g}"),
             ("obstructed > unobstructed", fig["obstructed_over_unobstructed"]),
-            ("time", f"{fig['time_s']:.2f} s")]
+            ("time", f"{fig['time_s']:.2f} s"), *extra]
     return _table(rows)

@@ -1,44 +1,6 @@
 """Exact (validation) form factors: Howell's closed forms and the contour integral (SPEC §2, §7).
 
-Convention (as in kernels.py): F_ij is the fraction of the power leaving element i that arrives
-at element j, so A_i F_ij = A_j F_ji, and in the far field F_ij -> A_j cos_i cos_j / (pi r^2).
-Nothing here knows about occlusion: every function is the *unoccluded* form factor.
-
-Closed forms, from J. R. Howell, *A Catalog of Radiation Heat Transfer Configuration Factors*
-(thermalradiation.net; also Siegel & Howell, *Thermal Radiation Heat Transfer*, appendix):
-
-- C-11  identical, parallel, directly opposed rectangles       `parallel_rectangles`
-- C-14  rectangles with a common edge, at 90 degrees            `perpendicular_rectangles`
-- C-41  parallel coaxial discs of unequal radius                `coaxial_discs`
-- B-3   plane element to a parallel rectangle, the element's normal through a corner, and the
-        element-to-perpendicular-rectangle entry of the same section (corner in the element's
-        plane)                                                  `differential_to_rectangle`
-
-Polygons (any planar convex polygon, vertices counter-clockwise about the front normal):
-
-- `polygon_form_factor(P, Q)`: Sparrow's double contour integral (Stokes' theorem twice),
-
-      A_P F_PQ = 1/(2 pi) sum_{e of P} sum_{f of Q} (e_hat . f_hat) int_e int_f ln r ds dt,
-
-  the form of Schroeder & Hanrahan (1993, "On the form factor between two polygons"). The inner
-  integral over f is analytic,
-      int ln r dt = [x ln(x^2 + h^2)/2 - x + h atan(x/h)]   (h: distance of the point to f's line),
-  and the outer one uses Gauss-Legendre panels split at, and graded geometrically towards, the
-  real parts of the integrand's complex singularities (f's endpoints, the foot on f's line), so
-  shared edges and vertices (log singularities, integrable) cost O(log 1/eps) panels and keep
-  ~1e-13 accuracy. The `-x` term and any ln(const) add zero around closed contours and are
-  dropped; ln r is taken relative to the centroid distance to limit cancellation (relative
-  accuracy degrades like 1e-16 (r / size)^2 for far pairs, where the point kernel is exact
-  enough anyway).
-- `polygon_point_form_factor(p, n, Q)`: Lambert's formula for a differential element,
-      F = 1/(2 pi) sum_k gamma_k n . (v_k x v_{k+1}) / |v_k x v_{k+1}|,   v_k = Q_k - p.
-- `pair_form_factors_exact`: the polygon formula over arrays of (4, 3) polygons as stored in
-  app/types.py (numba; 5-20 us a pair, the most for shared edges and T-junctions).
-
-Sides: by default (`two_sided=True`) each polygon uses the side facing the other's centroid,
-like kernels._row_sided (the front when that centroid lies in its plane); with `two_sided=False` only the front sides count (0 when Q is behind
-P). Either way each polygon is clipped to the other's front half-space first, so a polygon that
-straddles the other's plane gets the exact unoccluded answer (cos_i, cos_j >= 0 everywhere).
+Design notes and measurements: docs/design/core-exact.md.
 """
 
 from __future__ import annotations
@@ -192,9 +154,12 @@ def _inner(s, w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02):
 
 
 @numba.njit(cache=True)
-def _graded(e, length, sgn, D, w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02):
+def _graded(e, length, sgn, D, seg):
     """Integral of _inner over [e, e + sgn length] by Gauss-Legendre panels shrinking by _SIGMA
-    towards e down to D (the distance from e to the nearest complex singularity) or _EPS length."""
+    towards e down to D (the distance from e to the nearest complex singularity) or _EPS length.
+    seg: _inner's arguments after s, (w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq,
+    lnr02)."""
+    w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02 = seg
     floor = max(D, _EPS * length)
     acc = 0.0
     hi = length
@@ -268,6 +233,7 @@ def _edge_pair(P, i, j, Q, k, l, lnr02):
     b0 = min(s0, s1, s2)
     b2_ = max(s0, s1, s2)
     b1 = s0 + s1 + s2 - b0 - b2_
+    seg = (w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02)
     acc = 0.0
     prev = 0.0
     for t in range(4):
@@ -283,10 +249,8 @@ def _edge_pair(P, i, j, Q, k, l, lnr02):
         half = 0.5 * (cur - prev)
         da = min(math.hypot(s0 - prev, d0), math.hypot(s1 - prev, d1), math.hypot(s2 - prev, d2))
         db = min(math.hypot(s0 - cur, d0), math.hypot(s1 - cur, d1), math.hypot(s2 - cur, d2))
-        acc += _graded(prev, half, 1.0, da, w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz,
-                       lq, lnr02)
-        acc += _graded(cur, half, -1.0, db, w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz,
-                       lq, lnr02)
+        acc += _graded(prev, half, 1.0, da, seg)
+        acc += _graded(cur, half, -1.0, db, seg)
         prev = cur
     return c * acc
 

@@ -1,30 +1,7 @@
 """Form-factor kernels (SPEC §2): the registry, the formulas and the sample points, evaluated
 on the fly inside the solver's pass loops (passes.py).
 
-Only the visibility bit is stored (seed §2.2, remark); every pass recomputes F from the
-sub-elements' centres, normals and areas. For a visible pair (a, b) with d = c_b - c_a,
-r2 = |d|^2, ca = n_a . d and cb = -n_b . d (so cos_a = ca / r, cos_b = cb / r):
-
-    point (seed eq. 6, corrected):  F_ab = A_b |ca cb| / (pi r2^2)
-    disc  (Wallace et al. 1989):    F_ab = A_b |ca cb| / r2 / (pi r2 + A_b)
-    nxm   (seed §2.2, method 2):    the point kernel averaged over N x N sample pairs
-    mc    (Monte Carlo):            the point kernel averaged over k random sample pairs
-
-The two sampled kernels (nxm, mc) put S points with weights w on every sub-element
-(`sample_points`) and evaluate, for a visible pair,
-
-    F_ab = A_b / pi * sum_(k, l) w_k w_l c_a c_b / r_kl^4     (nxm: every k, l; N*N rays)
-    F_ab = A_b / pi * 1/S sum_s c_a c_b / r_ss^4               (mc: p_s with q_s; S rays)
-
-with c_a = max(0, +-n_a . d_kl) on the side the centres face (a sample pair whose segment
-leaves either element's plane on the wrong side adds 0). The weights are the area fractions of the sample cells, 1/N for the
-equal cells of triangles and parallelograms: the 1/(N M) the seed's printed formula lacks.
-Both are reciprocal (A_a F_ab = A_b F_ba). Their visibility is one ray per sample pair; the bit
-says "some sample pair sees", and pairs that are only partly visible keep, sparsely, the
-fraction phi = sum w c c V / r^4 / sum w c c / r^4 (visibility.py), so that phi times the
-unoccluded sum is exactly the kernel with a visibility term per sample pair.
-
-Radiance lives per side: the side of a that b sees is 0 (front) if ca > 0 else 1 (back).
+Design notes and measurements: docs/design/core-kernels.md.
 """
 
 from __future__ import annotations

@@ -1,14 +1,7 @@
 """Solvers of the radiosity equation L = Le + rho (F L) (SPEC §2, §6), pure iterations over an
 `Operator` (operator.py): they never see a cluster, a store or the configuration.
 
-Vectors are (2, C, m) float64: [side (0 front, 1 back), channel, sub-element]. All solvers
-treat the channels in the same pass over the matrix, share one signature
-
-    solver(op, Le, rho, area, tol, max_iter, callback) -> SolveResult
-
-and stop on a relative residual ||Le + rho F L - L||_A / ||Le||_A <= tol (area-weighted 2-norm);
-progressive refinement and Gauss-Seidel stop on their cheaper bounds (unshot radiance, last
-update); the solve stage (solve.py) ends every run with one true-residual pass for the report.
+Design notes and measurements: docs/design/core-solvers.md.
 """
 
 from __future__ import annotations

@@ -82,13 +82,29 @@ def _probe(d: str, what: str, existing: bool = False) -> None:
                          f"{fs_advice(e.errno, existing)}") from None
 
 
-def check_new_run_dir(out: str) -> None:
+#: What marks a folder as one of ours (a run, a reference, a comparison): a command may write
+#: into such a folder again; into any other non-empty folder only with --force.
+OURS = ("store.zarr", "report.json", "reference.json", "compare.json")
+
+
+def check_new_run_dir(out: str, force: bool = False) -> None:
     """A run directory that a command will create or overwrite (preprocess, render --out):
-    not a file, not under a file, creatable and writable. Creates it when missing (empty)."""
+    not a file, not under a file, not a non-empty folder of the user's (unless `force`),
+    creatable and writable. Creates it when missing (empty)."""
     path = os.path.abspath(out)
     if os.path.exists(path) and not os.path.isdir(path):
         raise StoreError(f"--out {out} is a file, not a directory: choose another path, or remove "
                          "the file")
+    if os.path.isdir(path) and not force:
+        try:
+            names = sorted(os.listdir(path))
+        except OSError:
+            names = []
+        if names and not any(n in names for n in OURS):
+            shown = ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+            raise StoreError(f"--out {out} is a folder with other files in it ({shown}), not a run "
+                             "directory: choose a new or empty folder, or add --force to write "
+                             "into it")
     parent = path
     while not os.path.exists(parent):
         parent = os.path.dirname(parent)

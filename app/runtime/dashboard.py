@@ -1,35 +1,6 @@
 """The engine's own page on the Dask dashboard: a run's progress, live, at `/radiosity`.
 
-The page is a Bokeh application served by the scheduler's HTTP server next to Dask's own pages
-(`/status`, `/workers`, ...), with Dask's menu bar (which gains a "Radiosity" entry). It reads
-what the run's master publishes with `client.set_metadata(["radiosity", key], value)` (see
-`monitor.py` for the keys) straight from the scheduler's metadata every 500 ms, and shows
-
-- the visibility blocks done, as a heat map over pairs of original elements (I rows, J columns),
-  with tasks done / total in its title;
-- the solver's residual per pass (log scale);
-- the current image (the solver's preview);
-- the stage, scene and run directory.
-
-How it gets there: `register(scheduler)` builds a second Bokeh server application (with
-`distributed.dashboard.core.BokehApplication`, as Dask builds its own) and adds it to the
-scheduler's `http_application` (a `RoutingApplication`, which falls through to each added
-application in turn). It must run in the scheduler's process, on its event loop, after the
-scheduler has started its dashboard, which is exactly when a scheduler preload's `dask_setup`
-runs. So:
-
-- `radiosity` itself: `radiosity.cluster.open_client` creates its LocalCluster with
-  `scheduler_kwargs={"preload": ["radiosity.runtime.dashboard"]}` and prints the page's URL;
-- a scheduler of your own: `dask scheduler --preload radiosity.runtime.dashboard` (the `radiosity` package must be
-  importable by the scheduler's Python), or `DASK_DISTRIBUTED__SCHEDULER__PRELOAD=radiosity.runtime.dashboard`;
-- dask-jobqueue: `SLURMCluster(..., scheduler_options={"preload": ["radiosity.runtime.dashboard"]})` (or in the
-  jobqueue YAML, `scheduler-options: {preload: [radiosity.runtime.dashboard]}`);
-- a scheduler that is already running: `client.run_on_scheduler(radiosity.runtime.dashboard.register)`.
-
-Then open `page_url(client)`, e.g. http://127.0.0.1:8787/radiosity. A scheduler started without a
-dashboard (or without bokeh) gets no page; `register` logs why and returns False. Behind a proxy
-(`http_prefix="/foo"`) the page is at /foo/radiosity; `page_url` derives it from
-`client.dashboard_link`, which carries the prefix only if `distributed.dashboard.link` does.
+Design notes and measurements: docs/design/runtime-dashboard.md.
 """
 
 from __future__ import annotations

@@ -1,16 +1,6 @@
 """Live progress of a run, published to the Dask scheduler for the engine's dashboard page.
 
-The master calls these as it goes; each writes one key under `radiosity` with
-`client.set_metadata`, which the page (dashboard.py) reads on the scheduler:
-
-    ["radiosity", "run"]        {"run_dir", "scene", "stage", "time"}
-    ["radiosity", "visibility"] {"n", "bins", "done": bins x bins fractions (rows I, cols J),
-                                 "tasks_done", "tasks"}
-    ["radiosity", "solve"]      {"solver", "kernel", "residuals": [...]}
-    ["radiosity", "preview"]    {"width", "height", "png": base64 PNG of the current image}
-
-Publishing is throttled (at most every `interval` seconds per key, always on the last call)
-and never fails a run: a lost scheduler connection only loses the picture.
+Design notes and measurements: docs/design/runtime-monitor.md.
 """
 
 from __future__ import annotations

@@ -1,16 +1,6 @@
 """One run at a time per run directory: `RUN_DIR/run.lock`.
 
-Two commands writing into one run directory at once would corrupt each other (one deletes the
-store the other is writing). Every command that writes a run directory (preprocess,
-visibility, solve, image, render) holds its lock from before the cluster starts until it ends.
-
-The lock is an exclusive `fcntl.flock` on the file (the kernel drops it when its process dies,
-however it dies), and the file says who holds it: JSON {pid, host, started, command,
-create_time}. A second command finds the flock held and stops with one line naming the owner.
-A lock file left by a process that no longer runs (killed with SIGKILL, a crashed node) is
-taken over with a warning. On a filesystem whose flock does not reach other hosts, a lock
-file written on another host is trusted while its process may be alive: the message says to
-delete the file if no run is using it.
+Design notes and measurements: docs/design/runtime-runlock.md.
 """
 
 from __future__ import annotations

@@ -1,14 +1,6 @@
 """The one dynamic master (seed §4.3): a bounded window of Dask tasks, most expensive first.
 
-Every stage that fans out work (preprocessing's raster bands and subscenes, the visibility
-tasks) submits through `run_tasks`: at most `window` tasks are in flight; as each finishes, its
-result goes to `on_result` (the stage records it in its manifest there, before anything else
-is submitted) and the next task is submitted, so every worker stays busy and the scheduler never
-holds the whole task list. A failed task is resubmitted up to `retries` times (a dead worker, a
-full node); when it keeps failing, the run stops with one RadiosityError whose message names
-the task and the stage's repair command, and whose `worker_traceback` keeps what the worker
-printed (the CLI writes it to a log file). A failure that is the same exception twice is
-deterministic (bad input, corrupted data): it is not retried further.
+Design notes and measurements: docs/design/runtime-runner.md.
 """
 
 from __future__ import annotations

@@ -1,20 +1,6 @@
 """Is the scene a closed enclosure? Decided from the geometry, for the solver's row handling.
 
-In a closed scene every row of F sums to exactly 1 (SPEC §2), and with reflectance near 1 the
-answer hangs on the last 0.01 % of those sums: L = Le / (1 - rho) amplifies a row-sum error e by
-rho / (1 - rho) (x99 at rho = 0.99). The kernels' rows are only approximately 1, so a closed
-scene is solved with its rows balanced to exactly 1, reciprocity kept (solve.py's "closed" row
-mode); an open scene must never be balanced (its rows are < 1 for a reason).
-
-The test is a Monte Carlo estimate of each original element's row-sum deficit 1 - sum_j F_ij:
-rays leave stratified points of every element in cosine-weighted directions over each side
-that can receive light (the front; also the back of two-sided elements); a ray *escapes* when
-it hits nothing, or hits a one-sided element from behind (which our transport treats as black:
-F = 0 there). A point whose every ray meets a back face lies inside a solid (under a block that
-stands on the floor) and is left out. A scene is closed when no ray escapes (up to `leak` of them: rays that slip
-through float32 cracks where two elements meet). This is exact where it matters: a room with
-its blocks standing on the floor is closed however its meshes are cut (no edge matching), and a
-box with one face missing is open.
+Design notes and measurements: docs/design/scene-closure.md.
 """
 
 from __future__ import annotations

@@ -1,21 +1,6 @@
 """Simulate only the effects a scene calls for: decide, before any ray is cast, what to skip.
 
-Pure analysis of the original elements (and, for the estimates, one cheap camera raster). Every
-skip is exact: the planned run computes the same numbers as the full run, only less of them.
-
-- occlusion: if every element lies entirely on the front side of every other one (a convex
-  enclosure seen from inside, or a scene with no element in front of another), no segment
-  between two elements can be blocked: visibility is orientation alone, no rays, no shafts.
-- interreflection: with reflectance 0 everywhere, L = Le: no visibility, no solve. Otherwise
-  Jacobi needs at most ceil(log tol / log rho_max) passes (rows of F sum to at most 1).
-- colour: when every reflectance and emission is grey (equal channels), one channel is solved
-  and broadcast to RGB.
-- two-sided transport: a two-sided element with nothing behind its plane receives nothing on
-  its back, so its back radiance is its back emission: it is solved as one-sided.
-- dead rows: emitters that reflect nothing (rho = 0) and elements that no light can reach
-  (not connected to an emitter through elements that face each other and reflect) keep
-  L = Le and gather nothing: their rows drop out of every pass.
-- subdivision: only elements the camera sees are split (the seed's rule), reported.
+Design notes and measurements: docs/design/scene-effects.md.
 """
 
 from __future__ import annotations

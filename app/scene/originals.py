@@ -2,22 +2,7 @@
 culling, the effects planner): blocks are classified cluster against cluster, and only the pairs
 that may face each other are ever listed, sparsely.
 
-The tree (`build_tree`) splits the elements at the median of whichever feature spreads most:
-centre x, y, z (relative to the scene's size) or normal x, y, z, so that a light and the floor
-it faces part early. Each node keeps its vertex box, the box of its elements' centres, a
-normal cone (axis a and spread s = max |n_I - a|) and whether any element is two-sided.
-
-For I in A, a vertex x of J in B, the signed distance of x to I's plane is n_I . (x - c_I), and
-for any unit n_I in the cone, n_I . v <= a . v + s |v|, with v = x - c_I ranging over the box
-[lo_B - chi_A, hi_B - clo_A]. A node pair whose bound shows that no vertex of B lies in front
-of (or, for two-sided elements, behind) any plane of A cannot face that way and is culled
-whole; the others are split until leaf against leaf, where the element test is the exact one
-of plan.facing_blocks (the same arithmetic, so the same answer). A culling bound only prunes
-at half the tolerance: rounding can never cull a pair the exact test would keep.
-
-Memory: the tree is O(n); the node pairs are processed in bounded batches; the output is the
-list of facing pairs itself, at most `cap` of them (FacingPairsError beyond, with an estimate
-from `estimate_facing_pairs`, a sample of rows counted exactly, made before any traversal).
+Design notes and measurements: docs/design/scene-originals.md.
 """
 
 from __future__ import annotations

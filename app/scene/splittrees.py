@@ -1,22 +1,6 @@
 """The split trees as a hierarchy of polygons (SPEC §8): canonical node names and node tables.
 
-Every node of an original element's split tree (seed §3) is a polygon, the region before its
-split. A node is named canonically by its original and its path of 0/1 choices from the root:
-`depth` choices, the choice at depth d in bit 63 - d of a uint64 `path` (the numbering
-subdivide.py uses). Two tasks that split the same node get the same two children, because
-every split is the seed's deterministic rule (`split_one`, bit-identical to
-subdivide.split_polygons), so a node's name fixes its polygon.
-
-Links store a node as (orig int32, code uint64) with the *heap code*
-`code = path | 1 << (63 - depth)`: one word, unique for depth <= 63.
-
-Seen originals (any pixel on them) have the camera partition's tree: their leaves are the
-partition's sub-elements and they are never split further. Unseen originals (one sub-element)
-are split on demand by the same rule, while the node is larger than a size limit.
-
-A node table lists nodes in depth-first pre-order per original (sorted by orig, path, depth),
-so a node's leaves are one contiguous range [lo, hi) of the leaves in that order, and parents
-come before their children.
+Design notes and measurements: docs/design/scene-splittrees.md.
 """
 
 from __future__ import annotations

@@ -1,15 +1,6 @@
 """Camera-driven subdivision (seed §3): split elements until each covers at most one pixel.
 
-The seed's loop renders the ID raster, splits every element that covers two or more pixels, and
-repeats. Subdividing never changes the geometry, so which *original* element a pixel sees, and
-where, is fixed by the original scene: we cast the camera rays once, keep each pixel's exact hit
-point, and the loop only has to decide on which side of each split segment the points fall. The
-loop runs level by level, vectorised over all elements, exactly as the seed's pseudo-code does.
-
-Split rules (seed §3.2): a triangle by the median to the midpoint of its longest edge; a quad by
-the segment joining the midpoints of its two longer (opposite) sides. A split records the segment
-(a point `a` on it and its in-plane normal `m`), which gives the two-level lookup (seed §3.2):
-hit the original element, then walk down its split tree in O(depth).
+Design notes and measurements: docs/design/scene-subdivide.md.
 """
 
 from __future__ import annotations

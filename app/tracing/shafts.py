@@ -147,16 +147,20 @@ def _shaft_excludes(A, B, LO, HI, o):
 
 
 @numba.njit(cache=True)
-def classify(ca, na, tsa, la, ha, cb, nb, tsb, lb, hb, olo, ohi, on, od, pad, cand, sampled):
+def classify(rows, cols, occ, cand, sampled):
     """Classify every pair of a tile without rays.
 
-    Rows: centres ca (ra, 3), normals na, two-sided flags tsa (ra,), boxes la/ha (ra, 3);
-    columns likewise (rb); occluder boxes olo/ohi (k, 3), planes on (k, 3) / od (k,), the plane
-    tolerance pad, and the ids `cand` of those that may block this block. sampled: the leaf
-    test is the shaft between the pair's boxes (every point pair), not the centres' segment.
-    Returns code (ra * rb,) uint8: 0 facing away (V = 0), 1 visible without a ray, 2 needs
-    rays; and the number of shaft tests made.
+    rows = (ca, na, tsa, la, ha): centres ca (ra, 3), normals na, two-sided flags tsa (ra,),
+    boxes la/ha (ra, 3); cols = (cb, nb, tsb, lb, hb) likewise (rb); occ = (olo, ohi, on, od,
+    pad) as `occluders` returns them: occluder boxes olo/ohi (k, 3), planes on (k, 3) / od (k,),
+    the plane tolerance pad; and the ids `cand` of those that may block this block. sampled: the
+    leaf test is the shaft between the pair's boxes (every point pair), not the centres'
+    segment. Returns code (ra * rb,) uint8: 0 facing away (V = 0), 1 visible without a ray, 2
+    needs rays; and the number of shaft tests made.
     """
+    ca, na, tsa, la, ha = rows
+    cb, nb, tsb, lb, hb = cols
+    olo, ohi, on, od, pad = occ
     ra, rb = ca.shape[0], cb.shape[0]
     code = np.zeros(ra * rb, np.uint8)
     # explicit stack of range pairs; candidate lists live in a pool, LIFO

@@ -20,7 +20,7 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
     against workers (§5.2 table), and the image series (no preprocessing / 50x50 / 70x70 with a
     Gaussian filter, §6). `open_cluster(n)` is a context manager giving a Client of n workers.
     Writes seed-fig3.png, seed-fig4.png, seed-speedup.png, seed-images.png and seed.md.
-    settings: the scenes' (None: resolved here); the stages called read dask.config still."""
+    settings: the runs' (None: resolved here)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -40,18 +40,18 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             preprocess(load_scene(scene_path, resolution=min(resolutions), settings=s), warm, client,
-                       progress=False)
-        compute_visibility(warm, client, progress=False)
+                       progress=False, settings=s)
+        compute_visibility(warm, client, s, progress=False)
         for res in resolutions:
             d = os.path.join(runs, f"r{res}")
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 t = time.perf_counter()
                 pre = preprocess(load_scene(scene_path, resolution=res, settings=s), d, client,
-                                 progress=False)
+                                 progress=False, settings=s)
                 t_pre = time.perf_counter() - t
             t = time.perf_counter()
-            vis = compute_visibility(d, client, progress=False)
+            vis = compute_visibility(d, client, s, progress=False)
             rows.append({"resolution": res, "sub_elements": pre["sub_elements"], "preprocess_s": t_pre,
                          "visibility_s": time.perf_counter() - t, "rays": vis["rays"]})
             echo(f"  {res}x{res}: {pre['sub_elements']} sub-elements, preprocess {t_pre:.2f} s, "
@@ -59,12 +59,13 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
         # the image series
         series = []
         sc = load_scene(scene_path, resolution=70, settings=s)
-        render_preview(sc, os.path.join(runs, "series"), client)
+        render_preview(sc, os.path.join(runs, "series"), client, s)
         series.append(("no preprocessing", os.path.join(runs, "series", "preview", "image.png")))
         for res, k, filt, label in ((50, 1, "box", "50 x 50"), (70, 2, "gaussian", "70 x 70, Gaussian")):
             d = os.path.join(runs, f"series{res}")
-            render_scene(load_scene(scene_path, resolution=res, settings=s), d, client, subpixel=k,
-                         filter=filt, preview=False, progress=False, echo=lambda *a: None)
+            render_scene(load_scene(scene_path, resolution=res, settings=s), d, client, s,
+                         subpixel=k, filter=filt, preview=False, progress=False,
+                         echo=lambda *a: None)
             series.append((label, os.path.join(d, "image.png")))
     speed = []
     for w in workers:
@@ -73,10 +74,10 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 preprocess(load_scene(scene_path, resolution=speedup_res, settings=s), d, client,
-                           progress=False)
-            compute_visibility(d, client, progress=False)  # warm
+                           progress=False, settings=s)
+            compute_visibility(d, client, s, progress=False)  # warm
             t = time.perf_counter()
-            compute_visibility(d, client, progress=False)
+            compute_visibility(d, client, s, progress=False)
             speed.append({"workers": w, "visibility_s": time.perf_counter() - t})
     for s in speed:
         s["speedup"] = speed[0]["visibility_s"] / s["visibility_s"]

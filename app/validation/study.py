@@ -175,7 +175,6 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
     from radiosity.stages.image import read_exr, render_outputs
     from radiosity.scene.load import load_scene
     from radiosity.methods.hierarchical.links import compute_links
-    from radiosity.methods.hierarchical.operator import run_solve_links
     from radiosity.stages.solve import run_solve
     from radiosity.runtime.store import RunStore
     from radiosity.methods.pairs.visibility import compute_visibility
@@ -195,15 +194,15 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         preprocess(load_scene(scene_path, resolution=min(resolutions), settings=s), warm, client,
-                   progress=False)
-    compute_visibility(warm, client, progress=False)
+                   progress=False, settings=s)
+    compute_visibility(warm, client, s, progress=False)
     for res, k in grid:
         sc = load_scene(scene_path, resolution=res, settings=s)
         run = os.path.join(out, "runs", f"r{res}-k{k}")
         t = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            pre = preprocess(sc, run, client, subpixel=k, progress=False)
+            pre = preprocess(sc, run, client, subpixel=k, progress=False, settings=s)
         t_pre = time.perf_counter() - t
         t_vis = {}  # per sampling: one-ray kernels share one matrix, nxm / mc cast their own
         current = "none yet"
@@ -211,54 +210,54 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         specs = sorted(kernels, key=lambda spec: _visibility_key(spec, s))
         for label, tol in itertools.product(specs, tols):
             kernel, overrides = kernel_setting(label, s)
-            row = overridden(s, overrides)  # the sample count of nxm:N / mc:k, for this row
-            # compute_links, compute_visibility, run_solve_links and run_solve take no settings
-            # yet: they read the row's overrides from dask.config
-            with dask.config.set(overrides):
-                hier = label.startswith(HIER + ":")
-                key = _visibility_key(label)
-                if key != current:
-                    t = time.perf_counter()
-                    if hier:
-                        compute_links(run, client, progress=False)
-                    else:
-                        compute_visibility(run, client, progress=False, kernel=kernel)
-                    t_vis[key] = time.perf_counter() - t
-                    current = key
+            # this row's settings: the sample count of nxm:N / mc:k, hier:EPSILON:RAYS's own
+            row = overridden(s, overrides)
+            hier = label.startswith(HIER + ":")
+            key = _visibility_key(label, s)
+            if key != current:
                 t = time.perf_counter()
-                passes = 0
-                # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
-                solve_with = row.solve.solver
-                if solve_with == "cg" and not get_kernel(kernel).reciprocal:
-                    solve_with = "auto"
-                solve_with = choose_solver(solve_with, kernel)
-                if "form_factor" in val and hier:
-                    raise RadiosityError(f"{scene_path}: a form-factor validation scene has no "
-                                         "solve to compare; sweep the hierarchical method on a "
-                                         "scene with a radiance answer or an image reference")
-                if "form_factor" in val:
-                    f = form_factor_of_run(run, client, kernel, val["from"], val["to"], settings=row)
-                    err = abs(f / val["form_factor"] - 1.0)
-                    t_solve, t_img = time.perf_counter() - t, 0.0
+                if hier:
+                    with dask.config.set(overrides):  # compute_links takes no settings yet
+                        compute_links(run, client, progress=False)
                 else:
-                    fig = (run_solve_links(run, client, solver=solve_with, tol=tol, progress=False)
-                           if hier else
-                           run_solve(run, client, solver=solve_with, kernel=kernel, tol=tol, progress=False))
-                    passes = fig.iterations
-                    t_solve = time.perf_counter() - t
-                    t = time.perf_counter()
-                    render_outputs(run, exposure="auto", settings=row)
-                    t_img = time.perf_counter() - t
-                    rs = RunStore(run)
-                    if "radiance" in val:
-                        part = rs.load_partition()
-                        L = rs.read_arrays("solution")["radiance"][:, 0, :]
-                        err = float((part.area[:, None] * np.abs(L / val["radiance"] - 1)).sum()
-                                    / (3 * part.area.sum()))
-                    else:  # keep the image (user's reference) or the solution (finest setting)
-                        images[(res, k, label, tol)] = (read_exr(os.path.join(run, "image.exr")) if reference
-                                                        else (run, rs.read_arrays("solution")["radiance"]))
-                        err = np.nan
+                    compute_visibility(run, client, row, progress=False, kernel=kernel)
+                t_vis[key] = time.perf_counter() - t
+                current = key
+            t = time.perf_counter()
+            passes = 0
+            # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
+            solve_with = row.solve.solver
+            if solve_with == "cg" and not get_kernel(kernel).reciprocal:
+                solve_with = "auto"
+            solve_with = choose_solver(solve_with, kernel)
+            if "form_factor" in val and hier:
+                raise RadiosityError(f"{scene_path}: a form-factor validation scene has no "
+                                     "solve to compare; sweep the hierarchical method on a "
+                                     "scene with a radiance answer or an image reference")
+            if "form_factor" in val:
+                f = form_factor_of_run(run, client, kernel, val["from"], val["to"], settings=row)
+                err = abs(f / val["form_factor"] - 1.0)
+                t_solve, t_img = time.perf_counter() - t, 0.0
+            else:
+                fig = (run_solve(run, client, row, solver=solve_with, tol=tol, progress=False,
+                                 method="hierarchical") if hier else
+                       run_solve(run, client, row, solver=solve_with, kernel=kernel, tol=tol,
+                                 progress=False, method="pairs"))
+                passes = fig.iterations
+                t_solve = time.perf_counter() - t
+                t = time.perf_counter()
+                render_outputs(run, exposure="auto", settings=row)
+                t_img = time.perf_counter() - t
+                rs = RunStore(run)
+                if "radiance" in val:
+                    part = rs.load_partition()
+                    L = rs.read_arrays("solution")["radiance"][:, 0, :]
+                    err = float((part.area[:, None] * np.abs(L / val["radiance"] - 1)).sum()
+                                / (3 * part.area.sum()))
+                else:  # keep the image (user's reference) or the solution (finest setting)
+                    images[(res, k, label, tol)] = (read_exr(os.path.join(run, "image.exr")) if reference
+                                                    else (run, rs.read_arrays("solution")["radiance"]))
+                    err = np.nan
             rows.append({"resolution": res, "subpixel": k, "kernel": label,
                          "solver": solve_with if "form_factor" not in val else "-", "tol": tol,
                          "sub_elements": pre["sub_elements"], "passes": passes,

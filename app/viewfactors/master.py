@@ -31,6 +31,7 @@ def resolve_params(accuracy=None, cutoff=None, settings: Settings | None = None)
 
 
 def params_of(vf: ViewFactorSettings) -> Params:
+    """The task parameters of the radiosity.viewfactors.* section `vf`, checked."""
     acc = float(vf.accuracy)
     if not 0 < acc < 1:
         raise RadiosityError(f"--accuracy must be in (0, 1), got {acc}")
@@ -114,7 +115,80 @@ class ViewFactors:
     figures: dict
 
 
-MASTER_BODY
+def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None, fmt="npz",
+                        cutoff=None, resume: bool = False, progress: bool = True,
+                        on_done=None, settings: Settings | None = None) -> ViewFactors:
+    """View factors of the facets of `mesh` (load_facets) into the run directory `out`:
+    store.zarr (facets, per-task pairs, the CSR matrix), viewfactors.npz, facets.csv
+    (viewfactors.csv with fmt="csv"), report.json (section "viewfactors"). accuracy, enclosure
+    (auto | on | off), cutoff: the flags (None: radiosity.viewfactors.* of `settings`, default
+    resolved from dask.config). resume: keep the finished tasks of an interrupted run with the
+    same inputs. on_done(n) after each finished task (tests)."""
+    from dask.base import tokenize
+
+    from radiosity.runtime.cluster import Scattered
+    from radiosity.runtime.monitor import peak_rss_mb
+    from radiosity.runtime.stage import StagePlan, run_stage
+    from radiosity.runtime.store import update_report
+    from radiosity.viewfactors.outputs import finish
+    from radiosity.viewfactors.store import VFLedger
+
+    t_start = time.perf_counter()
+    s = resolve({"viewfactors.accuracy": accuracy, "viewfactors.enclosure": enclosure,
+                 "viewfactors.cutoff": cutoff}, base=settings)
+    vf = s.viewfactors
+    if vf.enclosure not in ENCLOSURE_MODES:
+        raise RadiosityError(f"--enclosure must be one of {', '.join(ENCLOSURE_MODES)}, "
+                             f"got {vf.enclosure!r}")
+    if fmt not in FORMATS:
+        raise RadiosityError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    prm = params_of(vf)
+    fac = load_facets(mesh, settings=s)
+    n = len(fac)
+    tree, inp = make_inputs(fac, vf.leaf_size, s.rays.epsilon)
+    threads = sum(client.nthreads().values()) or 1
+    tasks = plan_tasks(tree, n, vf.task_pairs, vf.tasks_per_worker * threads)
+    token = tokenize(VERSION, fac.verts, fac.nverts, asdict(prm), vf.leaf_size,
+                     [t.tolist() for t in tasks])
+    ledger = VFLedger(out)
+    plan = StagePlan(name="viewfactors", token=token, where=ledger.path, ntasks=len(tasks),
+                     cost=np.array([task_cost(tree, n, t) for t in tasks], np.int64),
+                     repair=f"rerun with: radiosity viewfactors MESH --out {out} --resume",
+                     window_per_worker=vf.window_per_worker, retries=vf.retries)
+    shared = Scattered(client, inp)  # sent with the first task submitted
+
+    def create():
+        ledger.create(token, {"params": asdict(prm), "leaf_size": vf.leaf_size,
+                              "tasks": len(tasks)}, fac.sources,
+                      {"verts": fac.verts, "nverts": fac.nverts, "area": fac.area,
+                       "normal": fac.normal, "center": fac.center, "face": fac.face,
+                       "source": fac.source})
+
+    run = run_stage(client, plan, task_viewfactors,
+                    lambda t: (shared.future(), prm, tasks[t], ledger.path, t), ledger,
+                    resume=resume, create=create, ncounters=len(COUNTERS), on_done=on_done,
+                    progress=progress)
+    stage = np.zeros(len(STAGES))
+    cpu = 0.0
+    for e in run.done.values():
+        stage += np.asarray(e["times"])
+        cpu += e["cpu"]
+    t_asm = time.perf_counter()
+    asm = assemble(ledger.rs, fac, tree, {t: run.done[t] for t in range(len(tasks))})
+    t_asm = time.perf_counter() - t_asm
+    fig = finish(ledger.rs, out, fac, asm, vf, fmt)
+    fig.update({
+        "facets": n, "accuracy": prm.accuracy, "cutoff": prm.cutoff,
+        "cheap_kernel_relative_bound": prm.cheap_rel, "max_points_per_side": prm.smax,
+        **dict(zip(COUNTERS, run.counts.tolist())), "tasks": len(tasks), **run.figures(),
+        "leaf_size": vf.leaf_size, "time_assembly_s": round(t_asm, 3),
+        "task_time_by_stage_s": {k: round(float(v), 3) for k, v in zip(STAGES, stage)},
+        "task_cpu_s": round(cpu, 3), "peak_rss_mb": peak_rss_mb(client),
+    })
+    matrix = fig.pop("_matrix")
+    fig["time_s"] = round(time.perf_counter() - t_start, 3)
+    update_report(out, "viewfactors", fig)
+    return ViewFactors(matrix, fac.area, fac, fig)
 
 # ----------------------------------------------------------------------------- assembly
 

@@ -5,9 +5,8 @@ the task plan, the manifest, and the node table.
                  hierarchy.py), F_pq, F_qp (unoccluded form factors, p -> q and q -> p), the
                  visible fraction v and the sides sp, sq (0 front, 1 back) that face
    <task>-nodes  (j,) NODE_DTYPE: the nodes the task split below the camera's partition (12 bytes each)
- one array each per task (so a task writes only its own chunks), checked by a crc32 over both in
- RUN_DIR/links.manifest.jsonl (first line: the plan token; then one line per finished task).
- Group `hierarchy/`: the node table of the union tree and the leaves (hierarchy.NodeTable).
+
+Design notes and measurements: docs/design/methods-hierarchical-store.md.
 """
 
 from __future__ import annotations

@@ -1,13 +1,6 @@
 """Near-field correction: accurate form factors for pairs of sub-elements that are close.
 
-The centre-to-centre kernel is badly wrong where two elements are close compared with their
-size: for two squares sharing an edge at a right angle it is +59 % too high, and summed over a
-face next to a concave edge it stays about +23 % at any refinement (the error moves with the
-elements). So in a closed room the rows of F sum past 1 along every corner. Pairs closer than
-`factor` element sizes (size = sqrt(area)) get the exact unoccluded form factor of their two
-polygons (contour integral, exact.py) times their visibility bit; there are O(m) such pairs,
-computed once per run and kept sparsely in the store (group `nearfield`). The solver's pass adds
-the difference exact - kernel for those pairs.
+Design notes and measurements: docs/design/methods-pairs-nearfield.md.
 """
 
 from __future__ import annotations

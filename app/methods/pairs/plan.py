@@ -1,22 +1,9 @@
-"""Pure planning of the Dask work: integer arithmetic on numpy, no Dask (decide first, then run).
+"""The pairs method's visibility task plan: pure integer arithmetic on numpy, no Dask. Blocks
+(I, J), I < J, of sub-elements of two originals, cut into tiles of rows and tasks of tiles.
 
-The visibility task plan (below), the subscene ranges of the preprocessing tasks and the
-packing of visibility tasks into the solver's worker groups.
-
-The visibility matrix V (m x m bits, symmetric) is cut along the original elements: the block
-(I, J), I < J, holds the bits between the sub-elements of I (rows) and of J (columns). Diagonal
-blocks are zero (a planar element cannot see itself), and the lower triangle is the transpose of
-the upper one, so only blocks with I < J are computed and stored.
-
-A *tile* is a band of rows r0:r1 of one block against all its columns; a block larger than
-`max_task_bits` becomes several tiles. A *task* is a run of consecutive tiles: one block
-(task unit "block") or all the blocks of one row element I (a "stripe"), cut so that no task
-holds more than `max_task_bits` bits.
-
-Storage: one 1-D uint8 Zarr array. A tile's bits are packed row-major (bit k is pair
-(r0 + k // nJ, k % nJ) of the block), little-endian within each byte (bit k is
-`(byte[k >> 3] >> (k & 7)) & 1`), starting at a byte boundary. Every task starts on a chunk
-boundary, so each task writes whole chunks and no two tasks ever write the same chunk.
+Bit order: a tile's bits are packed row-major (bit k is pair (r0 + k // nJ, k % nJ) of the
+block), little-endian within each byte (bit k is `(byte[k >> 3] >> (k & 7)) & 1`), from a byte
+boundary; every task starts on a chunk boundary. Details: docs/design/methods-pairs-plan.md.
 """
 
 from __future__ import annotations

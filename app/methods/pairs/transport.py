@@ -1,15 +1,6 @@
 """The radiosity operator y = F L, matrix-free, and the executors that apply it.
 
-F is never stored: each pass streams the visibility tiles from the store and recomputes F on
-the fly (passes.py). The work is a set of task functions over groups of the visibility plan's
-tasks; an executor runs them:
-
-- `DaskOperator`: one Dask task per group per pass, each group pinned to a worker whose bounded
-  cache keeps the tiles it read, so passes scale with workers like the visibility stage;
-- `LocalOperator`: the same task functions in this process (tests, small scenes, debugging).
-
-Both satisfy the `Operator` protocol the solvers (solvers.py) are written against. Worker
-inputs are frozen dataclasses with every value resolved on the driver.
+Design notes and measurements: docs/design/methods-pairs-transport.md.
 """
 
 from __future__ import annotations
@@ -21,7 +12,8 @@ import numpy as np
 from radiosity.errors import RadiosityError
 from radiosity.core.kernels import get_kernel, kernel_id, sample_points, sampled_pairs
 from radiosity.methods.base import CAP_MIN, GroupExecutor, Operator  # noqa: F401
-from radiosity.methods.pairs.passes import BOTH, gs_sweep, partial_apply, sparse_by_target, tiles_apply
+from radiosity.methods.pairs.passes import (BOTH, Caps, Geometry, Samples, gs_sweep, partial_apply,
+                                            sparse_by_target, tiles_apply)
 from radiosity.methods.pairs.plan import I, J, TSTART, TBYTES, VisibilityPlan
 from radiosity.runtime.packing import pack_groups
 from radiosity.settings import sampling_of
@@ -68,9 +60,10 @@ class SolveInputs:
     cache_bytes: int
 
     def geometry(self) -> tuple:
-        """The per-sub-element arrays of the pass loops, in their argument order."""
-        return (self.cx, self.cy, self.cz, self.nx, self.ny, self.nz, self.area, self.cap,
-                self.cmode, self.sided, self.pts, self.w)
+        """The per-sub-element arguments of the pass loops, in their argument order (passes.py):
+        Geometry, Caps, sided, Samples."""
+        return (Geometry(self.cx, self.cy, self.cz, self.nx, self.ny, self.nz, self.area),
+                Caps(self.cap, self.cmode), self.sided, Samples(self.pts, self.w))
 
 
 def solve_inputs(part, elements, plan: VisibilityPlan, crc, store_path: str, token: str,
@@ -141,20 +134,18 @@ def task_apply(inp: SolveInputs, task_ids: np.ndarray, L: np.ndarray, kid: int, 
     terms = 0
     lv = np.zeros(0, np.bool_) if live is None else np.asarray(live, np.bool_)
     need = inp.need if use_need else np.zeros(0, np.bool_)
-    geo = inp.geometry()
+    geo, caps, sided, smp = inp.geometry()
     for task in task_ids:
         t = inp.tasks[task]
         tiles = inp.tiles[t[0]:t[1]]
         if live is not None and not (lv[tiles[:, I]].any() or lv[tiles[:, J]].any()):
             continue
         data = _task_bytes(inp, int(task))
-        terms += tiles_apply(kid, data, int(t[TSTART]), tiles, inp.offsets, *geo, L, y, BOTH, lv,
-                             need)
+        terms += tiles_apply(kid, data, int(t[TSTART]), tiles, inp.offsets, geo, caps, sided, smp,
+                             L, y, BOTH, lv, need)
         if len(inp.pcrc) and inp.pcrc[task, 1] > 0:  # sampled kernels: the partly visible pairs
             pairs, phi = _task_partial(inp, int(task))
-            terms += partial_apply(kid, pairs, phi, inp.pts, inp.w, inp.cx, inp.cy, inp.cz, inp.nx,
-                                   inp.ny, inp.nz, inp.area, inp.cap, inp.cmode, L, y, inp.orig,
-                                   need)
+            terms += partial_apply(kid, pairs, phi, geo, caps, smp, L, y, inp.orig, need)
     return y, terms
 
 
@@ -186,8 +177,8 @@ def task_gs_sweep(inp: SolveInputs, L: np.ndarray, Le: np.ndarray, rho: np.ndarr
     y = np.zeros_like(L)
     # sampled kernels: the partly visible pairs, as sparse corrections (else the near field)
     sparse = partial_corrections(inp, kid) if len(inp.pcrc) else inp.sparse
-    terms = gs_sweep(kid, data, inp.tiles, row_ptr, row_idx, col_ptr, col_idx, inp.offsets,
-                     *inp.geometry(), L, Le, rho, y, inp.need, *sparse)
+    terms = gs_sweep(kid, data, inp.tiles, (row_ptr, row_idx, col_ptr, col_idx), inp.offsets,
+                     *inp.geometry(), L, Le, rho, y, inp.need, tuple(sparse))
     return L, terms
 
 

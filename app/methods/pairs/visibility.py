@@ -1,24 +1,7 @@
 """The visibility matrix (seed §4.3, SPEC §5): one bit per pair of sub-elements, computed by a
 dynamic master that keeps every worker busy, written as bit-packed tiles into the run's store.
 
-Per pair (a, b): V = 1 iff the two face each other (cos > 0 on a side that exists: both sides of a
-two-sided element) and the open segment between their centres hits nothing. Work is culled before
-any ray is cast:
-
-1. orientation, per block (originals.facing_pairs: cluster against cluster, nothing n x n) and
-   per pair (cos <= 0 -> 0, no ray);
-2. shafts (Haines & Wallace 1991), hierarchically: a block's rows and columns are halved
-   recursively (sub-elements are in depth-first split order, so a range is a compact patch);
-   each pair of ranges keeps only the occluder boxes that enter the shaft between their boxes;
-   a range pair with no occluder left is all visible without rays;
-3. at the leaves, a pair whose segment misses every remaining occluder box is visible; only the
-   others get an Embree ray.
-
-Sampled kernels (kernels.py: nxm, mc) cast one ray per sample pair instead: at the leaves a pair
-is visible without rays only when no occluder enters the shaft between the two sub-elements'
-boxes (then every sample pair sees); the others get all their sample rays. The bit is "some
-sample pair sees"; pairs that only partly see are kept sparsely per task (pairs a < b, the
-number of visible sample rays and the kernel-weighted visible fraction phi, store.py).
+Design notes and measurements: docs/design/methods-pairs-visibility.md.
 """
 
 from __future__ import annotations
@@ -172,10 +155,12 @@ def tile_bits(inp: VisInputs, caster, i: int, j: int, r0: int, r1: int):
         cand = block_candidates(A, B, inp.elo, inp.ehi, inp.enormal, inp.eoffset, pad, i, j)
     else:
         cand = np.zeros(0, np.int64)
-    code, tests = classify(inp.center[a0:a1], inp.normal[a0:a1], inp.two_sided[a0:a1],
-                           inp.lo[a0:a1], inp.hi[a0:a1], inp.center[b0:b1], inp.normal[b0:b1],
-                           inp.two_sided[b0:b1], inp.lo[b0:b1], inp.hi[b0:b1], inp.elo, inp.ehi,
-                           inp.enormal, inp.eoffset, pad, cand, inp.sampling is not None)
+    code, tests = classify((inp.center[a0:a1], inp.normal[a0:a1], inp.two_sided[a0:a1],
+                            inp.lo[a0:a1], inp.hi[a0:a1]),
+                           (inp.center[b0:b1], inp.normal[b0:b1], inp.two_sided[b0:b1],
+                            inp.lo[b0:b1], inp.hi[b0:b1]),
+                           (inp.elo, inp.ehi, inp.enormal, inp.eoffset, pad), cand,
+                           inp.sampling is not None)
     bits = code == 1
     need = np.nonzero(code == 2)[0]
     nb = b1 - b0

@@ -26,7 +26,6 @@ from radiosity.runtime.cluster import open_client
 from radiosity.pipeline import render_scene
 from radiosity.stages.image import read_exr, render_outputs
 from radiosity.scene.load import load_scene
-from radiosity.methods.hierarchical.operator import run_solve_links
 from radiosity.stages.solve import run_solve
 from radiosity.validation.study import form_factor_of_run
 from radiosity.methods.pairs.visibility import compute_visibility
@@ -109,7 +108,7 @@ def main(quick: bool = False) -> None:
             images = {}
             for tol in TOLS:
                 if method == "hierarchical":
-                    fig = run_solve_links(out, client, tol=tol, progress=False)
+                    fig = run_solve(out, client, tol=tol, progress=False, method="hierarchical")
                 else:
                     fig = run_solve(out, client, tol=tol, progress=False, closure=None)
                 render_outputs(out)

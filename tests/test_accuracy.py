@@ -21,7 +21,7 @@ from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.validation.study import accuracy, form_factor_of_run, pareto
 from radiosity.methods.pairs.visibility import compute_visibility
-from conftest import prepared, radiance, scene_path, write_scene
+from helpers import prepared, radiance, scene_path, write_scene
 
 
 def test_centre_kernel_error_at_a_right_angle_edge_is_the_documented_59_percent():

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from radiosity.cli.commands import main
-from conftest import scene_path
+from helpers import scene_path
 
 S = scene_path("three-rectangles")
 
@@ -92,7 +92,7 @@ def test_out_that_is_a_file_or_under_a_file(tmp_path):
 
 # ----------------------------------------------------------------------------- the scene
 
-from conftest import FLOOR_AND_TRIANGLE, write_scene  # noqa: E402
+from helpers import FLOOR_AND_TRIANGLE, write_scene  # noqa: E402
 
 LIGHT = "[material.default]\nreflectance = [0.5, 0.5, 0.5]\nemission = [1.0, 1.0, 1.0]\n"
 AWAY = """

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from radiosity.cli.commands import main
 from radiosity.stages.image import read_exr
-from conftest import FLOOR_AND_TRIANGLE, ROOT, scene_path, write_scene
+from helpers import FLOOR_AND_TRIANGLE, ROOT, scene_path, write_scene
 
 DATA = os.path.join(ROOT, "tests", "data")
 # built-in scenes with an exact answer at every pixel: closed, uniform Le = 1 and rho = 0.5, so

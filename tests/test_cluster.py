@@ -20,7 +20,7 @@ from radiosity.runtime.cluster import (adaptive_bounds, jobqueue_cluster, jobque
                                tls_mode)
 from radiosity.errors import RadiosityError
 
-from conftest import ROOT, scene_path
+from helpers import ROOT, scene_path
 
 LOOPBACK_SCHEDULER = {"host": "127.0.0.1", "dashboard_address": "127.0.0.1:0"}
 

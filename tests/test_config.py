@@ -8,7 +8,7 @@ import os
 import subprocess
 import sys
 
-from conftest import scene_path
+from helpers import scene_path
 
 
 def _run(args, **env) -> str:

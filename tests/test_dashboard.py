@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from conftest import CHROMIUM, ROOT, scene_path
+from helpers import CHROMIUM, ROOT, scene_path
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",

@@ -15,7 +15,7 @@ from radiosity.stages.image import read_exr
 from radiosity.scene.load import load_scene
 from radiosity.core.solvers import choose_solver
 from radiosity.runtime.store import RunStore
-from conftest import SCENES, radiance, scene_path, write_scene
+from helpers import SCENES, radiance, scene_path, write_scene
 
 
 def _cube_obj(n: int, faces=range(6), block: bool = False) -> str:

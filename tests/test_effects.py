@@ -11,7 +11,7 @@ from radiosity.pipeline import render_scene
 from radiosity.scene.effects import plan_effects
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
-from conftest import scene_path, write_scene
+from helpers import scene_path, write_scene
 
 CAM_ABOVE = """
 [camera]

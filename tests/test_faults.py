@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import scene_path
+from helpers import scene_path
 
 S = scene_path("three-rectangles")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -201,7 +201,7 @@ def test_out_on_a_read_only_filesystem(tmpfs):
 
 
 def test_solve_and_image_on_a_read_only_run(client, tmpfs):
-    from conftest import prepared
+    from helpers import prepared
 
     run_dir = prepared(client, tmpfs, S, 8)
     remount(tmpfs, "ro")
@@ -219,7 +219,7 @@ def test_full_disk_during_visibility_then_resume(client, tmpfs, tmp_path):
     """ENOSPC while the workers write visibility chunks: one line naming the path, the
     manifest holds only tasks whose bytes are on disk, and --resume completes the matrix
     (equal to one computed on a roomy disk)."""
-    from conftest import prepared
+    from helpers import prepared
     from radiosity.runtime.store import RunStore
     from radiosity.methods.pairs.store import VisibilityStore
     from radiosity.methods.pairs.visibility import dense_visibility
@@ -259,7 +259,7 @@ def corrupt_a_chunk(run_dir: str) -> str:
 
 
 def test_corrupted_zstd_frame_stops_solve_in_one_line_and_resume_recomputes_it(client, tmp_path):
-    from conftest import prepared
+    from helpers import prepared
     from radiosity.runtime.store import RunStore
     from radiosity.methods.pairs.visibility import compute_visibility, dense_visibility
 
@@ -357,7 +357,7 @@ def test_a_failed_task_prints_one_line_naming_its_log(tmp_path):
 # ----------------------------------------------------------------------------- convergence
 
 def test_an_unconverged_solve_exits_3_and_keeps_the_converged_solution(client, tmp_path):
-    from conftest import prepared, radiance
+    from helpers import prepared, radiance
 
     run_dir = prepared(client, tmp_path, S, 8)
     r = cli(["solve", run_dir, "--tol", "1e-9"], client)
@@ -445,7 +445,7 @@ def test_a_successful_run_prints_plain_progress_and_no_traceback(reference_run):
 
 
 def test_kill_a_worker_during_solve_the_answer_is_unchanged(reference_run, tmp_path):
-    from conftest import radiance
+    from helpers import radiance
 
     ref = reference_run[0]
     out = tmp_path / "run"
@@ -465,7 +465,7 @@ def test_kill_a_worker_during_solve_the_answer_is_unchanged(reference_run, tmp_p
 
 
 def test_kill_the_driver_during_solve_and_rerun_reuses_visibility(reference_run, tmp_path):
-    from conftest import radiance
+    from helpers import radiance
 
     out = tmp_path / "run"
     w = Watched("render", CORNELL, "--out", out, *LONG)
@@ -538,7 +538,7 @@ def test_a_pass_survives_losing_its_scattered_input_with_a_worker():
 
 
 def test_image_names_the_solve_command_and_warns_about_idle_filters(client, tmp_path):
-    from conftest import prepared
+    from helpers import prepared
     from radiosity.stages.solve import run_solve
 
     run_dir = prepared(client, tmp_path, S, 8)

@@ -19,7 +19,7 @@ from radiosity.methods.pairs.plan import TSTART
 from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore
-from conftest import prepared, radiance, scene_path
+from helpers import prepared, radiance, scene_path
 
 
 def test_corrupted_bits_stop_the_solve_and_visibility_resume_repairs_them(client, tmp_path):

@@ -9,7 +9,7 @@ import shutil
 import subprocess
 import sys
 
-from conftest import ROOT
+from helpers import ROOT
 
 
 def _run(tmp_path, env_extra: dict) -> subprocess.CompletedProcess:

@@ -63,7 +63,8 @@ def test_epsilon_zero_with_one_ray_per_leaf_pair_equals_the_pairs_method(client,
     (--link-rays 1) is the pairs method's visibility; unseen originals are not split; near
     links use the contour integral (no Gauss shortcut). Then F L and the solver's solution
     equal --method pairs with the same kernel (near field and row caps included)."""
-    from radiosity.stages.solve import open_operator, run_solve
+    from radiosity.methods.pairs.transport import open_operator
+    from radiosity.stages.solve import run_solve
 
     out = prepared(client, tmp_path, scene_path(scene), res)
     rs = RunStore(out)
@@ -497,18 +498,19 @@ def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_pat
     from click.testing import CliRunner
 
     from radiosity.cli.commands import main
-    from radiosity.settings import choose_method
+    from radiosity.methods.base import choose_method
 
     with dask.config.set({"radiosity.visibility.method": "auto",
                           "radiosity.visibility.hierarchical-above": 1000}):
-        assert choose_method(1000)[0] == "pairs" and choose_method(1001)[0] == "hierarchical"
-        assert "1001 sub-elements > 1000" in choose_method(1001)[1]
-        assert choose_method(10 ** 6, kernel="nxm")[0] == "pairs"
-        assert choose_method(10, "hierarchical")[0] == "hierarchical"
+        s = resolve()
+        assert choose_method(1000, s)[0] == "pairs" and choose_method(1001, s)[0] == "hierarchical"
+        assert "1001 sub-elements > 1000" in choose_method(1001, s)[1]
+        assert choose_method(10 ** 6, s.replace({"solve.kernel": "nxm"}))[0] == "pairs"
+        assert choose_method(10, s.replace({"visibility.method": "hierarchical"}))[0] == "hierarchical"
         # many originals of about one sub-element each: nothing for links to coarsen
-        assert choose_method(20016, originals=20001)[0] == "pairs"
-        assert "under 4 each" in choose_method(20016, originals=20001)[1]
-        assert choose_method(21208, originals=20)[0] == "hierarchical"
+        assert choose_method(20016, s, originals=20001)[0] == "pairs"
+        assert "under 4 each" in choose_method(20016, s, originals=20001)[1]
+        assert choose_method(21208, s, originals=20)[0] == "hierarchical"
         r = CliRunner().invoke(main, ["plan", scene_path("three-rectangles"), "--resolution", "64"])
     assert r.exit_code == 0, r.output
     line = [ln for ln in r.output.splitlines() if ln.startswith("method: ")]

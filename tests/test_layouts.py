@@ -13,7 +13,7 @@ from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore
 from radiosity.methods.pairs.visibility import compute_visibility
-from conftest import prepared, radiance, scene_path
+from helpers import prepared, radiance, scene_path
 
 
 @pytest.mark.parametrize("unit, max_task_bits", [("stripe", None), ("block", 16), ("stripe", 16)])

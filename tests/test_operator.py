@@ -13,7 +13,7 @@ from radiosity.methods.pairs.method import side_vectors
 from radiosity.stages.solve import normalise_rows
 from radiosity.core.solvers import SOLVERS
 from radiosity.runtime.store import RunStore
-from conftest import prepared, scene_path
+from helpers import prepared, scene_path
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import scene_path
+from helpers import scene_path
 from radiosity.scene.effects import _behind
 from radiosity.scene.originals import (FacingPairsError, behind_any, build_tree, check_budget,
                                  estimate_facing_pairs, facing_pairs, tree_of)

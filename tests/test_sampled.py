@@ -20,7 +20,7 @@ from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore, read_partial
 from radiosity.methods.pairs.visibility import compute_visibility
-from conftest import prepared, scene_path
+from helpers import prepared, scene_path
 
 
 def _polys(rng):

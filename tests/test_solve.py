@@ -14,7 +14,7 @@ from radiosity.stages.solve import run_solve
 from radiosity.core.solvers import SOLVERS
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.visibility import dense_visibility
-from conftest import prepared, radiance, scene_path, write_scene
+from helpers import prepared, radiance, scene_path, write_scene
 
 ALL = list(SOLVERS)
 

@@ -16,7 +16,7 @@ from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
 from radiosity.scene.subdivide import lookup, split_polygons, subdivide, subdivide_scene
 from radiosity.core.bundles import Camera, Scene
-from conftest import scene_path
+from helpers import scene_path
 
 
 def _check_partition(el, part, raster, pts):

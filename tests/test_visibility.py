@@ -19,7 +19,7 @@ from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore
 from radiosity.tracing.shafts import _shaft_excludes
 from radiosity.methods.pairs.visibility import compute_visibility, dense_visibility
-from conftest import scene_path
+from helpers import scene_path
 
 
 def _run(client, tmp_path, name, res, **kw):

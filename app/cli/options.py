@@ -174,7 +174,9 @@ def method_options(fn, links: bool = True):
         fn = click.option("--epsilon", type=click.FloatRange(min=0.0), default=None, expose_value=False,
                           help="hierarchical: refine links while their error estimate exceeds this.",
                           callback=_setting("hierarchy.epsilon"))(fn)
-    return click.option("--method", type=click.Choice(["auto", "pairs", "hierarchical"]), default=None,
+    from radiosity.methods.base import METHODS
+
+    return click.option("--method", type=click.Choice(["auto", *METHODS]), default=None,
                         expose_value=False,
                         help="pairs: one visibility bit per pair of sub-elements (the seed's); "
                              "hierarchical: links between nodes of the split trees; auto (the "

@@ -53,8 +53,7 @@ class SolveFigures(StageFigures):
     hierarchy: dict | None = None    # --method hierarchical: leaves, link terms, final gather
 
     def rows(self):
-        return [("solver", f"{self.solver} ({self.kernel} kernel"
-                           + (", hierarchical links)" if self.method == "hierarchical" else ")")),
+        return [("solver", f"{self.solver} ({self.kernel} kernel, {self.method} method)"),
                 ("passes", f"{self.iterations} ({'converged' if self.converged else 'NOT converged'})"),
                 *([("solution", self.solution)] if not self.converged else []),
                 ("final residual", f"{self.final_residual:.3g}"),

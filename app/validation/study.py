@@ -15,7 +15,6 @@ import os
 import time
 import warnings
 
-import dask.config
 import numpy as np
 
 from radiosity.errors import RadiosityError
@@ -217,8 +216,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
             if key != current:
                 t = time.perf_counter()
                 if hier:
-                    with dask.config.set(overrides):  # compute_links takes no settings yet
-                        compute_links(run, client, progress=False)
+                    compute_links(run, client, row, progress=False)
                 else:
                     compute_visibility(run, client, row, progress=False, kernel=kernel)
                 t_vis[key] = time.perf_counter() - t

@@ -391,7 +391,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool) -> LinkPlan:
     """The link stage's plan for run store `rs` (its partition, elements) under settings `s`."""
     from dask.base import tokenize
 
-    from radiosity.methods.pairs.plan import choose_unit
+    from radiosity.runtime.packing import choose_unit
     from radiosity.scene.originals import pairs_within_budget, tree_of
     from radiosity.scene.splittrees import seen_originals
 

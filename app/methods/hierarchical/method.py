@@ -42,7 +42,7 @@ class HierarchicalMethod:
         LinkStore(rs).require()
 
     def open(self, rs, client, settings, where: str = "auto", **options) -> Opened:
-        from radiosity.methods.hierarchical.operator import (leaf_vectors, open_link_operator,
+        from radiosity.methods.hierarchical.transport import (leaf_vectors, open_link_operator,
                                                              to_sub_elements)
 
         op, table, el, part = open_link_operator(rs, client, where, settings)
@@ -59,7 +59,7 @@ class HierarchicalMethod:
         solution/leaf_radiance (M, 2, 3) keeps the solver's fixed point L = Le + rho K L."""
         import time
 
-        from radiosity.methods.hierarchical.operator import LocalLinkOperator
+        from radiosity.methods.hierarchical.transport import LocalLinkOperator
 
         op, Le, rho = opened.op, opened.Le[:, :L.shape[1]], opened.rho[:, :L.shape[1]]
         M = L.shape[2]

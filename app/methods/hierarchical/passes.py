@@ -332,8 +332,7 @@ def linear_gather(Lbar, links, sel, nodes, geo, ncap, mode, S0, S1, far):
                 gx, gy, gz = gu * ex + gv * fx, gu * ey + gv * fy, gu * ez + gv * fz
             # limited so that 1 + g . (x - c_t) >= 0 at t's vertices, hence at every leaf of t
             # (t is convex): a link adds no negative light anywhere (where F0 is small against
-            # the vertices' values the unlimited plane dives below zero: room-2400 had 2 % of
-            # its sub-elements negative, down to -90)
+            # the vertices' values the unlimited plane dives below zero: docs/measurements.md)
             lowest = 0.0
             for j in range(nverts[t]):
                 lowest = min(lowest, gx * (verts[t, j, 0] - ct0) + gy * (verts[t, j, 1] - ct1)

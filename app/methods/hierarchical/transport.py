@@ -19,6 +19,7 @@ from radiosity.methods.hierarchical.passes import (Ends, Geometry, LinkArrays, N
                                                    _fill_ends, _sum_up, final_gather, gather,
                                                    gs_sweep, linear_gather, linear_push, node_min,
                                                    pull, push)
+from radiosity.runtime.packing import pack_groups
 from radiosity.runtime.cache import CACHE
 from radiosity.runtime.cluster import default_workers, scatterable
 
@@ -292,27 +293,12 @@ class _Base:
         self.passes = 0
         self.sparse = None  # the pairs' near-field corrections: none here (links carry them)
         n = np.asarray(inp.entries[:, 1], np.int64) if len(inp.entries) else np.zeros(0, np.int64)
-        order = np.argsort(-n, kind="stable")
-        load = np.zeros(max(1, ngroups))
-        members = [[] for _ in range(len(load))]
-        for t in order:  # the largest first onto the least loaded group
-            g = int(np.argmin(load))
-            members[g].append(int(t))
-            load[g] += n[t] + 1
-        self.groups = [np.array(sorted(m), np.int64) for m in members if m]
+        self.groups = pack_groups(n + 1, ngroups)  # a task costs its links (+1: never 0)
 
     def orig_groups(self, k: int) -> list:
         """The originals cut into k groups of about equal leaf counts (final gather)."""
         n = len(self.inp.noff) - 1
-        leaves = np.bincount(self.inp.leaf_orig, minlength=n)
-        order = np.argsort(-leaves, kind="stable")
-        load = np.zeros(max(1, k))
-        members = [[] for _ in range(len(load))]
-        for o in order:
-            g = int(np.argmin(load))
-            members[g].append(int(o))
-            load[g] += leaves[o] + 1
-        return [np.array(sorted(m), np.int64) for m in members if m]
+        return pack_groups(np.bincount(self.inp.leaf_orig, minlength=n) + 1, k)
 
     def row_sums(self) -> np.ndarray:
         """sum over the links of F v for every leaf and side, pushed down, (2, M) (one pass)."""

@@ -192,6 +192,3 @@ def choose_chunk(task_bytes: np.ndarray) -> int:
     c = 1 << int(np.clip(np.ceil(np.log2(max(med, 1.0))), 12, 22))
     return int(c)
 
-
-# cutting work into tasks and groups lives in runtime/packing.py (every stage uses it)
-from radiosity.runtime.packing import choose_unit, pack_groups, subscene_ranges  # noqa: E402,F401

@@ -142,7 +142,7 @@ def test_solve_and_image_commands_and_resume(client, tmp_path):
     assert r.exit_code == 0 and "reusing the partition" in r.output
     assert json.loads((out / "report.json").read_text())["visibility"]["tasks_computed"] == 0
     r = CliRunner().invoke(main, ["solve", str(out), "--solver", "cg", "--tol", "1e-9"] + sched)
-    assert r.exit_code == 0 and "cg (point-nf kernel)" in r.output and "converged" in r.output
+    assert r.exit_code == 0 and "cg (point-nf kernel, pairs method)" in r.output and "converged" in r.output
     r = CliRunner().invoke(main, ["image", str(out), "--filter", "gaussian", "--exposure", "2"])
     assert r.exit_code == 0 and "exposure 2" in r.output
     r = CliRunner().invoke(main, ["solve", str(out), "--solver", "cg", "--kernel", "disc"] + sched)

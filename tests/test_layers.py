@@ -177,8 +177,18 @@ def test_tests_and_benchmarks_import_radiosity_not_app():
     root = os.path.dirname(APP)
     bad = []
     for d in ("tests", "benchmarks"):
-        for f in sorted(os.listdir(os.path.join(root, d))):
-            if f.endswith(".py"):
-                src = open(os.path.join(root, d, f)).read()
-                bad += [f"{d}/{f}" for _ in re.findall(r"^\s*(?:from app\b|import app\b)", src, re.M)][:1]
+        for dirpath, _, files in os.walk(os.path.join(root, d)):
+            for f in sorted(files):
+                if f.endswith(".py"):
+                    src = open(os.path.join(dirpath, f)).read()
+                    rel = os.path.relpath(os.path.join(dirpath, f), root)
+                    bad += [rel for _ in re.findall(r"^\s*(?:from app\b|import app\b)", src, re.M)][:1]
     assert not bad, f"import app in {bad}"
+
+
+def test_tests_mirror_the_folders():
+    """A newcomer finds a folder's tests in the same folder under tests/."""
+    root = os.path.join(os.path.dirname(APP), "tests")
+    rooms = {_room(m) for m in _modules() if "." in m}
+    missing = sorted(r for r in rooms if not os.path.isdir(os.path.join(root, r)))
+    assert not missing, f"tests/ has no folder for {missing}"

@@ -149,9 +149,11 @@ def test_solve_and_image_commands_and_resume(client, tmp_path):
     assert r.exit_code == 2 and "needs a reciprocal kernel" in r.output
 
 
-def test_cluster_flags_reach_the_config(tmp_path, monkeypatch):
-    """--tls and the batch-job flags write dask.config for the command (seen where it opens its
-    cluster); a local TLS run works end to end; afterwards the process's config is as before."""
+def test_cluster_flags_reach_open_client_not_the_config(tmp_path, monkeypatch):
+    """--tls and the batch-job flags reach open_client as its keywords (no flag writes
+    dask.config); a local TLS run works end to end; the process's config is untouched."""
+    import copy
+
     import dask.config
 
     from radiosity.runtime import cluster
@@ -160,19 +162,18 @@ def test_cluster_flags_reach_the_config(tmp_path, monkeypatch):
     real = cluster.open_client
 
     def spy(*a, **kw):
-        seen.update(tls=dask.config.get("radiosity.cluster.tls"),
-                    cores=dask.config.get("jobqueue.slurm.cores"),
-                    project=dask.config.get("jobqueue.sge.project"))
+        seen.update({k: kw[k] for k in ("tls", "cores", "account") if k in kw})
         return real(*a, **kw)
 
     monkeypatch.setattr(cluster, "open_client", spy)
-    before = dask.config.get("radiosity.cluster.tls", None)
+    before = copy.deepcopy({k: dask.config.config.get(k) for k in ("radiosity", "jobqueue")})
     r = CliRunner().invoke(main, ["preprocess", scene_path("three-rectangles"), "--out", str(tmp_path / "r"),
                                   "--resolution", "8", "--workers", "1", "--tls", "--cores", "4",
                                   "--account", "proj1"])
     assert r.exit_code == 0, r.output
-    assert seen == {"tls": "temporary", "cores": 4, "project": "proj1"}
-    assert dask.config.get("radiosity.cluster.tls", None) == before != "temporary"
+    assert seen == {"tls": "temporary", "cores": 4, "account": "proj1"}
+    assert "only apply to batch-system clusters" in r.output  # said, not silently dropped
+    assert {k: dask.config.config.get(k) for k in ("radiosity", "jobqueue")} == before
 
 
 @pytest.mark.parametrize("change", ["toml", "mesh"])

@@ -18,7 +18,7 @@ import pytest
 from helpers import scene_path
 
 S = scene_path("three-rectangles")
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from helpers import ROOT  # noqa: E402
 
 
 def env():

@@ -23,7 +23,7 @@ from radiosity.core.exact import (coaxial_discs, pair_form_factors_exact, parall
                        perpendicular_rectangles, polygon_form_factor)
 from radiosity.viewfactors.api import compute_viewfactors, load_facets
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from helpers import ROOT  # noqa: E402
 
 
 def run(client, tmp_path, mesh, name="run", **kw):

@@ -186,7 +186,7 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
         write_direct_solution(out)
     stages["solve_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    fig = render_outputs(out, settings=s)
+    fig = render_outputs(out, filter=filter, sigma=sigma, exposure=exposure, settings=s)
     stages["image_s"] = time.perf_counter() - t
     if preview:
         t = time.perf_counter()

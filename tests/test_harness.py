@@ -14,7 +14,8 @@ from helpers import ROOT
 
 def _run(tmp_path, env_extra: dict) -> subprocess.CompletedProcess:
     """pytest on a one-test file that needs Chromium, with the suite's conftest."""
-    shutil.copy(os.path.join(ROOT, "tests", "conftest.py"), tmp_path / "conftest.py")
+    for f in ("conftest.py", "helpers.py"):
+        shutil.copy(os.path.join(ROOT, "tests", f), tmp_path / f)
     (tmp_path / "test_one.py").write_text(
         "import pytest\n\n@pytest.mark.needs('chromium')\ndef test_one():\n    pass\n")
     env = {k: v for k, v in os.environ.items() if k != "CI"}

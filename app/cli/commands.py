@@ -187,8 +187,8 @@ def image(run_dir, filter_, sigma, exposure):
     check_run_dir(run_dir)
     _started(run_dir, resume=False)
     with run_lock(run_dir, _command_line()):
-        fig = render_outputs(run_dir, settings=settings_from_flags(
-            render__filter=filter_, render__sigma=sigma, render__exposure=exposure))
+        fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure,
+                             settings=settings_from_flags())
         _record_run(run_dir)
         _finish(run_dir, [])
     click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html "
@@ -255,8 +255,7 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
 
     st = settings_from_flags(subdivide__subpixel=subpixel, solve__solver=solver,
                              solve__kernel=kernel, solve__tol=tol,
-                             solve__max_iterations=max_iterations, render__filter=filter_,
-                             render__sigma=sigma, render__exposure=exposure)
+                             solve__max_iterations=max_iterations)
     sc = load_scene(scene, resolution=resolution, settings=st)
     check_solve(st)
     check_scene(sc, st)
@@ -265,7 +264,8 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
     with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind) as client:
-        rep = render_scene(sc, out, client, st, unit=task_unit, resume=resume,
+        rep = render_scene(sc, out, client, st, unit=task_unit, resume=resume, filter=filter_,
+                           sigma=sigma, exposure=exposure,
                            preview=not no_preview, echo=click.echo, full=full,
                            keep_unconverged=keep_unconverged)
         _record_run(out, sc.name)

@@ -84,7 +84,8 @@ def _probe(d: str, what: str, existing: bool = False) -> None:
 
 #: What marks a folder as one of ours (a run, a reference, a comparison): a command may write
 #: into such a folder again; into any other non-empty folder only with --force.
-OURS = ("store.zarr", "report.json", "reference.json", "compare.json")
+OURS = ("store.zarr", "report.json", "reference.json", "compare.json", "run.lock",
+        "radiosity-error.log")
 
 
 def check_new_run_dir(out: str, force: bool = False) -> None:

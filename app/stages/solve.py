@@ -224,7 +224,7 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     history = []
     make_image = ((lambda L: preview(opened.to_sub(L).transpose(1, 2, 0))) if preview is not None
                   else (lambda L: np.zeros((1, 1, 3), np.uint8)))
-    bar = progress_bar(None, f"solve ({solver}, {impl.name})", progress, unit="pass")
+    bar = progress_bar(None, f"solve ({solver})", progress, unit="pass")
 
     def cb(k, r, L):
         if not np.isfinite(r) or r > 1e8:

@@ -81,7 +81,7 @@ def test_run_lock_refuses_a_live_owner_and_takes_over_a_dead_one(tmp_path):
     d = tmp_path / "run"
     d.mkdir()
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time\nfrom radiosity.runlock import run_lock\n"
+        [sys.executable, "-c", "import sys, time\nfrom radiosity.runtime.runlock import run_lock\n"
          f"with run_lock({str(d)!r}, 'radiosity holder'):\n    print('held', flush=True)\n"
          "    time.sleep(120)\n"], env=env(), stdout=subprocess.PIPE, text=True)
     try:

@@ -1,0 +1,370 @@
+"""Clustering above the original elements (SPEC §9; Smits, Arvo & Greenberg 1994): the tree over
+the originals (scene/originals.build_tree with one original per leaf) is the top of the
+hierarchy. Refinement starts at the root's self-link; a link between clusters is kept while a
+bound on the light it carries stays below epsilon, and pairs of originals it reaches go on to
+the element-level refinement (links.py). Nothing is ever listed per pair of originals that the
+refinement did not reach.
+
+Transport through a cluster link p <- q (docs/design/methods-hierarchical-clusters.md):
+F_pq = S_p(u) S_q(-u) / (pi r^2 A_p), S_x(u) = sum over x's elements of A_i max(0, n_i . u),
+u and r between the area centroids; q sends its elements' area-weighted mean radiance and p
+receives uniformly (Sillion's isotropic model); A_p F_pq = A_q F_qp, so energy is conserved.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+# The cluster tree (K nodes, node 0 the root, children after parents; leaves hold one original):
+# left, right (K,) (-1 at a leaf), start, end (K,) ranges into order (n,); lo, hi (K, 3) vertex
+# boxes; axis (K, 3), spread (K,) the normal cone; two (K,) any two-sided element; area (K,);
+# center (K, 3) area centroid; rho, lhat (K,): the largest reflectance and a-priori radiance
+# of the elements below (the oracle's weights, front side).
+CTree = namedtuple("CTree", "left right start end order lo hi clo chi axis spread two area center "
+                            "rho lhat")
+# The originals as the refinement reads them: normal (n, 3), offset (n,) = n . centre, verts
+# (n, 4, 3) (triangles repeat vertex 2), area (n,), center (n, 3), two_sided (n,), eps (the
+# facing tolerance in scene units).
+CElems = namedtuple("CElems", "normal offset verts area center two_sided eps")
+
+
+@dataclass(frozen=True)
+class ClusterTree:
+    """The cluster tree of a scene's originals and what the refinement needs of them."""
+
+    tree: CTree
+    elems: CElems
+    lref: float
+
+    @property
+    def nodes(self) -> int:
+        return len(self.tree.left)
+
+    @property
+    def parent(self) -> np.ndarray:
+        """(K,) int64 parent of each node (-1 at the root)."""
+        par = np.full(self.nodes, -1, np.int64)
+        inner = np.nonzero(self.tree.left >= 0)[0]
+        par[self.tree.left[inner]] = inner
+        par[self.tree.right[inner]] = inner
+        return par
+
+    @property
+    def leaf_orig(self) -> np.ndarray:
+        """(K,) int64: the original of each leaf, -1 at inner nodes."""
+        t = self.tree
+        out = np.full(self.nodes, -1, np.int64)
+        leaf = t.left < 0
+        out[leaf] = t.order[t.start[leaf]]
+        return out
+
+
+def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float) -> ClusterTree:
+    """The cluster tree over `elements` (types.Elements) with the oracle's per-original weights
+    wrho, lhat (n, 2) and lref (links.oracle_weights); front sides only (a cluster holding a
+    two-sided original is never kept as a link end)."""
+    from radiosity.scene.originals import build_tree
+
+    t = build_tree(elements.verts, elements.nverts, elements.normal, elements.center,
+                   elements.two_sided, leaf=1)
+    K = len(t.left)
+    o = t.order
+    area = np.asarray(elements.area, np.float64)
+    cum = np.concatenate([[0.0], np.cumsum(area[o])])
+    A = cum[t.end] - cum[t.start]
+    wc = np.concatenate([np.zeros((1, 3)), np.cumsum(area[o, None] * elements.center[o], axis=0)])
+    center = (wc[t.end] - wc[t.start]) / np.where(A > 0, A, 1.0)[:, None]
+    rho = _range_max(wrho[o, 0], t.start, t.end, t.left, t.right)
+    lh = _range_max(lhat[o, 0], t.start, t.end, t.left, t.right)
+    verts = np.where(elements.nverts[:, None, None] == 3, elements.verts[:, [0, 1, 2, 2]],
+                     elements.verts)
+    tree = CTree(t.left, t.right, t.start, t.end, o, t.lo, t.hi, t.clo, t.chi, t.axis,
+                 t.spread, t.two, A, center, rho, lh)
+    elems = CElems(np.asarray(elements.normal, np.float64), t.offset, verts, area,
+                   np.asarray(elements.center, np.float64), t.two_sided, float(t.eps))
+    assert K == len(A)
+    return ClusterTree(tree, elems, float(lref))
+
+
+def _range_max(values, start, end, left, right):
+    """max of values[start:end] per node, bottom-up (children follow their parents)."""
+    K = len(start)
+    out = np.zeros(K)
+    leaf = left < 0
+    out[leaf] = values[start[leaf]]
+    for k in range(K - 1, -1, -1):
+        if left[k] >= 0:
+            out[k] = max(out[left[k]], out[right[k]])
+    return out
+
+
+# ----------------------------------------------------------------------------- refinement
+
+@numba.njit(cache=True)
+def _may_face(t, A, B, eps):
+    """Can some element of node B lie in front of (or, two-sided, behind) the plane of some
+    element of node A? False only where certainly not (originals._may_face's bound)."""
+    up = 0.0
+    low = 0.0
+    vmax2 = 0.0
+    for k in range(3):
+        dlo = t.lo[B, k] - t.chi[A, k]
+        dhi = t.hi[B, k] - t.clo[A, k]
+        a = t.axis[A, k]
+        if a > 0:
+            up += a * dhi
+            low += a * dlo
+        else:
+            up += a * dlo
+            low += a * dhi
+        m = max(abs(dlo), abs(dhi))
+        vmax2 += m * m
+    s = t.spread[A] * np.sqrt(vmax2)
+    half = 0.5 * eps
+    return (up + s > half) or (t.two[A] and low - s < -half)
+
+
+@numba.njit(cache=True)
+def _faces(e, i, j):
+    """Does original j have a vertex strictly in front of i's plane (behind it, two-sided i)?
+    The arithmetic of plan.facing_blocks / originals._facing."""
+    front = False
+    back = False
+    for v in range(4):
+        d = (e.normal[i, 0] * e.verts[j, v, 0] + e.normal[i, 1] * e.verts[j, v, 1]
+             + e.normal[i, 2] * e.verts[j, v, 2]) - e.offset[i]
+        if d > e.eps:
+            front = True
+        if d < -e.eps:
+            back = True
+    return front or (e.two_sided[i] and back)
+
+
+@numba.njit(cache=True)
+def _box_distance2(t, p, q):
+    d2 = 0.0
+    for k in range(3):
+        g = max(t.lo[q, k] - t.hi[p, k], t.lo[p, k] - t.hi[q, k], 0.0)
+        d2 += g * g
+    return d2
+
+
+@numba.njit(cache=True)
+def refine_clusters(t, e, eps, lref, cap):
+    """The cluster refinement from the root's self-link: (links (k, 2) int64 node pairs kept as
+    cluster links, pairs (j, 2) int64 originals I < J handed to the element-level refinement,
+    counts [evaluated, culled by orientation, kept, pairs]). A link between nodes p, q (one of
+    them a cluster, neither holding a two-sided original) is kept when the bound on the light it
+    carries, max(rho_p A_q Lhat_q, rho_q A_p Lhat_p) / (pi d^2 lref) with d the distance between
+    the boxes, is at most eps; otherwise the end with more area (the larger solid angle from the
+    other) is split. eps = 0 lists exactly the facing pairs of originals."""
+    links = np.empty((max(cap, 16), 2), np.int64)
+    pairs = np.empty((max(cap, 16), 2), np.int64)
+    nl = 0
+    npr = 0
+    counts = np.zeros(4, np.int64)
+    stack = np.empty((1024, 2), np.int64)
+    ns = 1
+    stack[0, 0] = 0
+    stack[0, 1] = 0
+    while ns > 0:
+        ns -= 1
+        p, q = stack[ns, 0], stack[ns, 1]
+        if ns + 3 >= stack.shape[0]:
+            grown = np.empty((2 * stack.shape[0], 2), np.int64)
+            grown[:stack.shape[0]] = stack
+            stack = grown
+        counts[0] += 1
+        lp, lq = t.left[p] < 0, t.left[q] < 0
+        if p == q:
+            if lp:
+                continue
+            a, b = t.left[p], t.right[p]
+            stack[ns, 0], stack[ns, 1] = a, a
+            stack[ns + 1, 0], stack[ns + 1, 1] = b, b
+            stack[ns + 2, 0], stack[ns + 2, 1] = a, b
+            ns += 3
+            continue
+        if not (_may_face(t, p, q, e.eps) and _may_face(t, q, p, e.eps)):
+            counts[1] += 1
+            continue
+        if lp and lq:
+            i, j = t.order[t.start[p]], t.order[t.start[q]]
+            if _faces(e, i, j) and _faces(e, j, i):
+                if npr == pairs.shape[0]:
+                    grown = np.empty((2 * npr, 2), np.int64)
+                    grown[:npr] = pairs
+                    pairs = grown
+                pairs[npr, 0], pairs[npr, 1] = min(i, j), max(i, j)
+                npr += 1
+            else:
+                counts[1] += 1
+            continue
+        d2 = _box_distance2(t, p, q)
+        if d2 > 0.0 and not t.two[p] and not t.two[q]:
+            bound = max(t.rho[p] * t.area[q] * t.lhat[q],
+                        t.rho[q] * t.area[p] * t.lhat[p]) / (np.pi * d2 * lref)
+            if bound <= eps:
+                if nl == links.shape[0]:
+                    grown = np.empty((2 * nl, 2), np.int64)
+                    grown[:nl] = links
+                    links = grown
+                links[nl, 0], links[nl, 1] = p, q
+                nl += 1
+                continue
+        # split the end with more area (the larger solid angle seen from the other)
+        split_p = (not lp) and (lq or t.area[p] >= t.area[q])
+        if split_p:
+            stack[ns, 0], stack[ns, 1] = t.left[p], q
+            stack[ns + 1, 0], stack[ns + 1, 1] = t.right[p], q
+        else:
+            stack[ns, 0], stack[ns, 1] = p, t.left[q]
+            stack[ns + 1, 0], stack[ns + 1, 1] = p, t.right[q]
+        ns += 2
+    counts[2] = nl
+    counts[3] = npr
+    return links[:nl], pairs[:npr], counts
+
+
+@numba.njit(cache=True)
+def _projected(t, e, x, ux, uy, uz):
+    """S_x(u) = sum over the elements of node x of A_i max(0, n_i . u)."""
+    s = 0.0
+    for k in range(t.start[x], t.end[x]):
+        i = t.order[k]
+        c = e.normal[i, 0] * ux + e.normal[i, 1] * uy + e.normal[i, 2] * uz
+        if c > 0.0:
+            s += e.area[i] * c
+    return s
+
+
+@numba.njit(cache=True)
+def link_form_factors(t, e, links):
+    """F_pq, F_qp (k, 2) of cluster links (p, q): S_p(u) S_q(-u) / (pi r^2 A_p) and / A_q, with
+    u, r from p's area centroid to q's."""
+    out = np.zeros((links.shape[0], 2))
+    for k in range(links.shape[0]):
+        p, q = links[k, 0], links[k, 1]
+        dx = t.center[q, 0] - t.center[p, 0]
+        dy = t.center[q, 1] - t.center[p, 1]
+        dz = t.center[q, 2] - t.center[p, 2]
+        r2 = dx * dx + dy * dy + dz * dz
+        if r2 <= 0.0:
+            continue
+        r = np.sqrt(r2)
+        ux, uy, uz = dx / r, dy / r, dz / r
+        g = _projected(t, e, p, ux, uy, uz) * _projected(t, e, q, -ux, -uy, -uz) / (np.pi * r2)
+        out[k, 0] = g / t.area[p] if t.area[p] > 0 else 0.0
+        out[k, 1] = g / t.area[q] if t.area[q] > 0 else 0.0
+    return out
+
+
+@numba.njit(cache=True)
+def sample_elements(t, e, nodes, k):
+    """k elements per node, stratified by area along the node's elements (the element holding
+    cumulative area (j + 0.5) / k of the node's total, j = 0..k-1), (len(nodes), k) int64."""
+    out = np.empty((nodes.shape[0], k), np.int64)
+    for a in range(nodes.shape[0]):
+        x = nodes[a]
+        total = t.area[x]
+        acc = 0.0
+        j = 0
+        for m in range(t.start[x], t.end[x]):
+            i = t.order[m]
+            acc += e.area[i]
+            while j < k and (j + 0.5) * total / k <= acc:
+                out[a, j] = i
+                j += 1
+        while j < k:  # rounding at the end
+            out[a, j] = t.order[t.end[x] - 1]
+            j += 1
+    return out
+
+
+def link_visibility(caster, ct: ClusterTree, links: np.ndarray, k: int) -> np.ndarray:
+    """Visible fraction of cluster links (k rays each between area-stratified element centroids
+    of both ends, the second end's samples rotated by half a stride), (len(links),) float64."""
+    if len(links) == 0:
+        return np.zeros(0)
+    out = np.empty(len(links))
+    step = max(1, (1 << 19) // k)
+    shift = (np.arange(k) + k // 2) % k
+    for a in range(0, len(links), step):
+        lk = links[a:a + step]
+        ep = sample_elements(ct.tree, ct.elems, np.ascontiguousarray(lk[:, 0]), k)
+        eq = sample_elements(ct.tree, ct.elems, np.ascontiguousarray(lk[:, 1]), k)[:, shift]
+        n = ep.size
+        pts = np.concatenate([ct.elems.center[ep.ravel()], ct.elems.center[eq.ravel()]])
+        ids = np.concatenate([ep.ravel(), eq.ravel()])
+        idx = np.arange(n)
+        occ = caster.occluded_pairs(pts, idx, idx + n, ids)
+        out[a:a + len(lk)] = 1.0 - occ.reshape(len(lk), k).mean(axis=1)
+    return out
+
+
+# ----------------------------------------------------------------------------- transport
+
+@dataclass(frozen=True)
+class ClusterLinks:
+    """The cluster layer of a solve: the cluster tree (K nodes; parent (K,), leaf_orig (K,) the
+    original of each leaf or -1, area (K,)) and its links p, q (k,) int64 node ids with weights
+    wpq = F_pq v, wqp = F_qp v (k,). Front sides only."""
+
+    parent: np.ndarray
+    leaf_orig: np.ndarray
+    area: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    wpq: np.ndarray
+    wqp: np.ndarray
+
+    def arrays(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+    @property
+    def links(self) -> int:
+        return len(self.p)
+
+
+@numba.njit(cache=True, nogil=True)
+def cluster_gather(Lroot, parent, leaf_orig, area, p, q, wpq, wqp, ncap, G):
+    """G (C, n) += the cluster links' transfer into the originals' roots (front side), from
+    Lroot (C, n) the originals' area-weighted mean radiance: pull up the cluster tree, gather
+    over the links (scaled by min(ncap[p], ncap[q]) when ncap has K entries), push down to the
+    leaves' originals. Returns the link terms."""
+    K = parent.shape[0]
+    C = Lroot.shape[0]
+    S = np.zeros((C, K))
+    H = np.zeros((C, K))
+    for x in range(K):
+        o = leaf_orig[x]
+        if o >= 0:
+            for c in range(C):
+                S[c, x] = area[x] * Lroot[c, o]
+    for x in range(K - 1, 0, -1):
+        for c in range(C):
+            S[c, parent[x]] += S[c, x]
+    for x in range(K):
+        inv = 1.0 / area[x] if area[x] > 0 else 0.0
+        for c in range(C):
+            S[c, x] *= inv
+    use_cap = ncap.shape[0] == K
+    for k in range(p.shape[0]):
+        a, b = p[k], q[k]
+        f = min(ncap[a], ncap[b]) if use_cap else 1.0
+        for c in range(C):
+            H[c, a] += f * wpq[k] * S[c, b]
+            H[c, b] += f * wqp[k] * S[c, a]
+    for x in range(1, K):
+        for c in range(C):
+            H[c, x] += H[c, parent[x]]
+    for x in range(K):
+        o = leaf_orig[x]
+        if o >= 0:
+            for c in range(C):
+                G[c, o] += H[c, x]
+    return 2 * p.shape[0]

@@ -154,14 +154,49 @@ def _box_distance2(t, p, q):
 
 
 @numba.njit(cache=True)
+def _cos_bound(t, p, q, d, sign):
+    """The largest cosine between a normal of node p (in its cone: axis a, spread s >= |n - a|)
+    and a direction from a point of p's box to a point of q's box (all at least d apart):
+    a . v / |v| + s <= max(0, max_v a . v) / d + s, at most 1."""
+    up = 0.0
+    for k in range(3):
+        a = t.axis[p, k]
+        lo = t.lo[q, k] - t.hi[p, k]
+        hi = t.hi[q, k] - t.lo[p, k]
+        up += a * hi if a > 0 else a * lo
+    return min(1.0, max(0.0, up) / d + t.spread[p])
+
+
+@numba.njit(cache=True)
+def _error_bound(t, p, q, d2, lref):
+    """The oracle of a link between nodes p, q whose boxes are d = sqrt(d2) apart: the bound on
+    the light it carries, max(rho_p A_q Lhat_q, rho_q A_p Lhat_p) c_p c_q / (pi d^2 lref) (the
+    cosines at most what the normal cones allow, _cos_bound; every distance at least d), times
+    the relative error of carrying it through the
+    clusters: (diam_p + diam_q) / d for the distances and directions taken between centroids,
+    plus both normal cones' spread for the cosines taken as the cluster's mean (isotropic)."""
+    d = np.sqrt(d2)
+    cp = _cos_bound(t, p, q, d, 1.0)
+    cq = _cos_bound(t, q, p, d, 1.0)
+    carried = max(t.rho[p] * t.area[q] * t.lhat[q],
+                  t.rho[q] * t.area[p] * t.lhat[p]) * cp * cq / (np.pi * d2 * lref)
+    dp = 0.0
+    dq = 0.0
+    for k in range(3):
+        dp += (t.hi[p, k] - t.lo[p, k]) ** 2
+        dq += (t.hi[q, k] - t.lo[q, k]) ** 2
+    rel = (np.sqrt(dp) + np.sqrt(dq)) / d + t.spread[p] + t.spread[q]
+    return carried * min(rel, 1.0)
+
+
+@numba.njit(cache=True)
 def refine_clusters(t, e, eps, lref, cap):
     """The cluster refinement from the root's self-link: (links (k, 2) int64 node pairs kept as
     cluster links, pairs (j, 2) int64 originals I < J handed to the element-level refinement,
-    counts [evaluated, culled by orientation, kept, pairs]). A link between nodes p, q (one of
-    them a cluster, neither holding a two-sided original) is kept when the bound on the light it
-    carries, max(rho_p A_q Lhat_q, rho_q A_p Lhat_p) / (pi d^2 lref) with d the distance between
-    the boxes, is at most eps; otherwise the end with more area (the larger solid angle from the
-    other) is split. eps = 0 lists exactly the facing pairs of originals."""
+    counts [evaluated, culled by orientation, kept, pairs]). A link between nodes p, q (neither
+    holding a two-sided original, boxes apart) is kept when its error bound (_error_bound) is at
+    most eps (two originals: one link over both, as the element-level refinement's root link); otherwise the end with more area (the larger solid
+    angle from the other) is split. eps = 0 lists exactly the facing pairs of originals."""
     links = np.empty((max(cap, 16), 2), np.int64)
     pairs = np.empty((max(cap, 16), 2), np.int64)
     nl = 0
@@ -192,7 +227,9 @@ def refine_clusters(t, e, eps, lref, cap):
         if not (_may_face(t, p, q, e.eps) and _may_face(t, q, p, e.eps)):
             counts[1] += 1
             continue
-        if lp and lq:
+        d2 = _box_distance2(t, p, q)
+        keep = d2 > 0.0 and not t.two[p] and not t.two[q] and _error_bound(t, p, q, d2, lref) <= eps
+        if lp and lq and not keep:
             i, j = t.order[t.start[p]], t.order[t.start[q]]
             if _faces(e, i, j) and _faces(e, j, i):
                 if npr == pairs.shape[0]:
@@ -204,18 +241,18 @@ def refine_clusters(t, e, eps, lref, cap):
             else:
                 counts[1] += 1
             continue
-        d2 = _box_distance2(t, p, q)
-        if d2 > 0.0 and not t.two[p] and not t.two[q]:
-            bound = max(t.rho[p] * t.area[q] * t.lhat[q],
-                        t.rho[q] * t.area[p] * t.lhat[p]) / (np.pi * d2 * lref)
-            if bound <= eps:
-                if nl == links.shape[0]:
-                    grown = np.empty((2 * nl, 2), np.int64)
-                    grown[:nl] = links
-                    links = grown
-                links[nl, 0], links[nl, 1] = p, q
-                nl += 1
+        if keep:
+            if lp and lq and not (_faces(e, t.order[t.start[p]], t.order[t.start[q]])
+                                  and _faces(e, t.order[t.start[q]], t.order[t.start[p]])):
+                counts[1] += 1
                 continue
+            if nl == links.shape[0]:
+                grown = np.empty((2 * nl, 2), np.int64)
+                grown[:nl] = links
+                links = grown
+            links[nl, 0], links[nl, 1] = p, q
+            nl += 1
+            continue
         # split the end with more area (the larger solid angle seen from the other)
         split_p = (not lp) and (lq or t.area[p] >= t.area[q])
         if split_p:

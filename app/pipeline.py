@@ -166,7 +166,10 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
     planned = scene_plan(scene, full=full, run_dir=out, settings=s)
     planned.write(out)
     effects = planned.effects
-    name, why = choose_method(len(RunStore(out).load_partition()), s, originals=len(scene.elements))
+    est = effects.estimates
+    name, why = choose_method(len(RunStore(out).load_partition()), s, originals=len(scene.elements),
+                              facing_pairs=est.get("facing_original_pairs",
+                                                   est.get("facing_original_pairs_estimate")))
     impl = get_method(name)
     echo(f"method: {why}")
     update_report(out, "plan", {"method": name, "method_reason": why})

@@ -153,6 +153,8 @@ class HierarchySettings(_Section):
     task_unit: str
     max_task_cost: int
     driver_solve_links: int
+    clusters: str
+    clusters_above: int
 
 
 @dataclass(frozen=True)

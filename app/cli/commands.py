@@ -221,7 +221,10 @@ def plan(scene, resolution, subpixel, tol):
     from radiosity.methods.hierarchical.store import LINK_DTYPE
     from radiosity.scene.splittrees import LINKS_PER_LEAF
 
-    method, why = choose_method(planned.sub_elements, st, originals=len(sc.elements))
+    est = planned.effects.estimates
+    method, why = choose_method(planned.sub_elements, st, originals=len(sc.elements),
+                                facing_pairs=est.get("facing_original_pairs",
+                                                     est.get("facing_original_pairs_estimate")))
     lo, hi = (k * planned.sub_elements for k in LINKS_PER_LEAF)
     click.echo(f"method: {why}; the hierarchical method would keep {lo:.2g} to {hi:.2g} links "
                f"({LINKS_PER_LEAF[0]:g}-{LINKS_PER_LEAF[1]:g} per sub-element as measured, "

@@ -153,18 +153,24 @@ def method_of_run(rs) -> TransportMethod:
                          f"visibility {rs.run_dir}")
 
 
-def choose_method(sub_elements: int, settings, originals: int = 1) -> tuple[str, str]:
+def choose_method(sub_elements: int, settings, originals: int = 1,
+                  facing_pairs: float | None = None) -> tuple[str, str]:
     """(method, why) for a run of `sub_elements`: settings.visibility.method unless auto; auto
     takes hierarchical above visibility.hierarchical-above sub-elements (links grow at most like
     m, pairs like m^2; docs/measurements.md), the seed's pairs below, where both cost the same
     and pairs is the exact all-pairs limit. A sampled kernel (nxm, mc) is the pairs method's
     (links sample their own rays), and so are scenes of many originals with few sub-elements
-    each (visibility.hierarchical-min-per-original)."""
+    each (visibility.hierarchical-min-per-original), unless their facing pairs (`facing_pairs`,
+    counted or estimated) exceed plan.max-facing-pairs, which the pairs method refuses."""
     vis = settings.visibility
     method = vis.method
     if method != "auto":
         get_method(method)
         return method, f"{method}: stated (method: {method})"
+    budget = float(settings.plan.max_facing_pairs)
+    if facing_pairs is not None and facing_pairs > budget:
+        return "hierarchical", (f"hierarchical: auto, about {facing_pairs:.3g} facing pairs of "
+                                f"originals > plan.max-facing-pairs {budget:g} (clustered)")
     kernel = settings.solve.kernel
     if kernel not in ("point", "disc", "point-nf", "disc-nf"):
         return "pairs", f"pairs: auto, the {kernel} kernel samples the pairs' own rays"

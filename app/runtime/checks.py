@@ -138,8 +138,9 @@ def check_run_dir(run_dir: str, write: bool = True) -> None:
 def check_scene(scene, settings) -> dict:
     """Light and camera of a scene, before any cluster starts. A camera that sees no element is
     an error (the image would be empty); a scene without an emitter is a warning (it renders
-    black, which is what it is, e.g. for a geometry check); a scene whose pairs of facing
-    originals (estimated) exceed plan.max-facing-pairs is refused (settings: a
+    black, which is what it is, e.g. for a geometry check); with the pairs method stated, a
+    scene whose pairs of facing originals (estimated) exceed plan.max-facing-pairs is refused
+    (settings: a
     settings.Settings; its subdivide.subpixel sets the raster). Returns {"hits":
     rays that hit, "facing_pairs_estimate": originals.estimate_facing_pairs}."""
     from radiosity.tracing.rays import RayCaster
@@ -149,11 +150,15 @@ def check_scene(scene, settings) -> dict:
         warnings.warn(f"{scene.path}: no element emits light (every emission is 0): the image "
                       "will be black; give a material an emission ([material.NAME] emission = "
                       "[r, g, b])", stacklevel=2)
-    # the work that grows as n^2 in the originals, refused up front when it would not fit
-    from radiosity.scene.originals import check_budget, tree_of
+    # the pairs method's work grows as the facing pairs of originals: refused up front when it
+    # is stated and would not fit (the hierarchical method clusters such scenes, SPEC §9)
+    from radiosity.scene.originals import check_budget, estimate_facing_pairs, tree_of
 
-    est = check_budget(tree_of(el, int(settings.plan.leaf_size)),
-                       int(settings.plan.max_facing_pairs), scene.path)
+    tree = tree_of(el, int(settings.plan.leaf_size))
+    if settings.visibility.method == "pairs":
+        est = check_budget(tree, int(settings.plan.max_facing_pairs), scene.path)
+    else:
+        est = estimate_facing_pairs(tree)
     subpixel = int(settings.subdivide.subpixel)
     rc = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
     h, w = cam.height * subpixel, cam.width * subpixel

@@ -24,8 +24,8 @@ from radiosity.core.bundles import Camera, Elements, Partition
 FORMAT = "radiosity-run/1"
 STORE = "store.zarr"
 REPORT = "report.json"
-STAGES = ("elements", "partition", "raster", "visibility", "links", "hierarchy", "nearfield",
-          "solution")
+STAGES = ("elements", "partition", "raster", "visibility", "links", "clusters", "hierarchy",
+          "nearfield", "solution")
 
 
 def zarr_module():

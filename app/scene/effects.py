@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from radiosity.scene.originals import LEAF, behind_any, pairs_within_budget, tree_of
+from radiosity.scene.originals import (LEAF, FacingPairsError, behind_any, estimate_facing_pairs,
+                                       pairs_within_budget, tree_of)
 from radiosity.core.bundles import Elements
 
 EPS = 1e-9
@@ -86,21 +87,30 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
     estimates (1 each if not given). `full` forces every effect on (the reference run).
 
     Nothing n x n: the pairs that face each other and whatever lies behind each element come
-    from the hierarchy over the originals (originals.py), at most `max_pairs` pairs (refused
-    beyond, originals.FacingPairsError naming radiosity.plan.max-facing-pairs)."""
+    from the hierarchy over the originals (originals.py), at most `max_pairs` pairs; beyond
+    that (a mesh of many small triangles, which the hierarchical method clusters) the pairs are
+    not listed: their number is estimated and every element gathers (no dead-row search)."""
     n = len(elements)
     rho = elements.reflectance          # (n, 2, 3)
     Le = elements.emission
     ts = elements.two_sided
     s = np.ones(n) if sizes is None else np.asarray(sizes, float)
     tree = tree_of(elements, leaf)
-    bi, bj, _ = pairs_within_budget(tree, max_pairs, where)
+    try:
+        bi, bj, _ = pairs_within_budget(tree, max_pairs, where)
+    except FacingPairsError:
+        bi = bj = None
     back_any = behind_any(tree)   # the rows of the (n, n) "behind" relation, or-ed
     reasons = {}
     est = {}
-    pairs = float((s[bi] * s[bj]).sum())
+    if bi is None:  # too many to list: estimated (sizes taken as their mean)
+        n_pairs = float(estimate_facing_pairs(tree)["estimate"])
+        pairs = n_pairs * float(s.mean()) ** 2 if n else 0.0
+        est["facing_original_pairs_estimate"] = n_pairs
+    else:
+        pairs = float((s[bi] * s[bj]).sum())
+        est["facing_original_pairs"] = int(len(bi))
     est["facing_block_pairs"] = pairs
-    est["facing_original_pairs"] = int(len(bi))
 
     # occlusion: if every element is in front of (or on) every other's plane, the elements
     # bound a convex region and a segment between two of them stays inside it: nothing blocks
@@ -141,7 +151,7 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
                             f"from both sides" + (f"; {dropped} solved as one-sided" if dropped else ""))
 
     emitter = Le.max(axis=(1, 2)) > 0
-    reach = _reachable(bi, bj, emitter, reflect)
+    reach = _reachable(bi, bj, emitter, reflect) if bi is not None else np.ones(n, bool)
     gather = np.ones(n, bool) if full else (reflect & reach)
     # three disjoint kinds that add up to the rows dropped: ~(reflect & reach)
     dead_emit = int((emitter & ~reflect).sum())
@@ -150,10 +160,14 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
     reasons["dead_rows"] = (f"{int((~gather).sum())} of {n} elements drop out of the iteration "
                             f"({dead_emit} emitters that reflect nothing, {dead_black} other "
                             f"elements that reflect nothing, {dead_dark} that no light can reach)"
-                            if not full else "off (--full)")
+                            + ("" if bi is not None else "; pairs too many to list: reach not "
+                               "searched") if not full else "off (--full)")
     dead = ~gather
-    est["pair_terms_saved_per_pass"] = est.get("pair_terms_saved_per_pass", 0.0) + float(
-        ((s[bi] * s[bj]) * (dead[bi].astype(float) + dead[bj])).sum())
+    if bi is not None:
+        est["pair_terms_saved_per_pass"] = est.get("pair_terms_saved_per_pass", 0.0) + float(
+            ((s[bi] * s[bj]) * (dead[bi].astype(float) + dead[bj])).sum())
+    else:
+        est.setdefault("pair_terms_saved_per_pass", 0.0)
     return EffectsPlan(occlusion=occlusion, interreflection=interreflection, colour=colour,
                        two_sided=eff_two, gather=gather, passes_bound=passes, reasons=reasons,
                        estimates=est, full=full)

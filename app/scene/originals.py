@@ -506,4 +506,4 @@ def budget_message(where: str, n: int, estimate: float, cap: int, more: bool = F
             f"(visibility plan about {gib:.3g} GiB on the driver), beyond "
             f"radiosity.plan.max-facing-pairs = {cap:g}: raise it (e.g. "
             f"DASK_RADIOSITY__PLAN__MAX_FACING_PAIRS={max(cap, estimate) * 1.5:.2g}) if the memory "
-            "is there, or use fewer, larger original elements")
+            "is there, or use --method hierarchical (it clusters the originals)")

@@ -405,3 +405,68 @@ def cluster_gather(Lroot, parent, leaf_orig, area, p, q, wpq, wqp, ncap, G):
             for c in range(C):
                 G[c, o] += H[c, x]
     return 2 * p.shape[0]
+
+
+@numba.njit(cache=True)
+def cluster_caps(parent, leaf_orig, rootcap):
+    """min of the originals' caps rootcap (n,) over each cluster node's leaves, (K,)."""
+    K = parent.shape[0]
+    out = np.full(K, np.inf)
+    for x in range(K):
+        if leaf_orig[x] >= 0:
+            out[x] = rootcap[leaf_orig[x]]
+    for x in range(K - 1, 0, -1):
+        out[parent[x]] = min(out[parent[x]], out[x])
+    return out
+
+
+# ----------------------------------------------------------------------------- the stage's part
+
+def use_clusters(hierarchy, originals: int) -> tuple[bool, str]:
+    """(on, why) from the hierarchy settings (clusters: auto | on | off, clusters-above)."""
+    from radiosity.errors import RadiosityError
+
+    mode = {True: "on", False: "off"}.get(hierarchy.clusters, hierarchy.clusters)
+    if mode not in ("auto", "on", "off"):
+        raise RadiosityError(f"radiosity.hierarchy.clusters must be auto, on or off, got {mode!r}")
+    if mode != "auto":
+        return mode == "on", f"{mode}: stated (clusters: {mode})"
+    above = int(hierarchy.clusters_above)
+    if originals > above:
+        return True, f"on: auto, {originals} originals > {above}"
+    return False, f"off: auto, {originals} originals <= {above}"
+
+
+def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
+                  ray_offset: float):
+    """The cluster layer of a link stage: the tree, its refinement at `epsilon` with the oracle's
+    weights (wrho, lhat, lref: links.oracle_weights), the kept links' form factors and visible
+    fractions (`rays` rays each; 1 when nothing can block). Returns (ClusterLinks, pairs (t, 2)
+    int64 of originals I < J sorted, for the element-level refinement; figures dict)."""
+    import time
+
+    t0 = time.perf_counter()
+    ct = cluster_tree(elements, *weights)
+    n = len(elements)
+    links, pairs, counts = refine_clusters(ct.tree, ct.elems, float(epsilon), ct.lref,
+                                           max(1024, 8 * n))
+    t1 = time.perf_counter()
+    F = link_form_factors(ct.tree, ct.elems, links)
+    if occlusion and len(links):
+        from radiosity.tracing.rays import RayCaster
+
+        caster = RayCaster(elements.verts, elements.nverts, ray_offset)
+        v = link_visibility(caster, ct, links, int(rays))
+    else:
+        v = np.ones(len(links))
+    order = np.lexsort((pairs[:, 1], pairs[:, 0])) if len(pairs) else np.zeros(0, np.int64)
+    pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
+    cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), links[:, 0].copy(),
+                      links[:, 1].copy(), F[:, 0] * v, F[:, 1] * v)
+    figures = {"nodes": ct.nodes, "links": int(len(links)), "pairs_to_elements": int(len(pairs)),
+               "evaluated": int(counts[0]), "culled_orientation": int(counts[1]),
+               "rays": int(len(links) * rays if occlusion else 0),
+               "visible_mean": float(v.mean()) if len(v) else 1.0,
+               "time_refine_s": round(t1 - t0, 4),
+               "time_s": round(time.perf_counter() - t0, 4)}
+    return cl, pairs, figures

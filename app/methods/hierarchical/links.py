@@ -20,6 +20,7 @@ from radiosity.core.geometry import COS_TOL
 from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.refine import (Elements, Entries, Occluders, RefineParams, Tree,
                                                    new_table, refine, roots)
+from radiosity.methods.hierarchical.clusters import plan_clusters, use_clusters
 from radiosity.methods.hierarchical.sampling import link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
@@ -351,6 +352,13 @@ def resolve_params(elements, settings=None, occlusion: bool = True,
     return prm, weight
 
 
+def _clusters_row(c: dict) -> str:
+    if "links" not in c:
+        return c.get("why", "off")
+    return (f"{c['links']} cluster links over {c['nodes']} nodes, {c['pairs_to_elements']} pairs "
+            f"of originals refined below them ({c['why']}; {c['time_s']:.2f} s)")
+
+
 def links_rows(fig: dict) -> list[tuple[str, object]]:
     """The CLI summary rows of the link stage's figures (report.json section "links")."""
     return [("sub-elements", f"{fig['sub_elements']} ({fig['leaves']} leaves, "
@@ -358,6 +366,7 @@ def links_rows(fig: dict) -> list[tuple[str, object]]:
             ("epsilon", f"{fig['epsilon']:.3g} ({fig.get('epsilon_reason', 'stated')})"),
             ("links", f"{fig['links']} ({fig['links_per_leaf']:.1f} per leaf, "
                       f"{fig['bytes_per_link']} bytes each)"),
+            ("clusters", _clusters_row(fig.get("clusters") or {})),
             ("proven by shafts", f"{fig['shaft_visible']} visible, {fig['shaft_blocked']} "
                                  "blocked (no ray)"),
             ("rays cast", f"{fig['rays']} ({fig['link_rays']} per link on {fig['ray_links']} links)"),
@@ -385,6 +394,8 @@ class LinkPlan:
     seen: np.ndarray
     hit: np.ndarray | None
     token: str
+    clusters: object = None      # clusters.ClusterLinks, or None without clustering
+    cluster_figures: dict | None = None
 
 
 def plan_links(rs, part, el, s, unit: str | None, occlusion: bool) -> LinkPlan:
@@ -401,9 +412,18 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool) -> LinkPlan:
     unit = s.hierarchy.task_unit if unit is None else unit
     if unit == "auto":
         unit = choose_unit(s.visibility.task_unit, len(el), int(s.visibility.stripe_threshold))
-    otree = tree_of(el, int(s.plan.leaf_size))
-    bi, bj, _ = pairs_within_budget(otree, int(s.plan.max_facing_pairs),
-                                    rs.attrs.get("scene") or rs.run_dir)
+    cl, cfig = None, None
+    on, why_clusters = use_clusters(s.hierarchy, len(el))
+    if on:  # links start at the root of the tree over the originals (SPEC §9)
+        cl, cpairs, cfig = plan_clusters(el, prm.epsilon, oracle_weights(el, weight), prm.rays,
+                                         occlusion, s.rays.epsilon)
+        cfig["why"] = why_clusters
+        bi, bj = cpairs[:, 0], cpairs[:, 1]
+    else:  # every facing pair of originals starts a link (SPEC §8)
+        bi, bj, _ = pairs_within_budget(tree_of(el, int(s.plan.leaf_size)),
+                                        int(s.plan.max_facing_pairs),
+                                        rs.attrs.get("scene") or rs.run_dir)
+        cfig = {"why": why_clusters}
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit, int(s.hierarchy.max_task_cost))
     seen = seen_originals(raster["orig"], len(el))
     hit = None
@@ -412,8 +432,9 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool) -> LinkPlan:
         hit = np.zeros(len(part), bool)
         hit[sub[sub >= 0]] = True
     token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,
-                     el.emission, seen, hit, prm.to_dict(), weight, s.rays.epsilon)
-    return LinkPlan(pairs, first, cost, unit, prm, weight, why, seen, hit, token)
+                     el.emission, seen, hit, prm.to_dict(), weight, s.rays.epsilon,
+                     *([] if cl is None else [cl.p, cl.q, cl.wpq]))
+    return LinkPlan(pairs, first, cost, unit, prm, weight, why, seen, hit, token, cl, cfig)
 
 
 def compute_links(run_dir: str, client, settings=None, *, kernel: str | None = None,
@@ -445,7 +466,8 @@ def compute_links(run_dir: str, client, settings=None, *, kernel: str | None = N
     def create():
         rs.drop_after("raster")
         ls.create(lp.pairs, lp.first, lp.token, {"params": lp.prm.to_dict(), "weight": lp.weight,
-                                                 "kernel": s.hierarchy.kernel, "unit": lp.unit})
+                                                 "kernel": s.hierarchy.kernel, "unit": lp.unit},
+                  clusters=None if lp.clusters is None else lp.clusters.arrays())
 
     tree = tree_nodes(part, el)
     shared = Scattered(client, LinkInputs(tree, part, el, lp.seen, lp.prm, lp.weight,
@@ -507,12 +529,14 @@ def link_figures(s, lp: LinkPlan, run, sub_elements: int, table, xn, cpu: list, 
         "nodes": len(table), "leaves": table.leaves,
         "split_off_nodes": int(np.count_nonzero(table.pnode < 0)),
         "originals_split": int(len(np.unique(xn["o"]))),  # below the camera's partition
-        **c, "links_per_leaf": c["links"] / max(1, table.leaves),
+        **c, "links_per_leaf": (c["links"] + (0 if lp.clusters is None else lp.clusters.links))
+        / max(1, table.leaves),
         "bytes_per_link": LINK_DTYPE.itemsize, "link_bytes": c["links"] * LINK_DTYPE.itemsize,
         "epsilon": lp.prm.epsilon, "epsilon_reason": lp.epsilon_reason, "link_rays": lp.prm.rays,
         "weight": lp.weight, "min_node_size": lp.prm.min_size, "kernel": s.hierarchy.kernel,
         "rays_per_s": c["rays"] / wall if wall > 0 else 0.0,
         "cpu_refine_s": round(cpu[0], 4), "cpu_write_s": round(cpu[1], 4),
         "wall_refine_s": round(cpu[2], 4), "occlusion": occlusion,
+        "clusters": lp.cluster_figures, "cluster_links": 0 if lp.clusters is None else lp.clusters.links,
         "peak_rss_mb": peak_rss_mb(client),
     }

@@ -79,13 +79,18 @@ class LinkStore:
         self.rs = rs
         self.manifest = os.path.join(rs.run_dir, LINKS_MANIFEST)
 
-    def create(self, pairs: np.ndarray, first: np.ndarray, token: str, attrs: dict) -> None:
+    def create(self, pairs: np.ndarray, first: np.ndarray, token: str, attrs: dict,
+               clusters: dict | None = None) -> None:
         """A fresh links group for tasks over `pairs` (t, 2) int64 [I, J]; task k holds pairs
-        first[k]:first[k + 1]. Drops old links, node table, solution and manifest."""
+        first[k]:first[k + 1]; with `clusters` (clusters.ClusterLinks.arrays()), the cluster
+        layer in group clusters/. Drops old links, cluster links, node table, solution and
+        manifest."""
         root = self.rs.root
-        for g in ("links", "hierarchy", "solution"):
+        for g in ("links", "clusters", "hierarchy", "solution"):
             if g in root:
                 del root[g]
+        if clusters is not None:
+            self.rs.write_arrays("clusters", clusters, {"token": token})
         g = root.create_group("links")
         for name, a in (("pairs", pairs), ("first", first)):
             a = np.ascontiguousarray(a, np.int64)
@@ -143,3 +148,13 @@ class LinkStore:
 
     def read_nodes(self) -> dict:
         return self.rs.read_arrays("hierarchy")
+
+    def read_clusters(self, token: str) -> dict | None:
+        """The cluster layer's arrays (clusters.ClusterLinks fields) of the links `token`, or
+        None when the run has none."""
+        if "clusters" not in self.rs.root:
+            return None
+        if self.rs.group_attrs("clusters").get("token") != token:
+            raise StoreError(f"{self.rs.run_dir} has cluster links of other links: run radiosity "
+                             f"visibility {self.rs.run_dir} --method hierarchical")
+        return self.rs.read_arrays("clusters")

@@ -86,6 +86,7 @@ class LinkSolveInputs:
         self.need = np.zeros(0, np.bool_)
         self.sided = np.zeros(len(self.leaf_node), np.bool_)
         self._ncap = None
+        self.clusters = None  # clusters.ClusterLinks: the layer above the originals, or None
 
     def cap_args(self):
         """(mode, node caps (N,), leaf scaling d (M,) or empty) of the current cap."""
@@ -176,13 +177,18 @@ def scratch(shape: tuple) -> tuple[np.ndarray, np.ndarray]:
     return got
 
 
-def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = True):
-    """y = K L over the links of these link tasks (pull, gather, push), (2, C, M); rows of
-    originals that do not gather (inp.need, with use_need) stay 0. Returns (y, link terms)."""
+def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = True,
+               clusters: bool = False):
+    """y = K L over the links of these link tasks (pull, gather, push), (2, C, M), with the
+    cluster links too if `clusters` (one group of a pass carries them); rows of originals that
+    do not gather (inp.need, with use_need) stay 0. Returns (y, link terms)."""
     cap = inp.cap_args()
     S, G = scratch((L.shape[0], L.shape[1], len(inp.parent)))
     G[...] = 0.0
-    terms = _gather_tasks(inp, cap, task_ids, _pull(inp, cap, L, S), G)
+    Lbar = _pull(inp, cap, L, S)
+    terms = _gather_tasks(inp, cap, task_ids, Lbar, G)
+    if clusters:
+        terms += _cluster_gather(inp, cap, Lbar, G)
     return _push(inp, cap, G, L, use_need), terms
 
 
@@ -198,6 +204,24 @@ def _gather_tasks(inp: LinkSolveInputs, cap, task_ids, Lbar, G) -> int:
     for t in task_ids:
         p, q, wpq, wqp, sp, sq, _ = task_link_arrays(inp, int(t))
         terms += gather(Lbar, p, q, wpq, wqp, sp, sq, G, ncap, mode)
+    return terms
+
+
+def _cluster_gather(inp: LinkSolveInputs, cap, Lbar, G) -> int:
+    """G += the cluster links' transfer (front sides) into the originals' roots, from the node
+    means Lbar (clusters.cluster_gather; cap: inp.cap_args()). Returns the link terms."""
+    cl = inp.clusters
+    if cl is None or not cl.links:
+        return 0
+    from radiosity.methods.hierarchical.clusters import cluster_caps, cluster_gather
+
+    roots = inp.noff[:-1]
+    mode, ncap, _ = cap
+    ccap = cluster_caps(cl.parent, cl.leaf_orig, ncap[roots]) if mode == 1 else np.ones(1)
+    Gc = np.zeros((Lbar.shape[1], len(roots)))
+    terms = cluster_gather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent, cl.leaf_orig,
+                           cl.area, cl.p, cl.q, cl.wpq, cl.wqp, ccap, Gc)
+    G[0][:, roots] += Gc
     return terms
 
 
@@ -261,6 +285,14 @@ def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
     else:
         evals = final_gather(Lbar, _directed(inp), origs, inp.nodes(), inp.geometry(),
                              inp.fg_levels, ncap, mode, d, y)
+    if inp.clusters is not None and inp.clusters.links:  # uniform, as in the passes
+        G[...] = 0.0
+        _cluster_gather(inp, (mode, ncap, d), Lbar, G)
+        yc = np.zeros_like(L)
+        push(G, inp.parent, inp.leaf_node, d, yc)
+        mine = np.zeros(len(inp.noff) - 1, np.bool_)
+        mine[origs] = True
+        y[:, :, mine[inp.leaf_orig]] += yc[:, :, mine[inp.leaf_orig]]
     if len(inp.need):
         y[:, :, ~inp.need[inp.leaf_orig]] = 0.0
     return y, evals
@@ -268,6 +300,10 @@ def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
 
 def task_gs_sweep(inp: LinkSolveInputs, L, Le, rho):
     """One block Gauss-Seidel sweep (all links on this worker). Returns (L, link terms)."""
+    if inp.clusters is not None and inp.clusters.links:
+        raise RadiosityError("gauss-seidel sweeps original by original and cannot take cluster "
+                             "links: use --solver cg (the default) or jacobi, or "
+                             "radiosity.hierarchy.clusters: off")
     ends = _directed(inp)
     mode, ncap, d = inp.cap_args()
     if mode == 1:
@@ -340,6 +376,7 @@ class LocalLinkOperator(_Base):
         G = bufs[0] if bufs else np.zeros(shape)
         for extra in bufs[1:]:
             G += extra
+        self.terms += _cluster_gather(inp, cap, Lbar, G)
         self.passes += 1
         return _push(inp, cap, G, L, use_need)
 
@@ -381,7 +418,8 @@ class LinkOperator(_Base):
 
     def apply(self, L, live=None, use_need: bool = True):
         y = np.zeros_like(L)
-        for yp, t in self.executor.run(task_apply, lambda i, Lf: (self.groups[i], Lf, use_need),
+        for yp, t in self.executor.run(task_apply,
+                                       lambda i, Lf: (self.groups[i], Lf, use_need, i == 0),
                                        (L,), name="solve group"):
             y += yp
             self.terms += t
@@ -435,6 +473,11 @@ def solve_inputs(rs, elements, cache_bytes: int) -> tuple:
                        np.int64).reshape(-1, 3)
     inp = LinkSolveInputs(table, entries, rs.path, token, elements.normal)
     inp.cache_bytes = int(cache_bytes)
+    arrays = ls.read_clusters(token)
+    if arrays is not None:
+        from radiosity.methods.hierarchical.clusters import ClusterLinks
+
+        inp.clusters = ClusterLinks(**arrays)
     return inp, table, ls.attrs().get("kernel")
 
 

@@ -10,6 +10,8 @@ away (V = 0), is visible without a ray, or needs rays.
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numba
 import numpy as np
 
@@ -254,6 +256,73 @@ def block_candidates(A, B, olo, ohi, on, od, pad, skip_a, skip_b):
             out[k] = o
             k += 1
     return out[:k]
+
+
+# A tree over the occluders (scene/originals.build_tree): per node its children left, right
+# (-1 at a leaf), its range start:end into order (the occluders in leaf order) and the union of
+# its occluders' padded boxes lo, hi.
+OccluderTree = namedtuple("OccluderTree", "left right start end order lo hi")
+
+
+@numba.njit(cache=True)
+def node_boxes(left, right, start, end, order, elo, ehi):
+    """Each tree node's box: the union of its occluders' boxes elo, ehi (n, 3), (K, 3) twice."""
+    K = left.shape[0]
+    lo = np.empty((K, 3))
+    hi = np.empty((K, 3))
+    for x in range(K - 1, -1, -1):
+        if left[x] < 0:
+            for k in range(3):
+                lo[x, k] = np.inf
+                hi[x, k] = -np.inf
+            for m in range(start[x], end[x]):
+                o = order[m]
+                for k in range(3):
+                    lo[x, k] = min(lo[x, k], elo[o, k])
+                    hi[x, k] = max(hi[x, k], ehi[o, k])
+        else:
+            for k in range(3):
+                lo[x, k] = min(lo[left[x], k], lo[right[x], k])
+                hi[x, k] = max(hi[left[x], k], hi[right[x], k])
+    return lo, hi
+
+
+@numba.njit(cache=True)
+def tree_candidates(A, B, tree, olo, ohi, on, od, pad, skip_a, skip_b):
+    """block_candidates through the occluder tree: nodes whose box lies outside the shaft are
+    skipped whole (a box inside an excluded box is excluded too), so the cost follows the
+    occluders near the shaft, not all of them. The same ids, ascending."""
+    out = np.empty(64, np.int64)
+    k = 0
+    stack = np.empty(64, np.int64)
+    ns = 1
+    stack[0] = 0
+    while ns > 0:
+        ns -= 1
+        x = stack[ns]
+        if _shaft_excludes(A, B, tree.lo, tree.hi, x):
+            continue
+        if tree.left[x] >= 0:
+            if ns + 2 > stack.shape[0]:
+                grown = np.empty(2 * stack.shape[0], np.int64)
+                grown[:ns] = stack[:ns]
+                stack = grown
+            stack[ns] = tree.left[x]
+            stack[ns + 1] = tree.right[x]
+            ns += 2
+            continue
+        for m in range(tree.start[x], tree.end[x]):
+            o = tree.order[m]
+            if o == skip_a or o == skip_b:
+                continue
+            if not (_same_side(A, B, on, od, o, pad) or _shaft_excludes(A, B, olo, ohi, o)):
+                if k == out.shape[0]:
+                    grown = np.empty(2 * k, np.int64)
+                    grown[:k] = out
+                    out = grown
+                out[k] = o
+                k += 1
+    return np.sort(out[:k])
 
 
 @numba.njit(cache=True)

@@ -24,7 +24,7 @@ from radiosity.methods.hierarchical.clusters import plan_clusters, use_clusters
 from radiosity.methods.hierarchical.sampling import link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
-from radiosity.tracing.shafts import occluders
+from radiosity.tracing.shafts import OccluderTree, node_boxes, occluders
 
 # counters of a link task
 COUNTERS = ("pairs", "links", "evaluated", "refined", "dropped_orientation", "shaft_visible",
@@ -132,6 +132,7 @@ class LinkInputs:
         self.root = part.root.astype(np.int64)
         self.wrho, self.lhat, self.lref = oracle_weights(elements, weight)
         self.elo, self.ehi, self.enormal, self.eoffset, self.pad = occluders(elements)
+        self.otree = occluder_tree(elements, self.elo, self.ehi)
         self.verts = elements.verts
         self.nverts = elements.nverts
         self.envert = elements.nverts.astype(np.int64)
@@ -146,7 +147,18 @@ class LinkInputs:
                      self.t_hi, self.t_child, self.t_orig, self.t_depth, self.t_path, self.ext),
                 Elements(self.normal, self.two_sided, self.wrho, self.lhat, self.lref),
                 Occluders(self.elo, self.ehi, self.verts, self.envert, self.enormal,
-                          self.eoffset, self.pad))
+                          self.eoffset, self.pad, self.otree))
+
+
+def occluder_tree(elements, elo: np.ndarray, ehi: np.ndarray, leaf: int = 8) -> OccluderTree:
+    """The tree over the originals as occluders (shafts.tree_candidates): node boxes hold their
+    padded occluder boxes elo, ehi (shafts.occluders)."""
+    from radiosity.scene.originals import build_tree
+
+    t = build_tree(elements.verts, elements.nverts, elements.normal, elements.center,
+                   elements.two_sided, leaf=leaf)
+    lo, hi = node_boxes(t.left, t.right, t.start, t.end, t.order, elo, ehi)
+    return OccluderTree(t.left, t.right, t.start, t.end, t.order, lo, hi)
 
 
 def oracle_weights(elements, weight: str):

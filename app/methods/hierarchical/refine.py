@@ -14,7 +14,7 @@ import numpy as np
 
 from radiosity.methods.hierarchical.formfactors import _spread, centroid_to_polygon, near_ff
 from radiosity.scene.splittrees import MAX_DEPTH, _bit, polygon_area_center, split_one
-from radiosity.tracing.shafts import _faces, _same_side, _shaft_excludes, block_candidates
+from radiosity.tracing.shafts import _faces, _same_side, _shaft_excludes, tree_candidates
 
 # The partition's node table (splittrees.TreeNodes, k nodes): verts (k, 4, 3), nverts, area,
 # center, lo / hi (node boxes), child (k, 2), orig, depth, path (uint64); ext (k,): leaves that
@@ -23,8 +23,9 @@ Tree = namedtuple("Tree", "verts nverts area center lo hi child orig depth path 
 # Per original (n): normal (n, 3), two_sided; the oracle's weights wrho, lhat (n, 2) and lref.
 Elements = namedtuple("Elements", "normal two_sided wrho lhat lref")
 # Per original as an occluder (shafts.occluders): padded boxes lo / hi, polygons verts /
-# nverts, planes normal / offset, and the plane tolerance pad.
-Occluders = namedtuple("Occluders", "lo hi verts nverts normal offset pad")
+# nverts, planes normal / offset, the plane tolerance pad, and the tree over them
+# (shafts.OccluderTree) that finds a shaft's candidates without visiting every occluder.
+Occluders = namedtuple("Occluders", "lo hi verts nverts normal offset pad tree")
 # A task's local node table (grown by refine): polygon, area, centroid, box, original, path and
 # depth (the node's name), children (-1: none yet), partition node (-1: split off), can split.
 NodeTable = namedtuple("NodeTable",
@@ -208,7 +209,8 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
     Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab
     t_child = tree.child
     normal, two_sided, wrho, lhat, lref = elem
-    elo, ehi, everts, envert, enormal, eoffset, pad = occ
+    elo, ehi, everts, envert, enormal, eoffset, pad = occ.lo, occ.hi, occ.verts, occ.nverts, \
+        occ.normal, occ.offset, occ.pad
     eps, shadow, near_f, min_size, kid = prm.eps, prm.shadow, prm.near, prm.min_size, prm.kid
     exact, plane_tol, oracle, gauss_gap = prm.exact, prm.plane_tol, prm.oracle, prm.gauss_gap
     far_polygon = prm.far_polygon
@@ -495,7 +497,7 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
 @numba.njit(cache=True)
 def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
     """The first entries of a task: the root link of each pair (I, J) with the occluders that
-    may cut a segment between the two originals (shafts.block_candidates). Returns the
+    may cut a segment between the two originals (shafts.tree_candidates). Returns the
     entries (p, q, c0, c1), the pool, and the count of local nodes."""
     Llo, Lhi = tab.lo, tab.hi
     elo, ehi, enormal, eoffset, pad = occ.lo, occ.hi, occ.normal, occ.offset, occ.pad
@@ -522,7 +524,8 @@ def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
             A[0, j], A[1, j] = Llo[ends[0], j], Lhi[ends[0], j]
             B[0, j], B[1, j] = Llo[ends[1], j], Lhi[ends[1], j]
         if prm.occlusion:
-            cand = block_candidates(A, B, elo, ehi, enormal, eoffset, pad, pairs[k, 0], pairs[k, 1])
+            cand = tree_candidates(A, B, occ.tree, elo, ehi, enormal, eoffset, pad, pairs[k, 0],
+                                   pairs[k, 1])
         else:
             cand = np.zeros(0, np.int64)
         while npool + cand.shape[0] > pool.shape[0]:

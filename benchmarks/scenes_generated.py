@@ -1,0 +1,101 @@
+"""Scenes of many small triangles, generated (bench_clusters.py): a terrain lit by a rectangular
+light, a room with a finely tessellated sphere, the Cornell box with every quad cut into
+triangles. Each writer puts an OBJ and a scene TOML into a folder and returns the TOML path."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+
+def _write(folder: str, name: str, tris_by_material: dict, camera: dict, materials: str) -> str:
+    os.makedirs(folder, exist_ok=True)
+    obj = os.path.join(folder, f"{name}.obj")
+    with open(obj, "w") as f:
+        k = 1
+        for mat, tris in tris_by_material.items():
+            f.write(f"usemtl {mat}\n")
+            v = np.asarray(tris, np.float64).reshape(-1, 3)
+            np.savetxt(f, v, fmt="v %.9g %.9g %.9g")
+            n = len(tris)
+            nv = len(tris[0]) if n else 3
+            idx = k + np.arange(n * nv).reshape(n, nv)
+            np.savetxt(f, idx, fmt="f" + " %d" * nv)
+            k += n * nv
+    cam = "\n".join(f"{key} = {val}" for key, val in camera.items())
+    toml = os.path.join(folder, "scene.toml")
+    with open(toml, "w") as f:
+        f.write(f'name = "{name}"\n[[mesh]]\npath = "{name}.obj"\n{materials}\n[camera]\n{cam}\n')
+    return toml
+
+
+def _grid_tris(nx: int, ny: int, height, size: float = 1.0):
+    """2 nx ny triangles of the height field z = height(x, y) over [0, size]^2, facing up."""
+    x = np.linspace(0, size, nx + 1)
+    y = np.linspace(0, size, ny + 1)
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    P = np.stack([X, Y, height(X, Y)], -1)
+    a, b, c, d = P[:-1, :-1], P[1:, :-1], P[1:, 1:], P[:-1, 1:]
+    t1 = np.stack([a, b, c], -2).reshape(-1, 3, 3)
+    t2 = np.stack([a, c, d], -2).reshape(-1, 3, 3)
+    return np.concatenate([t1, t2])
+
+
+def terrain(folder: str, triangles: int, resolution: int = 128) -> str:
+    """A rolling terrain of about `triangles` triangles, 10 x 10 units, lit by a 2 x 2 light
+    4 units above its centre facing down; the camera looks at it from a corner above."""
+    n = max(2, int(round(np.sqrt(triangles / 2))))
+
+    def h(X, Y):
+        return 0.6 * np.sin(0.9 * X) * np.cos(0.7 * Y) + 0.25 * np.sin(2.3 * X + 1.1 * Y)
+
+    ground = _grid_tris(n, n, h, 10.0)
+    L = [(4.0, 4.0, 4.0), (4.0, 6.0, 4.0), (6.0, 6.0, 4.0), (6.0, 4.0, 4.0)]  # facing down
+    camera = {"position": "[-3.0, -3.0, 6.0]", "look_at": "[5.0, 5.0, 0.0]",
+              "up": "[0.0, 0.0, 1.0]", "fov_y": 50.0,
+              "resolution": f"[{resolution}, {resolution}]"}
+    materials = ("[material.ground]\nreflectance = [0.5, 0.45, 0.4]\n"
+                 "[material.light]\nreflectance = [0.0, 0.0, 0.0]\nemission = [30.0, 30.0, 30.0]\n")
+    return _write(folder, "terrain", {"ground": ground, "light": [L]}, camera, materials)
+
+
+def sphere_tris(n_theta: int, n_phi: int, centre, radius: float, inward: bool = False):
+    th = np.linspace(0, np.pi, n_theta + 1)
+    ph = np.linspace(0, 2 * np.pi, n_phi + 1)
+    P = radius * np.stack([np.sin(th)[:, None] * np.cos(ph)[None, :],
+                           np.sin(th)[:, None] * np.sin(ph)[None, :],
+                           np.cos(th)[:, None] * np.ones_like(ph)[None, :]], -1) + centre
+    out = []
+    for i in range(n_theta):
+        a, b, c, d = P[i, :-1], P[i + 1, :-1], P[i + 1, 1:], P[i, 1:]
+        if i > 0:
+            out.append(np.stack([a, b, d], 1))
+        if i < n_theta - 1:
+            out.append(np.stack([b, c, d], 1))
+    t = np.concatenate(out)
+    return t[:, [0, 2, 1]] if inward else t
+
+
+def room_with_sphere(folder: str, triangles: int, resolution: int = 128) -> str:
+    """A 4 x 3 x 4 room (quads, facing in), a ceiling light, and a sphere of about `triangles`
+    triangles on the floor."""
+    W, H, D = 4.0, 3.0, 4.0
+    walls = [[(0, 0, 0), (W, 0, 0), (W, 0, D), (0, 0, D)][::-1],            # floor, up
+             [(0, H, 0), (0, H, D), (W, H, D), (W, H, 0)][::-1],            # ceiling, down
+             [(0, 0, D), (W, 0, D), (W, H, D), (0, H, D)],                  # back, -z
+             [(0, 0, 0), (0, H, 0), (W, H, 0), (W, 0, 0)],                  # front, +z
+             [(0, 0, 0), (0, 0, D), (0, H, D), (0, H, 0)],                  # left, +x
+             [(W, 0, 0), (W, H, 0), (W, H, D), (W, 0, D)]]                  # right, -x
+    walls = [w for w in walls]
+    n_phi = max(8, int(round(np.sqrt(triangles))))
+    n_theta = max(4, n_phi // 2)
+    ball = sphere_tris(n_theta, n_phi, np.array([2.0, 0.8, 2.0]), 0.8)
+    light = [(1.5, H - 1e-3, 1.5), (2.5, H - 1e-3, 1.5), (2.5, H - 1e-3, 2.5), (1.5, H - 1e-3, 2.5)]
+    camera = {"position": "[2.0, 1.5, 0.2]", "look_at": "[2.0, 1.0, 3.0]", "up": "[0.0, 1.0, 0.0]",
+              "fov_y": 60.0, "resolution": f"[{resolution}, {resolution}]"}
+    materials = ("[material.wall]\nreflectance = [0.7, 0.7, 0.7]\n"
+                 "[material.ball]\nreflectance = [0.6, 0.3, 0.2]\n"
+                 "[material.light]\nreflectance = [0.0, 0.0, 0.0]\nemission = [20.0, 20.0, 20.0]\n")
+    return _write(folder, "room-sphere", {"wall": walls, "ball": ball, "light": [light[::-1]]},
+                  camera, materials)

@@ -142,7 +142,8 @@ def check_scene(scene, settings) -> dict:
     scene whose pairs of facing originals (estimated) exceed plan.max-facing-pairs is refused
     (settings: a
     settings.Settings; its subdivide.subpixel sets the raster). Returns {"hits":
-    rays that hit, "facing_pairs_estimate": originals.estimate_facing_pairs}."""
+    rays that hit, "facing_pairs_estimate": originals.estimate_facing_pairs with the pairs method
+    stated, else None}."""
     from radiosity.tracing.rays import RayCaster
 
     el, cam = scene.elements, scene.camera
@@ -152,13 +153,12 @@ def check_scene(scene, settings) -> dict:
                       "[r, g, b])", stacklevel=2)
     # the pairs method's work grows as the facing pairs of originals: refused up front when it
     # is stated and would not fit (the hierarchical method clusters such scenes, SPEC §9)
-    from radiosity.scene.originals import check_budget, estimate_facing_pairs, tree_of
+    from radiosity.scene.originals import check_budget, tree_of
 
-    tree = tree_of(el, int(settings.plan.leaf_size))
+    est = None
     if settings.visibility.method == "pairs":
-        est = check_budget(tree, int(settings.plan.max_facing_pairs), scene.path)
-    else:
-        est = estimate_facing_pairs(tree)
+        est = check_budget(tree_of(el, int(settings.plan.leaf_size)),
+                           int(settings.plan.max_facing_pairs), scene.path)
     subpixel = int(settings.subdivide.subpixel)
     rc = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
     h, w = cam.height * subpixel, cam.width * subpixel

@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from radiosity.scene.originals import (LEAF, FacingPairsError, behind_any, estimate_facing_pairs,
-                                       pairs_within_budget, tree_of)
+from radiosity.scene.originals import (LEAF, FacingPairsError, behind_any, pairs_within_budget,
+                                       tree_of)
 from radiosity.core.bundles import Elements
 
 EPS = 1e-9
@@ -98,13 +98,14 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
     tree = tree_of(elements, leaf)
     try:
         bi, bj, _ = pairs_within_budget(tree, max_pairs, where)
-    except FacingPairsError:
+    except FacingPairsError as e:
         bi = bj = None
+        over = e.estimate
     back_any = behind_any(tree)   # the rows of the (n, n) "behind" relation, or-ed
     reasons = {}
     est = {}
     if bi is None:  # too many to list: estimated (sizes taken as their mean)
-        n_pairs = float(estimate_facing_pairs(tree)["estimate"])
+        n_pairs = over
         pairs = n_pairs * float(s.mean()) ** 2 if n else 0.0
         est["facing_original_pairs_estimate"] = n_pairs
     else:

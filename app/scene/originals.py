@@ -16,11 +16,17 @@ from radiosity.errors import RadiosityError
 TOL = 1e-9            # relative to the scene's size, as plan.facing_blocks
 LEAF = 16             # elements per leaf
 BATCH = 1 << 14       # node pairs classified per batch
+ESTIMATE_NODE_PAIRS = 1 << 16  # node pairs counted before the budget check samples the rest
 LEAF_BATCH = 256      # leaf pairs tested exactly per batch (256 x 16 x 16 x 4 x 3 floats: 25 MB)
 
 
 class FacingPairsError(RadiosityError):
-    """More pairs of original elements face each other than the configured budget allows."""
+    """More pairs of original elements face each other than the configured budget allows
+    (`estimate`: how many, estimated or counted)."""
+
+    def __init__(self, message: str, estimate: float = 0.0):
+        super().__init__(message)
+        self.estimate = float(estimate)
 
 
 @dataclass(frozen=True)
@@ -481,9 +487,9 @@ def check_budget(t: OriginalsTree, cap: int, where: str) -> dict:
     """Refuse, before any pair is listed, a scene whose facing pairs of originals (counted on
     the hierarchy, estimate_facing_pairs) exceed `cap` (radiosity.plan.max-facing-pairs);
     returns the estimate."""
-    est = estimate_facing_pairs(t)
+    est = estimate_facing_pairs(t, max_node_pairs=ESTIMATE_NODE_PAIRS)
     if est["estimate"] > cap:
-        raise FacingPairsError(budget_message(where, t.n, est["estimate"], cap))
+        raise FacingPairsError(budget_message(where, t.n, est["estimate"], cap), est["estimate"])
     return est
 
 
@@ -496,7 +502,7 @@ def pairs_within_budget(t: OriginalsTree, cap: int | None, where: str):
         bi, bj, stats = facing_pairs(t, cap)
     except FacingPairsError:  # the estimate was low: the count says so
         guess = max(float(cap), est["estimate"] if est else 0.0)
-        raise FacingPairsError(budget_message(where, t.n, guess, cap, more=True)) from None
+        raise FacingPairsError(budget_message(where, t.n, guess, cap, more=True), guess) from None
     return bi, bj, {**stats, "estimate": est}
 
 

@@ -190,6 +190,46 @@ def _error_bound(t, p, q, d2, lref):
 
 
 @numba.njit(cache=True)
+def _exposure(t, e, x, ux, uy, uz):
+    """(S_x(u), the largest max(0, n_i . u)) over node x's elements."""
+    s = 0.0
+    cmax = 0.0
+    for k in range(t.start[x], t.end[x]):
+        i = t.order[k]
+        c = e.normal[i, 0] * ux + e.normal[i, 1] * uy + e.normal[i, 2] * uz
+        if c > 0.0:
+            s += e.area[i] * c
+            cmax = max(cmax, c)
+    return s, cmax
+
+
+@numba.njit(cache=True)
+def _error_estimate(t, e, p, q, d2, lref):
+    """The oracle's estimate where the bound (_error_bound) says split: the light the link
+    carries to the most exposed element of either end, from the other end's projected area
+    toward it (exact sums over the elements, between the area centroids), weighted as the
+    bound is and times the same relative error. Costs the two nodes' element counts."""
+    dx = t.center[q, 0] - t.center[p, 0]
+    dy = t.center[q, 1] - t.center[p, 1]
+    dz = t.center[q, 2] - t.center[p, 2]
+    r2 = dx * dx + dy * dy + dz * dz
+    if r2 <= d2 or r2 <= 0.0:
+        return np.inf
+    r = np.sqrt(r2)
+    ux, uy, uz = dx / r, dy / r, dz / r
+    sp, cp = _exposure(t, e, p, ux, uy, uz)
+    sq, cq = _exposure(t, e, q, -ux, -uy, -uz)
+    carried = max(t.rho[p] * sq * cp * t.lhat[q], t.rho[q] * sp * cq * t.lhat[p]) / (np.pi * r2 * lref)
+    dp = 0.0
+    dq = 0.0
+    for k in range(3):
+        dp += (t.hi[p, k] - t.lo[p, k]) ** 2
+        dq += (t.hi[q, k] - t.lo[q, k]) ** 2
+    rel = (np.sqrt(dp) + np.sqrt(dq)) / np.sqrt(d2) + t.spread[p] + t.spread[q]
+    return carried * min(rel, 1.0)
+
+
+@numba.njit(cache=True)
 def refine_clusters(t, e, eps, lref, cap):
     """The cluster refinement from the root's self-link: (links (k, 2) int64 node pairs kept as
     cluster links, pairs (j, 2) int64 originals I < J handed to the element-level refinement,
@@ -228,7 +268,8 @@ def refine_clusters(t, e, eps, lref, cap):
             counts[1] += 1
             continue
         d2 = _box_distance2(t, p, q)
-        keep = d2 > 0.0 and not t.two[p] and not t.two[q] and _error_bound(t, p, q, d2, lref) <= eps
+        keep = d2 > 0.0 and not t.two[p] and not t.two[q] and \
+            (_error_bound(t, p, q, d2, lref) <= eps or _error_estimate(t, e, p, q, d2, lref) < eps)
         if lp and lq and not keep:
             i, j = t.order[t.start[p]], t.order[t.start[q]]
             if _faces(e, i, j) and _faces(e, j, i):

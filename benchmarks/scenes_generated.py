@@ -99,3 +99,55 @@ def room_with_sphere(folder: str, triangles: int, resolution: int = 128) -> str:
                  "[material.light]\nreflectance = [0.0, 0.0, 0.0]\nemission = [20.0, 20.0, 20.0]\n")
     return _write(folder, "room-sphere", {"wall": walls, "ball": ball, "light": [light[::-1]]},
                   camera, materials)
+
+
+def tessellated_cornell(folder: str, per_quad: int = 2000, resolution: int = 128) -> str:
+    """The built-in Cornell box with every face cut into about `per_quad` triangles (a k x k grid
+    of cells, four triangles each around a point near the cell's centre: no two of them form a
+    parallelogram, so the loader keeps them as triangles), same materials and camera."""
+    import shutil
+
+    from radiosity.scene.load import load_scene
+
+    src = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenes",
+                       "cornell-box", "scene.toml")
+    sc = load_scene(src)
+    el = sc.elements
+    k = max(1, int(round(np.sqrt(per_quad / 4))))
+    by_mat: dict = {}
+    for v, nv, m in zip(el.verts, el.nverts, el.material):
+        name = el.material_names[m]
+        tris = []
+        if nv == 4:
+            p0, p1, p2, p3 = v
+            u = np.linspace(0, 1, k + 1)
+            for i in range(k):
+                for j in range(k):
+                    def at(a, b):
+                        return (1 - a) * (1 - b) * p0 + a * (1 - b) * p1 + a * b * p2 + (1 - a) * b * p3
+                    # off the cell's centre: two triangles of neighbouring cells that share a
+                    # cell edge then form no parallelogram either
+                    c = at(u[i] + 0.43 * (u[i + 1] - u[i]), u[j] + 0.47 * (u[j + 1] - u[j]))
+                    q = [at(u[i], u[j]), at(u[i + 1], u[j]), at(u[i + 1], u[j + 1]), at(u[i], u[j + 1])]
+                    tris += [(c, q[s], q[(s + 1) % 4]) for s in range(4)]
+        else:
+            tris.append(tuple(v[:3]))
+        by_mat.setdefault(name, []).extend(tris)
+    os.makedirs(folder, exist_ok=True)
+    toml = open(src).read()
+    mesh_line = toml[toml.index("[[mesh]]"):].split("\n")[1]
+    toml = toml.replace(mesh_line, 'path = "cornell-tess.obj"')
+    toml = toml.replace("resolution = [128, 128]", f"resolution = [{resolution}, {resolution}]")
+    _write(folder, "cornell-tess", by_mat, {}, "")  # writes the OBJ (the TOML is replaced)
+    obj = os.path.join(folder, "cornell-tess.obj")
+    with open(obj) as f:
+        body = f.read()
+    with open(obj, "w") as f:
+        f.write("mtllib cornell-box.mtl\n" + body)
+    with open(os.path.join(folder, "scene.toml"), "w") as f:
+        f.write(toml)
+    for ext in (".mtl",):
+        m = src.replace("scene.toml", "cornell-box" + ext)
+        if os.path.exists(m):
+            shutil.copy(m, os.path.join(folder, "cornell-box" + ext))
+    return os.path.join(folder, "scene.toml")

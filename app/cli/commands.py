@@ -201,6 +201,7 @@ def image(run_dir, filter_, sigma, exposure):
               help="Override the camera resolution.")
 @click.option("--subpixel", type=POSITIVE_INT, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--tol", type=TOL, default=None, help="Solver tolerance (for the pass estimate).")
+@lambda fn: method_options(fn, links=False)
 @_friendly
 def plan(scene, resolution, subpixel, tol):
     """Print which effects SCENE calls for, which are skipped and why, before any heavy work."""

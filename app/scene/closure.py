@@ -16,6 +16,8 @@ from radiosity.core.bundles import Elements
 POINTS = 16       # stratified points per element (nxm cells)
 DIRECTIONS = 16   # cosine-weighted directions per point and side
 LEAK = 1e-4       # fraction of rays that may escape through cracks in a closed scene
+MAX_RAYS = 1 << 22  # beyond this many, fewer points per element (a square: 9, 4, 1); a mesh of
+                    # many small elements samples its hemisphere through their number instead
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,8 @@ def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
                    directions: int = DIRECTIONS, leak: float = LEAK, seed: int = 0) -> Closure:
     """The closure test above; epsilon: the ray offset (radiosity.rays.epsilon)."""
     n = len(elements)
+    while points > 1 and n * points * directions > MAX_RAYS:
+        points = (int(round(np.sqrt(points))) - 1) ** 2
     rc = RayCaster(elements.verts, elements.nverts, epsilon)
     pts, _ = sample_points(elements.verts, elements.nverts, Sampling("nxm", points))
     rng = np.random.default_rng(seed)

@@ -101,7 +101,10 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
     except FacingPairsError as e:
         bi = bj = None
         over = e.estimate
-    back_any = behind_any(tree)   # the rows of the (n, n) "behind" relation, or-ed
+    # the rows of the (n, n) "behind" relation, or-ed: is any element behind another (nothing
+    # can block otherwise), and which two-sided elements are seen from their back
+    blocker_possible = bool(behind_any(tree, first=True).any())
+    back_any = behind_any(tree, wanted=ts)
     reasons = {}
     est = {}
     if bi is None:  # too many to list: estimated (sizes taken as their mean)
@@ -115,7 +118,6 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
 
     # occlusion: if every element is in front of (or on) every other's plane, the elements
     # bound a convex region and a segment between two of them stays inside it: nothing blocks
-    blocker_possible = bool(back_any.any())
     occlusion = full or blocker_possible
     if not blocker_possible:
         reasons["occlusion"] = ("off: every element lies in front of every other (a convex "

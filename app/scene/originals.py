@@ -359,12 +359,15 @@ def _exact_self(t: OriginalsTree, S: np.ndarray):
 
 # ----------------------------------------------------------------------------- behind
 
-def behind_any(t: OriginalsTree) -> np.ndarray:
+def behind_any(t: OriginalsTree, wanted: np.ndarray | None = None, first: bool = False) -> np.ndarray:
     """(n,) bool: does any vertex of any element lie strictly behind the plane of I? (The rows
-    of effects' old (n, n) `behind` matrix, or-ed, without it.)"""
-    found = np.zeros(t.n, bool)
-    if t.n == 0:
-        return found
+    of effects' old (n, n) `behind` matrix, or-ed, without it.) Only for the elements `wanted`
+    ((n,) bool; None: all; the others are False); with `first`, the search stops at the first
+    element found (is there any?)."""
+    want = np.ones(t.n, bool) if wanted is None else np.asarray(wanted, bool)
+    found = ~want  # the elements not wanted count as found: their nodes are pruned
+    if t.n == 0 or not want.any():
+        return np.zeros(t.n, bool)
     stack = [(np.array([0], np.int64), np.array([0], np.int64))]
     while stack:
         A, B = stack.pop()
@@ -389,9 +392,11 @@ def behind_any(t: OriginalsTree) -> np.ndarray:
             d = (n_[:, :, None, None, :] * v[:, None, :, :, :]).sum(-1) - t.offset[IA][:, :, None, None]
             hit = ((d < -t.eps).any(axis=3) & okb[:, None, :]).any(axis=2) & oka
             found[IA[hit]] = True
+            if first and (found & want).any():
+                return found & want
         if (~leaf).any():
             stack.append(_split(t, A[~leaf], B[~leaf]))
-    return found
+    return found & want
 
 
 def _all_found(t: OriginalsTree, found: np.ndarray, A: np.ndarray) -> np.ndarray:

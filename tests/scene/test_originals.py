@@ -67,6 +67,9 @@ def test_facing_pairs_equal_the_dense_relation_on_random_soups(rng, seed, n, cop
     behind = (np.einsum("ic,jkc->ijk", nrm, v) - np.einsum("ic,ic->i", nrm, c)[:, None, None]
               < -1e-9 * np.linalg.norm(v.reshape(-1, 3).max(0) - v.reshape(-1, 3).min(0))).any(2)
     np.testing.assert_array_equal(behind_any(t), behind.any(axis=1))
+    wanted = np.arange(n) % 3 == 1  # only some elements asked: the same answer for them
+    np.testing.assert_array_equal(behind_any(t, wanted=wanted), behind.any(axis=1) & wanted)
+    assert behind_any(t, first=True).any() == behind.any()
     est = estimate_facing_pairs(t)  # counted on the hierarchy: exact
     assert est["exact"] and est["estimate"] == len(bi)
     rough = estimate_facing_pairs(t, max_node_pairs=20)  # mostly sampled
@@ -130,7 +133,10 @@ def test_many_originals_plan_in_bounded_memory():
     assert peak < 400 * 2 ** 20, f"peak {peak / 2 ** 20:.0f} MiB"  # about 60 bytes per original x 100
 
 
-def test_a_scene_beyond_the_pair_budget_is_refused_up_front_in_one_line(tmp_path):
+def test_a_scene_beyond_the_pair_budget_is_refused_for_pairs_and_clustered_otherwise(tmp_path):
+    """Beyond plan.max-facing-pairs the pairs method is refused up front in one line when it is
+    stated; with method auto the plan takes the hierarchical method, which clusters the
+    originals (SPEC §9) and is not limited by the budget."""
     import dask.config
     from click.testing import CliRunner
 
@@ -140,10 +146,16 @@ def test_a_scene_beyond_the_pair_budget_is_refused_up_front_in_one_line(tmp_path
     with pytest.raises(FacingPairsError, match=r"about 5.1e\+04 pairs of its 320 original elements"):
         check_budget(tree_of(el), 10_000, "furnace-sphere")
     with dask.config.set({"radiosity.plan.max-facing-pairs": 10_000}):
-        for cmd in (["plan", scene_path("furnace-sphere")],
-                    ["render", scene_path("furnace-sphere"), "--out", str(tmp_path / "r")]):
+        for cmd in (["plan", scene_path("furnace-sphere"), "--method", "pairs"],
+                    ["render", scene_path("furnace-sphere"), "--out", str(tmp_path / "r"),
+                     "--method", "pairs"]):
             r = CliRunner().invoke(main, cmd)
             assert r.exit_code == 2, r.output
             [line] = [ln for ln in r.output.splitlines() if ln.startswith("error:")]
             assert "radiosity.plan.max-facing-pairs = 10000" in line and "DASK_RADIOSITY__PLAN__" in line
+            assert "--method hierarchical" in line
             assert "dashboard" not in r.output and not (tmp_path / "r").exists()
+        r = CliRunner().invoke(main, ["plan", scene_path("furnace-sphere")])
+        assert r.exit_code == 0, r.output
+        assert "method: hierarchical: auto, about 5.1e+04 facing pairs of originals > " \
+               "plan.max-facing-pairs 10000 (clustered)" in r.output

@@ -38,6 +38,12 @@ Stack = namedtuple("Stack", "p q c0 c1 frac pool base_end")
 # flag. Links waiting for rays: nodes and lists (w, 2) [start, length] into pool.
 Kept = namedtuple("Kept", "p q ff v sides exact")
 Waiting = namedtuple("Waiting", "p q lists pool")
+# A link root whose shaft holds more candidate occluders than this leaves its visibility to
+# rays (no list, no proof by shafts, for its children too): in a mesh of many small triangles no
+# single one blocks a link, and filtering long lists for every link cost more than the rays
+# (the tessellated Cornell box: 43 us per evaluated link). Scenes of fewer originals never have
+# this many, and are unchanged.
+MAX_OCCLUDERS = 64
 # The scalar settings (links.LinkParams.kernel_params).
 RefineParams = namedtuple("RefineParams", "eps shadow near min_size kid exact plane_tol oracle "
                                           "gauss_gap far_polygon occlusion")
@@ -270,27 +276,29 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
         split = -1  # 0: split p, 1: split q
         if frac < 0.0:
             # 2. shafts: keep the occluders that may cut a segment between the node boxes
-            for k in range(3):
-                A[0, k], A[1, k] = Llo[p, k], Lhi[p, k]
-                B[0, k], B[1, k] = Llo[q, k], Lhi[q, k]
-            top = max(l1, base_end)
-            m0 = top
-            blocked = False
-            for c in range(l0, l1):
-                o = stk_pool[c]
-                if _same_side(A, B, enormal, eoffset, o, pad) or \
-                        _shaft_excludes(A, B, elo, ehi, o):
+            # (l0 < 0: more candidates than MAX_OCCLUDERS at the root: left to rays)
+            if l0 >= 0:
+                for k in range(3):
+                    A[0, k], A[1, k] = Llo[p, k], Lhi[p, k]
+                    B[0, k], B[1, k] = Llo[q, k], Lhi[q, k]
+                top = max(l1, base_end)
+                m0 = top
+                blocked = False
+                for c in range(l0, l1):
+                    o = stk_pool[c]
+                    if _same_side(A, B, enormal, eoffset, o, pad) or \
+                            _shaft_excludes(A, B, elo, ehi, o):
+                        continue
+                    if _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal, eoffset, pad,
+                               s4p, s4q):
+                        blocked = True
+                        break
+                    stk_pool[m0] = o
+                    m0 += 1
+                if blocked:
+                    counts[6] += 1
                     continue
-                if _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal, eoffset, pad, s4p,
-                           s4q):
-                    blocked = True
-                    break
-                stk_pool[m0] = o
-                m0 += 1
-            if blocked:
-                counts[6] += 1
-                continue
-            l0, l1 = top, m0
+                l0, l1 = top, m0
             # 3. the oracle (Hanrahan et al. 1991: split the node that looks larger from the
             # other; if it cannot split, keep the link; epsilon = 0 is the all-pairs limit)
             if q_straddles and can_q:
@@ -372,12 +380,15 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                 and _faces(normal, oq, two_sided[oq], -dx, -dy, -dz, length)):
             counts[4] += 1
             continue
-        if frac < 0.0 and l1 > l0:  # wait for rays, with the filtered occluder list
+        if frac < 0.0 and (l1 > l0 or l0 < 0):  # wait for rays, with the filtered occluders
             wp[nw], wq[nw] = p, q
-            wc[nw, 0], wc[nw, 1] = npool, l1 - l0
-            for c in range(l0, l1):
-                wpool[npool] = stk_pool[c]
-                npool += 1
+            if l0 < 0:  # too many to list: the children are left to rays too
+                wc[nw, 0], wc[nw, 1] = -1, 0
+            else:
+                wc[nw, 0], wc[nw, 1] = npool, l1 - l0
+                for c in range(l0, l1):
+                    wpool[npool] = stk_pool[c]
+                    npool += 1
             nw += 1
             continue
         v = 1.0 if frac < 0.0 else frac
@@ -528,6 +539,9 @@ def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
                                    pairs[k, 1])
         else:
             cand = np.zeros(0, np.int64)
+        if cand.shape[0] > MAX_OCCLUDERS:  # left to rays (l0 = -1, see _refine_loop)
+            e_c0[k], e_c1[k] = -1, -1
+            continue
         while npool + cand.shape[0] > pool.shape[0]:
             pool = _grow(pool, 2 * pool.shape[0])
         e_c0[k] = npool

@@ -7,6 +7,7 @@ across their longer sides). Every problem raises `SceneError` naming the file an
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -17,7 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radiosity.errors import SceneError
-from radiosity.core.geometry import diameter, polygon_properties
+from radiosity.core.geometry import polygon_properties
+from radiosity.scene import meshkernels
 from radiosity.settings import Settings, resolve
 
 MESH_FORMATS = (".obj", ".gltf", ".glb", ".ply")
@@ -66,14 +68,18 @@ def _check_line(fn: str, lineno: int, line: str, key: str, kind: str) -> None:
                          f"{line.strip()[:40]!r} is not an {kind} statement")
 
 
-def _read_text(fn: str) -> list[str]:
+def _read_whole(fn: str) -> str:
     try:
         with open(fn, encoding="utf-8", errors="replace") as f:
-            return f.read().splitlines()
+            return f.read()
     except FileNotFoundError:
         raise SceneError(f"mesh file not found: {fn}") from None
     except OSError as e:
         raise SceneError(f"cannot read mesh file {fn}: {e.strerror}") from None
+
+
+def _read_text(fn: str) -> list[str]:
+    return _read_whole(fn).splitlines()
 
 
 def _load_mtl(fn: str) -> dict:
@@ -98,12 +104,78 @@ def _load_mtl(fn: str) -> dict:
 def load_obj(fn: str) -> RawMesh:
     """Minimal OBJ reader (v, f, usemtl, mtllib) that keeps quads as quads.
 
-    trimesh triangulates on load, which would lose the seed's quad elements.
+    trimesh triangulates on load, which would lose the seed's quad elements. The plain lines
+    (`v x y z`, `f i j k ...`, comments, unknown statements) are read in bulk
+    (meshkernels.scan_obj); a file with anything else in a `v` or `f` line, or any error, is
+    read line by line (`_load_obj_lines`), which says what is wrong and where.
     """
+    text = _read_whole(fn)
+    raw = _load_obj_bulk(fn, text)
+    return raw if raw is not None else _load_obj_lines(fn, text.splitlines())
+
+
+def _load_obj_bulk(fn: str, text: str) -> RawMesh | None:
+    """The OBJ text read as _load_obj_lines reads it, or None where that reader must (a line the
+    scanner leaves to it, an error: it names the first bad line)."""
+    if "\r" in text:
+        text = text.replace("\r\n", "\n")  # one line break for splitlines too; a lone \r: None
+    if not text.isascii() and any(c in text for c in "\x85\u2028\u2029"):
+        return None  # more of splitlines' line breaks
+    data = text.encode("utf-8")
+    scan = meshkernels.scan_obj(np.frombuffer(data, np.uint8))
+    if scan is None:
+        return None
+    coords, slow_pos, slow_buf, fidx, fcount, fline, other = scan
+    if len(slow_pos):  # numbers beyond the exact fast path (17 digits, large exponents)
+        s = slow_buf[:-1].tobytes().decode("ascii")
+        try:
+            vals = np.fromstring(s, sep=" ")
+        except ValueError:
+            vals = np.array([float(t) for t in s.split()])
+        if len(vals) != len(slow_pos):
+            return None
+        coords[slow_pos] = vals
+    mats: dict = {}
+    cur = "default"
+    ev_line, ev_name = [], []
+    base = os.path.dirname(fn)
+    try:
+        for li, start, end in other.tolist():
+            line = data[start:end].decode("utf-8")
+            parts = line.split("#", 1)[0].split()
+            if not parts:
+                continue
+            key, args = parts[0], parts[1:]
+            _check_line(fn, li + 1, line.split("#", 1)[0], key, "OBJ")
+            if key in ("v", "f"):
+                return None
+            if key == "usemtl":
+                cur = " ".join(args) or "default"
+                ev_line.append(li)
+                ev_name.append(cur)
+            elif key == "mtllib":
+                mfn = os.path.join(base, " ".join(args))
+                if not os.path.exists(mfn):
+                    return None
+                mats.update(_load_mtl(mfn))
+    except Exception:  # an error: the line reader says it, with the first bad line's number
+        return None
+    which = np.searchsorted(np.asarray(ev_line, np.int64), fline, side="right")
+    fmat = np.array(["default"] + ev_name, dtype=object)[which].tolist()
+    if len(fcount) and np.all(fcount == fcount[0]):
+        faces = fidx.reshape(-1, int(fcount[0])).tolist()
+    else:
+        it = iter(fidx.tolist())
+        faces = [list(itertools.islice(it, c)) for c in fcount.tolist()]
+    return RawMesh(coords.reshape(-1, 3), faces, fmat, mats)
+
+
+def _load_obj_lines(fn: str, lines: list[str]) -> RawMesh:
+    """The OBJ reader, one line at a time (for what _load_obj_bulk leaves to it)."""
     verts, faces, fmat, mats = [], [], [], {}
     cur = "default"
     base = os.path.dirname(fn)
-    for lineno, line in enumerate(_read_text(fn), 1):
+    for lineno, line in enumerate(lines, 1):
         parts = line.split("#", 1)[0].split()
         if not parts:
             continue
@@ -187,9 +259,10 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
             if idx is not None:
                 name = gnames[idx]
         verts.append(v)
-        for f in np.asarray(mesh.faces):
-            faces.append([int(k) + base for k in f])
-            fmat.append(name)
+        f = np.asarray(mesh.faces)
+        if len(f):
+            faces.extend((f.astype(np.int64) + base).tolist())
+            fmat.extend([name] * len(f))
         base += len(v)
     v = np.concatenate(verts) if verts else np.zeros((0, 3))
     return RawMesh(v, faces, fmat, gmats)
@@ -263,77 +336,164 @@ def _warn(msg: str) -> None:
     warnings.warn(msg, SceneWarning, stacklevel=3)
 
 
-def _is_convex(q: np.ndarray, n: np.ndarray) -> bool:
-    s = [np.dot(np.cross(q[(k + 1) % 4] - q[k], q[(k + 2) % 4] - q[(k + 1) % 4]), n) for k in range(4)]
-    return all(x > 0 for x in s)
+#: Repairs (non-planar or non-convex quads split, n-gons triangulated) said one by one, per
+#: mesh file; beyond these one more line counts the rest.
+MAX_FACE_WARNINGS = 10
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a . b of (n, 3) arrays, summed as np.dot sums a 3-vector (to the bit)."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+def _norm(a: np.ndarray) -> np.ndarray:
+    """Row-wise |a| of an (n, 3) array, as np.linalg.norm of a 3-vector (to the bit)."""
+    return np.sqrt(_dot(a, a))
+
+
+def _per_face_any(flags: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Whether any of each face's entries (faces: runs starts[i]:starts[i + 1]) is set."""
+    c = np.zeros(len(flags) + 1, np.int64)
+    np.cumsum(flags, out=c[1:])
+    return c[starts[1:]] > c[starts[:-1]]
+
+
+def _face_arrays(faces, nv: int):
+    """(sizes (F,), starts (F + 1,), flat indices (sum of sizes,) int64) of a list of index
+    lists; an index no int64 holds becomes -1 (out of range: named from the list itself)."""
+    sizes = np.fromiter(map(len, faces), np.int64, count=len(faces))
+    starts = np.zeros(len(faces) + 1, np.int64)
+    np.cumsum(sizes, out=starts[1:])
+    try:
+        flat = np.fromiter(itertools.chain.from_iterable(faces), np.int64, count=int(starts[-1]))
+    except (OverflowError, TypeError, ValueError):
+        flat = np.fromiter((k if 0 <= k < nv else -1 for k in itertools.chain.from_iterable(faces)),
+                           np.int64, count=int(starts[-1]))
+    return sizes, starts, flat
+
+
+def _quad_shapes(p: np.ndarray, tol: float):
+    """planar (q,), convex (q,) and the split along the other diagonal (q,) of quads p (q, 4, 3),
+    each face as the per-face loop decided it: planar if the normal and the (0, 1, 2) cross
+    product are non-zero and vertex 3 is off the (0, 1, 2) plane by at most tol times the
+    diameter; convex if every corner turns the way of the normal; a quad that is not both is
+    split along 0-2, or along 1-3 when it is planar and the halves (0, 1, 2), (0, 2, 3) face
+    opposite ways."""
+    p0, p1, p2, p3 = p[:, 0], p[:, 1], p[:, 2], p[:, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):  # used only where planar
+        c012 = np.cross(p1 - p0, p2 - p0)
+        c023 = np.cross(p2 - p0, p3 - p0)
+        n = c012 + c023
+        nn = _norm(n)
+        diam = meshkernels.diameter(np.ascontiguousarray(p))
+        off = np.abs(_dot(p3 - p0, c012))
+        c = _norm(c012)
+        planar = (nn > 0) & (c > 0) & (off / c <= tol * np.maximum(diam, 1e-300))
+        unit = n / nn[:, None]
+        convex = np.ones(len(p), bool)
+        for k in range(4):
+            a, b, d = p[:, k], p[:, (k + 1) % 4], p[:, (k + 2) % 4]
+            convex &= _dot(np.cross(b - a, d - b), unit) > 0
+    other = planar & (_dot(c023, c012) <= 0)
+    return planar, convex & planar, other
 
 
 def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Settings | None = None):
     """Validate faces and turn them into polygons: (verts (n,4,3), nverts (n,), face (n,), material names).
 
-    Non-planar or non-convex quads become two triangles, n-gons a triangle fan; each with a warning.
-    merge=False keeps triangle pairs that form parallelograms apart (view factors between the
-    user's own facets). settings: its scene.* tolerances (None: resolved here).
+    Non-planar or non-convex quads become two triangles, n-gons a triangle fan; each with a warning
+    (the first MAX_FACE_WARNINGS of a file, then one line for the rest). merge=False keeps
+    triangle pairs that form parallelograms apart (view factors between the user's own facets).
+    settings: its scene.* tolerances (None: resolved here). Whole-array operations per face size
+    (triangles, quads, n-gons); the first bad face in file order is the one named.
     """
     sc = resolve(base=settings).scene
     tol = sc.planarity_tolerance
-    out_v, out_n, out_f, out_m = [], [], [], []
-    V = raw.vertices
-    for fi, idx in enumerate(raw.faces):
-        bad = [k for k in idx if not 0 <= k < len(V)]
-        if bad:
-            raise SceneError(f"{fn}: face {fi + 1} refers to vertex {bad[0]}, which does not exist "
-                             f"({len(V)} vertices)")
-        if len(idx) < 3:
-            raise SceneError(f"{fn}: face {fi + 1} has {len(idx)} vertices; a face needs at least 3")
-        p = V[idx]
-        if not np.all(np.isfinite(p)):
-            raise SceneError(f"{fn}: face {fi + 1} has a NaN or infinite vertex coordinate")
-        if np.abs(p).max() > MAX_COORD:
-            raise SceneError(f"{fn}: face {fi + 1} has a vertex coordinate of {np.abs(p).max():.3g}: "
-                             f"beyond {MAX_COORD:g}, lengths to the fourth power overflow; "
-                             "rescale the mesh")
-        mat = raw.face_material[fi]
-        polys = []
-        if len(idx) == 3:
-            polys = [p[[0, 1, 2, 2]]]
-        elif len(idx) == 4:
-            n = np.cross(p[1] - p[0], p[2] - p[0]) + np.cross(p[2] - p[0], p[3] - p[0])
-        if len(idx) == 4:
-            nn = np.linalg.norm(n)
-            diam = np.max(np.linalg.norm(p[:, None] - p[None], axis=-1))
-            off = abs(np.dot(p[3] - p[0], np.cross(p[1] - p[0], p[2] - p[0])))
-            c012 = np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0]))
-            planar = nn > 0 and c012 > 0 and off / c012 <= tol * max(diam, 1e-300)
-            if planar and _is_convex(p, n / nn):
-                polys = [p]
-            else:
-                what = "non-planar" if not planar else "non-convex"
-                _warn(f"{fn}: face {fi + 1} (material '{mat}') is a {what} quad; "
-                      "split into two triangles")
-                # split along the diagonal whose triangles have consistent normals
-                a, b = p[[0, 1, 2, 2]], p[[0, 2, 3, 3]]
-                if planar and np.dot(np.cross(p[2] - p[0], p[3] - p[0]), np.cross(p[1] - p[0], p[2] - p[0])) <= 0:
-                    a, b = p[[1, 2, 3, 3]], p[[1, 3, 0, 0]]
-                polys = [a, b]
-        elif len(idx) > 4:
-            _warn(f"{fn}: face {fi + 1} has {len(idx)} vertices; triangulated as a fan")
-            polys = [p[[0, k, k + 1, k + 1]] for k in range(1, len(idx) - 1)]
-        for q in polys:
-            out_v.append(q)
-            out_n.append(3 if np.array_equal(q[3], q[2]) else 4)
-            out_f.append(fi)
-            out_m.append(mat)
-    if not out_v:
+    V = np.asarray(raw.vertices, float).reshape(-1, 3)
+    nv = len(V)
+    nf = len(raw.faces)
+    if nf == 0:
         return np.zeros((0, 4, 3)), np.zeros(0, np.int8), np.zeros(0, np.int32), []
-    verts = np.array(out_v, float)
-    nverts = np.array(out_n, np.int8)
-    face = np.array(out_f, np.int32)
+    sizes, starts, flat = _face_arrays(raw.faces, nv)
+
+    # the first bad face, with the per-face checks in their order
+    out_of_range = (flat < 0) | (flat >= nv)
+    safe = np.where(out_of_range, 0, flat)
+    e_index = _per_face_any(out_of_range, starts)
+    e_size = sizes < 3
+    if nv:
+        with np.errstate(invalid="ignore"):
+            e_finite = _per_face_any(~np.isfinite(V).all(axis=1)[safe] & ~out_of_range, starts)
+            e_huge = _per_face_any((np.abs(V).max(axis=1) > MAX_COORD)[safe] & ~out_of_range, starts)
+    else:
+        e_finite = e_huge = np.zeros(nf, bool)
+    bad = np.flatnonzero(e_index | e_size | e_finite | e_huge)
+    nok = int(bad[0]) if len(bad) else nf  # faces before the first bad one
+
+    # quads and n-gons among them: the repairs, said in face order
+    quad = np.flatnonzero(sizes[:nok] == 4)
+    pq = V[flat[starts[quad][:, None] + np.arange(4)]]
+    planar, keep, other = _quad_shapes(pq, tol)
+    ngon = np.flatnonzero(sizes[:nok] > 4)
+    said = np.sort(np.concatenate([quad[~keep], ngon]))
+    fm = raw.face_material
+    for fi in said[:MAX_FACE_WARNINGS].tolist():
+        if sizes[fi] == 4:
+            what = "non-planar" if not planar[np.searchsorted(quad, fi)] else "non-convex"
+            _warn(f"{fn}: face {fi + 1} (material '{fm[fi]}') is a {what} quad; "
+                  "split into two triangles")
+        else:
+            _warn(f"{fn}: face {fi + 1} has {sizes[fi]} vertices; triangulated as a fan")
+    if len(said) > MAX_FACE_WARNINGS:
+        _warn(f"{fn}: and {len(said) - MAX_FACE_WARNINGS} more faces split into triangles likewise "
+              "(non-planar or non-convex quads, n-gons)")
+
+    if nok < nf:
+        fi = nok
+        idx = raw.faces[fi]
+        if e_index[fi]:
+            wrong = [k for k in idx if not 0 <= k < nv]
+            raise SceneError(f"{fn}: face {fi + 1} refers to vertex {wrong[0]}, which does not exist "
+                             f"({nv} vertices)")
+        if e_size[fi]:
+            raise SceneError(f"{fn}: face {fi + 1} has {len(idx)} vertices; a face needs at least 3")
+        p = V[flat[starts[fi]:starts[fi + 1]]]
+        if e_finite[fi]:
+            raise SceneError(f"{fn}: face {fi + 1} has a NaN or infinite vertex coordinate")
+        raise SceneError(f"{fn}: face {fi + 1} has a vertex coordinate of {np.abs(p).max():.3g}: "
+                         f"beyond {MAX_COORD:g}, lengths to the fourth power overflow; "
+                         "rescale the mesh")
+
+    # the polygons, in face order: a triangle or a kept quad gives one, a split quad two, an
+    # n-gon a fan of n - 2 triangles (a triangle repeats its vertex 2 in slot 3)
+    count = np.ones(nf, np.int64)
+    count[quad[~keep]] = 2
+    count[ngon] = sizes[ngon] - 2
+    first = np.zeros(nf + 1, np.int64)
+    np.cumsum(count, out=first[1:])
+    verts = np.empty((int(first[-1]), 4, 3))
+    tri = np.flatnonzero(sizes == 3)
+    verts[first[tri]] = V[flat[starts[tri][:, None] + np.array([0, 1, 2, 2])]]
+    verts[first[quad[keep]]] = pq[keep]
+    split = ~keep
+    a = np.where(other[split, None, None], pq[split][:, [1, 2, 3, 3]], pq[split][:, [0, 1, 2, 2]])
+    b = np.where(other[split, None, None], pq[split][:, [1, 3, 0, 0]], pq[split][:, [0, 2, 3, 3]])
+    verts[first[quad[split]]] = a
+    verts[first[quad[split]] + 1] = b
+    if len(ngon):
+        nt = sizes[ngon] - 2
+        k = np.arange(int(nt.sum())) - np.repeat(np.cumsum(nt) - nt, nt) + 1  # 1 .. n - 2
+        s0 = np.repeat(starts[ngon], nt)
+        fan = flat[np.stack([s0, s0 + k, s0 + k + 1, s0 + k + 1], axis=1)]
+        verts[np.repeat(first[ngon], nt) + k - 1] = V[fan]
+    nverts = np.where(np.all(verts[:, 3] == verts[:, 2], axis=1), 3, 4).astype(np.int8)
+    face = np.repeat(np.arange(nf, dtype=np.int32), count)
+    out_m = list(map(fm.__getitem__, face.tolist()))
     if merge:
         verts, nverts, face, out_m = merge_parallelograms(verts, nverts, face, out_m,
                                                           sc.merge_tolerance)
     area, _, _ = polygon_properties(verts, nverts)
-    diam = diameter(verts, nverts)
+    diam = meshkernels.diameter(np.ascontiguousarray(verts, np.float64))  # geometry.diameter
     bad = np.nonzero(~(area > sc.min_relative_area * diam ** 2))[0]
     if len(bad):
         raise SceneError(f"{fn}: face {face[bad[0]] + 1} (material '{out_m[bad[0]]}') has zero area"
@@ -341,63 +501,61 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
     return verts, nverts, face, out_m
 
 
+def _vertex_ids(pts: np.ndarray) -> np.ndarray:
+    """An id per point (n, 3), equal for points with equal coordinates (as np.unique(axis=0)
+    tells them apart: -0.0 is 0.0)."""
+    if len(pts) == 0 or not np.all(np.isfinite(pts)):
+        return np.unique(pts, axis=0, return_inverse=True)[1].reshape(-1)
+    u = np.ascontiguousarray(pts + 0.0).view(np.int64)  # + 0.0: -0.0 -> 0.0; then the bits
+    order = np.lexsort((u[:, 2], u[:, 1], u[:, 0]))
+    s = u[order]
+    new = np.ones(len(s), bool)
+    new[1:] = np.any(s[1:] != s[:-1], axis=1)
+    ids = np.empty(len(s), np.int64)
+    ids[order] = np.cumsum(new) - 1
+    return ids
+
+
 def merge_parallelograms(verts, nverts, face, mats, tol: float | None = None):
     """Merge pairs of coplanar triangles that share a diagonal and form a parallelogram into quads.
 
     Greedy in file order, each triangle merges at most once; keeps the winding (front side).
-    tol: scene.merge-tolerance (None: resolved here).
+    tol: scene.merge-tolerance (None: resolved here). A triangle k tries its edges e = 0, 1, 2
+    and on each the other triangles on that edge in file order (order of their edge slots);
+    the first one that is free, of the same material, wound the other way along the edge and
+    forms a parallelogram with k (diagonals that bisect each other, coplanar, within tol) is
+    its partner (meshkernels.merge_pairs); k becomes the quad, the partner is dropped.
     """
     if tol is None:
         tol = resolve().scene.merge_tolerance
     tri = np.nonzero(nverts == 3)[0]
     if len(tri) < 2:
         return verts, nverts, face, mats
-    # vertex identity by exact coordinates
-    pts = verts[tri, :3].reshape(-1, 3)
-    _, vid = np.unique(pts, axis=0, return_inverse=True)
-    vid = vid.reshape(-1, 3)
-    edges: dict = {}
-    for k in range(len(tri)):
-        for e in range(3):
-            a, b = vid[k, e], vid[k, (e + 1) % 3]
-            edges.setdefault((min(a, b), max(a, b)), []).append((k, e))
-    partner = -np.ones(len(tri), np.int64)
-    quads = {}
-    for k in range(len(tri)):
-        if partner[k] >= 0:
-            continue
-        for e in range(3):
-            a, b = vid[k, e], vid[k, (e + 1) % 3]
-            for (j, ej) in edges[(min(a, b), max(a, b))]:
-                if j == k or partner[j] >= 0 or mats[tri[j]] != mats[tri[k]]:
-                    continue
-                # consistent winding: the shared edge runs the other way in j
-                if vid[j, ej] != b:
-                    continue
-                P = verts[tri[k]]
-                Q = verts[tri[j]]
-                pa, pb, px = P[e], P[(e + 1) % 3], P[(e + 2) % 3]
-                qy = Q[(ej + 2) % 3]
-                d = max(np.linalg.norm(pa - pb), np.linalg.norm(px - qy))
-                if np.linalg.norm((pa + pb) - (px + qy)) > tol * d:
-                    continue  # diagonals do not bisect each other: not a parallelogram
-                n1 = np.cross(pb - pa, px - pa)
-                n2 = np.cross(pa - pb, qy - pb)
-                if np.dot(n1, n2) <= 0 or np.linalg.norm(np.cross(n1, n2)) > tol * np.linalg.norm(n1) * np.linalg.norm(n2):
-                    continue
-                partner[k], partner[j] = j, k
-                quads[k] = np.array([pb, px, pa, qy])
-                break
-            if partner[k] >= 0:
-                break
-    if not quads:
+    P = np.ascontiguousarray(verts[tri, :3], dtype=np.float64)
+    vid = _vertex_ids(P.reshape(-1, 3)).reshape(-1, 3)
+    code = {m: i for i, m in enumerate(dict.fromkeys(mats))}
+    mat = np.fromiter(map(code.__getitem__, mats), np.int64, count=len(mats))[tri]
+    # the triangles on each edge, in the order of their slots 3 k + e
+    nxt = vid[:, [1, 2, 0]]
+    key = (np.minimum(vid, nxt) * (int(vid.max()) + 1) + np.maximum(vid, nxt)).reshape(-1)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    new = np.ones(len(ks), bool)
+    new[1:] = ks[1:] != ks[:-1]
+    gstart = np.append(np.flatnonzero(new), len(ks))
+    group = np.empty(len(ks), np.int64)
+    group[order] = np.cumsum(new) - 1
+    partner, edge, pedge = meshkernels.merge_pairs(P, vid, mat, order, gstart, group, float(tol))
+    k = np.flatnonzero(edge >= 0)
+    if not len(k):
         return verts, nverts, face, mats
-    drop = set()
+    j, e, ej = partner[k], edge[k], pedge[k]
+    quads = np.stack([P[k, (e + 1) % 3], P[k, (e + 2) % 3], P[k, e], P[j, (ej + 2) % 3]], axis=1)
     verts = verts.copy()
     nverts = nverts.copy()
-    for k, q in quads.items():
-        verts[tri[k]] = q
-        nverts[tri[k]] = 4
-        drop.add(int(tri[partner[k]]))
-    keep = np.array([i for i in range(len(verts)) if i not in drop])
-    return verts[keep], nverts[keep], face[keep], [mats[i] for i in keep]
+    verts[tri[k]] = quads
+    nverts[tri[k]] = 4
+    keep = np.ones(len(verts), bool)
+    keep[tri[j]] = False
+    keep = np.flatnonzero(keep)
+    return verts[keep], nverts[keep], face[keep], list(map(mats.__getitem__, keep.tolist()))

@@ -186,7 +186,7 @@ def _error_bound(t, p, q, d2, lref):
         dp += (t.hi[p, k] - t.lo[p, k]) ** 2
         dq += (t.hi[q, k] - t.lo[q, k]) ** 2
     rel = (np.sqrt(dp) + np.sqrt(dq)) / d + t.spread[p] + t.spread[q]
-    return carried * min(rel, 1.0)
+    return carried * rel if rel <= 1.0 else np.inf  # near (rel > 1): never kept
 
 
 @numba.njit(cache=True)
@@ -226,7 +226,7 @@ def _error_estimate(t, e, p, q, d2, lref):
         dp += (t.hi[p, k] - t.lo[p, k]) ** 2
         dq += (t.hi[q, k] - t.lo[q, k]) ** 2
     rel = (np.sqrt(dp) + np.sqrt(dq)) / np.sqrt(d2) + t.spread[p] + t.spread[q]
-    return carried * min(rel, 1.0)
+    return carried * rel if rel <= 1.0 else np.inf  # near (rel > 1): never kept
 
 
 @numba.njit(cache=True)
@@ -321,51 +321,121 @@ def _projected(t, e, x, ux, uy, uz):
 
 
 @numba.njit(cache=True)
-def link_form_factors(t, e, links):
-    """F_pq, F_qp (k, 2) of cluster links (p, q): S_p(u) S_q(-u) / (pi r^2 A_p) and / A_q, with
-    u, r from p's area centroid to q's."""
-    out = np.zeros((links.shape[0], 2))
-    for k in range(links.shape[0]):
-        p, q = links[k, 0], links[k, 1]
-        dx = t.center[q, 0] - t.center[p, 0]
-        dy = t.center[q, 1] - t.center[p, 1]
-        dz = t.center[q, 2] - t.center[p, 2]
-        r2 = dx * dx + dy * dy + dz * dz
-        if r2 <= 0.0:
-            continue
-        r = np.sqrt(r2)
-        ux, uy, uz = dx / r, dy / r, dz / r
-        g = _projected(t, e, p, ux, uy, uz) * _projected(t, e, q, -ux, -uy, -uz) / (np.pi * r2)
-        out[k, 0] = g / t.area[p] if t.area[p] > 0 else 0.0
-        out[k, 1] = g / t.area[q] if t.area[q] > 0 else 0.0
-    return out
+def _pick(t, e, x, ux, uy, uz, k, out, a):
+    """k elements of node x stratified by their projected area toward u (A_i max(0, n_i . u)),
+    into out[a, :]; by area where no element faces u."""
+    total = 0.0
+    for m in range(t.start[x], t.end[x]):
+        i = t.order[m]
+        total += e.area[i] * max(0.0, e.normal[i, 0] * ux + e.normal[i, 1] * uy + e.normal[i, 2] * uz)
+    by_area = total <= 0.0
+    if by_area:
+        total = t.area[x]
+    acc = 0.0
+    j = 0
+    for m in range(t.start[x], t.end[x]):
+        i = t.order[m]
+        if by_area:
+            acc += e.area[i]
+        else:
+            acc += e.area[i] * max(0.0, e.normal[i, 0] * ux + e.normal[i, 1] * uy
+                                   + e.normal[i, 2] * uz)
+        while j < k and (j + 0.5) * total / k <= acc:
+            out[a, j] = i
+            j += 1
+    while j < k:  # rounding at the end
+        out[a, j] = t.order[t.end[x] - 1]
+        j += 1
 
 
 @numba.njit(cache=True)
-def sample_elements(t, e, nodes, k):
-    """k elements per node, stratified by area along the node's elements (the element holding
-    cumulative area (j + 0.5) / k of the node's total, j = 0..k-1), (len(nodes), k) int64."""
-    out = np.empty((nodes.shape[0], k), np.int64)
-    for a in range(nodes.shape[0]):
-        x = nodes[a]
-        total = t.area[x]
+def link_samples(t, e, links, k):
+    """The sample elements of cluster links (p, q): k of each end, stratified by their projected
+    area toward the other end's centroid (the elements that carry the link's transfer),
+    (len(links), k) int64 twice."""
+    sp = np.empty((links.shape[0], k), np.int64)
+    sq = np.empty((links.shape[0], k), np.int64)
+    for a in range(links.shape[0]):
+        p, q = links[a, 0], links[a, 1]
+        dx = t.center[q, 0] - t.center[p, 0]
+        dy = t.center[q, 1] - t.center[p, 1]
+        dz = t.center[q, 2] - t.center[p, 2]
+        r = max(np.sqrt(dx * dx + dy * dy + dz * dz), 1e-300)
+        _pick(t, e, p, dx / r, dy / r, dz / r, k, sp, a)
+        _pick(t, e, q, -dx / r, -dy / r, -dz / r, k, sq, a)
+    return sp, sq
+
+
+FF_SAMPLES = 16  # sample pairs of elements per cluster link for its form factors
+
+
+@numba.njit(cache=True)
+def _kernel(e, i, j):
+    """max(0, cos_i) max(0, cos_j) / (pi r^2) between the centroids of elements i and j."""
+    dx = e.center[j, 0] - e.center[i, 0]
+    dy = e.center[j, 1] - e.center[i, 1]
+    dz = e.center[j, 2] - e.center[i, 2]
+    r2 = dx * dx + dy * dy + dz * dz
+    if r2 <= 0.0:
+        return 0.0
+    r = np.sqrt(r2)
+    ci = (e.normal[i, 0] * dx + e.normal[i, 1] * dy + e.normal[i, 2] * dz) / r
+    cj = -(e.normal[j, 0] * dx + e.normal[j, 1] * dy + e.normal[j, 2] * dz) / r
+    if ci <= 0.0 or cj <= 0.0:
+        return 0.0
+    return ci * cj / (np.pi * r2)
+
+
+@numba.njit(cache=True)
+def _sampled_ff(t, e, links, sp, sq):
+    """(k, 2) F_pq, F_qp of cluster links from sample pairs (sp[a, m], sq[a, m]) drawn in
+    proportion to A_i max(0, n_i . u) at each end (link_samples): the point kernel between the
+    pair's centroids, divided by the sampling weights' cosines toward u, averaged, times
+    S_p(u) S_q(-u): an estimate of sum_ij A_i A_j K_ij without the bias of one distance and one
+    direction between centroids (1 / r^2 is convex: at the centroid distance it is too small)."""
+    out = np.zeros((links.shape[0], 2))
+    k = sp.shape[1]
+    for a in range(links.shape[0]):
+        p, q = links[a, 0], links[a, 1]
+        dx = t.center[q, 0] - t.center[p, 0]
+        dy = t.center[q, 1] - t.center[p, 1]
+        dz = t.center[q, 2] - t.center[p, 2]
+        r = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if r <= 0.0:
+            continue
+        ux, uy, uz = dx / r, dy / r, dz / r
+        Sp = _projected(t, e, p, ux, uy, uz)
+        Sq = _projected(t, e, q, -ux, -uy, -uz)
+        if Sp <= 0.0 or Sq <= 0.0:
+            continue
         acc = 0.0
-        j = 0
-        for m in range(t.start[x], t.end[x]):
-            i = t.order[m]
-            acc += e.area[i]
-            while j < k and (j + 0.5) * total / k <= acc:
-                out[a, j] = i
-                j += 1
-        while j < k:  # rounding at the end
-            out[a, j] = t.order[t.end[x] - 1]
-            j += 1
+        for m in range(k):
+            i, j = sp[a, m], sq[a, m]
+            wi = e.normal[i, 0] * ux + e.normal[i, 1] * uy + e.normal[i, 2] * uz
+            wj = -(e.normal[j, 0] * ux + e.normal[j, 1] * uy + e.normal[j, 2] * uz)
+            if wi > 0.0 and wj > 0.0:
+                acc += _kernel(e, i, j) / (wi * wj)
+        g = Sp * Sq * acc / k
+        out[a, 0] = g / t.area[p]
+        out[a, 1] = g / t.area[q]
     return out
 
 
+def link_form_factors(ct: ClusterTree, links: np.ndarray, samples: int = FF_SAMPLES) -> np.ndarray:
+    """F_pq, F_qp (len(links), 2) of cluster links (p, q): sum_ij A_i A_j K_ij / A_p and / A_q
+    estimated from `samples` stratified pairs of elements (_sampled_ff); A_p F_pq = A_q F_qp."""
+    if len(links) == 0:
+        return np.zeros((0, 2))
+    sp, sq = link_samples(ct.tree, ct.elems, np.ascontiguousarray(links), samples)
+    shift = (np.arange(samples) + samples // 2) % samples
+    return _sampled_ff(ct.tree, ct.elems, np.ascontiguousarray(links), sp,
+                       np.ascontiguousarray(sq[:, shift]))
+
+
 def link_visibility(caster, ct: ClusterTree, links: np.ndarray, k: int) -> np.ndarray:
-    """Visible fraction of cluster links (k rays each between area-stratified element centroids
-    of both ends, the second end's samples rotated by half a stride), (len(links),) float64."""
+    """Visible fraction of cluster links: k rays each between the centroids of elements of both
+    ends stratified by their projected area toward the other end (link_samples; the second
+    end's samples rotated by half a stride), (len(links),) float64."""
     if len(links) == 0:
         return np.zeros(0)
     out = np.empty(len(links))
@@ -373,8 +443,8 @@ def link_visibility(caster, ct: ClusterTree, links: np.ndarray, k: int) -> np.nd
     shift = (np.arange(k) + k // 2) % k
     for a in range(0, len(links), step):
         lk = links[a:a + step]
-        ep = sample_elements(ct.tree, ct.elems, np.ascontiguousarray(lk[:, 0]), k)
-        eq = sample_elements(ct.tree, ct.elems, np.ascontiguousarray(lk[:, 1]), k)[:, shift]
+        ep, eq = link_samples(ct.tree, ct.elems, np.ascontiguousarray(lk), k)
+        eq = eq[:, shift]
         n = ep.size
         pts = np.concatenate([ct.elems.center[ep.ravel()], ct.elems.center[eq.ravel()]])
         ids = np.concatenate([ep.ravel(), eq.ravel()])
@@ -448,19 +518,6 @@ def cluster_gather(Lroot, parent, leaf_orig, area, p, q, wpq, wqp, ncap, G):
     return 2 * p.shape[0]
 
 
-@numba.njit(cache=True)
-def cluster_caps(parent, leaf_orig, rootcap):
-    """min of the originals' caps rootcap (n,) over each cluster node's leaves, (K,)."""
-    K = parent.shape[0]
-    out = np.full(K, np.inf)
-    for x in range(K):
-        if leaf_orig[x] >= 0:
-            out[x] = rootcap[leaf_orig[x]]
-    for x in range(K - 1, 0, -1):
-        out[parent[x]] = min(out[parent[x]], out[x])
-    return out
-
-
 # ----------------------------------------------------------------------------- the stage's part
 
 def use_clusters(hierarchy, originals: int) -> tuple[bool, str]:
@@ -492,7 +549,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     links, pairs, counts = refine_clusters(ct.tree, ct.elems, float(epsilon), ct.lref,
                                            max(1024, 8 * n))
     t1 = time.perf_counter()
-    F = link_form_factors(ct.tree, ct.elems, links)
+    F = link_form_factors(ct, links)
     if occlusion and len(links):
         from radiosity.tracing.rays import RayCaster
 

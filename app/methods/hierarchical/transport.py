@@ -213,14 +213,15 @@ def _cluster_gather(inp: LinkSolveInputs, cap, Lbar, G) -> int:
     cl = inp.clusters
     if cl is None or not cl.links:
         return 0
-    from radiosity.methods.hierarchical.clusters import cluster_caps, cluster_gather
+    from radiosity.methods.hierarchical.clusters import cluster_gather
 
     roots = inp.noff[:-1]
-    mode, ncap, _ = cap
-    ccap = cluster_caps(cl.parent, cl.leaf_orig, ncap[roots]) if mode == 1 else np.ones(1)
+    # not capped: the row caps tame the point kernel near contact; cluster links are far field
+    # (boxes apart, error below epsilon), and the min of the caps over a whole cluster would
+    # darken all of its light (the tessellated Cornell box: 3 %)
     Gc = np.zeros((Lbar.shape[1], len(roots)))
     terms = cluster_gather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent, cl.leaf_orig,
-                           cl.area, cl.p, cl.q, cl.wpq, cl.wqp, ccap, Gc)
+                           cl.area, cl.p, cl.q, cl.wpq, cl.wqp, np.ones(1), Gc)
     G[0][:, roots] += Gc
     return terms
 

@@ -100,7 +100,7 @@ def test_far_groups_are_one_cluster_link_whose_form_factor_is_the_exact_sum():
     ct = _tree(el)
     links, pairs, _ = refine_clusters(ct.tree, ct.elems, 1e-2, ct.lref, 64)
     assert len(pairs) == 0 and len(links) >= 1
-    F = link_form_factors(ct.tree, ct.elems, links)
+    F = link_form_factors(ct, links)
     A = ct.tree.area
     # power from group 2 to group 1 through the kept links (every link joins the two groups)
     got = float(sum(A[p] * F[k, 0] for k, (p, q) in enumerate(links)))
@@ -148,7 +148,7 @@ def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
     eps = 2e-3
     links, _, _ = refine_clusters(ct.tree, ct.elems, eps, ct.lref, 64)
     assert len(links) > 10
-    F = link_form_factors(ct.tree, ct.elems, links)
+    F = link_form_factors(ct, links)
     t = ct.tree
     for k, (p, q) in enumerate(links):
         d2 = _box_distance2(t, p, q)

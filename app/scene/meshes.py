@@ -7,6 +7,7 @@ across their longer sides). Every problem raises `SceneError` naming the file an
 
 from __future__ import annotations
 
+import gc
 import itertools
 import json
 import os
@@ -162,11 +163,23 @@ def _load_obj_bulk(fn: str, text: str) -> RawMesh | None:
         return None
     which = np.searchsorted(np.asarray(ev_line, np.int64), fline, side="right")
     fmat = np.array(["default"] + ev_name, dtype=object)[which].tolist()
-    if len(fcount) and np.all(fcount == fcount[0]):
-        faces = fidx.reshape(-1, int(fcount[0])).tolist()
-    else:
-        it = iter(fidx.tolist())
-        faces = [list(itertools.islice(it, c)) for c in fcount.tolist()]
+    collect = gc.isenabled()
+    gc.disable()  # a million small lists: the cyclic collector would walk them all many times
+    try:
+        if len(fcount) and np.all(fcount == fcount[0]):
+            faces = fidx.reshape(len(fcount), -1).tolist()
+        else:  # the faces of each size at once, then in file order
+            starts = np.zeros(len(fcount) + 1, np.int64)
+            np.cumsum(fcount, out=starts[1:])
+            faces = np.empty(len(fcount), object)
+            for c in np.unique(fcount).tolist():
+                sel = np.flatnonzero(fcount == c)
+                rows = fidx[starts[sel][:, None] + np.arange(c)].tolist()
+                faces[sel] = np.fromiter(rows, object, count=len(rows))
+            faces = faces.tolist()
+    finally:
+        if collect:
+            gc.enable()
     return RawMesh(coords.reshape(-1, 3), faces, fmat, mats)
 
 
@@ -422,12 +435,13 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
     e_index = _per_face_any(out_of_range, starts)
     e_size = sizes < 3
     if nv:
-        with np.errstate(invalid="ignore"):
-            e_finite = _per_face_any(~np.isfinite(V).all(axis=1)[safe] & ~out_of_range, starts)
-            e_huge = _per_face_any((np.abs(V).max(axis=1) > MAX_COORD)[safe] & ~out_of_range, starts)
+        flags = meshkernels.vertex_flags(np.ascontiguousarray(V), MAX_COORD)[safe]
+        flags[out_of_range] = 0
+        e_finite = _per_face_any(flags == 1, starts)
+        e_huge = _per_face_any(flags == 2, starts)
     else:
         e_finite = e_huge = np.zeros(nf, bool)
-    bad = np.flatnonzero(e_index | e_size | e_finite | e_huge)
+    bad = np.flatnonzero(e_index | e_size | e_huge)
     nok = int(bad[0]) if len(bad) else nf  # faces before the first bad one
 
     # quads and n-gons among them: the repairs, said in face order
@@ -471,21 +485,11 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
     count[ngon] = sizes[ngon] - 2
     first = np.zeros(nf + 1, np.int64)
     np.cumsum(count, out=first[1:])
+    how = np.zeros(nf, np.int64)  # meshkernels.fill_polygons' cases
+    how[quad] = np.where(keep, 1, np.where(other, 3, 2))
+    how[ngon] = 4
     verts = np.empty((int(first[-1]), 4, 3))
-    tri = np.flatnonzero(sizes == 3)
-    verts[first[tri]] = V[flat[starts[tri][:, None] + np.array([0, 1, 2, 2])]]
-    verts[first[quad[keep]]] = pq[keep]
-    split = ~keep
-    a = np.where(other[split, None, None], pq[split][:, [1, 2, 3, 3]], pq[split][:, [0, 1, 2, 2]])
-    b = np.where(other[split, None, None], pq[split][:, [1, 3, 0, 0]], pq[split][:, [0, 2, 3, 3]])
-    verts[first[quad[split]]] = a
-    verts[first[quad[split]] + 1] = b
-    if len(ngon):
-        nt = sizes[ngon] - 2
-        k = np.arange(int(nt.sum())) - np.repeat(np.cumsum(nt) - nt, nt) + 1  # 1 .. n - 2
-        s0 = np.repeat(starts[ngon], nt)
-        fan = flat[np.stack([s0, s0 + k, s0 + k + 1, s0 + k + 1], axis=1)]
-        verts[np.repeat(first[ngon], nt) + k - 1] = V[fan]
+    meshkernels.fill_polygons(np.ascontiguousarray(V), flat, starts, first, how, verts)
     nverts = np.where(np.all(verts[:, 3] == verts[:, 2], axis=1), 3, 4).astype(np.int8)
     face = np.repeat(np.arange(nf, dtype=np.int32), count)
     out_m = list(map(fm.__getitem__, face.tolist()))
@@ -499,21 +503,6 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
         raise SceneError(f"{fn}: face {face[bad[0]] + 1} (material '{out_m[bad[0]]}') has zero area"
                          + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""))
     return verts, nverts, face, out_m
-
-
-def _vertex_ids(pts: np.ndarray) -> np.ndarray:
-    """An id per point (n, 3), equal for points with equal coordinates (as np.unique(axis=0)
-    tells them apart: -0.0 is 0.0)."""
-    if len(pts) == 0 or not np.all(np.isfinite(pts)):
-        return np.unique(pts, axis=0, return_inverse=True)[1].reshape(-1)
-    u = np.ascontiguousarray(pts + 0.0).view(np.int64)  # + 0.0: -0.0 -> 0.0; then the bits
-    order = np.lexsort((u[:, 2], u[:, 1], u[:, 0]))
-    s = u[order]
-    new = np.ones(len(s), bool)
-    new[1:] = np.any(s[1:] != s[:-1], axis=1)
-    ids = np.empty(len(s), np.int64)
-    ids[order] = np.cumsum(new) - 1
-    return ids
 
 
 def merge_parallelograms(verts, nverts, face, mats, tol: float | None = None):
@@ -532,30 +521,25 @@ def merge_parallelograms(verts, nverts, face, mats, tol: float | None = None):
     if len(tri) < 2:
         return verts, nverts, face, mats
     P = np.ascontiguousarray(verts[tri, :3], dtype=np.float64)
-    vid = _vertex_ids(P.reshape(-1, 3)).reshape(-1, 3)
+    pts = P.reshape(-1, 3)
+    if np.all(np.isfinite(pts)):  # vertex identity by exact coordinates
+        vid = meshkernels.point_ids(pts).reshape(-1, 3)
+    else:
+        vid = np.unique(pts, axis=0, return_inverse=True)[1].reshape(-1, 3)
     code = {m: i for i, m in enumerate(dict.fromkeys(mats))}
     mat = np.fromiter(map(code.__getitem__, mats), np.int64, count=len(mats))[tri]
-    # the triangles on each edge, in the order of their slots 3 k + e
-    nxt = vid[:, [1, 2, 0]]
-    key = (np.minimum(vid, nxt) * (int(vid.max()) + 1) + np.maximum(vid, nxt)).reshape(-1)
-    order = np.argsort(key, kind="stable")
-    ks = key[order]
-    new = np.ones(len(ks), bool)
-    new[1:] = ks[1:] != ks[:-1]
-    gstart = np.append(np.flatnonzero(new), len(ks))
-    group = np.empty(len(ks), np.int64)
-    group[order] = np.cumsum(new) - 1
+    order, gstart, group = meshkernels.edge_runs(np.ascontiguousarray(vid, np.int64))
     partner, edge, pedge = meshkernels.merge_pairs(P, vid, mat, order, gstart, group, float(tol))
     k = np.flatnonzero(edge >= 0)
     if not len(k):
         return verts, nverts, face, mats
     j, e, ej = partner[k], edge[k], pedge[k]
     quads = np.stack([P[k, (e + 1) % 3], P[k, (e + 2) % 3], P[k, e], P[j, (ej + 2) % 3]], axis=1)
-    verts = verts.copy()
-    nverts = nverts.copy()
-    verts[tri[k]] = quads
-    nverts[tri[k]] = 4
     keep = np.ones(len(verts), bool)
     keep[tri[j]] = False
+    at = np.cumsum(keep) - 1  # where each kept polygon goes
     keep = np.flatnonzero(keep)
-    return verts[keep], nverts[keep], face[keep], list(map(mats.__getitem__, keep.tolist()))
+    verts, nverts = verts[keep], nverts[keep]
+    verts[at[tri[k]]] = quads
+    nverts[at[tri[k]]] = 4
+    return verts, nverts, face[keep], list(map(mats.__getitem__, keep.tolist()))

@@ -103,49 +103,44 @@ def _is_space(c):
 
 
 @numba.njit(cache=True)
-def _room(a, n):
-    """a, or a copy twice as long, holding at least n + 1 entries."""
-    if n < len(a):
-        return a
-    b = np.empty(max(2 * len(a), n + 1), a.dtype)
-    b[:len(a)] = a
-    return b
-
-
-@numba.njit(cache=True)
-def _scan(b):
-    """scan_obj's loop over the lines of b. Returns status (1: the Python reader must read the
-    file), coordinates (3 V,), positions and bytes of the numbers float() must read, face
-    indices, counts and lines, and the line, start and end of each OTHER line."""
+def _scan(b, st, coords, slow, slow_buf, fidx, faces, other):
+    """scan_obj's loop over the lines of b, from where st (int64 (9,)) says: byte offset, line
+    number (0-based) of the last line read, then the counts so far of vertices, face indices,
+    faces, slow numbers, their bytes and OTHER lines. Writes coordinates, positions and bytes
+    of the numbers float() must read (slow, slow_buf), face indices (fidx), (vertex count,
+    line) of each face (faces) and (line, start, end) of each OTHER line (other). Returns 0
+    when done, 1 when the Python reader must read the file, 2 when an output may not hold the
+    next line (st says where it stopped, st[8] which outputs: bits 1 fidx, 2 faces, 4 slow,
+    8 slow_buf, 16 other; grow them and call again)."""
     pow10 = _POW10
     n = len(b)
-    coords = np.empty(3 * 1024)
-    slow_pos = np.empty(16, np.int64)
-    slow_buf = np.empty(256, np.uint8)
-    fidx = np.empty(3 * 1024, np.int64)
-    fcount = np.empty(1024, np.int64)
-    fline = np.empty(1024, np.int64)
-    other = np.empty((16, 3), np.int64)
-    nv = 0
-    nf = 0
-    nidx = 0
-    nslow = 0
-    nslowb = 0
-    nother = 0
-    fail = (1, coords[:0], slow_pos[:0], slow_buf[:0], fidx[:0], fcount[:0], fline[:0], other[:0])
-    li = -1
-    s = 0
+    s, li, nv, nidx, nf, nslow, nslowb, nother = st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7]
     while s < n:
-        li += 1
         ls = s
         e = s  # the end of the line; any other of str.splitlines' line breaks: fail
         while e < n and b[e] != 10:
             c = b[e]
             if c == 13 or c == 11 or c == 12 or c == 28 or c == 29 or c == 30:
-                return fail
+                return 1
             e += 1
-        i = s
+        full = 0  # room for this line, whatever it holds
+        if nidx + (e - ls) > len(fidx):
+            full |= 1
+        if nf + 1 > faces.shape[0]:
+            full |= 2
+        if nslow + 3 > len(slow):
+            full |= 4
+        if nslowb + (e - ls) + 3 > len(slow_buf):
+            full |= 8
+        if nother + 1 > other.shape[0]:
+            full |= 16
+        if full or 3 * nv + 3 > len(coords):
+            st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7] = ls, li, nv, nidx, nf, nslow, nslowb, nother
+            st[8] = full
+            return 2
+        li += 1
         s = e + 1
+        i = ls
         while i < e and _is_space(b[i]):
             i += 1
         if i == e or b[i] == 35:  # blank or a comment
@@ -160,13 +155,11 @@ def _scan(b):
         k = i
         while k < pc and not _is_space(b[k]):
             k += 1
-        kind = OTHER
         if not printable:
             kind = OTHER
         elif k - i == 1 and b[i] == 118:  # v
             j = k
             ntok = 0
-            coords = _room(coords, 3 * nv + 2)
             while ntok < 3:
                 while j < pc and _is_space(b[j]):
                     j += 1
@@ -175,15 +168,13 @@ def _scan(b):
                 t0 = j
                 while j < pc and not _is_space(b[j]):
                     j += 1
-                st, val = _float_token(b, t0, j, pow10)
-                if st == 2:
-                    return fail
-                if st == 0:
+                code, val = _float_token(b, t0, j, pow10)
+                if code == 2:
+                    return 1
+                if code == 0:
                     coords[3 * nv + ntok] = val
                 else:
-                    slow_pos = _room(slow_pos, nslow)
-                    slow_pos[nslow] = 3 * nv + ntok
-                    slow_buf = _room(slow_buf, nslowb + j - t0)
+                    slow[nslow] = 3 * nv + ntok
                     for t in range(t0, j):
                         slow_buf[nslowb + t - t0] = b[t]
                     slow_buf[nslowb + j - t0] = 32
@@ -191,7 +182,7 @@ def _scan(b):
                     nslowb += j - t0 + 1
                 ntok += 1
             if ntok < 3:
-                return fail
+                return 1
             nv += 1
             kind = VERTEX
         elif k - i == 1 and b[i] == 102:  # f
@@ -218,21 +209,18 @@ def _scan(b):
                     nd += 1
                     q += 1
                 if nd == 0 or nd > 18 or (q < j and b[q] != 47):
-                    return fail
+                    return 1
                 if neg:
                     val = -val
                 idx = val - 1 if val > 0 else nv + val
                 if not 0 <= idx < nv:
-                    return fail
-                fidx = _room(fidx, nidx + ntok)
+                    return 1
                 fidx[nidx + ntok] = idx
                 ntok += 1
             if ntok < 3:
-                return fail
-            fcount = _room(fcount, nf)
-            fline = _room(fline, nf)
-            fcount[nf] = ntok
-            fline[nf] = li
+                return 1
+            faces[nf, 0] = ntok
+            faces[nf, 1] = li
             nidx += ntok
             nf += 1
             kind = FACE
@@ -250,19 +238,21 @@ def _scan(b):
                 keyword = False
             kind = SKIP if keyword else OTHER
         if kind == OTHER:
-            if nother == len(other):
-                grown = np.empty((2 * nother, 3), np.int64)
-                grown[:nother] = other
-                other = grown
             other[nother, 0] = li
             other[nother, 1] = ls
             other[nother, 2] = e
             nother += 1
-    return (0, coords[:3 * nv], slow_pos[:nslow], slow_buf[:nslowb], fidx[:nidx], fcount[:nf],
-            fline[:nf], other[:nother])
+    st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7] = s, li, nv, nidx, nf, nslow, nslowb, nother
+    return 0
 
 
-def scan_obj(b: np.ndarray):
+def _grow(a: np.ndarray) -> np.ndarray:
+    b = np.empty((max(2 * len(a), 16),) + a.shape[1:], a.dtype)
+    b[:len(a)] = a
+    return b
+
+
+def scan_obj(b: np.ndarray, room: int | None = None):
     """The OBJ bytes b (uint8, UTF-8) read in bulk: None where the Python reader must read the
     file (a line it might read otherwise or reject: a `v` or `f` line not of the plain forms
     `v x y z [...]` (numbers [+-]d.dE[+-]d) and `f i[/...] j k ...` (indices, negative ones
@@ -270,12 +260,160 @@ def scan_obj(b: np.ndarray):
     (vertex coordinates (3 V,), the positions among them of those float() must read and their
     bytes (space-separated), face indices (flat, 0-based), vertices per face, line of each
     face, and (line, start, end) of each line left to the Python reader: usemtl, mtllib,
-    non-ASCII or malformed statements)."""
-    out = _scan(b)
-    return None if out[0] else out[1:]
+    non-ASCII or malformed statements). room: the outputs' first size (None: sizes that
+    usually hold the file; the outputs grow as needed)."""
+    lines = int(np.count_nonzero(b == 10)) + 1
+    st = np.zeros(9, np.int64)
+    st[1] = -1
+    coords = np.empty(3 * lines)  # three per line at most
+    if room is None:
+        out = [np.empty(lines + 1024, np.int64), np.empty((lines // 2 + 1024, 2), np.int64),
+               np.empty(1024, np.int64), np.empty(1 << 16, np.uint8), np.empty((256, 3), np.int64)]
+    else:
+        out = [np.empty(room, np.int64), np.empty((room, 2), np.int64), np.empty(room, np.int64),
+               np.empty(room, np.uint8), np.empty((room, 3), np.int64)]
+    while True:
+        fidx, faces, slow, slow_buf, other = out
+        status = _scan(b, st, coords, slow, slow_buf, fidx, faces, other)
+        if status != 2:
+            break
+        out = [_grow(a) if st[8] & bit else a for a, bit in zip(out, (1, 2, 4, 8, 16))]
+    if status:
+        return None
+    nv, nidx, nf, nslow, nslowb, nother = st[2:8].tolist()
+    return (coords[:3 * nv], slow[:nslow], slow_buf[:nslowb], fidx[:nidx], faces[:nf, 0],
+            faces[:nf, 1], other[:nother])
+
+
+# ----------------------------------------------------------------------------- polygons
+
+@numba.njit(cache=True)
+def vertex_flags(V, max_coord):
+    """Per vertex of V (n, 3): 1 if a coordinate is NaN or infinite, else 2 if one is beyond
+    max_coord in size, else 0."""
+    out = np.zeros(V.shape[0], np.uint8)
+    for i in range(V.shape[0]):
+        for c in range(3):
+            x = V[i, c]
+            if not np.isfinite(x):
+                out[i] = 1
+                break
+            if abs(x) > max_coord:
+                out[i] = 2
+    return out
+
+
+@numba.njit(cache=True)
+def fill_polygons(V, flat, starts, first, how, verts):
+    """Writes the polygons of each face f (vertex indices flat[starts[f]:starts[f + 1]]) into
+    verts (n, 4, 3) from row first[f]: how[f] 0: a triangle (0, 1, 2, 2); 1: a quad; 2: two
+    triangles (0, 1, 2, 2), (0, 2, 3, 3); 3: two triangles (1, 2, 3, 3), (1, 3, 0, 0); 4: a fan
+    (0, k, k + 1, k + 1) for k = 1 .. n - 2."""
+    rows = np.array([[0, 1, 2, 2], [0, 1, 2, 3], [0, 1, 2, 2], [1, 2, 3, 3], [0, 2, 3, 3],
+                     [1, 3, 0, 0]])
+    for f in range(len(how)):
+        s = starts[f]
+        o = first[f]
+        h = how[f]
+        if h == 4:
+            for k in range(1, starts[f + 1] - s - 1):
+                for slot in range(4):
+                    t = 0 if slot == 0 else (k if slot == 1 else k + 1)
+                    for c in range(3):
+                        verts[o + k - 1, slot, c] = V[flat[s + t], c]
+            continue
+        r = 0 if h == 0 else (1 if h == 1 else (2 if h == 2 else 3))
+        for slot in range(4):
+            for c in range(3):
+                verts[o, slot, c] = V[flat[s + rows[r, slot]], c]
+        if h >= 2:
+            r2 = 4 if h == 2 else 5
+            for slot in range(4):
+                for c in range(3):
+                    verts[o + 1, slot, c] = V[flat[s + rows[r2, slot]], c]
 
 
 # ----------------------------------------------------------------------------- merge
+
+@numba.njit(cache=True)
+def _mix(a, b, c):
+    """A 64-bit hash of three 64-bit words."""
+    h = a * np.uint64(0x9E3779B97F4A7C15)
+    h ^= (h >> np.uint64(29)) ^ b * np.uint64(0xC2B2AE3D27D4EB4F)
+    h ^= (h >> np.uint64(31)) ^ c * np.uint64(0x165667B19E3779F9)
+    h ^= h >> np.uint64(32)
+    return h
+
+
+@numba.njit(cache=True)
+def _ids(w):
+    """An id per row of w (n, 2 or 3) uint64, the same for equal rows (0, 1, ...: in the order
+    of their first rows), by an open-addressing hash table."""
+    n, m = w.shape
+    size = 16
+    while size < 2 * n:
+        size *= 2
+    mask = np.uint64(size - 1)
+    table = -np.ones(size, np.int64)
+    ids = np.empty(n, np.int64)
+    nid = 0
+    for p in range(n):
+        h = _mix(w[p, 0], w[p, 1], w[p, m - 1]) & mask
+        while True:
+            q = table[h]
+            if q < 0:
+                table[h] = p
+                ids[p] = nid
+                nid += 1
+                break
+            same = True
+            for c in range(m):
+                if w[q, c] != w[p, c]:
+                    same = False
+            if same:
+                ids[p] = ids[q]
+                break
+            h = (h + np.uint64(1)) & mask
+    return ids
+
+
+def point_ids(pts: np.ndarray) -> np.ndarray:
+    """An id per point of pts (n, 3) float64, finite: equal for points with equal coordinates
+    (-0.0 is 0.0)."""
+    w = np.ascontiguousarray(pts + 0.0).view(np.uint64)  # + 0.0: -0.0 -> 0.0; then the bits
+    return _ids(w)
+
+
+@numba.njit(cache=True)
+def edge_runs(vid):
+    """The edges of triangles vid (t, 3) (vertex ids): slot 3 k + e is edge (vid[k, e],
+    vid[k, (e + 1) % 3]), either way round. Returns order (3 t,): the slots by edge, each edge's
+    in slot order; start (edges + 1,): where each edge's run begins in order; group (3 t,): the
+    edge of each slot."""
+    t = vid.shape[0]
+    w = np.empty((3 * t, 2), np.uint64)
+    for k in range(t):
+        for e in range(3):
+            a = vid[k, e]
+            b = vid[k, (e + 1) % 3]
+            w[3 * k + e, 0] = min(a, b)
+            w[3 * k + e, 1] = max(a, b)
+    group = _ids(w)
+    nedge = 0
+    for s in range(3 * t):
+        nedge = max(nedge, group[s] + 1)
+    start = np.zeros(nedge + 1, np.int64)
+    for s in range(3 * t):
+        start[group[s] + 1] += 1
+    for g in range(nedge):
+        start[g + 1] += start[g]
+    fill = start[:-1].copy()
+    order = np.empty(3 * t, np.int64)
+    for s in range(3 * t):
+        order[fill[group[s]]] = s
+        fill[group[s]] += 1
+    return order, start, group
+
 
 @numba.njit(cache=True)
 def _norm3(x, y, z):

@@ -181,3 +181,95 @@ def test_ply_without_material_is_default_grey_and_takes_the_default_override(tmp
                                      'reflectance = [0.1, 0.2, 0.3]\n' + cam)
     el = load_scene(str(tmp_path / "b.toml")).elements
     np.testing.assert_array_equal(el.reflectance[0, 0], [0.1, 0.2, 0.3])
+
+
+# ----------------------------------------------------------------------------- bulk OBJ reader
+
+def _obj_text(rng, n=400) -> str:
+    """An OBJ of plain lines the bulk reader takes: numbers in many spellings, faces of 3 to 6
+    vertices (slashes, negative indices), usemtl, comments, unknown statements, blank lines."""
+    spell = [lambda x: "%.9g" % x, lambda x: repr(float(x)), lambda x: "%.6f" % x, lambda x: "%.3e" % x,
+             lambda x: "%.25e" % x, lambda x: "%d" % round(x), lambda x: "%.17g" % (x * 1e-310),
+             lambda x: "%.1fe+300" % x, lambda x: "-0", lambda x: ".5", lambda x: "+7.", lambda x: "0e99999"]
+    lines, nv = ["# made up", "mtllib mesh.mtl", "o thing", "vn 0 1 0", "vt 0.5 0.5", ""], 0
+    for k in range(n):
+        r = rng.random()
+        if r < 0.5 or nv < 6:
+            xyz = rng.normal(size=3) * 10.0 ** rng.integers(-3, 4)
+            lines.append("v " + "\t ".join(spell[rng.integers(len(spell))](x) for x in xyz)
+                         + (" 1 0.5 0" if r < 0.05 else ""))
+            nv += 1
+        elif r < 0.85:
+            m = int(rng.choice([3, 3, 4, 4, 5, 6]))
+            idx = rng.choice(nv, m, replace=False) + 1
+            toks = [str(i - nv - 1) if rng.random() < 0.2 else
+                    (f"{i}/{i}/1" if rng.random() < 0.2 else (f"{i}//2" if rng.random() < 0.1 else str(i)))
+                    for i in idx]
+            lines.append("f  " + " ".join(toks))
+        elif r < 0.9:
+            lines.append(f"usemtl {rng.choice(['a', 'b', 'a b'])}")
+        elif r < 0.95:
+            lines.append(rng.choice(["", "   ", "# comment", "s off", "g part_2", "usemtl"]))
+        else:
+            lines.append("vn 0 0 1  # normal")
+    return "\n".join(lines) + "\n"
+
+
+def _same_raw(a, b):
+    assert a.vertices.shape == b.vertices.shape and a.vertices.dtype == b.vertices.dtype
+    np.testing.assert_array_equal(a.vertices.view(np.int64), b.vertices.view(np.int64))  # to the bit
+    assert a.faces == b.faces and all(type(k) is int for f in a.faces for k in f)
+    assert a.face_material == b.face_material and a.materials == b.materials
+
+
+def test_bulk_obj_reader_reads_what_the_line_reader_reads(tmp_path):
+    """The bulk reader (numba scan of v/f lines, Clinger's exact fast path for numbers, the
+    rest left to float()) gives the line reader's RawMesh to the bit; with outputs that start
+    tiny and grow, the same scan."""
+    from radiosity.scene import meshes, meshkernels
+
+    (tmp_path / "mesh.mtl").write_text("newmtl a\nKd 0.1 0.2 0.3\nnewmtl a b\nKe 1 1 1\n")
+    rng = np.random.default_rng(3)
+    for trial in range(12):
+        text = _obj_text(rng)
+        if trial % 3 == 1:
+            text = text.replace("\n", "\r\n")
+        fn = str(tmp_path / "mesh.obj")
+        (tmp_path / "mesh.obj").write_text(text, newline="")
+        bulk = meshes._load_obj_bulk(fn, open(fn, encoding="utf-8").read())
+        assert bulk is not None  # plain lines only: read in bulk
+        _same_raw(bulk, meshes._load_obj_lines(fn, open(fn, encoding="utf-8").read().splitlines()))
+        _same_raw(meshes.load_obj(fn), bulk)
+        b = np.frombuffer(text.replace("\r\n", "\n").encode(), np.uint8)
+        big, small = meshkernels.scan_obj(b), meshkernels.scan_obj(b, room=1)
+        for x in (big, small):
+            x[0][x[1]] = 0.0  # the slots float() fills
+        assert all(np.array_equal(x, y) for x, y in zip(big, small))
+
+
+@pytest.mark.parametrize("bad", [
+    "v 1 2\n", "v 1 2 x\n", "v 1 2 nan\n", "v 1_0 2 3\n", "f 1 2 99\n", "f 1 2\n", "f 0 1 2\n",
+    "f -9 1 2\n", "f 1/2 /3 2\n", "f +1 2 3\n", "f 1 2 3 # c\n", "v 1 2 3 # c\n", "  f 1 2 3\n",
+    "3 4 5\n", "usemtl \x00\n", "v 1 2 3\r", "v 1 2\x0b3\n", "\xe9t\xe9 1\n", "mtllib gone.mtl\n",
+    "f 1 2 1234567890123456789012\n", "v 1e\t2 3\n", "v 1.2.3 0 0\n", "v\xa01 2 3\n"])
+def test_obj_lines_the_bulk_reader_leaves_read_as_before(tmp_path, bad):
+    """A line the bulk reader does not take (or an error anywhere) sends the whole file to the
+    line reader: the same mesh or the same error line, naming the first bad line."""
+    from radiosity.errors import SceneError
+    from radiosity.scene import meshes
+
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nusemtl a\n" + bad + "f 2 3 4\nv 1 1 1\n"
+    fn = str(tmp_path / "mesh.obj")
+    (tmp_path / "mesh.obj").write_text(text, newline="")
+
+    def read(f):
+        try:
+            return f(), None
+        except SceneError as e:
+            return None, str(e)
+
+    want, err = read(lambda: meshes._load_obj_lines(fn, open(fn, encoding="utf-8").read().splitlines()))
+    got, got_err = read(lambda: meshes.load_obj(fn))
+    assert got_err == err
+    if want is not None:
+        _same_raw(got, want)

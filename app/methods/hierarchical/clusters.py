@@ -19,6 +19,10 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+# A link is near when its ends' box diagonals summed exceed this many times the distance
+# between the boxes: never kept between clusters (the estimate from sample pairs, and the
+# receivers' uniform share, fail there; docs/design/methods-hierarchical-clusters.md).
+ADMISSIBLE = 2.0
 # The cluster tree (K nodes, node 0 the root, children after parents; leaves hold one original):
 # left, right (K,) (-1 at a leaf), start, end (K,) ranges into order (n,); lo, hi (K, 3) vertex
 # boxes; axis (K, 3), spread (K,) the normal cone; two (K,) any two-sided element; area (K,);
@@ -185,8 +189,10 @@ def _error_bound(t, p, q, d2, lref):
     for k in range(3):
         dp += (t.hi[p, k] - t.lo[p, k]) ** 2
         dq += (t.hi[q, k] - t.lo[q, k]) ** 2
-    rel = (np.sqrt(dp) + np.sqrt(dq)) / d + t.spread[p] + t.spread[q]
-    return carried * rel if rel <= 1.0 else np.inf  # near (rel > 1): never kept
+    size = (np.sqrt(dp) + np.sqrt(dq)) / d
+    if size > ADMISSIBLE:  # near: the point kernel between samples is no estimate there
+        return np.inf
+    return carried * min(size + t.spread[p] + t.spread[q], 1.0)
 
 
 @numba.njit(cache=True)
@@ -225,8 +231,10 @@ def _error_estimate(t, e, p, q, d2, lref):
     for k in range(3):
         dp += (t.hi[p, k] - t.lo[p, k]) ** 2
         dq += (t.hi[q, k] - t.lo[q, k]) ** 2
-    rel = (np.sqrt(dp) + np.sqrt(dq)) / np.sqrt(d2) + t.spread[p] + t.spread[q]
-    return carried * rel if rel <= 1.0 else np.inf  # near (rel > 1): never kept
+    size = (np.sqrt(dp) + np.sqrt(dq)) / np.sqrt(d2)
+    if size > ADMISSIBLE:  # near: never kept (as the bound)
+        return np.inf
+    return carried * min(size + t.spread[p] + t.spread[q], 1.0)
 
 
 @numba.njit(cache=True)

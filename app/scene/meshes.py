@@ -441,7 +441,7 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
         e_huge = _per_face_any(flags == 2, starts)
     else:
         e_finite = e_huge = np.zeros(nf, bool)
-    bad = np.flatnonzero(e_index | e_size | e_huge)
+    bad = np.flatnonzero(e_index | e_size | e_finite | e_huge)
     nok = int(bad[0]) if len(bad) else nf  # faces before the first bad one
 
     # quads and n-gons among them: the repairs, said in face order

@@ -424,3 +424,15 @@ def test_the_first_bad_face_is_named_and_the_repairs_before_it_said(tmp_path):
     with pytest.warns(SceneWarning, match="face 1 .*non-convex quad"):
         with pytest.raises(SceneError, match=r"mesh.obj: face 3 has a NaN or infinite vertex coordinate"):
             load_scene(write_scene(tmp_path, obj))
+
+
+def test_a_quad_with_three_collinear_vertices_is_split_along_the_other_diagonal(tmp_path):
+    """Vertex 3 on the diagonal 0-2 (the halves (0, 1, 2) and (0, 2, 3) do not face opposite
+    ways: one is empty): not convex, split along 1-3 into two proper triangles, not into one
+    with zero area."""
+    obj = "v 0 0 0\nv 1 0 1\nv 2 0 0\nv 1 0 0\nf 1 2 3 4\n"
+    with pytest.warns(SceneWarning, match="face 1 .*non-convex quad"):
+        el = load_scene(write_scene(tmp_path, obj)).elements
+    assert list(el.nverts) == [3, 3]
+    np.testing.assert_array_equal(el.verts[:, 0], [[1, 0, 1], [1, 0, 1]])  # both from vertex 1
+    assert el.area.sum() == pytest.approx(1.0)

@@ -81,7 +81,8 @@ def test_render_end_to_end_on_every_builtin_scene(client, tmp_path, name):
     for f in ("image.exr", "image.png", "preview.png", "mesh.glb", "mesh.ply", "viewer.html", "report.json"):
         assert (out / f).stat().st_size > 0, f
     rep = json.loads((out / "report.json").read_text())
-    for section in ("preprocess", "visibility", "solve", "render"):
+    stage = {"pairs": "visibility", "hierarchical": "links"}[rep["plan"]["method"]]
+    for section in ("preprocess", stage, "solve", "render"):
         assert section in rep
     assert rep["solve"]["converged"] and rep["solve"]["final_residual"] <= 1e-6
     assert "workers" in rep["render"]["stages"]["peak_rss_mb"]

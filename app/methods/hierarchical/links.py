@@ -415,7 +415,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool) -> LinkPlan:
     from dask.base import tokenize
 
     from radiosity.runtime.packing import choose_unit
-    from radiosity.scene.originals import pairs_within_budget, tree_of
+    from radiosity.scene.originals import FacingPairsError, pairs_within_budget, tree_of
     from radiosity.scene.splittrees import seen_originals
 
     raster = rs.read_arrays("raster")  # orig, sub: (H, W) per criterion pixel
@@ -426,16 +426,22 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool) -> LinkPlan:
         unit = choose_unit(s.visibility.task_unit, len(el), int(s.visibility.stripe_threshold))
     cl, cfig = None, None
     on, why_clusters = use_clusters(s.hierarchy, len(el))
+    if not on:  # every facing pair of originals starts a link (SPEC §8), within the budget
+        try:
+            bi, bj, _ = pairs_within_budget(tree_of(el, int(s.plan.leaf_size)),
+                                            int(s.plan.max_facing_pairs),
+                                            rs.attrs.get("scene") or rs.run_dir)
+            cfig = {"why": why_clusters}
+        except FacingPairsError as e:
+            if s.hierarchy.clusters in ("off", False):
+                raise
+            on, why_clusters = True, (f"on: auto, about {e.estimate:.3g} facing pairs of "
+                                      f"originals > plan.max-facing-pairs")
     if on:  # links start at the root of the tree over the originals (SPEC §9)
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon, oracle_weights(el, weight), prm.rays,
                                          occlusion, s.rays.epsilon)
         cfig["why"] = why_clusters
         bi, bj = cpairs[:, 0], cpairs[:, 1]
-    else:  # every facing pair of originals starts a link (SPEC §8)
-        bi, bj, _ = pairs_within_budget(tree_of(el, int(s.plan.leaf_size)),
-                                        int(s.plan.max_facing_pairs),
-                                        rs.attrs.get("scene") or rs.run_dir)
-        cfig = {"why": why_clusters}
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit, int(s.hierarchy.max_task_cost))
     seen = seen_originals(raster["orig"], len(el))
     hit = None

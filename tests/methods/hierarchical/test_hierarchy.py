@@ -507,9 +507,13 @@ def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_pat
         assert "1001 sub-elements > 1000" in choose_method(1001, s)[1]
         assert choose_method(10 ** 6, s.replace({"solve.kernel": "nxm"}))[0] == "pairs"
         assert choose_method(10, s.replace({"visibility.method": "hierarchical"}))[0] == "hierarchical"
-        # many originals of about one sub-element each: nothing for links to coarsen
-        assert choose_method(20016, s, originals=20001)[0] == "pairs"
-        assert "under 4 each" in choose_method(20016, s, originals=20001)[1]
+        # many originals: clustered (SPEC §9); without clusters, about one sub-element each
+        # leaves nothing for links to coarsen
+        assert choose_method(20016, s, originals=20001)[0] == "hierarchical"
+        assert "clustered" in choose_method(20016, s, originals=20001)[1]
+        off = s.replace({"hierarchy.clusters": "off"})
+        assert choose_method(20016, off, originals=20001)[0] == "pairs"
+        assert "under 4 each" in choose_method(20016, off, originals=20001)[1]
         assert choose_method(21208, s, originals=20)[0] == "hierarchical"
         r = CliRunner().invoke(main, ["plan", scene_path("three-rectangles"), "--resolution", "64"])
     assert r.exit_code == 0, r.output

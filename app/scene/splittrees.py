@@ -246,7 +246,7 @@ class NodeTable:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-def closure(orig: np.ndarray, code: np.ndarray):
+def full_trees(orig: np.ndarray, code: np.ndarray):
     """The nodes needed for nodes (orig, code) to sit in full trees: every ancestor and both
     children of every ancestor. Returns (orig, path, depth) of the unique set, depth >= 1."""
     path, depth = decode(code)
@@ -341,10 +341,10 @@ def _table_walk(orig, depth, path, noff, verts, nverts, parent, lo, hi, is_leaf)
 def node_table(tree: TreeNodes, part: Partition, extra_orig: np.ndarray,
                extra_code: np.ndarray) -> NodeTable:
     """The union tree: the partition's nodes plus split-off nodes (extra_orig, extra_code) below
-    its leaves (unseen originals, sub-elements no pixel hits) and their closure (closure());
+    its leaves (unseen originals, sub-elements no pixel hits) and their ancestors and siblings (full_trees());
     polygons of the new nodes by split_one."""
     n = len(part.offsets) - 1
-    eo, ep, ed = closure(np.asarray(extra_orig, np.int32), np.asarray(extra_code, np.uint64))
+    eo, ep, ed = full_trees(np.asarray(extra_orig, np.int32), np.asarray(extra_code, np.uint64))
     o = np.concatenate([tree.orig, eo]).astype(np.int32)
     p = np.concatenate([tree.path, ep]).astype(np.uint64)
     d = np.concatenate([tree.depth, ed]).astype(np.int32)

@@ -15,7 +15,7 @@ import numpy as np
 
 
 @dataclass(frozen=True)
-class Closure:
+class MeshClosure:
     """closed: every edge shared by two facets with opposite windings; inward: the normals
     point into the enclosed volume; volume: signed volume (outward convention) in the mesh's
     unit cubed; reason: why it is not an enclosure ('' when it is one)."""
@@ -30,8 +30,10 @@ class Closure:
         return self.closed and self.inward
 
 
-def closure(verts: np.ndarray, nverts: np.ndarray) -> Closure:
-    """Closure of facets verts (n, 4, 3) float64 with nverts (n,) in {3, 4}."""
+def mesh_closure(verts: np.ndarray, nverts: np.ndarray) -> MeshClosure:
+    """Is the mesh of facets verts (n, 4, 3) float64 with nverts (n,) in {3, 4} watertight, and
+    which way do its normals point? (The radiosity path asks another question, with rays:
+    scene/closure.detect_closure.)"""
     n = len(verts)
     nv = np.asarray(nverts, np.int64)
     pts = verts.reshape(-1, 3)
@@ -56,20 +58,20 @@ def closure(verts: np.ndarray, nverts: np.ndarray) -> Closure:
     vol = _signed_volume(verts - c, nv)
     if len(dup):
         a, b = order[dup[0]], order[dup[0] + 1]
-        return Closure(False, False, vol, f"facets {face[a]} and {face[b]} run the edge "
+        return MeshClosure(False, False, vol, f"facets {face[a]} and {face[b]} run the edge "
                        f"{_pt(uniq, src[a])} - {_pt(uniq, dst[a])} the same way "
                        "(inconsistent winding, or more than two facets on an edge)")
     pos = np.searchsorted(ks, rev)
     found = (pos < len(ks)) & (ks[np.minimum(pos, len(ks) - 1)] == rev)
     if not found.all():
         e = int(np.nonzero(~found)[0][0])
-        return Closure(False, False, vol, f"the edge {_pt(uniq, src[e])} - "
+        return MeshClosure(False, False, vol, f"the edge {_pt(uniq, src[e])} - "
                        f"{_pt(uniq, dst[e])} of facet {face[e]} has no neighbour running "
                        "it the other way (an open boundary, a crack or a T-junction)")
     if not vol < 0:
-        return Closure(True, False, vol, "the mesh is closed but its normals point out of the "
+        return MeshClosure(True, False, vol, "the mesh is closed but its normals point out of the "
                        "enclosed volume (a solid seen from outside, not an enclosure)")
-    return Closure(True, True, vol, "")
+    return MeshClosure(True, True, vol, "")
 
 
 def _centre(verts):

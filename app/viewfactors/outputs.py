@@ -35,7 +35,7 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str) -> 
     csv). Returns the figures (with the final matrix under "_matrix")."""
     import scipy.sparse as sp
 
-    from radiosity.viewfactors.enclosure import balance, closure
+    from radiosity.viewfactors.enclosure import balance, mesh_closure
     from radiosity.viewfactors.store import write_vf_matrix
     from radiosity.viewfactors.loops import reciprocity_residual
 
@@ -44,7 +44,7 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str) -> 
     n = F.shape[0]
     A = fac.area
     rows0 = np.asarray(F.sum(axis=1)).ravel()
-    cl = closure(fac.verts, fac.nverts)
+    cl = mesh_closure(fac.verts, fac.nverts)
     do_balance = mode == "on" or (mode == "auto" and cl.enclosure)
     fig: dict = {"enclosure_mode": mode, "closed": cl.closed, "normals_inward": cl.inward,
                  "enclosure": cl.enclosure, "not_enclosure_because": cl.reason,

@@ -18,20 +18,15 @@ import numpy as np
 
 from radiosity.core.geometry import COS_TOL
 from radiosity.errors import RadiosityError
-from radiosity.methods.hierarchical.refine import (Elements, Entries, Occluders, RefineParams, Tree,
-                                                   new_table, refine, roots)
+from radiosity.methods.hierarchical.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
+                                                   C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
+                                                   RefineParams, Tree, new_table, refine, roots)
 from radiosity.methods.hierarchical.clusters import plan_clusters, use_clusters
 from radiosity.methods.hierarchical.sampling import link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
 from radiosity.tracing.shafts import OccluderTree, node_boxes, occluders
 
-# counters of a link task
-COUNTERS = ("pairs", "links", "evaluated", "refined", "dropped_orientation", "shaft_visible",
-            "shaft_blocked", "ray_links", "rays", "ray_blocked", "partial_refined", "exact",
-            "split_off_nodes", "rounds")
-C_PAIRS, C_LINKS, C_EVAL, C_REFINED, C_ORIENT, C_SVIS, C_SBLOCK, C_RAYLINKS, C_RAYS, C_RBLOCK, \
-    C_PARTIAL, C_EXACT, C_SPLITOFF, C_ROUNDS = range(len(COUNTERS))
 WEIGHTS = ("none", "bf")
 ORACLES = ("ff", "gradient", "spread")
 

@@ -49,6 +49,13 @@ RefineParams = namedtuple("RefineParams", "eps shadow near min_size kid exact pl
                                           "gauss_gap far_polygon occlusion")
 
 
+# counters of a link task (links.py sums and reports them)
+COUNTERS = ("pairs", "links", "evaluated", "refined", "dropped_orientation", "shaft_visible",
+            "shaft_blocked", "ray_links", "rays", "ray_blocked", "partial_refined", "exact",
+            "split_off_nodes", "rounds")
+C_PAIRS, C_LINKS, C_EVAL, C_REFINED, C_ORIENT, C_SVIS, C_SBLOCK, C_RAYLINKS, C_RAYS, C_RBLOCK, \
+    C_PARTIAL, C_EXACT, C_SPLITOFF, C_ROUNDS = range(len(COUNTERS))
+
 def new_table(cap: int) -> NodeTable:
     """An empty local node table for `cap` nodes."""
     return NodeTable(np.zeros((cap, 4, 3)), np.zeros(cap, np.int64), np.zeros(cap),
@@ -238,7 +245,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
             break
         ns -= 1
         p, q, l0, l1, frac = sp_[ns], sq_[ns], sc0[ns], sc1[ns], sfr[ns]
-        counts[2] += 1
+        counts[C_EVAL] += 1
         op, oq = Lo[p], Lo[q]
         npx, npy, npz = normal[op, 0], normal[op, 1], normal[op, 2]
         nqx, nqy, nqz = normal[oq, 0], normal[oq, 1], normal[oq, 2]
@@ -250,7 +257,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
         fq, bq = qhi > plane_tol, qlo < -plane_tol
         fp, bp = phi > plane_tol, plo < -plane_tol
         if not ((fq or (two_sided[op] and bq)) and (fp or (two_sided[oq] and bp))):
-            counts[4] += 1
+            counts[C_ORIENT] += 1
             continue
         q_straddles = fq and bq
         p_straddles = fp and bp
@@ -296,7 +303,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                     stk_pool[m0] = o
                     m0 += 1
                 if blocked:
-                    counts[6] += 1
+                    counts[C_SBLOCK] += 1
                     continue
                 l0, l1 = top, m0
             # 3. the oracle (Hanrahan et al. 1991: split the node that looks larger from the
@@ -341,9 +348,9 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
         elif 0.0 < frac < 1.0 and amount > shadow:
             split = _pick(prefer, can_p, can_q, oracle > 0 or eps <= 0.0)
             if split >= 0:
-                counts[10] += 1
+                counts[C_PARTIAL] += 1
         if split >= 0:
-            counts[3] += 1
+            counts[C_REFINED] += 1
             x = q if split == 1 else p
             if Lch[x, 0] < 0:  # make the children (partition's, or split off an unseen original)
                 t = Lpn[x]
@@ -365,7 +372,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                         Lcan[cnt] = np.sqrt(La[cnt]) > min_size and d1 < MAX_DEPTH
                         Lch[x, h] = cnt
                         cnt += 1
-                    counts[12] += 2
+                    counts[C_SPLITOFF] += 2
             for h in range(1, -1, -1):  # child 0 popped first
                 if split == 1:
                     sp_[ns], sq_[ns] = p, Lch[x, h]
@@ -378,7 +385,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
         length = np.sqrt(r2)
         if not (_faces(normal, op, two_sided[op], dx, dy, dz, length)
                 and _faces(normal, oq, two_sided[oq], -dx, -dy, -dz, length)):
-            counts[4] += 1
+            counts[C_ORIENT] += 1
             continue
         if frac < 0.0 and (l1 > l0 or l0 < 0):  # wait for rays, with the filtered occluders
             wp[nw], wq[nw] = p, q
@@ -393,9 +400,9 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
             continue
         v = 1.0 if frac < 0.0 else frac
         if frac < 0.0:
-            counts[5] += 1
+            counts[C_SVIS] += 1
         if v <= 0.0:
-            counts[9] += 1
+            counts[C_RBLOCK] += 1
             continue
         kp[nk], kq[nk], kv[nk] = p, q, v
         ks[nk, 0], ks[nk, 1] = sp, sq

@@ -158,6 +158,24 @@ def _box_distance2(t, p, q):
 
 
 @numba.njit(cache=True)
+def _relative_error(t, p, q, d):
+    """The relative error of carrying a link between nodes p, q (boxes d apart) through the
+    clusters: (diam_p + diam_q) / d for the distances and directions taken between centroids,
+    plus both normal cones' spread for the receivers' uniform share, at most 1; infinite for a
+    near link (sizes above ADMISSIBLE times d: the point kernel between samples is no estimate
+    there), which is never kept."""
+    dp = 0.0
+    dq = 0.0
+    for k in range(3):
+        dp += (t.hi[p, k] - t.lo[p, k]) ** 2
+        dq += (t.hi[q, k] - t.lo[q, k]) ** 2
+    size = (np.sqrt(dp) + np.sqrt(dq)) / d
+    if size > ADMISSIBLE:
+        return np.inf
+    return min(size + t.spread[p] + t.spread[q], 1.0)
+
+
+@numba.njit(cache=True)
 def _cos_bound(t, p, q, d, sign):
     """The largest cosine between a normal of node p (in its cone: axis a, spread s >= |n - a|)
     and a direction from a point of p's box to a point of q's box (all at least d apart):
@@ -184,15 +202,8 @@ def _error_bound(t, p, q, d2, lref):
     cq = _cos_bound(t, q, p, d, 1.0)
     carried = max(t.rho[p] * t.area[q] * t.lhat[q],
                   t.rho[q] * t.area[p] * t.lhat[p]) * cp * cq / (np.pi * d2 * lref)
-    dp = 0.0
-    dq = 0.0
-    for k in range(3):
-        dp += (t.hi[p, k] - t.lo[p, k]) ** 2
-        dq += (t.hi[q, k] - t.lo[q, k]) ** 2
-    size = (np.sqrt(dp) + np.sqrt(dq)) / d
-    if size > ADMISSIBLE:  # near: the point kernel between samples is no estimate there
-        return np.inf
-    return carried * min(size + t.spread[p] + t.spread[q], 1.0)
+    rel = _relative_error(t, p, q, d)
+    return np.inf if rel == np.inf else carried * rel  # near: never kept
 
 
 @numba.njit(cache=True)
@@ -226,15 +237,8 @@ def _error_estimate(t, e, p, q, d2, lref):
     sp, cp = _exposure(t, e, p, ux, uy, uz)
     sq, cq = _exposure(t, e, q, -ux, -uy, -uz)
     carried = max(t.rho[p] * sq * cp * t.lhat[q], t.rho[q] * sp * cq * t.lhat[p]) / (np.pi * r2 * lref)
-    dp = 0.0
-    dq = 0.0
-    for k in range(3):
-        dp += (t.hi[p, k] - t.lo[p, k]) ** 2
-        dq += (t.hi[q, k] - t.lo[q, k]) ** 2
-    size = (np.sqrt(dp) + np.sqrt(dq)) / np.sqrt(d2)
-    if size > ADMISSIBLE:  # near: never kept (as the bound)
-        return np.inf
-    return carried * min(size + t.spread[p] + t.spread[q], 1.0)
+    rel = _relative_error(t, p, q, np.sqrt(d2))
+    return np.inf if rel == np.inf else carried * rel  # near: never kept
 
 
 @numba.njit(cache=True)

@@ -244,11 +244,10 @@ class Settings:
     reference: ReferenceSettings
     viewfactors: ViewFactorSettings
 
-    def replace(self, overrides: dict | None = None, **dotted) -> "Settings":
+    def replace(self, overrides: dict | None = None) -> "Settings":
         """A copy with `{"section.key": value}` applied (None values are skipped: not given)."""
-        items = {**(overrides or {}), **{k.replace("__", "."): v for k, v in dotted.items()}}
         by_section: dict = {}
-        for key, value in items.items():
+        for key, value in (overrides or {}).items():
             if value is None:
                 continue
             section, _, name = key.partition(".")

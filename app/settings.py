@@ -156,6 +156,19 @@ class HierarchySettings(_Section):
     clusters: str
     clusters_above: int
 
+    def clustered(self, originals: int) -> tuple[bool, str]:
+        """(on, why): clusters above the originals (clusters: auto | on | off; auto above
+        clusters-above originals, where pairs of originals stop being affordable)."""
+        mode = {True: "on", False: "off"}.get(self.clusters, self.clusters)
+        if mode not in ("auto", "on", "off"):
+            raise RadiosityError(f"radiosity.hierarchy.clusters must be auto, on or off, got {mode!r}")
+        if mode != "auto":
+            return mode == "on", f"{mode}: stated (clusters: {mode})"
+        above = int(self.clusters_above)
+        if originals > above:
+            return True, f"on: auto, {originals} originals > {above}"
+        return False, f"off: auto, {originals} originals <= {above}"
+
 
 @dataclass(frozen=True)
 class ImageSettings(_Section):

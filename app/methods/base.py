@@ -174,9 +174,7 @@ def choose_method(sub_elements: int, settings, originals: int = 1,
     kernel = settings.solve.kernel
     if kernel not in ("point", "disc", "point-nf", "disc-nf"):
         return "pairs", f"pairs: auto, the {kernel} kernel samples the pairs' own rays"
-    from radiosity.methods.hierarchical.clusters import use_clusters
-
-    clustered, _ = use_clusters(settings.hierarchy, originals)
+    clustered, _ = settings.hierarchy.clustered(originals)
     if clustered:
         return "hierarchical", (f"hierarchical: auto, {originals} originals, clustered "
                                 f"(hierarchy.clusters-above {settings.hierarchy.clusters_above})")

@@ -532,21 +532,6 @@ def cluster_gather(Lroot, parent, leaf_orig, area, p, q, wpq, wqp, ncap, G):
 
 # ----------------------------------------------------------------------------- the stage's part
 
-def use_clusters(hierarchy, originals: int) -> tuple[bool, str]:
-    """(on, why) from the hierarchy settings (clusters: auto | on | off, clusters-above)."""
-    from radiosity.errors import RadiosityError
-
-    mode = {True: "on", False: "off"}.get(hierarchy.clusters, hierarchy.clusters)
-    if mode not in ("auto", "on", "off"):
-        raise RadiosityError(f"radiosity.hierarchy.clusters must be auto, on or off, got {mode!r}")
-    if mode != "auto":
-        return mode == "on", f"{mode}: stated (clusters: {mode})"
-    above = int(hierarchy.clusters_above)
-    if originals > above:
-        return True, f"on: auto, {originals} originals > {above}"
-    return False, f"off: auto, {originals} originals <= {above}"
-
-
 def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
                   ray_offset: float):
     """The cluster layer of a link stage: the tree, its refinement at `epsilon` with the oracle's

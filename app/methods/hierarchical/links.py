@@ -21,7 +21,7 @@ from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
                                                    RefineParams, Tree, new_table, refine, roots)
-from radiosity.methods.hierarchical.clusters import plan_clusters, use_clusters
+from radiosity.methods.hierarchical.clusters import plan_clusters
 from radiosity.methods.hierarchical.sampling import link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
@@ -420,7 +420,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool) -> LinkPlan:
     if unit == "auto":
         unit = choose_unit(s.visibility.task_unit, len(el), int(s.visibility.stripe_threshold))
     cl, cfig = None, None
-    on, why_clusters = use_clusters(s.hierarchy, len(el))
+    on, why_clusters = s.hierarchy.clustered(len(el))
     if not on:  # every facing pair of originals starts a link (SPEC §8), within the budget
         try:
             bi, bj, _ = pairs_within_budget(tree_of(el, int(s.plan.leaf_size)),

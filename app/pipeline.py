@@ -5,6 +5,7 @@ method chosen by name (methods/base.py) do the work; this module only strings th
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
@@ -23,6 +24,7 @@ from radiosity.settings import resolve
 from radiosity.stages.image import previewer, render_outputs
 from radiosity.stages.preprocess import preprocess
 from radiosity.stages.solve import resolve_closure, run_solve, write_direct_solution
+from radiosity.stages.tables import summary_rows as light_rows
 from radiosity.tracing.rays import RayCaster, raster_band
 
 
@@ -56,7 +58,8 @@ class RenderFigures(StageFigures):
                          f"{sol.get('solution', 'written')}")),
             ("times", f"preprocess {st['preprocess_s']:.1f} s, visibility {st['visibility_s']:.1f} s, "
                       f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, "
-                      f"total {st['total_s']:.1f} s")]
+                      f"total {st['total_s']:.1f} s"),
+            *light_rows(self.report.get("light"))]  # per material: lux, cd/m^2 (tables.py)
 
 
 @dataclass(frozen=True)
@@ -121,10 +124,10 @@ def scene_digest(scene: Scene) -> str:
 
 def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None, variant=None,
                  unit=None, solver=None, kernel=None, tol=None, filter=None, sigma=None,
-                 exposure=None, resume=False, preview=True, progress=True, echo=print,
+                 exposure=None, resume=False, preview=False, progress=True, echo=print,
                  full=False, keep_unconverged=False, method=None, epsilon=None,
                  link_rays=None) -> RenderFigures:
-    """plan -> preprocess -> the method's stage -> solve -> image (+ the preview).
+    """plan -> preprocess -> the method's stage -> solve -> image (+ the preview when asked).
 
     settings: a settings.Settings (None: resolved here from dask.config); the keyword
     arguments override it. method: "pairs" (the seed's visibility matrix), "hierarchical"
@@ -219,3 +222,75 @@ def render_preview(scene: Scene, out: str, client, settings=None, exposure=None)
     dst = os.path.join(out, "preview.png")
     shutil.copyfile(os.path.join(sub, "image.png"), dst)
     return dst
+
+
+@dataclass(frozen=True)
+class Rendered:
+    """What `render` gives back: the run directory (None when it was temporary), the image as
+    linear radiance (H, W, 3) and in sRGB (H, W, 3) uint8, the figures of every stage, and the
+    report (report.json) as a dict."""
+
+    out: str | None
+    image: np.ndarray
+    image_srgb: np.ndarray
+    figures: RenderFigures
+    report: dict
+
+    def summary(self) -> str:
+        """The table the CLI prints."""
+        return "\n".join(f"  {k:<13} {v}" for k, v in self.figures.rows())
+
+
+# render()'s options that are render_scene's keywords (the CLI's flags of the same names)
+_RENDER_KEYWORDS = ("subpixel", "variant", "unit", "solver", "kernel", "tol", "filter", "sigma",
+                    "exposure", "resume", "preview", "full", "keep_unconverged", "method",
+                    "epsilon", "link_rays")
+
+
+def render(scene, out: str | None = None, *, client=None, workers: int | None = None,
+           scheduler: str | None = None, processes: bool | str | None = None,
+           resolution=None, max_iterations: int | None = None, settings=None,
+           progress: bool = False, echo=None, force: bool = False, **options) -> Rendered:
+    """Render `scene` (a scene TOML or mesh path, or a loaded Scene) into the run directory `out`
+    (None: a temporary one, removed afterwards; the arrays stay) and return a `Rendered`.
+
+    Options are the CLI's `render` flags as keywords (resolution=64, tol=1e-6, method="pairs",
+    epsilon=..., preview=True, ...). The cluster: `client` if given, else a new one of
+    `workers` at `scheduler`, or local workers as threads in this process: no worker processes
+    are started unless processes=True (which needs the `if __name__ == "__main__":` guard of
+    any multiprocessing script), so a plain script needs no guard."""
+    import tempfile
+
+    from radiosity.errors import RadiosityError
+    from radiosity.runtime.checks import check_new_run_dir, check_scene, check_solve
+    from radiosity.runtime.cluster import local_mode, open_client
+    from radiosity.scene.load import load_scene
+    from radiosity.stages.pixels import read_exr, tonemap
+
+    unknown = sorted(set(options) - set(_RENDER_KEYWORDS))
+    if unknown:
+        raise RadiosityError(f"radiosity.render: unknown option(s) {', '.join(unknown)} (options: "
+                             f"resolution, max_iterations, {', '.join(_RENDER_KEYWORDS)})")
+    st = resolve({"solve.max-iterations": max_iterations, "subdivide.subpixel": options.get("subpixel"),
+                  "solve.solver": options.get("solver"), "solve.kernel": options.get("kernel"),
+                  "solve.tol": options.get("tol"),
+                  "cluster.processes": False if processes is None else processes}, base=settings)
+    sc = load_scene(scene, resolution=resolution, settings=st) if isinstance(scene, (str, os.PathLike)) \
+        else scene
+    check_solve(st)
+    check_scene(sc, st)
+    say = echo or (lambda *a, **k: None)
+    with contextlib.ExitStack() as stack:
+        run = out if out is not None else stack.enter_context(
+            tempfile.TemporaryDirectory(prefix="radiosity-render-"))
+        if out is not None:
+            check_new_run_dir(out, force or bool(options.get("resume")))
+        if client is None:
+            samples = sc.camera.width * sc.camera.height * int(st.subdivide.subpixel) ** 2
+            inproc, why = local_mode(st.cluster.processes, samples, st.cluster.in_process_samples)
+            client = stack.enter_context(open_client(workers, scheduler, quiet=echo is None,
+                                                     echo=say, in_process=inproc, where=why))
+        fig = render_scene(sc, run, client, st, progress=progress, echo=say, **options)
+        image = read_exr(os.path.join(run, "image.exr"))
+        srgb = tonemap(image, fig["render"].get("exposure"))
+        return Rendered(out, image, srgb, fig, dict(fig.report))

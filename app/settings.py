@@ -175,6 +175,8 @@ class ImageSettings(_Section):
     """radiosity.render.*"""
 
     SECTION: ClassVar[str] = "render"
+    sampling: str
+    area_samples: int
     filter: str
     sigma: float
     exposure: float | None
@@ -193,7 +195,8 @@ class ClusterSettings(_Section):
     tls: bool | str
     adaptive: bool | str
     worker_timeout: int
-    processes: bool
+    processes: bool | str
+    in_process_samples: int
     malloc_trim_threshold: int
     malloc_mmap_threshold: int
     direct_scatter: str

@@ -6,7 +6,8 @@ scenes with exact answers (parallel and perpendicular unit squares), with its ti
     python benchmarks/bench_kernels.py [--res 32,64] [--kernels point,disc,point-nf,nxm:4,mc:16]
         [--validation-res 8,16,32] [--skip-cost]
 
-README's accuracy table (errors at 8 / 16 / 32 and the order column, every row) and the cost
+The accuracy table of docs/src/measurements/kernels.md (errors at 8 / 16 / 32 and the order
+column, every row) and the cost
 ratios of the sampled kernels come from this script; tests/test_accuracy.py asserts the point,
 disc, point-nf, nxm N = 4 and mc k = 16 rows.
 """
@@ -112,7 +113,7 @@ def errors(client, resolutions, settings):
 
 def orders(err_rows):
     """The order of each kernel on each scene: the log-log slope of the error against the
-    element size (sqrt of the mean sub-element area) over the resolutions (README's column)."""
+    element size (sqrt of the mean sub-element area) over the resolutions (the table's order column)."""
     out = []
     for name in dict.fromkeys(r["scene"] for r in err_rows):
         for label in dict.fromkeys(r["kernel"] for r in err_rows):
@@ -152,7 +153,7 @@ def main():
     print("\nValidation scenes: form-factor error against the exact value")
     print(table(err, ["scene", "res", "sub_elements", "kernel", "error", "time_s"]))
     order = orders(err)
-    print("\nOrder (log-log slope of the error against the element size): README's accuracy table")
+    print("\nOrder (log-log slope of the error against the element size): docs/src/measurements/kernels.md")
     print(table(order, ["scene", "kernel", "errors", "order"]))
     # --skip-cost keeps the cost results of a full run (results/kernels.json) as they are
     print("wrote", write("kernels-validation" if args.skip_cost else "kernels", rows,

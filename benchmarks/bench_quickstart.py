@@ -7,7 +7,7 @@ OS file cache is warm too). With --install, a fresh virtual environment is made 
 
     python benchmarks/bench_quickstart.py [--resolution N] [--repeat 3] [--install]
 
-README's Quick start times come from this script.
+The Quick start times (docs/src/measurements/index.md, "Quick start") come from this script.
 """
 
 from __future__ import annotations

@@ -2,12 +2,12 @@
 Per camera resolution and kernel (point, disc, point-nf): max |row sum - 1| over the
 sub-elements (front sides), and for point-nf the near-field pairs (unordered pairs a < b, each
 stored once) per sub-element. The
-partition is the camera's alone (radiosity.subdivide.unseen: keep, as README's table was
+partition is the camera's alone (radiosity.subdivide.unseen: keep, as the docs' table was
 measured: unseen faces whole), and rows are not balanced or capped (what the kernel gives).
 
     python benchmarks/bench_rowsums.py [--res 8,16,32,64] [--unseen keep|refine]
 
-README: the furnace row-sum table ("Measured on the furnace cube, max |row sum - 1|") and the
+docs/src/measurements/kernels.md: the furnace row-sum table ("Measured on the furnace cube, max |row sum - 1|") and the
 near-field pairs per sub-element come from this script.
 """
 

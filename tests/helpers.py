@@ -102,3 +102,27 @@ v 0.2 0.9 0.3
 f 1 4 3 2
 f 5 6 7
 """
+
+
+def box_polygons(lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0), inward=True, faces=range(6)):
+    """The faces of an axis-aligned box as quads (k, 4, 3), nverts (k,): normals into the box
+    (inward) or out of it; faces: which of -x, +x, -y, +y, -z, +z."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    out = []
+    for f in faces:
+        ax, side = divmod(f, 2)
+        u, v = [a for a in range(3) if a != ax]
+        c = []
+        for a, b in ((0, 0), (1, 0), (1, 1), (0, 1)):
+            p = lo.copy()
+            p[ax] = hi[ax] if side else lo[ax]
+            p[u] = hi[u] if a else lo[u]
+            p[v] = hi[v] if b else lo[v]
+            c.append(p)
+        q = np.array(c)
+        n = np.cross(q[1] - q[0], q[2] - q[0])
+        want = (-1.0 if side else 1.0) * (1.0 if inward else -1.0)  # inward: towards the middle
+        if np.sign(n[ax]) != want:
+            q = q[[0, 3, 2, 1]]
+        out.append(q)
+    return np.array(out), np.full(len(out), 4, np.int8)

@@ -1,4 +1,4 @@
-"""Configuration (README "Configuration"): radiosity.yaml in dask.config, overridden by
+"""Configuration (docs/src/how-to/configuration.md): radiosity.yaml in dask.config, overridden by
 DASK_RADIOSITY__SECTION__KEY environment variables, which CLI flags override in turn. Checked in
 fresh processes: dask reads the environment when it is imported."""
 

@@ -159,14 +159,15 @@ def test_no_module_is_named_after_the_standard_library():
     assert not bad, bad
 
 
-def test_readme_layout_names_every_folder():
-    """The README's layout is the map a newcomer reads: every folder is on it."""
-    readme = open(os.path.join(os.path.dirname(APP), "README.md")).read()
-    section = readme[readme.index("## Layout"):]
+def test_architecture_layout_names_every_folder():
+    """The docs' layout (docs/src/design/architecture.md, "Layout") is the map a newcomer reads:
+    every folder is on it."""
+    page = open(os.path.join(os.path.dirname(APP), "docs", "src", "design", "architecture.md")).read()
+    section = page[page.index("## Layout"):]
     section = section[:section.index("\n## ", 5)] if "\n## " in section[5:] else section
     rooms = {_room(m) for m in _modules() if "." in m}
     missing = sorted(r for r in rooms if f"{r}/" not in section)
-    assert not missing, f"README's Layout misses {missing}"
+    assert not missing, f"the Layout of docs/src/design/architecture.md misses {missing}"
 
 
 def test_tests_and_benchmarks_import_radiosity_not_app():

@@ -16,17 +16,37 @@ from radiosity.cli.options import (POSITIVE, POSITIVE_INT, TOL, _Finite, _number
                                    _resolution, cluster_from_flags, cluster_options,
                                    force_option, image_options, kernel_options, method_options,
                                    settings_from_flags, solve_options)
-from radiosity.cli.summary import (_ARGV, _T0, NOT_CONVERGED, _command_line, _finish, _friendly,
-                                   _record_run, _started, _table, _viewfactors_summary)
+from radiosity.cli.summary import (_ARGV, _REAL, _T0, INTERRUPTED, NOT_CONVERGED, _command_line,
+                                   _finish, _friendly, _record_run, _started, _table,
+                                   _viewfactors_summary)
 from radiosity.errors import RadiosityError
 
 
-def _client(workers, scheduler, cluster_kind, **kw):
-    """open_client with the cluster flags (adaptive, tls, batch-job options)."""
-    from radiosity.runtime.cluster import open_client
+def _client(workers, scheduler, cluster_kind, st=None, samples: int | None = None, **kw):
+    """open_client with the cluster flags (adaptive, tls, batch-job options); with the settings
+    `st`, a local cluster's workers are threads or processes by radiosity.cluster.processes
+    for a scene of `samples` camera samples (runtime/cluster.local_mode)."""
+    from radiosity.runtime.cluster import local_mode, open_client
 
+    if st is not None:
+        kw["in_process"], kw["where"] = local_mode(st.cluster.processes, samples,
+                                                   st.cluster.in_process_samples)
     return open_client(workers, scheduler, cluster_kind, echo=click.echo,
                        **{**cluster_from_flags(), **kw})
+
+
+def _samples(camera, subpixel) -> int:
+    """Camera samples of a run (width x height x subpixel^2): the size local_mode weighs."""
+    return int(camera.width) * int(camera.height) * int(subpixel) ** 2
+
+
+def _run_samples(rs) -> int | None:
+    """_samples of a preprocessed run directory (its store's attributes), None if unknown."""
+    a = rs.attrs()
+    try:
+        return int(a["camera"]["width"]) * int(a["camera"]["height"]) * int(a["subpixel"]) ** 2
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 class OneLineGroup(click.Group):
@@ -39,6 +59,7 @@ class OneLineGroup(click.Group):
     def _main(self, args, prog_name, complete_var, standalone_mode, **extra):
         _ARGV[:] = list(sys.argv[1:] if args is None else args)
         _T0[0] = time.time()
+        _REAL[0] = args is None
         if args is None:  # a real command: count the interpreter's start and imports too
             try:
                 import psutil
@@ -49,7 +70,11 @@ class OneLineGroup(click.Group):
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, False, **extra)
         try:
-            rv = super().main(args, prog_name, complete_var, False, **extra)
+            from radiosity.runtime.warmup import recording
+
+            # a first run compiles numba kernels for minutes: say so every few seconds
+            with recording(echo=lambda line: click.echo(line, err=True), every_s=5.0):
+                rv = super().main(args, prog_name, complete_var, False, **extra)
         except click.ClickException as e:
             hint = ""
             if isinstance(e, click.UsageError) and e.ctx is not None:
@@ -59,7 +84,7 @@ class OneLineGroup(click.Group):
             sys.exit(e.exit_code)
         except click.Abort:  # Ctrl-C outside a command (commands say what they kept)
             click.echo("interrupted", err=True)
-            sys.exit(130)
+            sys.exit(INTERRUPTED)
         sys.exit(rv if isinstance(rv, int) else 0)
 
 
@@ -98,7 +123,8 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, force, work
     _started(out, resume=False)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
-    with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind) as client:
+    with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind, st,
+                                                 _samples(sc.camera, st.subdivide.subpixel)) as client:
         fig = run(sc, out, client, settings=st)
         _record_run(out, sc.name)
     click.echo(_table(_finish(out, fig.rows())))
@@ -132,7 +158,8 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     click.echo(f"method: {why}")
     method.check(rs, st)  # bad settings fail before a cluster starts
     _started(run_dir)
-    with run_lock(run_dir, _command_line()), _client(workers, scheduler, cluster_kind) as client:
+    with run_lock(run_dir, _command_line()), _client(workers, scheduler, cluster_kind, st,
+                                                     _run_samples(rs)) as client:
         _record_run(run_dir)
         fig = method.build(run_dir, client, st, unit=task_unit, resume=resume)
     click.echo(_table(_finish(run_dir, method.rows(fig))))
@@ -165,7 +192,8 @@ def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, worker
     method = get_method(stated) if stated != "auto" else method_of_run(rs)
     method.require(rs)
     _started(run_dir, resume=False)
-    with run_lock(run_dir, _command_line()), _client(workers, scheduler, cluster_kind) as client:
+    with run_lock(run_dir, _command_line()), _client(workers, scheduler, cluster_kind, st,
+                                                     _run_samples(rs)) as client:
         fig = run_solve(run_dir, client, st, preview=previewer(run_dir),
                         keep_unconverged=keep_unconverged, method=method.name)
         _record_run(run_dir)
@@ -174,25 +202,104 @@ def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, worker
         sys.exit(NOT_CONVERGED)
 
 
+def _xyz(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        v = [float(x) for x in value.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 3:
+        raise click.BadParameter(f"give three numbers X,Y,Z, got {value!r}")
+    return v
+
+
 @main.command()
 @click.argument("run_dir", type=click.Path())
 @image_options
+@click.option("--camera", "camera_file", type=click.Path(), default=None,
+              help="A new view: the [camera] table of this TOML file (a scene file will do).")
+@click.option("--position", callback=_xyz, default=None, metavar="X,Y,Z", help="A new view from here.")
+@click.option("--look-at", callback=_xyz, default=None, metavar="X,Y,Z", help="A new view towards here.")
+@click.option("--up", callback=_xyz, default=None, metavar="X,Y,Z", help="The new view's up (0,1,0).")
+@click.option("--fov", type=click.FloatRange(0, 180, min_open=True, max_open=True), default=None,
+              help="The new view's vertical field of view, degrees (default: the run's).")
+@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+              help="The new view's resolution (default: the camera file's, else the run's).")
+@click.option("--name", default=None, help="The new view's folder under RUN_DIR/views (default view-N).")
 @_friendly
-def image(run_dir, filter_, sigma, exposure):
-    """Write image.exr, image.png, mesh.glb, mesh.ply and viewer.html of a solved RUN_DIR."""
+def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up, fov, resolution,
+          name):
+    """Write image.exr, image.png, mesh.glb, mesh.ply and viewer.html of a solved RUN_DIR; with
+    --camera (or --position/--look-at), a new view of its solution into RUN_DIR/views/NAME/
+    instead (no re-solve; the run's own files stay)."""
     from radiosity.runtime.checks import check_run_dir
     from radiosity.stages.image import render_outputs
     from radiosity.runtime.runlock import run_lock
 
     check_run_dir(run_dir)
+    if camera_file or position or look_at:
+        from radiosity.runtime.store import RunStore
+        from radiosity.stages.views import render_view, view_camera
+
+        cam = view_camera(RunStore(run_dir).load_camera(), camera_file, position, look_at, up, fov,
+                          resolution)
+        with run_lock(run_dir, _command_line()):
+            v = render_view(run_dir, cam, name, settings=settings_from_flags(), exposure=exposure)
+        g = v.figures["gather"]
+        click.echo(_table([("view", f"{cam.width}x{cam.height}, {v.figures['samples_per_pixel']} "
+                                    f"rays a pixel, {v.figures['method']} solution"),
+                           ("gathered", f"{g.get('gathered_points', 0)} points in leaves coarser "
+                                        f"than their pixels, {g.get('evaluations', 0)} link "
+                                        f"evaluations, {g.get('rays', 0)} rays"),
+                           ("time", f"{v.figures['time_s']:.1f} s")]))
+        click.echo(f"wrote {v.out}/image.exr, image.png, view.json")
+        return
     _started(run_dir, resume=False)
     with run_lock(run_dir, _command_line()):
         fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure,
                              settings=settings_from_flags())
         _record_run(run_dir)
         _finish(run_dir, [])
-    click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html "
+    click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, "
+               f"elements.csv, surfaces.csv, materials.csv "
                f"({fig.width}x{fig.height}, exposure {fig.exposure:.3g})")
+
+
+@main.command()
+@click.option("--methods", default="hierarchical,pairs", metavar="LIST",
+              help="The methods whose kernels to compile (comma-separated).")
+@click.option("--json", "json_path", type=click.Path(), default=None,
+              help="Also write the compile time of every kernel to this JSON file.")
+@_friendly
+def warmup(methods, json_path):
+    """Compile the kernels of a render into numba's cache now (a tiny render of the built-in
+    Cornell box per method, in this process), with progress; later runs load them. Prints
+    where the compile time went."""
+    import json
+    import tempfile
+
+    from radiosity.pipeline import render as render_api
+    from radiosity.runtime.warmup import recording
+
+    names = [m for m in methods.split(",") if m]
+    scene = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
+                         "scenes", "cornell-box", "scene.toml")
+    if not os.path.isfile(scene):
+        raise RadiosityError(f"the built-in Cornell box is not at {scene}: install from the repository")
+    t0 = time.perf_counter()
+    with recording(echo=click.echo) as log, tempfile.TemporaryDirectory() as tmp:
+        for m in names:
+            click.echo(f"warmup: {m} (a 16x16 render of the built-in Cornell box)")
+            render_api(scene, os.path.join(tmp, m), resolution=16, method=m)
+    rows = [(name, f"{sec:.2f} s ({n} signature{'s' if n != 1 else ''})")
+            for name, sec, n in log.top(10)]
+    rows.append(("compiled", f"{len(log.seconds)} kernels, {log.total_s:.1f} s of "
+                             f"{time.perf_counter() - t0:.1f} s (0 when the cache was warm)"))
+    click.echo(_table(rows))
+    if json_path:
+        with open(json_path, "w") as f:
+            json.dump(log.to_dict(), f, indent=1)
 
 
 @main.command()
@@ -240,7 +347,8 @@ def plan(scene, resolution, subpixel, tol):
 @click.option("--subpixel", type=POSITIVE_INT, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--task-unit", type=click.Choice(["block", "stripe", "auto"]), default=None)
 @click.option("--resume", is_flag=True, help="Reuse the partition and finished visibility tasks in OUT.")
-@click.option("--no-preview", is_flag=True, help="Skip preview.png (the original elements only).")
+@click.option("--preview/--no-preview", default=False,
+              help="Also write preview.png: the original elements alone, the seed's first image.")
 @click.option("--full", is_flag=True, help="Simulate every effect, whatever the plan says.")
 @force_option
 @solve_options
@@ -248,7 +356,7 @@ def plan(scene, resolution, subpixel, tol):
 @image_options
 @cluster_options
 @_friendly
-def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full, force, solver, kernel,
+def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, force, solver, kernel,
            tol, max_iterations, keep_unconverged, filter_, sigma, exposure, workers, scheduler,
            cluster_kind):
     """Preprocess, visibility, solve and image of SCENE into the run directory OUT."""
@@ -267,15 +375,16 @@ def render(scene, out, resolution, subpixel, task_unit, resume, no_preview, full
     _started(out)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
-    with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind) as client:
+    with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind, st,
+                                                 _samples(sc.camera, st.subdivide.subpixel)) as client:
         rep = render_scene(sc, out, client, st, unit=task_unit, resume=resume, filter=filter_,
                            sigma=sigma, exposure=exposure,
-                           preview=not no_preview, echo=click.echo, full=full,
+                           preview=preview, echo=click.echo, full=full,
                            keep_unconverged=keep_unconverged)
         _record_run(out, sc.name)
     click.echo(_table(_finish(out, rep.rows())))
-    click.echo(f"wrote {out}/image.exr, image.png, preview.png, mesh.glb, mesh.ply, viewer.html, report.json"
-               if not no_preview else f"wrote {out}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, report.json")
+    click.echo(f"wrote {out}/image.exr, image.png, {'preview.png, ' if preview else ''}mesh.glb, "
+               "mesh.ply, viewer.html, elements.csv, surfaces.csv, materials.csv, report.json")
     if not rep["solve"].get("converged", True):
         sys.exit(NOT_CONVERGED)
 

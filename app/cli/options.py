@@ -155,6 +155,10 @@ def cluster_options(fn):
     fn = click.option("--adaptive", default=None, metavar="MIN:MAX", expose_value=False,
                       help="Scale the cluster adaptively between MIN and MAX workers.",
                       callback=_adaptive)(fn)
+    fn = click.option("--processes", type=click.Choice(["auto", "true", "false"]), default=None,
+                      expose_value=False, callback=_setting("cluster.processes"),
+                      help="Local workers as processes (true), as threads in this process (false), "
+                           "or by the scene's size (auto: radiosity.cluster.processes).")(fn)
     fn = click.option("--cluster", "cluster_kind", type=click.Choice(["local", "slurm", "pbs", "sge", "lsf"]),
                       default=None, help="Where workers run (default: radiosity.cluster.kind, local).")(fn)
     fn = click.option("--scheduler", default=None, metavar="ADDRESS",
@@ -209,6 +213,16 @@ def solve_options(fn):
 
 
 def image_options(fn):
+    fn = click.option("--area-samples", type=POSITIVE_INT, default=None, expose_value=False,
+                      help="--sampling area: K x K rays per pixel (default: "
+                           "radiosity.render.area-samples).",
+                      callback=_setting("render.area-samples"))(fn)
+    fn = click.option("--sampling", type=click.Choice(["area", "point"]), default=None,
+                      expose_value=False,
+                      help="area: each pixel the mean over its area, as a camera sees it (the "
+                           "default, radiosity.render.sampling); point: the element at its "
+                           "centre (the seed's).",
+                      callback=_setting("render.sampling"))(fn)
     fn = click.option("--exposure", default=None, callback=_exposure,
                       help="Exposure for PNG/mesh colours, or 'auto'.")(fn)
     fn = click.option("--sigma", type=POSITIVE, default=None, help="Gaussian sigma in fine pixels.")(fn)

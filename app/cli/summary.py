@@ -18,13 +18,14 @@ def _showwarning(message, category, filename, lineno, file=None, line=None):
     click.echo(f"warning: {message}", err=True)
 
 
-#: Exit status of a solve (or render) whose solver did not reach the tolerance (README).
+#: Exit status of a solve (or render) whose solver did not reach the tolerance (docs/src/reference/errors.md).
 NOT_CONVERGED = 3
 
 #: What the running command works on, for the line an interrupted or failed run prints:
 #: run_dir, and again: the command that continues it (set by each command as it starts).
 _RUN: dict = {}
 _ARGV: list = []
+_REAL: list = [False]  # a real command (the `radiosity` process), not a test's CliRunner
 _T0: list = [time.time()]  # when the command started (the process's start for a real command)
 
 
@@ -41,8 +42,8 @@ def _command_line(resume: bool = False) -> str:
 def _friendly(fn):
     """Every way a command can stop, as one line: RadiosityError (exit 2; a failed task's
     worker traceback goes to a log file the line names), a filesystem fault (exit 2), Ctrl-C
-    (exit 130: what was kept and the command that continues). Our warnings without source
-    lines."""
+    (exit INTERRUPTED, 130: what was kept and the command that continues). Our warnings
+    without source lines."""
 
     @functools.wraps(fn)
     def wrapper(*a, **kw):
@@ -51,6 +52,8 @@ def _friendly(fn):
 
         old = warnings.showwarning
         warnings.showwarning = _showwarning
+        old_hook = sys.unraisablehook
+        sys.unraisablehook = functools.partial(_unraisable, old_hook)
         _RUN.clear()
         try:
             return fn(*a, **kw)
@@ -65,11 +68,12 @@ def _friendly(fn):
             click.echo(f"error: {msg}", err=True)
             sys.exit(2)
         except KeyboardInterrupt:
+            _ignore_sigint()
             what = kept(_RUN.get("run_dir"))
             again = _RUN.get("again")
             click.echo("interrupted" + (f": kept in {_RUN['run_dir']}: {what}" if what else "")
                        + (f"; continue with: {again}" if again else ""), err=True)
-            sys.exit(130)
+            _exit_interrupted()
         except OSError as e:
             err = fs_error(e)
             if err is None:
@@ -79,8 +83,58 @@ def _friendly(fn):
             sys.exit(2)
         finally:
             warnings.showwarning = old
+            sys.unraisablehook = old_hook
 
     return wrapper
+
+
+def _unraisable(hook, unraisable) -> None:
+    """sys.unraisablehook while a command runs: a KeyboardInterrupt that Python could not raise
+    (Ctrl-C handled inside a garbage-collector callback, such as distributed installs, or a
+    __del__) is raised again in the main thread instead of printed and lost (the run went on)."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        import _thread
+        import threading
+
+        # from another thread: raised here, it would be lost the same way
+        threading.Timer(0.01, _thread.interrupt_main).start()
+        return
+    hook(unraisable)
+
+
+def _ignore_sigint() -> None:
+    """A second Ctrl-C while the real command says what it kept: ignored (no traceback)."""
+    import signal
+    import threading
+
+    if _REAL[0] and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+#: Exit status of a command stopped by Ctrl-C (SIGINT), as shells report it (128 + 2).
+INTERRUPTED = 130
+
+
+def _exit_interrupted() -> None:
+    """End an interrupted command with INTERRUPTED. The real command ends with os._exit once its
+    line is out: the lock is released and the workers stopped by then, but an in-process
+    worker's threads may still be in a kernel call, or a cluster still starting, and Python's
+    shutdown would wait for them (seconds to minutes) where Ctrl-C must stop within 2 s."""
+    if not _REAL[0]:
+        sys.exit(INTERRUPTED)
+    import os
+    from multiprocessing import util
+
+    try:  # the semaphores of worker processes still starting: else the resource tracker
+        util._run_finalizers(0)  # removes them itself, with a warning after our line
+    except Exception:  # noqa: BLE001 - exiting all the same
+        pass
+    for f in (sys.stdout, sys.stderr):
+        try:
+            f.flush()
+        except Exception:  # noqa: BLE001 - a closed pipe: nothing more to say
+            pass
+    os._exit(INTERRUPTED)
 
 
 def _started(run_dir: str, resume: bool = True) -> None:
@@ -129,7 +183,9 @@ def _finish(run_dir: str | None, rows: list) -> list:
 
 def kept(run_dir: str | None) -> str:
     """What run_dir holds that a rerun reuses, as a short phrase ("" when nothing): the
-    partition, every method's finished tasks, the last solution."""
+    partition, every stage's finished tasks as its ledger (manifest) holds them (each method's
+    visibility or link tasks, the view-factor tasks), the last solution. Read after the
+    cluster stopped: the driver alone records a task, so nothing is added meanwhile."""
     import os
 
     from radiosity.methods.base import METHODS, get_method
@@ -137,6 +193,8 @@ def kept(run_dir: str | None) -> str:
 
     if not run_dir or not os.path.isdir(os.path.join(run_dir, "store.zarr")):
         return ""
+    from radiosity.viewfactors.store import kept as vf_kept
+
     parts = []
     try:
         rs = RunStore(run_dir)
@@ -145,6 +203,8 @@ def kept(run_dir: str | None) -> str:
         parts += [k for k in (get_method(name).kept(rs) for name in METHODS) if k]
         if rs.has("solution"):
             parts.append("the last solution")
+        if (k := vf_kept(rs)):
+            parts.append(k)
     except Exception:  # a half-written store: say nothing rather than something wrong
         return ""
     return ", ".join(parts)

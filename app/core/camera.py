@@ -8,7 +8,7 @@ import numpy as np
 from radiosity.core.bundles import Camera
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _pixel_dir(cam, w, h, row, col):
     """Unit float64 direction through the centre of pixel (row, col) of a w x h raster.
 
@@ -23,7 +23,7 @@ def _pixel_dir(cam, w, h, row, col):
     return dx / n, dy / n, dz / n
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _directions32(cam, w, h, r0, r1):
     out = np.empty(((r1 - r0) * w, 3), np.float32)
     k = 0
@@ -37,7 +37,7 @@ def _directions32(cam, w, h, r0, r1):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _hit_points(cam, origin, w, h, r0, elem, normal, center):
     """Exact float64 intersection of pixel k's ray with the plane of the element it hit."""
     n = elem.shape[0]

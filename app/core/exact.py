@@ -1,6 +1,6 @@
 """Exact (validation) form factors: Howell's closed forms and the contour integral (SPEC §2, §7).
 
-Design notes and measurements: docs/design/core-exact.md.
+Design notes and measurements: docs/src/design/core-exact.md.
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ _EPS = 1e-9                                # innermost panel, relative to the in
 _TWO_PI = 2.0 * np.pi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _area_vector(V, n):
     """Area vector of V[:n] ((n, 3)): area times the unit normal, right-handed about the order."""
     ax = ay = az = 0.0
@@ -99,7 +99,7 @@ def _area_vector(V, n):
     return 0.5 * ax, 0.5 * ay, 0.5 * az
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _clip(V, n, nx, ny, nz, px, py, pz, tol, out):
     """Sutherland-Hodgman: V[:n] clipped to {x : N . (x - p) >= -tol} into out; returns the count.
     Vertices within tol of the plane are kept as they are (no sliver edges)."""
@@ -122,7 +122,7 @@ def _clip(V, n, nx, ny, nz, px, py, pz, tol, out):
     return m
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _inner(s, w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02):
     """int_0^lq ln(r / R0) dt from the point p0 + s u to the segment q0 + t v, less the terms that
     vanish around closed contours (-lq, and lq ln R0 which is absorbed by ln(r^2 / R0^2) / 2).
@@ -153,7 +153,7 @@ def _inner(s, w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02):
     return g
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _graded(e, length, sgn, D, seg):
     """Integral of _inner over [e, e + sgn length] by Gauss-Legendre panels shrinking by _SIGMA
     towards e down to D (the distance from e to the nearest complex singularity) or _EPS length.
@@ -178,7 +178,7 @@ def _graded(e, length, sgn, D, seg):
     return acc
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _edge_pair(P, i, j, Q, k, l, lnr02):
     """(e_hat . f_hat) int_e int_f ln(r / R0) ds dt for the segments e = P[i]P[j], f = Q[k]Q[l]
     (less the closed-contour-null terms, see _inner)."""
@@ -255,7 +255,7 @@ def _edge_pair(P, i, j, Q, k, l, lnr02):
     return c * acc
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _polygon_ff(P, nP, Q, nQ, two_sided):
     """F_PQ for convex planar polygons P[:nP], Q[:nQ] ((k, 3) float64), unoccluded."""
     apx, apy, apz = _area_vector(P, nP)
@@ -314,13 +314,13 @@ def _polygon_ff(P, nP, Q, nQ, two_sided):
     return sP * sQ * acc / (_TWO_PI * AP)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _point_ff(p, n, Q, nQ):
     """Differential element at p (normal n, unit) to the polygon Q[:nQ], clipped to n's side."""
     return point_ff(p[0], p[1], p[2], n[0], n[1], n[2], Q, nQ, np.empty((2 * nQ + 2, 3)))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def point_ff(px, py, pz, nx, ny, nz, Q, nQ, Qc):
     """_point_ff with the point and normal as scalars and the clipped polygon in the caller's
     scratch Qc (at least (2 nQ + 2, 3)): no allocation, for loops over millions of links."""
@@ -344,7 +344,7 @@ def point_ff(px, py, pz, nx, ny, nz, Q, nQ, Qc):
     return abs(acc) / _TWO_PI
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _pairs(Pv, Pn, Qv, Qn, two_sided, out):
     for k in range(Pv.shape[0]):
         out[k] = _polygon_ff(Pv[k], Pn[k], Qv[k], Qn[k], two_sided)

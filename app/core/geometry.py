@@ -29,7 +29,7 @@ def polygon_properties(verts: np.ndarray, nverts: np.ndarray):
     return area, normal, center
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _properties(verts, area, normal, center):
     for i in range(verts.shape[0]):
         v = verts[i]

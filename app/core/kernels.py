@@ -1,7 +1,7 @@
 """Form-factor kernels (SPEC §2): the registry, the formulas and the sample points, evaluated
 on the fly inside the solver's pass loops (passes.py).
 
-Design notes and measurements: docs/design/core-kernels.md.
+Design notes and measurements: docs/src/design/core-kernels.md.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ def sample_points(verts: np.ndarray, nverts: np.ndarray, sampling: Sampling | No
     return np.ascontiguousarray(pts), np.ascontiguousarray(w)
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy", fastmath=True)
 def _term(p, q, nax, nay, naz, nbx, nby, nbz):
     """c_a c_b / r^4 of the sample pair p -> q (points (3,)), 0 where either cosine is not > 0."""
     dx = q[0] - p[0]
@@ -150,7 +150,7 @@ def _term(p, q, nax, nay, naz, nbx, nby, nbz):
     return ca * cb / (r2 * r2)
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy", fastmath=True)
 def _sampled(kid, pa, wa, pb, wb, nax, nay, naz, nbx, nby, nbz):
     """sum over the sample pairs of w c_a c_b / r^4 / pi (unoccluded), the normals already
     turned to the sides that face (see the module docstring)."""
@@ -167,7 +167,7 @@ def _sampled(kid, pa, wa, pb, wb, nax, nay, naz, nbx, nby, nbz):
     return acc / np.pi
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _facing_signs(cx, cy, cz, nx, ny, nz, a, b):
     """+1 / -1: the side of a that b's centre lies on, and of b that a's lies on."""
     dx = cx[b] - cx[a]
@@ -190,7 +190,7 @@ def kernel_id(name: str) -> int:
     return get_kernel(name).id
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _f(kid, g, r2, area):
     """Form factor towards an element of `area`, from g = |ca cb| (unnormalised cosines)."""
     if kid == 0:
@@ -198,7 +198,7 @@ def _f(kid, g, r2, area):
     return area * g / r2 / (np.pi * r2 + area)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _pair_sampled(kid, a, b, cx, cy, cz, nx, ny, nz, pts, w):
     """The unoccluded sampled kernel of pair (a, b) without the area (F_ab = A_b acc, F_ba =
     A_a acc) and the sides (0 front, 1 back) the centres face."""
@@ -208,7 +208,7 @@ def _pair_sampled(kid, a, b, cx, cy, cz, nx, ny, nz, pts, w):
     return acc, 0 if sa > 0 else 1, 0 if sb > 0 else 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def sampled_pairs(kid, pts, w, cx, cy, cz, nx, ny, nz, ia, ib):
     """The unoccluded sampled kernel of pairs (ia, ib) without the area: F_ab = A_b acc[k]
     (and F_ba = A_a acc[k]), and the sides sa, sb (k,) int8 the centres face."""
@@ -220,7 +220,7 @@ def sampled_pairs(kid, pts, w, cx, cy, cz, nx, ny, nz, ia, ib):
     return acc, sa, sb
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def sample_rays(kid, pts, w, center, normal, ia, ib):
     """The sample pairs of pairs (ia, ib), in the order the kernel sums them: the flat sample
     indices of both ends (into pts.reshape(-1, 3)), (k * P,) each, and each sample pair's term

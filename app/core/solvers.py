@@ -1,7 +1,7 @@
 """Solvers of the radiosity equation L = Le + rho (F L) (SPEC §2, §6), pure iterations over an
 `Operator` (operator.py): they never see a cluster, a store or the configuration.
 
-Design notes and measurements: docs/design/core-solvers.md.
+Design notes and measurements: docs/src/design/core-solvers.md.
 """
 
 from __future__ import annotations

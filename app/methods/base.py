@@ -125,6 +125,12 @@ class TransportMethod(Protocol):
     def finish(self, opened: Opened, L: np.ndarray, rows: dict, settings) -> tuple[dict, dict]:
         """(arrays for solution/, extra SolveFigures fields) from the solved L (2, C, M)."""
 
+    def radiance_at(self, rs, settings, pts: np.ndarray, porig: np.ndarray, side: np.ndarray,
+                    pixel: np.ndarray, footprint: np.ndarray) -> tuple[np.ndarray, dict]:
+        """Radiance (K, 3) leaving points `pts` on originals `porig` (-1: none) on side `side`
+        (0 front, 1 back), seen through pixel `pixel` whose footprint there is `footprint`
+        (m^2), from the stored solution: for views the run was not refined for."""
+
     def kept(self, rs) -> str | None:
         """What a rerun reuses of this method's stage ("14 of 18 link tasks"), or None."""
 
@@ -157,7 +163,7 @@ def choose_method(sub_elements: int, settings, originals: int = 1,
                   facing_pairs: float | None = None) -> tuple[str, str]:
     """(method, why) for a run of `sub_elements`: settings.visibility.method unless auto; auto
     takes hierarchical above visibility.hierarchical-above sub-elements (links grow at most like
-    m, pairs like m^2; docs/measurements.md), the seed's pairs below, where both cost the same
+    m, pairs like m^2; docs/src/measurements/hierarchical.md), the seed's pairs below, where both cost the same
     and pairs is the exact all-pairs limit. A sampled kernel (nxm, mc) is the pairs method's
     (links sample their own rays), and so are scenes of many originals with few sub-elements
     each (visibility.hierarchical-min-per-original), unless their facing pairs (`facing_pairs`,

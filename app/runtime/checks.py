@@ -1,5 +1,6 @@
 """Checks made before any cluster starts: everything about a command's input that can be known
-without the workers (solver and kernel, the run directory, the scene's light and camera).
+without the workers (solver and kernel, the run directory, the scene's light and camera, and
+which way its faces point: check_orientation).
 
 A problem raises RadiosityError (SceneError, StoreError) naming the option, path or scene and
 what to do, so the CLI prints one line and exits 2 before anything is created; warnings are
@@ -138,12 +139,12 @@ def check_run_dir(run_dir: str, write: bool = True) -> None:
 def check_scene(scene, settings) -> dict:
     """Light and camera of a scene, before any cluster starts. A camera that sees no element is
     an error (the image would be empty); a scene without an emitter is a warning (it renders
-    black, which is what it is, e.g. for a geometry check); with the pairs method stated, a
-    scene whose pairs of facing originals (estimated) exceed plan.max-facing-pairs is refused
-    (settings: a
-    settings.Settings; its subdivide.subpixel sets the raster). Returns {"hits":
-    rays that hit, "facing_pairs_estimate": originals.estimate_facing_pairs with the pairs method
-    stated, else None}."""
+    black, which is what it is, e.g. for a geometry check); faces that point the wrong way are
+    errors or warnings as `check_orientation` says; with the pairs method stated, a scene whose
+    pairs of facing originals (estimated) exceed plan.max-facing-pairs is refused (settings: a
+    settings.Settings; its subdivide.subpixel sets the raster). Returns {"hits": rays that
+    hit, "facing_pairs_estimate": originals.estimate_facing_pairs with the pairs method
+    stated, else None, "orientation": check_orientation's figures}."""
     from radiosity.tracing.rays import RayCaster
 
     el, cam = scene.elements, scene.camera
@@ -165,23 +166,96 @@ def check_scene(scene, settings) -> dict:
     # a coarse grid of fine pixels first (cheap), the whole raster only when it hits nothing
     ys = np.unique(np.linspace(0, h - 1, min(h, COARSE_RAYS)).round().astype(np.int64))
     xs = np.unique(np.linspace(0, w - 1, min(w, COARSE_RAYS)).round().astype(np.int64))
-    hits = _hits(rc, cam, subpixel, ys, xs)
+    seen = _hits(rc, cam, subpixel, ys, xs)
+    hits = int((seen >= 0).sum())
     if hits == 0 and (len(ys) < h or len(xs) < w):
         band = max(1, (1 << 20) // max(w, 1))
         for r0 in range(0, h, band):
-            hits += _hits(rc, cam, subpixel, np.arange(r0, min(h, r0 + band)), np.arange(w))
+            seen = _hits(rc, cam, subpixel, np.arange(r0, min(h, r0 + band)), np.arange(w))
+            hits += int((seen >= 0).sum())
             if hits:
                 break
     if hits == 0:
         raise SceneError(f"{scene.path}: the camera sees no element (at {cam.center.tolist()}, "
                          f"looking along {cam.z.tolist()}): check [camera]")
-    return {"hits": hits, "facing_pairs_estimate": est}
+    return {"hits": hits, "facing_pairs_estimate": est,
+            "orientation": check_orientation(scene, rc, seen[seen >= 0])}
 
 
-def _hits(rc, cam, subpixel, ys, xs) -> int:
-    """Rays through fine pixels rows ys x columns xs that hit an element."""
+def _hits(rc, cam, subpixel, ys, xs) -> np.ndarray:
+    """The element hit by each ray through fine pixels rows ys x columns xs: (k,) int32, -1
+    for none."""
     from radiosity.core.camera import pixel_directions
 
     w = cam.width * subpixel
     d = pixel_directions(cam, subpixel, ys).reshape(len(ys), w, 3)[:, xs].reshape(-1, 3)
-    return int((rc.first_hit(np.asarray(cam.center, np.float64), d) >= 0).sum())
+    return rc.first_hit(np.asarray(cam.center, np.float64), d)
+
+
+# ----------------------------------------------------------------------------- orientation
+
+#: The fix every orientation message offers, for the [[mesh]] entry it names.
+_FIX = "set `orient = \"inward\"` (flips its faces) or `two_sided = true` on its [[mesh]] entry"
+
+
+def check_orientation(scene, caster, seen: np.ndarray) -> dict:
+    """Faces that point the wrong way for the camera or the lights, before any heavy work
+    (scene/orientation.py has the facts): a mesh whose one-sided faces enclose the camera with
+    their normals out; a camera that sees only backs of one-sided elements; light that reaches
+    no element. Each is an OrientationError (one line naming the mesh and the fix) when the
+    image would be black or the mesh is seen from inside out; an emitter whose light reaches
+    nothing while others light the scene is a warning. caster: a RayCaster of the scene's
+    elements; seen (k,) int: the elements hit by a grid of camera rays (none -1).
+
+    Returns {"camera_rays", "camera_lit": rays that see a lit side, "emitters": [{source,
+    material, rays, reached, backs, escaped}]}."""
+    from radiosity.scene.orientation import (OrientationError, emitter_reach, facing,
+                                             outward_enclosures)
+
+    el, cam = scene.elements, scene.camera
+    where = scene.path
+
+    def mesh(src: int) -> str:
+        """The mesh file as its [[mesh]] entry names it (relative to the scene file)."""
+        fn = el.sources[src] if el.sources else "?"
+        rel = os.path.relpath(fn, os.path.dirname(where)) if where else fn
+        return f"{fn if rel.startswith('..') else rel} ([[mesh]] {src + 1})"
+
+    for enc in outward_enclosures(el, cam.center):
+        closed = "closed (watertight)" if enc.watertight else "nearly closed"
+        raise OrientationError(
+            f"{where}: the camera is inside {mesh(enc.source)}, a {closed} mesh whose normals "
+            f"point outward (winding number {enc.winding:+.2f} at the camera), and sees only "
+            f"the black backs of its faces. If it is the room, {_FIX}; if it is a solid (a wall, "
+            f"furniture), move the camera out of it")
+    lit = facing(el, seen, cam.center)
+    if len(seen) and not lit.any():
+        e = int(np.bincount(seen).argmax())
+        raise OrientationError(
+            f"{where}: the camera sees only the backs of one-sided elements ({len(seen)} of "
+            f"{len(seen)} camera rays, most on {el.describe(e)}): the image would be black. Is "
+            f"the camera inside a wall or outside a closed room? Move it ([camera] position), "
+            f"or for {mesh(int(el.source[e]))} {_FIX}")
+    emitters = emitter_reach(el, caster)
+    dark = [g for g in emitters if g.reached == 0]
+    if emitters and len(dark) == len(emitters):
+        sees_light = bool((lit & (el.emission[seen].max(axis=(1, 2)) > 0)).any())
+        g = max(dark, key=lambda g: g.elements)
+        what = (f"{g.backs} of {g.rays} of its rays meet the backs of one-sided elements, "
+                f"{g.escaped} meet nothing")
+        if not sees_light:
+            raise OrientationError(
+                f"{where}: no emitter's light reaches any element (material "
+                f"'{el.material_names[g.material]}' of {mesh(g.source)}: {what}) and the camera "
+                f"sees no emitter: the image would be black. Is the lamp outside the room or "
+                f"facing away? Move or turn it (its front is counter-clockwise), or for the "
+                f"mesh it faces, {_FIX}")
+    for g in dark:
+        warnings.warn(f"{where}: the light of material '{el.material_names[g.material]}' of "
+                      f"{mesh(g.source)} reaches no element ({g.backs} of {g.rays} rays meet "
+                      f"the backs of one-sided elements, {g.escaped} meet nothing): is the lamp "
+                      "outside the room or facing away?", stacklevel=3)
+    return {"camera_rays": int(len(seen)), "camera_lit": int(lit.sum()),
+            "emitters": [{"source": g.source, "material": el.material_names[g.material],
+                          "rays": g.rays, "reached": g.reached, "backs": g.backs,
+                          "escaped": g.escaped} for g in emitters]}

@@ -1,6 +1,6 @@
 """The engine's own page on the Dask dashboard: a run's progress, live, at `/radiosity`.
 
-Design notes and measurements: docs/design/runtime-dashboard.md.
+Design notes and measurements: docs/src/design/runtime-dashboard.md.
 """
 
 from __future__ import annotations

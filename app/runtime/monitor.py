@@ -1,6 +1,6 @@
 """Live progress of a run, published to the Dask scheduler for the engine's dashboard page.
 
-Design notes and measurements: docs/design/runtime-monitor.md.
+Design notes and measurements: docs/src/design/runtime-monitor.md.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """One run at a time per run directory: `RUN_DIR/run.lock`.
 
-Design notes and measurements: docs/design/runtime-runlock.md.
+Design notes and measurements: docs/src/design/runtime-runlock.md.
 """
 
 from __future__ import annotations

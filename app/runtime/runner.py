@@ -1,6 +1,6 @@
 """The one dynamic master (seed §4.3): a bounded window of Dask tasks, most expensive first.
 
-Design notes and measurements: docs/design/runtime-runner.md.
+Design notes and measurements: docs/src/design/runtime-runner.md.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Is the scene a closed enclosure? Decided from the geometry, for the solver's row handling.
 
-Design notes and measurements: docs/design/scene-closure.md.
+Design notes and measurements: docs/src/design/scene-closure.md.
 """
 
 from __future__ import annotations

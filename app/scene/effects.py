@@ -1,6 +1,6 @@
 """Simulate only the effects a scene calls for: decide, before any ray is cast, what to skip.
 
-Design notes and measurements: docs/design/scene-effects.md.
+Design notes and measurements: docs/src/design/scene-effects.md.
 """
 
 from __future__ import annotations

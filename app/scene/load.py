@@ -16,6 +16,7 @@ import numpy as np
 from radiosity.errors import SceneError
 from radiosity.core.geometry import polygon_properties
 from radiosity.core.bundles import Camera, Elements, Scene
+from radiosity.scene.orientation import orient_polygons
 from radiosity.scene.meshes import (MAX_COORD, MESH_FORMATS, RawMesh, SceneWarning, _warn,
                                     load_mesh, load_obj, load_trimesh, merge_parallelograms,
                                     polygons_from_raw)
@@ -31,7 +32,7 @@ MAX_RESOLUTION = 65536
 TINY = 1e-150
 DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
 
-_MESH_KEYS = {"path", "material", "two_sided"}
+_MESH_KEYS = {"path", "material", "two_sided", "orient"}
 _MATERIAL_KEYS = {"reflectance", "emission", "two_sided", "back_reflectance", "back_emission"}
 _LOOKAT_KEYS = {"position", "look_at", "up", "fov_y", "resolution"}
 _SEED_KEYS = {"center", "x", "y", "z", "focal_distance", "resolution"}
@@ -191,6 +192,8 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
         for name, props in raw.materials.items():
             file_mats.setdefault(name, (fn, props))
         v, n, f, mats = polygons_from_raw(raw, fn, settings=s)
+        # which way the faces point: as in the file, or fixed (scene/orientation.py, ORIENTS)
+        v = orient_polygons(v, n, m.get("orient", "as-is"), f"{path}: [[mesh]] {mi + 1}")
         sources.append(fn)
         all_v.append(v)
         all_n.append(n)

@@ -22,7 +22,7 @@ _POW10 = np.array([1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
 _TWO53 = 2 ** 53
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _float_token(b, t0, t1, pow10):
     """The decimal number b[t0:t1] if it is one of the strict form
     [+-]?(d+[.d*]|.d+)([eE][+-]?d+)?: (0, value) when exact by Clinger's fast path (an integer
@@ -99,12 +99,12 @@ def _float_token(b, t0, t1, pow10):
     return 0, -v if neg else v
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _is_space(c):
     return c == 32 or c == 9
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _scan(b, st, coords, slow, slow_buf, fidx, faces, other):
     """scan_obj's loop over the lines of b, from where st (int64 (9,)) says: byte offset, line
     number (0-based) of the last line read, then the counts so far of vertices, face indices,
@@ -289,7 +289,7 @@ def scan_obj(b: np.ndarray, room: int | None = None):
 
 # ----------------------------------------------------------------------------- polygons
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def vertex_flags(V, max_coord):
     """Per vertex of V (n, 3): 1 if a coordinate is NaN or infinite, else 2 if one is beyond
     max_coord in size, else 0."""
@@ -305,7 +305,7 @@ def vertex_flags(V, max_coord):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def fill_polygons(V, flat, starts, first, how, verts):
     """Writes the polygons of each face f (vertex indices flat[starts[f]:starts[f + 1]]) into
     verts (n, 4, 3) from row first[f]: how[f] 0: a triangle (0, 1, 2, 2); 1: a quad; 2: two
@@ -337,7 +337,7 @@ def fill_polygons(V, flat, starts, first, how, verts):
 
 # ----------------------------------------------------------------------------- merge
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _mix(a, b, c):
     """A 64-bit hash of three 64-bit words."""
     h = a * np.uint64(0x9E3779B97F4A7C15)
@@ -347,7 +347,7 @@ def _mix(a, b, c):
     return h
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _ids(w):
     """An id per row of w (n, 2 or 3) uint64, the same for equal rows (0, 1, ...: in the order
     of their first rows), by an open-addressing hash table."""
@@ -386,7 +386,7 @@ def point_ids(pts: np.ndarray) -> np.ndarray:
     return _ids(w)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def edge_runs(vid):
     """The edges of triangles vid (t, 3) (vertex ids): slot 3 k + e is edge (vid[k, e],
     vid[k, (e + 1) % 3]), either way round. Returns order (3 t,): the slots by edge, each edge's
@@ -417,12 +417,12 @@ def edge_runs(vid):
     return order, start, group
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _norm3(x, y, z):
     return np.sqrt(x * x + y * y + z * z)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def merge_pairs(P, vid, mat, order, gstart, group, tol):
     """The greedy pairing of merge_parallelograms. P (t, 3, 3): the triangles' vertices; vid
     (t, 3): vertex identities; mat (t,): material codes; order: the edge slots 3 k + e sorted by
@@ -484,7 +484,7 @@ def merge_pairs(P, vid, mat, order, gstart, group, tol):
     return partner, edge, pedge
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def diameter(verts):
     """Largest vertex-to-vertex distance of each polygon (n, 4, 3): core.geometry.diameter's
     values to the bit (its norms sum the squares x, y, z left to right), without its

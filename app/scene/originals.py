@@ -2,7 +2,7 @@
 culling, the effects planner): blocks are classified cluster against cluster, and only the pairs
 that may face each other are ever listed, sparsely.
 
-Design notes and measurements: docs/design/scene-originals.md.
+Design notes and measurements: docs/src/design/scene-originals.md.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The split trees as a hierarchy of polygons (SPEC §8): canonical node names and node tables.
 
-Design notes and measurements: docs/design/scene-splittrees.md.
+Design notes and measurements: docs/src/design/scene-splittrees.md.
 """
 
 from __future__ import annotations
@@ -39,24 +39,24 @@ def decode(code: np.ndarray):
     return code ^ low, depth
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _bit(depth):
     return np.uint64(1) << np.uint64(63 - depth)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _code(path, depth):
     return path | _bit(depth)
 
 
 # ----------------------------------------------------------------------------- geometry
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _norm3(ax, ay, az):
     return np.sqrt(ax * ax + ay * ay + az * az)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def split_one(v, nv, c0, c1):
     """Split polygon v[:nv] ((4, 3), nv in {3, 4}) by the seed's rule into c0, c1 (4, 3): a
     triangle by the median to the midpoint of its longest edge, a quad by the segment joining
@@ -102,7 +102,7 @@ def split_one(v, nv, c0, c1):
             c1[3, k] = q
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def polygon_area_center(v, out_c):
     """Area and area centroid (into out_c (3,)) of polygon v (4, 3) (a triangle repeats vertex
     2 in slot 3): the two triangles (0, 1, 2), (0, 2, 3), as geometry.polygon_properties."""
@@ -147,7 +147,7 @@ class TreeNodes:
     leaf: np.ndarray
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _tree_walk(root_verts, root_nverts, root, child, leaf, verts, nverts, orig, depth, path,
                parent, lo, hi):
     """Fill the node arrays top-down (parents precede children in the partition's order)."""
@@ -274,7 +274,7 @@ def full_trees(orig: np.ndarray, code: np.ndarray):
     return o[first].astype(np.int32), path, depth.astype(np.int32)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _find(orig, path, depth, noff, o, p, d):
     """Index of node (o, p, d) in a table sorted by (orig, path, depth), or -1."""
     lo, hi = noff[o], noff[o + 1]
@@ -303,7 +303,7 @@ def find_codes(orig, path, depth, noff, qo, qcode):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _table_walk(orig, depth, path, noff, verts, nverts, parent, lo, hi, is_leaf):
     """Parents, polygons of split-off nodes (split from their parents), leaf flags and ranges."""
     N = orig.shape[0]

@@ -1,6 +1,6 @@
 """Camera-driven subdivision (seed §3): split elements until each covers at most one pixel.
 
-Design notes and measurements: docs/design/scene-subdivide.md.
+Design notes and measurements: docs/src/design/scene-subdivide.md.
 """
 
 from __future__ import annotations
@@ -22,12 +22,12 @@ class DepthGuardWarning(UserWarning):
 
 # ----------------------------------------------------------------------------- kernels
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _side(px, py, pz, a, m):
     return (px - a[0]) * m[0] + (py - a[1]) * m[1] + (pz - a[2]) * m[2] > 0.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def sides(points, a, m):
     """For each point k: is it on the second child's side of split (a[k], m[k])? (n,) bool."""
     n = points.shape[0]
@@ -37,7 +37,7 @@ def sides(points, a, m):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def locate(points, orig, root, child, split_a, split_m):
     """Two-level lookup (seed §3.2): the leaf node of the split tree holding each point, given
     its original element (`lookup` maps leaf nodes to sub-elements).

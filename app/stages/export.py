@@ -1,12 +1,16 @@
 """The solved sub-elements as a mesh and a web page, coloured like the image (stages.pixels).
 
-    mesh.glb     flat-coloured triangles (glTF 2.0, KHR_materials_unlit): COLOR_0 = the exposed,
-                 clipped *linear* colour (glTF vertex colours are linear), `_RADIANCE` = the
-                 linear radiance (float32 VEC3, per vertex)
+    mesh.glb     triangles (glTF 2.0, KHR_materials_unlit): COLOR_0 = the exposed, clipped
+                 *linear* colour (glTF vertex colours are linear), `_RADIANCE` = the linear
+                 radiance (float32 VEC3, per vertex)
     mesh.ply     the same triangles, 8-bit sRGB vertex colours, per-face float properties
-                 radiance_r, radiance_g, radiance_b (linear)
+                 radiance_r, radiance_g, radiance_b (linear: the sub-element's solved value)
     viewer.html  a self-contained WebGL1 page (no external URL): orbit, zoom, both sides of
                  two-sided elements; it sets `#status` to "ok N triangles" once drawn
+
+Given a stages.smooth.SmoothMesh (`smooth=`), the three show the radiance reconstructed at
+shared vertices, interpolated across each triangle (smooth; what a render writes); without
+it, one flat colour per sub-element (vertices duplicated per triangle).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import numpy as np
 
 from radiosity.core.bundles import Camera, Partition
 from radiosity.stages.pixels import RenderError, auto_exposure, temp_path, tonemap
+from radiosity.stages.smooth import SmoothMesh
 
 #: Above this many triangles the viewer shows every s-th sub-element only (with a warning).
 VIEWER_MAX_TRIANGLES = 2_000_000
@@ -90,56 +95,71 @@ def _glb_patch(glb: bytes, extras: dict) -> bytes:
     return struct.pack("<4sII", b"glTF", version, 12 + len(body)) + body
 
 
-def export_mesh(path_glb: str, path_ply: str, part: Partition, radiance: np.ndarray,
-                exposure: float | None, two_sided: np.ndarray | None = None) -> dict:
-    """The sub-elements as a flat-coloured triangle mesh: mesh.glb and mesh.ply.
+def _write(path: str, data: bytes) -> None:
+    tmp = temp_path(path)
+    with open(tmp, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
 
-    Quads become two triangles; vertices are duplicated per triangle, so each face has one
-    colour: the front radiance (m, 2, 3)[:, 0] times `exposure` (None: automatic over the
-    front radiances). two_sided (m,) bool, optional: also write each two-sided sub-element's
-    back as a reversed triangle coloured by its back radiance (single-sided material, so each
-    side shows its own colour). GLB: COLOR_0 float linear colour in [0, 1] (glTF's colour
-    space), `_RADIANCE` float32 linear radiance, KHR_materials_unlit. PLY: 8-bit sRGB vertex
-    colours and face properties radiance_r/g/b (float32, linear).
-    Returns {"triangles" (front: sum of nverts - 2), "faces" (with the backs), "exposure"}.
+
+def export_mesh(path_glb: str, path_ply: str, part: Partition, radiance: np.ndarray,
+                exposure: float | None, two_sided: np.ndarray | None = None,
+                smooth: SmoothMesh | None = None) -> dict:
+    """The sub-elements as a triangle mesh: mesh.glb and mesh.ply.
+
+    smooth: the radiance at shared vertices (stages.smooth.smooth_mesh of the same partition
+    and radiance): indexed triangles whose colours are interpolated across each face, the
+    backs of two-sided sub-elements included (its own vertices). None: flat colours, vertices
+    duplicated per triangle, one colour per face: the front radiance (m, 2, 3)[:, 0]; with
+    two_sided (m,) bool, each two-sided sub-element's back as a reversed triangle coloured by
+    its back radiance (single-sided material, so each side shows its own colour).
+    Colours are the radiance times `exposure` (None: automatic over the front radiances).
+    GLB: COLOR_0 float linear colour in [0, 1] (glTF's colour space), `_RADIANCE` float32
+    linear radiance, KHR_materials_unlit. PLY: 8-bit sRGB vertex colours, vertex properties
+    radiance_r/g/b (smooth only) and face properties radiance_r/g/b (float32, linear, the
+    sub-element's solved value).
+    Returns {"triangles" (front), "faces" (with the backs), "vertices", "exposure", "smooth"}.
     """
     import trimesh
 
-    sub, v, lum = _mesh_faces(part, radiance, two_sided)
+    radiance = np.asarray(radiance, np.float64)
     if exposure is None:
-        exposure = auto_exposure(np.asarray(radiance, np.float64)[:, 0])
+        exposure = auto_exposure(radiance[:, 0])
     exposure = float(exposure)
-    t = len(sub)
-    verts = v.reshape(-1, 3)
-    faces = np.arange(3 * t, dtype=np.int64).reshape(t, 3)
-    lum32 = lum.astype(np.float32)
+    if smooth is not None:
+        verts, faces = smooth.verts, smooth.faces
+        vrad = smooth.radiance
+        frad = radiance[smooth.face_sub, smooth.face_side]
+        ntri = smooth.front_triangles
+    else:
+        sub, v, frad = _mesh_faces(part, radiance, two_sided)
+        t = len(sub)
+        verts = v.reshape(-1, 3)
+        faces = np.arange(3 * t, dtype=np.int64).reshape(t, 3)
+        vrad = np.repeat(frad, 3, axis=0)
+        ntri = int(np.sum(np.asarray(part.nverts, np.int64) - 2))
+    t = len(faces)
+    vrad32 = vrad.astype(np.float32)
 
     g = trimesh.Trimesh(verts, faces, process=False, validate=False)
-    g.vertex_attributes["_COLOR_LINEAR"] = np.repeat(np.clip(lum * exposure, 0.0, 1.0), 3,
-                                                     axis=0).astype(np.float32)
-    g.vertex_attributes["_RADIANCE"] = np.repeat(lum32, 3, axis=0)
-    glb = _glb_patch(g.export(file_type="glb"),
-                     {"generator": "radiosity", "exposure": exposure, "faces": t,
-                      "sub_elements": len(part),
-                      "_RADIANCE": "linear RGB radiance, W sr^-1 m^-2"})
-    tmp = temp_path(path_glb)
-    with open(tmp, "wb") as f:
-        f.write(glb)
-    os.replace(tmp, path_glb)
+    g.vertex_attributes["_COLOR_LINEAR"] = np.clip(vrad * exposure, 0.0, 1.0).astype(np.float32)
+    g.vertex_attributes["_RADIANCE"] = vrad32
+    _write(path_glb, _glb_patch(g.export(file_type="glb"), {
+        "generator": "radiosity", "exposure": exposure, "faces": t, "sub_elements": len(part),
+        "smooth": smooth is not None,
+        "_RADIANCE": "linear RGB radiance, W sr^-1 m^-2" + (
+            ", reconstructed at vertices (stages/smooth.py)" if smooth is not None else "")}))
 
-    rgb = tonemap(lum, exposure)
-    rgba = np.concatenate([rgb, np.full((t, 1), 255, np.uint8)], axis=1)
-    p = trimesh.Trimesh(verts, faces, vertex_colors=np.repeat(rgba, 3, axis=0), process=False,
-                        validate=False)
+    rgb = tonemap(vrad, exposure)
+    rgba = np.concatenate([rgb, np.full((len(verts), 1), 255, np.uint8)], axis=1)
+    p = trimesh.Trimesh(verts, faces, vertex_colors=rgba, process=False, validate=False)
     for i, c in enumerate("rgb"):
-        p.face_attributes[f"radiance_{c}"] = np.ascontiguousarray(lum32[:, i])
-    ply = p.export(file_type="ply", encoding="binary")
-    tmp = temp_path(path_ply)
-    with open(tmp, "wb") as f:
-        f.write(ply)
-    os.replace(tmp, path_ply)
-    return {"triangles": int(np.sum(np.asarray(part.nverts, np.int64) - 2)), "faces": t,
-            "exposure": exposure}
+        if smooth is not None:
+            p.vertex_attributes[f"radiance_{c}"] = np.ascontiguousarray(vrad32[:, i])
+        p.face_attributes[f"radiance_{c}"] = np.ascontiguousarray(frad[:, i], np.float32)
+    _write(path_ply, p.export(file_type="ply", encoding="binary"))
+    return {"triangles": ntri, "faces": t, "vertices": len(verts), "exposure": exposure,
+            "smooth": smooth is not None}
 
 
 # ----------------------------------------------------------------------------- web viewer
@@ -180,7 +200,8 @@ var gl = canvas.getContext("webgl", {antialias: true, preserveDrawingBuffer: tru
          canvas.getContext("experimental-webgl", {preserveDrawingBuffer: true});
 if (!gl) { report("error: WebGL is not available in this browser"); return; }
 
-// sub-elements: 4 float32 vertices, vertex count, [front rgb, back rgb, two-sided] bytes
+// sub-elements: 4 float32 vertices, vertex count, 25 bytes: per corner [front rgb, back rgb]
+// (sRGB), then two-sided
 var pos = new Float32Array(bytes("d-pos").buffer), nv = bytes("d-nv"), col = bytes("d-col");
 var m = nv.length, ntri = 0, i, j, k;
 for (i = 0; i < m; i++) ntri += nv[i] - 2;
@@ -195,12 +216,13 @@ for (i = 0; i < m; i++) {
   cx /= nv[i]; cy /= nv[i]; cz /= nv[i];
   for (j = 0; j < nv[i] - 2; j++, t++) {
     for (k = 0; k < 3; k++) {
-      var s = 12 * i + 3 * fan[3 * j + k], d = 9 * t + 3 * k, c = 12 * t + 4 * k, q = 7 * i;
+      var s = 12 * i + 3 * fan[3 * j + k], d = 9 * t + 3 * k, c = 12 * t + 4 * k;
+      var q = 25 * i + 6 * fan[3 * j + k];
       P[d] = pos[s]; P[d + 1] = pos[s + 1]; P[d + 2] = pos[s + 2];
       Q[d] = cx; Q[d + 1] = cy; Q[d + 2] = cz;
       F[c] = col[q]; F[c + 1] = col[q + 1]; F[c + 2] = col[q + 2]; F[c + 3] = 255;
       B[c] = col[q + 3]; B[c + 1] = col[q + 4]; B[c + 2] = col[q + 5];
-      B[c + 3] = col[q + 6] ? 255 : 0;
+      B[c + 3] = col[25 * i + 24] ? 255 : 0;
     }
   }
 }
@@ -215,7 +237,10 @@ var prog = gl.createProgram();
 gl.attachShader(prog, shader(gl.VERTEX_SHADER,
   "attribute vec3 aPos; attribute vec3 aCen; attribute vec4 aFront; attribute vec4 aBack;" +
   "uniform mat4 uMVP; uniform vec2 uPx; varying vec4 vFront; varying vec4 vBack;" +
-  "void main() { vFront = aFront; vBack = aBack;" +
+  // sRGB bytes to linear: colours are interpolated in linear radiance, as in mesh.glb
+  "vec3 lin(vec3 c) {" +
+  " return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(0.04045, c)); }" +
+  "void main() { vFront = vec4(lin(aFront.rgb), aFront.a); vBack = vec4(lin(aBack.rgb), aBack.a);" +
   // push the vertex GROW_PX pixels away from its element's centre on screen: no T-junction cracks
   " vec4 p = uMVP * vec4(aPos, 1.0); vec4 c = uMVP * vec4(aCen, 1.0);" +
   " if (p.w > 0.0 && c.w > 0.0) { vec2 d = (p.xy / p.w - c.xy / c.w) / uPx; float l = length(d);" +
@@ -223,9 +248,11 @@ gl.attachShader(prog, shader(gl.VERTEX_SHADER,
   " gl_Position = p; }"));
 gl.attachShader(prog, shader(gl.FRAGMENT_SHADER,
   "precision mediump float; varying vec4 vFront; varying vec4 vBack;" +
+  "vec3 enc(vec3 l) { l = clamp(l, 0.0, 1.0);" +
+  " return mix(12.92 * l, 1.055 * pow(l, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, l)); }" +
   // the back of a one-sided element is not drawn: one sees into a closed room from outside
-  "void main() { if (gl_FrontFacing) { gl_FragColor = vec4(vFront.rgb, 1.0); }" +
-  " else { if (vBack.a < 0.5) discard; gl_FragColor = vec4(vBack.rgb, 1.0); } }"));
+  "void main() { if (gl_FrontFacing) { gl_FragColor = vec4(enc(vFront.rgb), 1.0); }" +
+  " else { if (vBack.a < 0.5) discard; gl_FragColor = vec4(enc(vBack.rgb), 1.0); } }"));
 gl.linkProgram(prog);
 if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(prog));
 gl.useProgram(prog);
@@ -351,18 +378,22 @@ def _view_frame(camera: Camera | None):
 
 def write_viewer(path_html: str, part: Partition, radiance: np.ndarray, exposure: float | None,
                  title: str, camera: Camera | None = None, two_sided: np.ndarray | None = None,
-                 max_triangles: int = VIEWER_MAX_TRIANGLES) -> dict:
+                 max_triangles: int = VIEWER_MAX_TRIANGLES,
+                 smooth: SmoothMesh | None = None) -> dict:
     """A self-contained WebGL1 page showing the sub-elements with their tone-mapped radiance.
 
     Embeds per sub-element its 4 vertices (float32, relative to the bounding-box centre), its
-    vertex count and 7 bytes [front sRGB, back sRGB, two-sided] as base64; the page expands
-    them to flat-coloured triangles. radiance (m, 2, 3) linear; exposure as in `tonemap`
+    vertex count and 25 bytes: per corner [front sRGB, back sRGB], then the two-sided flag, as
+    base64; the page expands them to triangles and interpolates the corner colours in linear
+    radiance. smooth: a stages.smooth.SmoothMesh of the same partition and radiance, whose
+    vertex radiance colours the corners (as in mesh.glb); None: each sub-element's own
+    (flat) colour at all its corners. radiance (m, 2, 3) linear; exposure as in `tonemap`
     (None: automatic over the front radiances). two_sided (m,) bool: draw the back colour on
     the back; one-sided backs are not drawn (closed rooms can be seen into from outside).
     camera: initial view direction (default: an oblique view); the view is fitted to the
     bounding box. Above `max_triangles` only every s-th sub-element is embedded and the page
     says so. The page sets `#status` to "ok N triangles" after the first frame (or
-    "error: ..."). No external URL. Returns {"triangles", "stride", "bytes"}.
+    "error: ..."). No external URL. Returns {"triangles", "stride", "bytes", "smooth"}.
     """
     radiance = np.asarray(radiance, np.float64)
     m = len(part)
@@ -376,17 +407,23 @@ def write_viewer(path_html: str, part: Partition, radiance: np.ndarray, exposure
     radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-12)
     pos = (part.verts[keep] - centre).astype("<f4")
     nv = np.asarray(part.nverts)[keep].astype(np.uint8)
-    col = np.zeros((len(keep), 7), np.uint8)
-    col[:, :6] = tonemap(radiance[keep], exposure).reshape(-1, 6)
+    corner_rad = np.repeat(radiance[keep][:, None], 4, axis=1)          # (k, 4, 2, 3)
+    if smooth is not None:
+        cv = smooth.corner[keep].transpose(0, 2, 1)                       # (k, 4, 2)
+        corner_rad = np.where((cv >= 0)[..., None], smooth.radiance[np.maximum(cv, 0)],
+                              corner_rad)
+    col = np.zeros((len(keep), 25), np.uint8)
+    col[:, :24] = tonemap(corner_rad, exposure).reshape(-1, 24)
     if two_sided is not None:
-        col[:, 6] = np.asarray(two_sided, bool)[keep]
+        col[:, 24] = np.asarray(two_sided, bool)[keep]
     up, fwd, yaw, pitch = _view_frame(camera)
     shown = int(np.sum(nv.astype(np.int64) - 2))
     meta = {"grow_px": VIEWER_GROW_PX, "up": up, "forward": fwd, "yaw": yaw, "pitch": pitch,
-            "radius": radius,
+            "radius": radius, "smooth": smooth is not None,
             "centre": centre.tolist(), "exposure": exposure, "elements": m, "triangles": shown}
     caption = (f"{m:,} elements, {ntri:,} triangles &middot; exposure {exposure:.4g} "
-               f"&middot; radiosity colours, one-sided backs hidden")
+               f"&middot; radiosity colours{' (smooth)' if smooth is not None else ''}, "
+               f"one-sided backs hidden")
     warning = ""
     if stride > 1:
         warning = (f"large mesh: showing every {stride}th element ({shown:,} of {ntri:,} "
@@ -400,4 +437,4 @@ def write_viewer(path_html: str, part: Partition, radiance: np.ndarray, exposure
     with open(tmp, "w", encoding="utf-8") as f:
         f.write(page)
     os.replace(tmp, path_html)
-    return {"triangles": shown, "stride": stride, "bytes": len(page)}
+    return {"triangles": shown, "stride": stride, "bytes": len(page), "smooth": smooth is not None}

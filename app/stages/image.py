@@ -23,12 +23,16 @@ from radiosity.runtime.store import StageFigures
 from radiosity.settings import Settings, resolve
 from radiosity.stages.export import (VIEWER_GROW_PX, VIEWER_MAX_TRIANGLES, export_mesh, triangles,
                                      write_viewer)
-from radiosity.stages.pixels import (AUTO_KEY, AUTO_PERCENTILE, LUMA, RenderError, auto_exposure,
-                                     downsample, facing_side, pixel_radiance, read_exr,
-                                     srgb_encode, tonemap, write_exr, write_png)
+from radiosity.stages.smooth import smooth_mesh
+from radiosity.stages.tables import light_tables, write_light_tables
+from radiosity.stages.pixels import (AUTO_KEY, AUTO_PERCENTILE, LUMA, SAMPLINGS, RenderError,
+                                     auto_exposure, downsample, facing_side, sample_raster,
+                                     pixel_radiance, read_exr, srgb_encode, tonemap, write_exr,
+                                     write_png)
 
 __all__ = ["ImageFigures", "render_outputs", "previewer",
-           "AUTO_KEY", "AUTO_PERCENTILE", "LUMA", "RenderError", "auto_exposure", "downsample",
+           "AUTO_KEY", "AUTO_PERCENTILE", "LUMA", "SAMPLINGS", "RenderError", "sample_raster",
+           "auto_exposure", "downsample",
            "facing_side", "pixel_radiance", "read_exr", "srgb_encode", "tonemap", "write_exr",
            "write_png", "VIEWER_GROW_PX", "VIEWER_MAX_TRIANGLES", "export_mesh", "triangles",
            "write_viewer"]
@@ -50,6 +54,9 @@ class ImageFigures(StageFigures):
     width: int
     height: int
     subpixel: int
+    sampling: str                # area or point (render.sampling)
+    area_samples: int            # rays per side of each fine pixel (1 with point)
+    rays: int                    # sample rays cast for the image (0 with point: the raster's)
     filter: str
     sigma: float
     mean_radiance: list
@@ -64,29 +71,44 @@ class ImageFigures(StageFigures):
 
     def rows(self):
         return [("outputs", "image.exr, image.png, mesh.glb, mesh.ply, viewer.html"),
-                ("image", f"{self.width}x{self.height}, exposure {self.exposure:.3g}")]
+                ("image", f"{self.width}x{self.height}, {self.sampling} sampling"
+                          + (f" ({self.area_samples * self.subpixel}^2 rays a pixel)"
+                             if self.sampling == "area" else "")
+                          + f", exposure {self.exposure:.3g}")]
 
 
 # ----------------------------------------------------------------------------- the stage
 
 def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None = None,
-                   exposure: float | str | None = None,
-                   settings: Settings | None = None) -> ImageFigures:
+                   exposure: float | str | None = None, settings: Settings | None = None,
+                   sampling: str | None = None, area_samples: int | None = None) -> ImageFigures:
     """Image, meshes and viewer of a solved run: writes image.exr, image.png, mesh.glb,
     mesh.ply and viewer.html into `run_dir` and section "render" of report.json.
 
-    filter, sigma, exposure: None takes `render.filter`, `render.sigma`, `render.exposure`
-    of `settings` (None: resolved here); an exposure of None there (or "auto" here) is automatic
-    (`auto_exposure` of the final image). Returns the figures: paths, exposure, width, height,
-    subpixel, filter, sigma, mean_radiance (RGB mean over the image, black pixels included),
-    hit_fraction (fine pixels that see an element), triangles, time_s.
+    filter, sigma, exposure, sampling, area_samples: None takes `render.filter`,
+    `render.sigma`, `render.exposure`, `render.sampling`, `render.area-samples` of `settings`
+    (None: resolved here); an exposure of None there (or "auto" here) is automatic
+    (`auto_exposure` of the final image). sampling "area": each fine pixel is the mean of
+    ceil(area-samples / subpixel)^2 rays over its area (pixels.sample_raster); "point": the
+    sub-element at its centre (the run's ID raster). Returns the figures: paths, exposure,
+    width, height, subpixel, sampling, area_samples, rays, filter, sigma, mean_radiance (RGB mean
+    over the image, black pixels included), hit_fraction (fine pixels whose centre sees an
+    element), triangles, time_s.
     """
     from radiosity.runtime.store import RunStore
 
     t0 = time.perf_counter()
     sigma_given = sigma is not None
-    r = resolve({"render.filter": filter, "render.sigma": sigma, "render.exposure": exposure},
-                base=settings).render
+    st = resolve({"render.filter": filter, "render.sigma": sigma, "render.exposure": exposure,
+                  "render.sampling": sampling, "render.area-samples": area_samples},
+                 base=settings)
+    r = st.render
+    if r.sampling not in SAMPLINGS:
+        raise RenderError(f"radiosity.render.sampling must be one of {', '.join(SAMPLINGS)}, got "
+                          f"{r.sampling!r}")
+    if not int(r.area_samples) >= 1:
+        raise RenderError(f"radiosity.render.area-samples must be a positive integer, got "
+                          f"{r.area_samples!r}")
     filter = r.filter
     sigma = float(r.sigma)
     exposure = r.exposure
@@ -119,7 +141,15 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
                          f"subpixel {k} need {(camera.height * k, camera.width * k)}: run "
                          f"preprocess again")
 
-    fine = pixel_radiance(part, elements, camera, raster, radiance)
+    per_side = 1
+    if r.sampling == "area":
+        # about area-samples^2 rays per pixel whatever the sub-pixel factor
+        per_side = max(1, -(-int(r.area_samples) // k))
+        raster_or_samples = sample_raster(part, elements, camera, k, per_side,
+                                          float(st.rays.epsilon))
+    else:
+        raster_or_samples = raster
+    fine = pixel_radiance(part, elements, camera, raster_or_samples, radiance)
     img = downsample(fine, k, filter, sigma)
     e = auto_exposure(img) if auto else exposure
     t_image = time.perf_counter() - t0
@@ -130,16 +160,21 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     write_exr(paths["image.exr"], img)
     write_png(paths["image.png"], tonemap(img, e))
     two = np.asarray(elements.two_sided, bool)[part.orig]
-    mesh = export_mesh(paths["mesh.glb"], paths["mesh.ply"], part, radiance, e, two_sided=two)
+    smooth = smooth_mesh(part, elements, radiance)  # radiance at vertices: mesh and viewer
+    mesh = export_mesh(paths["mesh.glb"], paths["mesh.ply"], part, radiance, e, two_sided=two,
+                       smooth=smooth)
     title = rs.attrs.get("scene_name") or os.path.basename(d)
     viewer = write_viewer(paths["viewer.html"], part, radiance, e, title, camera=camera,
-                          two_sided=two)
+                          two_sided=two, smooth=smooth)
+    write_light_tables(d, light_tables(part, elements, radiance))  # elements/surfaces.csv
     fig = ImageFigures(**{
         "image_exr": paths["image.exr"], "image_png": paths["image.png"],
         "mesh_glb": paths["mesh.glb"], "mesh_ply": paths["mesh.ply"],
         "viewer_html": paths["viewer.html"],
         "exposure": float(e), "exposure_auto": bool(auto),
         "width": int(img.shape[1]), "height": int(img.shape[0]), "subpixel": k,
+        "sampling": r.sampling, "area_samples": per_side,
+        "rays": int(raster_or_samples.size) if r.sampling == "area" else 0,
         "filter": filter, "sigma": sigma,
         "mean_radiance": [float(x) for x in img.reshape(-1, 3).mean(axis=0)],
         "hit_fraction": float(np.mean(raster >= 0)),

@@ -1,6 +1,13 @@
 """The image itself: the radiance each fine pixel sees, its reconstruction to the camera's grid
 (box or Gaussian), tone mapping to 8-bit sRGB, and the EXR and PNG files.
 
+What a fine pixel sees (render.sampling): `area` (the default) averages k x k rays spread over
+the pixel's area, each looking up the solved radiance of the sub-element where it lands (the
+seed's two-level lookup, seed §3.2), as a camera and a path tracer's box filter do; `point` takes
+the sub-element of the ray through the pixel's centre, the preprocessing's ID raster (seed §3),
+as the seed does. They differ only where a pixel straddles an edge; measured in
+docs/src/how-to/checks-and-images.md.
+
 Colour pipeline: linear radiance x exposure, clipped to [0, 1], encoded with the sRGB transfer
 curve (IEC 61966-2-1), rounded to 8 bits; the image stage (stages.image) and the exports
 (stages.export) use the same exposure, so all of them show the same colours.
@@ -15,6 +22,11 @@ import numpy as np
 
 from radiosity.errors import RadiosityError, StoreError
 from radiosity.core.bundles import Camera, Elements, Partition
+
+#: What a fine pixel shows (render.sampling): the mean over its area, or its centre's element.
+SAMPLINGS = ("area", "point")
+#: Sample rays per Embree batch of the pixel-area image (about 60 bytes a ray in flight).
+AREA_BATCH = 1 << 20
 
 #: Rec. 709 / sRGB luminance weights of linear RGB.
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -39,15 +51,12 @@ def facing_side(part: Partition, camera: Camera) -> np.ndarray:
     return (np.einsum("ij,ij->i", part.normal, d) <= 0.0).astype(np.intp)
 
 
-def pixel_radiance(part: Partition, elements: Elements, camera: Camera, raster_sub: np.ndarray,
-                   radiance: np.ndarray) -> np.ndarray:
-    """Linear radiance seen through each fine pixel: (H*K, W*K, 3) float64.
+def seen_radiance(part: Partition, elements: Elements, camera: Camera,
+                  radiance: np.ndarray) -> np.ndarray:
+    """The radiance the camera sees on each sub-element: (m, 3) float64, linear RGB.
 
-    part, elements, camera: from the run store. raster_sub (H*K, W*K) int32: sub-element hit
-    by each fine pixel's ray, -1 for none. radiance (m, 2, 3): [front, back] RGB per
-    sub-element. A pixel shows the side of its sub-element that faces the camera (see
-    `facing_side`); the back of a one-sided element is 0 (black) whatever `radiance` holds
-    there; pixels that hit nothing are 0 (black, no background colour).
+    radiance (m, 2, 3): [front, back] RGB per sub-element. The side that faces the camera (see
+    `facing_side`); the back of a one-sided element is 0 (black) whatever `radiance` holds there.
     """
     radiance = np.asarray(radiance, np.float64)
     m = len(part)
@@ -57,10 +66,112 @@ def pixel_radiance(part: Partition, elements: Elements, camera: Camera, raster_s
     side = facing_side(part, camera)
     lum = radiance[np.arange(m), side]  # (m, 3)
     lum[(side == 1) & ~np.asarray(elements.two_sided, bool)[part.orig]] = 0.0
+    return lum
+
+
+def pixel_radiance(part: Partition, elements: Elements, camera: Camera, raster_sub: np.ndarray,
+                   radiance: np.ndarray) -> np.ndarray:
+    """Linear radiance seen through each fine pixel: (H*K, W*K, 3) float64.
+
+    part, elements, camera: from the run store. raster_sub (H*K, W*K) int32: sub-element hit
+    by each fine pixel's ray, -1 for none; or (H*K, W*K, S) int32: the sub-elements of S sample
+    rays per fine pixel (`sample_raster`), averaged. radiance (m, 2, 3): [front, back] RGB per
+    sub-element, shown as `seen_radiance` says; rays that hit nothing are 0 (black, no
+    background colour).
+    """
+    lum = seen_radiance(part, elements, camera, radiance)
     sub = np.asarray(raster_sub)
+    if sub.ndim == 3:
+        out = np.zeros(sub.shape[:2] + (3,), np.float64)
+        for s in range(sub.shape[2]):  # one sample plane at a time: memory as the image's
+            out += _gather(lum, sub[:, :, s])
+        return out / sub.shape[2]
+    return _gather(lum, sub)
+
+
+def _gather(lum: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    """lum (m, 3) at the sub-elements `sub` (any shape, -1: black) -> sub.shape + (3,)."""
     out = np.zeros(sub.shape + (3,), np.float64)
     hit = sub >= 0
     out[hit] = lum[sub[hit]]
+    return out
+
+
+# ----------------------------------------------------------------------------- pixel areas
+
+def area_offsets(k: int) -> np.ndarray:
+    """Where the k x k rays of the pixel-area image cross a pixel: (k*k, 2) float64 offsets
+    (x to the right, y down) in (0, 1), the pixel's top-left corner at (0, 0).
+
+    A sheared lattice: sample (i, j) at ((i + (j + 1/2) / k) / k, (j + (i + 1/2) / k) / k). It is
+    stratified (one sample in each of the k x k cells) and n-rooks (one in each of the pixel's
+    k^2 columns and k^2 rows), so the covered fraction of a pixel cut by a vertical or horizontal
+    edge is exact to 1 / (2 k^2), where a k x k grid of cell centres is only exact to 1 / (2 k);
+    and it is deterministic (the same image on every run, no noise). k = 1: the pixel's centre.
+    """
+    k = int(k)
+    if k < 1:
+        raise RenderError(f"render.area-samples must be a positive integer, got {k}")
+    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    x = (i + (j + 0.5) / k) / k
+    y = (j + (i + 0.5) / k) / k
+    return np.stack([x.ravel(), y.ravel()], 1)
+
+
+def sample_directions(camera: Camera, subpixel: int, offsets: np.ndarray, r0: int,
+                      r1: int) -> np.ndarray:
+    """Unit directions (r1 - r0, W*K, S, 3) float64 of the rays through fine pixels' rows r0:r1
+    of the K-times finer raster (K = subpixel), S rays each at `offsets` (S, 2) (x right, y down,
+    in pixels from the fine pixel's top-left corner; (0.5, 0.5) is the centre, as
+    camera.pixel_directions)."""
+    w, h = camera.width * subpixel, camera.height * subpixel
+    ox, oy = offsets[:, 0], offsets[:, 1]
+    u = camera.half_w * (2.0 * (np.arange(w)[:, None] + ox[None, :]) / w - 1.0)       # (W, S)
+    v = camera.half_h * (1.0 - 2.0 * (np.arange(r0, r1)[:, None] + oy[None, :]) / h)  # (R, S)
+    d = (camera.focal * camera.z[None, None, None, :]
+         + u[None, :, :, None] * camera.x[None, None, None, :]
+         + v[:, None, :, None] * camera.y[None, None, None, :])
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def sample_raster(part: Partition, elements: Elements, camera: Camera, subpixel: int, k: int,
+                  epsilon: float, caster=None) -> np.ndarray:
+    """Sub-element seen by each of the k x k `area_offsets` rays of every fine pixel:
+    (H*K, W*K, k*k) int32 (K = subpixel), -1 where a ray hits nothing.
+
+    Embree finds the original element each ray hits (tracing.rays, against the original
+    elements: subdividing never changes the geometry), the hit point is recomputed in float64
+    on that element's plane, and the split tree gives the sub-element under it (seed §3.2, the
+    two-level lookup): any sub-element, also one that no pixel centre hits. caster: a
+    RayCaster of the original elements (None: built here with the ray offset `epsilon`).
+    """
+    from radiosity.scene.subdivide import lookup
+    from radiosity.tracing.rays import RayCaster
+
+    rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, epsilon)
+    offsets = area_offsets(k)
+    s = len(offsets)
+    w, h = camera.width * subpixel, camera.height * subpixel
+    out = np.full((h, w, s), -1, np.int32)
+    origin = np.asarray(camera.center, np.float64)
+    normal = np.asarray(elements.normal, np.float64)
+    center = np.asarray(elements.center, np.float64)
+    band = max(1, AREA_BATCH // (w * s))
+    for r0 in range(0, h, band):
+        r1 = min(h, r0 + band)
+        d = sample_directions(camera, subpixel, offsets, r0, r1).reshape(-1, 3)
+        orig = rc.first_hit(origin, d.astype(np.float32), unit=True)
+        hit = orig >= 0
+        e = orig[hit]
+        dh = d[hit]
+        # the exact hit point on the element's plane (float64), as camera.hit_points does (a
+        # ray Embree says hits a plane it runs along lands anywhere: the lookup stays in bounds)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.einsum("ij,ij->i", normal[e], center[e] - origin) / \
+                np.einsum("ij,ij->i", normal[e], dh)
+        sub = np.full(len(orig), -1, np.int32)
+        sub[hit] = lookup(part, origin + t[:, None] * dh, e)
+        out[r0:r1] = sub.reshape(r1 - r0, w, s)
     return out
 
 

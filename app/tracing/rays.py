@@ -187,7 +187,7 @@ def _lex_less(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return lt[:, 0] | (eq[:, 0] & (lt[:, 1] | (eq[:, 1] & lt[:, 2])))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _segments(pts, ia, ib, origin, scale, eps, normal, elem, has_e, grazing, o32, d32, far, graze):
     """Embree's float32 origins, unit directions and lengths of the normalised segments
     pts[ia] - pts[ib], run from the lexicographically smaller end and shortened by eps at both

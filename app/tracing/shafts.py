@@ -33,7 +33,7 @@ def occluders(elements):
     return lo - pad, hi + pad, elements.normal, eoffset, pad + float(dev.max(initial=0.0))
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _faces(N, i, ts, dx, dy, dz, length):
     """Does element i with normal N[i] (two-sided if ts) face along d? cos beyond +-tol.
     (Hot-loop helpers here take an array and an index, not a row: a row is a view, and each
@@ -43,7 +43,7 @@ def _faces(N, i, ts, dx, dy, dz, length):
     return c > t or (ts and c < -t)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _seg_box(px, py, pz, qx, qy, qz, lo, hi):
     """Does the segment p-q touch the closed box [lo, hi]? (slab test)"""
     t0, t1 = 0.0, 1.0
@@ -68,7 +68,7 @@ def _seg_box(px, py, pz, qx, qy, qz, lo, hi):
     return True
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _box_side(X, N, D, o, pad):
     """+1 if box X lies entirely in front of plane (N[o], D[o]) (beyond pad), -1 behind, 0
     neither."""
@@ -89,7 +89,7 @@ def _box_side(X, N, D, o, pad):
     return 0
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _same_side(A, B, N, D, o, pad):
     """Do boxes A and B lie strictly on one side of occluder o's plane (N[o], D[o])? Then no
     segment between them can cross the (planar) occluder."""
@@ -97,7 +97,7 @@ def _same_side(A, B, N, D, o, pad):
     return sa != 0 and sa == _box_side(B, N, D, o, pad)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _range_box(lo, hi, a0, a1, out):
     for k in range(3):
         out[0, k] = np.inf
@@ -110,7 +110,7 @@ def _range_box(lo, hi, a0, a1, out):
                 out[1, k] = hi[i, k]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _shaft_excludes(A, B, LO, HI, o):
     """Is occluder o's box C = [LO[o], HI[o]] outside the shaft (convex hull) of boxes A and B? (A[0]=lo, A[1]=hi)
 
@@ -148,7 +148,7 @@ def _shaft_excludes(A, B, LO, HI, o):
     return False
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def classify(rows, cols, occ, cand, sampled):
     """Classify every pair of a tile without rays.
 
@@ -243,7 +243,7 @@ def classify(rows, cols, occ, cand, sampled):
     return code, tests
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def block_candidates(A, B, olo, ohi, on, od, pad, skip_a, skip_b):
     """Occluders (ids) that may cut a segment between boxes A and B: their plane separates the
     boxes and their box enters the shaft. The block's own two elements never can."""
@@ -264,7 +264,7 @@ def block_candidates(A, B, olo, ohi, on, od, pad, skip_a, skip_b):
 OccluderTree = namedtuple("OccluderTree", "left right start end order lo hi")
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def node_boxes(left, right, start, end, order, elo, ehi):
     """Each tree node's box: the union of its occluders' boxes elo, ehi (n, 3), (K, 3) twice."""
     K = left.shape[0]
@@ -287,7 +287,7 @@ def node_boxes(left, right, start, end, order, elo, ehi):
     return lo, hi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def tree_candidates(A, B, tree, olo, ohi, on, od, pad, skip_a, skip_b):
     """block_candidates through the occluder tree: nodes whose box lies outside the shaft are
     skipped whole (a box inside an excluded box is excluded too), so the cost follows the
@@ -325,7 +325,7 @@ def tree_candidates(A, B, tree, olo, ohi, on, od, pad, skip_a, skip_b):
     return np.sort(out[:k])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def small_tile_pairs(tiles, offsets, center, normal, two_sided, base):
     """Facing pairs of many small tiles at once (no shaft search: for a handful of pairs a ray is
     cheaper than looking for occluders among all elements). Returns ia, ib (sub-elements) and the
@@ -357,7 +357,7 @@ def small_tile_pairs(tiles, offsets, center, normal, two_sided, base):
     return ia[:k], ib[:k], bit[:k]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def set_bits(buf, bits):
     """Set bit positions `bits` in the uint8 buffer (little-endian within bytes)."""
     for k in range(bits.shape[0]):

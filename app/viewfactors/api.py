@@ -4,7 +4,7 @@
 F_ij is the fraction of the power leaving facet i (front side) that reaches facet j, so
 A_i F_ij = A_j F_ji and row sums are <= 1 (= 1 in an enclosure). This module is the Python
 API and the names the CLI uses; the stage is master.py (driver), task.py (workers), facets.py
-(loading), outputs.py (checks and files). The method: docs/viewfactors-method.md.
+(loading), outputs.py (checks and files). The method: docs/src/design/viewfactors-method.md.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ Facets are reordered so that every node is a contiguous range: first by the domi
 of their normal (six classes), then by recursive median splits of their centroids, down to
 leaves of at most `leaf_size` facets. Each node stores its facet range, its box, the area of
 its facets and a cone of their normals (axis, spread; loops.behind uses it). The details:
-docs/viewfactors-method.md ("The facet tree").
+docs/src/design/viewfactors-method.md ("The facet tree").
 """
 
 from __future__ import annotations

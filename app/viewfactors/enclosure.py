@@ -4,7 +4,7 @@ to 1 while reciprocity is kept (pure numpy / scipy; no Dask).
 Closed: every edge is shared by exactly two facets that run it in opposite directions, and the
 normals point into the enclosed volume. Balancing: symmetric Sinkhorn-Knopp scaling
 F_ij <- d_i F_ij d_j (Knight 2008), which keeps reciprocity, the sparsity pattern and every
-factor in [0, 1]. Why, and how: docs/viewfactors-method.md ("Enclosures and balancing").
+factor in [0, 1]. Why, and how: docs/src/design/viewfactors-method.md ("Enclosures and balancing").
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ class Balance:
 
 def balance(F, tol: float = 1e-13, max_iterations: int = 10000):
     """Scale the CSR matrix F (n x n, rows summing to about 1, A F symmetric) to
-    F'_ij = d_i F_ij d_j with every row summing to 1 (docs/viewfactors-method.md). Rows that
+    F'_ij = d_i F_ij d_j with every row summing to 1 (docs/src/design/viewfactors-method.md). Rows that
     are all zero are left alone (d_i = 1). Returns (F' as a new CSR matrix, Balance)."""
     import scipy.sparse as sp
 

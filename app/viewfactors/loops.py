@@ -4,7 +4,7 @@ with its proven bound (*), and the CSR assembly loops. Small, no I/O, no configu
 
 Facet arrays are in the tree order of bvh.FacetTree; tree arguments are bvh.Nodes tuples.
 The form factor, the cheap kernel and the derivation of its bound (*):
-docs/viewfactors-method.md ("The cheap kernel and its proven bound").
+docs/src/design/viewfactors-method.md ("The cheap kernel and its proven bound").
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ def second_moments(verts: np.ndarray, nverts: np.ndarray, center: np.ndarray, ar
 
 # ----------------------------------------------------------------------------- cluster tests
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def behind(alo, ahi, axis, spread, blo, bhi, tol):
     """Is box B wholly in the closed back half-space (within tol) of the plane of every facet
     of node A (normal cone axis, spread; facets inside box A)? Then F = 0 from every facet of A
@@ -108,7 +108,7 @@ def behind(alo, ahi, axis, spread, blo, bhi, tol):
     return m + spread * (math.sqrt(cn) + math.sqrt(hn)) <= tol
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _box_gap2(alo, ahi, blo, bhi):
     g = 0.0
     for k in range(3):
@@ -117,7 +117,7 @@ def _box_gap2(alo, ahi, blo, bhi):
     return g
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def near_leaves(nodes, a, tol, cutoff, leaves_out, drop_node, drop_ab, drop_ba):
     """The leaves B (tree order, start[B] >= start[a]) of the tree `nodes` (bvh.Nodes) whose
     facets leaf `a` may exchange radiation with: every pair (i in a, j in B, i < j) is visited
@@ -179,7 +179,7 @@ def near_leaves(nodes, a, tol, cutoff, leaves_out, drop_node, drop_ab, drop_ba):
 
 # ----------------------------------------------------------------------------- pairs
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def facing_pairs(verts, nv, normal, doff, a0, a1, bstart, bend, tol, ia, ib, blk, full):
     """Pairs (i in a0:a1, j in each range bstart[k]:bend[k], i < j) that can exchange
     radiation: some vertex of j lies beyond tol in front of i's plane and some vertex of i in
@@ -219,14 +219,14 @@ def facing_pairs(verts, nv, normal, doff, a0, a1, bstart, bend, tol, ia, ib, blk
     return m, away
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _g(nix, niy, niz, njx, njy, njz, dx, dy, dz):
     """(n_i . d)(-n_j . d) / |d|^4 (no 1/pi)."""
     r2 = dx * dx + dy * dy + dz * dz
     return (nix * dx + niy * dy + niz * dz) * -(njx * dx + njy * dy + njz * dz) / (r2 * r2)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _m(k, J, R):
     """An upper bound of E|u|^k over a facet (m_1 <= J^(1/2), m_k <= R^(k-2) J)."""
     if k == 0:
@@ -236,9 +236,9 @@ def _m(k, J, R):
     return R ** (k - 2) * J
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def cheap_ff(ia, ib, full, normal, center, area, J, R, flo, fhi, qn, qw, qc, f, bound):
-    """The cheap kernel and its bound (*) (docs/viewfactors-method.md) for pairs (ia, ib) that are `full`
+    """The cheap kernel and its bound (*) (docs/src/design/viewfactors-method.md) for pairs (ia, ib) that are `full`
     and apart (rho > 0): f = F_ij (from ia to ib), bound its proven error bound. Other pairs
     get bound = inf (they need the exact integral)."""
     binom = (1.0, 6.0, 15.0, 20.0, 15.0, 6.0, 1.0)
@@ -286,7 +286,7 @@ def cheap_ff(ia, ib, full, normal, center, area, J, R, flo, fhi, qn, qw, qc, f, 
 
 # ----------------------------------------------------------------------------- assembly
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def scatter_rows(rows, cols, vals, fill, indices, data):
     """CSR fill: entry k goes to row rows[k] at position fill[row] (then advanced)."""
     for k in range(rows.shape[0]):
@@ -297,7 +297,7 @@ def scatter_rows(rows, cols, vals, fill, indices, data):
         fill[r] = p + 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def reciprocity_residual(indptr, indices, data, area):
     """max |A_i F_ij - A_j F_ji| over the entries of a CSR matrix with sorted indices (an entry
     whose transpose is absent counts with F_ji = 0)."""

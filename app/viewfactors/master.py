@@ -1,7 +1,7 @@
 """The view-factor stage's master (driver side): resolve the parameters, build the facet tree
 and the worker inputs, plan the tasks, run them through runtime.stage.run_stage (resume,
 checksums, retries), assemble the CSR matrix from the store and write the outputs.
-The method: docs/viewfactors-method.md.
+The method: docs/src/design/viewfactors-method.md.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 rays and visible fractions of the pairs that need rays. Small, no I/O, no configuration.
 
 Facet arrays are in the tree order of bvh.FacetTree; tree arguments are bvh.Nodes tuples.
-The method: docs/viewfactors-method.md.
+The method: docs/src/design/viewfactors-method.md.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 
 # ----------------------------------------------------------------------------- shafts
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def shaft_out(alo, ahi, blo, bhi, clo, chi):
     """Is box C outside the shaft between boxes A and B (their box hull, cut by the planes that
     join the two boxes' corners in each coordinate plane; Haines & Wallace 1991)? Then no
@@ -50,7 +50,7 @@ def shaft_out(alo, ahi, blo, bhi, clo, chi):
     return False
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _box_side(lo, hi, n, d, pad):
     """+1: box in the closed front half-space of plane (n, d) within pad; -1 closed back;
     2 both (within pad of the plane); 0 neither."""
@@ -74,14 +74,14 @@ def _box_side(lo, hi, n, d, pad):
     return 0
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _closed_apart(sa, sb):
     """Both on one closed side: a segment between them meets the plane only where it lies in
     it, which has measure zero (or zero kernel) in the form-factor integral."""
     return (sa == 2 or sb == 2 or sa == sb) and sa != 0 and sb != 0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def block_occluders(nodes, flo, fhi, normal, doff, pad, alo, ahi, blo, bhi, out):
     """Facets that may cut a segment between boxes A and B: their box enters the shaft and
     their plane does not hold both boxes on one closed side. Traversal of the tree `nodes`
@@ -114,7 +114,7 @@ def block_occluders(nodes, flo, fhi, normal, doff, pad, alo, ahi, blo, bhi, out)
     return m
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _verts_side(verts, nv, i, n, d, pad):
     """Side of facet i's vertices with respect to plane (n, d), as _box_side."""
     mn = 1e300
@@ -134,7 +134,7 @@ def _verts_side(verts, nv, i, n, d, pad):
     return 0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def prove_unobstructed(ia, ib, blk, need, bleaf, aleaf, nodes, verts, nv, flo, fhi, normal, doff,
                        pad, proven):
     """For pairs sorted by block (blk indexes bleaf; all rows in leaf aleaf): proven[p] = True
@@ -189,7 +189,7 @@ def prove_unobstructed(ia, ib, blk, need, bleaf, aleaf, nodes, verts, nv, flo, f
 
 # ----------------------------------------------------------------------------- sampling
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _mix(z):
     """splitmix64 finaliser (uint64 -> uint64)."""
     z = z + np.uint64(0x9E3779B97F4A7C15)
@@ -198,7 +198,7 @@ def _mix(z):
     return z ^ (z >> np.uint64(31))
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _u01(seed, facet, s, cell, comp):
     """A uniform double in [0, 1) that depends only on its arguments (counter-based)."""
     z = _mix(np.uint64(seed) ^ np.uint64(0x5851F42D4C957F2D))
@@ -208,7 +208,7 @@ def _u01(seed, facet, s, cell, comp):
     return float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _bilinear_jacobian(P, u, v):
     """|dB/du x dB/dv| at (u, v) of the bilinear map B of the quad P (4, 3)."""
     ax = (1 - v) * (P[1, 0] - P[0, 0]) + v * (P[2, 0] - P[3, 0])
@@ -223,7 +223,7 @@ def _bilinear_jacobian(P, u, v):
     return math.sqrt(cx * cx + cy * cy + cz * cz)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
     """Jittered stratified points of facets fids (tree order): s * s per facet, pts
     (len(fids) * s * s, 3), weights w (same count; each facet's sum to 1 in expectation).
@@ -283,7 +283,7 @@ def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
                     c += 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def sample_rays(pi, pj, S, pts, w, normal, fi, fj, ptr, ra, rb, term):
     """Rays of the sample pairs of pairs p: facet fi[p] has points pi[p] * S ... + S - 1 of
     pts, fj[p] likewise. A ray (k, l) is kept when its term w_k w_l c_i c_j / r^4 > 0 (else
@@ -313,7 +313,7 @@ def sample_rays(pi, pj, S, pts, w, normal, fi, fj, ptr, ra, rb, term):
     return m
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def visible_fraction(ptr, term, vis, phi):
     """phi[p] = sum term V / sum term over the rays of pair p (NaN when it has none)."""
     for p in range(ptr.shape[0] - 1):

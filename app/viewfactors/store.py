@@ -2,7 +2,7 @@
 -f, -drop), the CSR matrix (viewfactors/matrix/), and the manifest of finished tasks
 (RUN_DIR/viewfactors.manifest.jsonl, one line per task with its crc32); `VFLedger` is that
 store and manifest as the ledger of runtime.stage.run_stage. The arrays' shapes and meaning:
-docs/viewfactors-method.md ("Store layout").
+docs/src/design/viewfactors-method.md ("Store layout").
 """
 
 from __future__ import annotations
@@ -137,3 +137,14 @@ def read_vf_matrix(rs: RunStore) -> dict:
     if "viewfactors/matrix" not in rs.root:
         raise StoreError(f"{rs.run_dir} has no view-factor matrix: run radiosity viewfactors")
     return rs.read_arrays("viewfactors/matrix")
+
+
+def kept(rs: RunStore) -> str | None:
+    """What a rerun with --resume reuses of the view factors ("14 of 18 view-factor tasks"),
+    or None when the store holds none; as the methods' kept (methods/base.py)."""
+    token = vf_token(rs)
+    if token is None:
+        return None
+    total = rs.root["viewfactors"].attrs.get("tasks")
+    done = len(vf_manifest(rs.run_dir).finished(token))
+    return f"{done} of {total} view-factor tasks" if total is not None else f"{done} view-factor tasks"

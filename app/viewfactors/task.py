@@ -1,7 +1,7 @@
 """The view-factor task (worker side): all pairs of a run of leaves, from the cluster walk to
 the unobstructed factors, the shafts and the sampled visibility, written into the run store.
 Everything it needs comes in its arguments (Inputs, Params): no configuration, no client.
-The method: docs/viewfactors-method.md.
+The method: docs/src/design/viewfactors-method.md.
 """
 
 from __future__ import annotations

@@ -129,7 +129,8 @@ def test_a_camera_that_sees_one_small_thing_is_not_refused(tmp_path):
     from radiosity.settings import resolve
     from radiosity.scene.load import load_scene
 
-    obj = "v 0.499 0.499 0\nv 0.501 0.499 0\nv 0.5 0.501 0\nf 1 2 3\n"
+    # wound to face the camera (its front towards -z): from behind it would be black, an error
+    obj = "v 0.499 0.499 0\nv 0.501 0.499 0\nv 0.5 0.501 0\nf 1 3 2\n"
     cam = """
     [camera]
     position = [0.5, 0.5, -1.0]

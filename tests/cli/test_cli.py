@@ -76,7 +76,7 @@ def test_render_end_to_end_on_every_builtin_scene(client, tmp_path, name):
     out = tmp_path / "run"
     # --tol 1e-6: the tolerance the stored references were made with (the default is 1e-5)
     r = CliRunner().invoke(main, ["render", scene_path(name), "--out", str(out), "--resolution", "16",
-                                  "--tol", "1e-6", "--scheduler", client.scheduler.address])
+                                  "--tol", "1e-6", "--preview", "--scheduler", client.scheduler.address])
     assert r.exit_code == 0, r.output
     for f in ("image.exr", "image.png", "preview.png", "mesh.glb", "mesh.ply", "viewer.html", "report.json"):
         assert (out / f).stat().st_size > 0, f
@@ -126,10 +126,11 @@ def test_coaxial_discs_through_the_pipeline_against_the_exact_form_factor(client
         errs.append(f / val["form_factor"] - 1)
     print(f"coaxial discs: F error {errs}")
     assert errs[1] == pytest.approx(0.0527, abs=1e-3) and errs[1] < errs[0]
-    # the emitter shows Le = 1 exactly; the receiver (rho = 0) is black
+    # the emitter shows Le = 1 exactly where it fills a pixel, a share of it on its rim (each
+    # pixel the mean over its area); the receiver (rho = 0) is black
     img = read_exr(str(out / "image.exr"))
     lit = img[..., 0] > 0
-    assert lit.any() and np.all(img[lit] == 1.0)
+    assert lit.any() and np.all(img[lit] <= 1.0) and (img[lit] == 1.0).sum() >= 0.25 * lit.sum()
 
 
 def test_solve_and_image_commands_and_resume(client, tmp_path):

@@ -196,8 +196,8 @@ def test_dashboard_page_in_chromium(tmp_path):
         t_browser = time.perf_counter() - t0 - t_cluster - t_run
 
     (tmp_path / "dashboard.png").write_bytes(png)
-    if os.environ.get("RADIOSITY_UPDATE_DOCS"):  # refresh the README's screenshot on request only
-        shutil.copyfile(tmp_path / "dashboard.png", os.path.join(ROOT, "docs", "dashboard.png"))
+    if os.environ.get("RADIOSITY_UPDATE_DOCS"):  # refresh the docs' screenshot on request only
+        shutil.copyfile(tmp_path / "dashboard.png", os.path.join(ROOT, "docs", "src", "images", "dashboard.png"))
     print(f"cluster {t_cluster:.1f} s, run {t_run:.1f} s, browser {t_browser:.1f} s")
 
     # the screenshot is a real PNG of the requested size

@@ -1,4 +1,4 @@
-"""Mesh loaders: the cases README promises (glTF doubleSided, binary .glb, duplicate and unnamed
+"""Mesh loaders: the cases docs/src/reference/scenes.md promises (glTF doubleSided, binary .glb, duplicate and unnamed
 glTF materials, back_emission, n-gons as fans, PLY without a material), each read back element
 by element."""
 

@@ -249,8 +249,19 @@ def test_render_outputs_writes_deterministic_images(cornell_run):
     assert f1["exposure"] == f2["exposure"] and f1["exposure_auto"]  # yaml: exposure null
     assert (f1["width"], f1["height"]) == (cam.width, cam.height) == (16, 16)
     img = render.read_exr(f1["image_exr"])
-    want = render.downsample(render.pixel_radiance(part, el, cam, raster["sub"], L), 2, "box")
+    # the default: each of the 2 x 2 fine pixels (subpixel 2) the mean of 2 x 2 rays over its area
+    assert (f1["sampling"], f1["area_samples"], f1["rays"]) == ("area", 2, 32 * 32 * 4)
+    rays = render.sample_raster(part, el, cam, 2, 2, 1e-6)
+    want = render.downsample(render.pixel_radiance(part, el, cam, rays, L), 2, "box")
     np.testing.assert_array_equal(img, want.astype(np.float32))
+    # the seed's point samples: the ID raster of the fine pixels' centres
+    fp = render.render_outputs(cornell_run, sampling="point")
+    point = render.downsample(render.pixel_radiance(part, el, cam, raster["sub"], L), 2, "box")
+    np.testing.assert_array_equal(render.read_exr(fp["image_exr"]), point.astype(np.float32))
+    assert (fp["sampling"], fp["rays"]) == ("point", 0)
+    with pytest.raises(render.RenderError, match="render.sampling must be one of area, point"):
+        render.render_outputs(cornell_run, sampling="centre")
+    f1 = render.render_outputs(cornell_run)
     np.testing.assert_allclose(f1["mean_radiance"], want.reshape(-1, 3).mean(0))
     with Image.open(f1["image_png"]) as im:
         np.testing.assert_array_equal(np.asarray(im), render.tonemap(want, f1["exposure"]))

@@ -5,7 +5,7 @@ bound on the light it carries stays below epsilon, and pairs of originals it rea
 the element-level refinement (links.py). Nothing is ever listed per pair of originals that the
 refinement did not reach.
 
-Transport through a cluster link p <- q (docs/design/methods-hierarchical-clusters.md):
+Transport through a cluster link p <- q (docs/src/design/methods-hierarchical-clusters.md):
 F_pq = S_p(u) S_q(-u) / (pi r^2 A_p), S_x(u) = sum over x's elements of A_i max(0, n_i . u),
 u and r between the area centroids; q sends its elements' area-weighted mean radiance and p
 receives uniformly (Sillion's isotropic model); A_p F_pq = A_q F_qp, so energy is conserved.
@@ -21,7 +21,7 @@ import numpy as np
 
 # A link is near when its ends' box diagonals summed exceed this many times the distance
 # between the boxes: never kept between clusters (the estimate from sample pairs, and the
-# receivers' uniform share, fail there; docs/design/methods-hierarchical-clusters.md).
+# receivers' uniform share, fail there; docs/src/design/methods-hierarchical-clusters.md).
 ADMISSIBLE = 2.0
 # The cluster tree (K nodes, node 0 the root, children after parents; leaves hold one original):
 # left, right (K,) (-1 at a leaf), start, end (K,) ranges into order (n,); lo, hi (K, 3) vertex
@@ -108,7 +108,7 @@ def _range_max(values, start, end, left, right):
 
 # ----------------------------------------------------------------------------- refinement
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _may_face(t, A, B, eps):
     """Can some element of node B lie in front of (or, two-sided, behind) the plane of some
     element of node A? False only where certainly not (originals._may_face's bound)."""
@@ -132,7 +132,7 @@ def _may_face(t, A, B, eps):
     return (up + s > half) or (t.two[A] and low - s < -half)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _faces(e, i, j):
     """Does original j have a vertex strictly in front of i's plane (behind it, two-sided i)?
     The arithmetic of plan.facing_blocks / originals._facing."""
@@ -148,7 +148,7 @@ def _faces(e, i, j):
     return front or (e.two_sided[i] and back)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _box_distance2(t, p, q):
     d2 = 0.0
     for k in range(3):
@@ -157,7 +157,7 @@ def _box_distance2(t, p, q):
     return d2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _relative_error(t, p, q, d):
     """The relative error of carrying a link between nodes p, q (boxes d apart) through the
     clusters: (diam_p + diam_q) / d for the distances and directions taken between centroids,
@@ -175,7 +175,7 @@ def _relative_error(t, p, q, d):
     return min(size + t.spread[p] + t.spread[q], 1.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _cos_bound(t, p, q, d, sign):
     """The largest cosine between a normal of node p (in its cone: axis a, spread s >= |n - a|)
     and a direction from a point of p's box to a point of q's box (all at least d apart):
@@ -189,7 +189,7 @@ def _cos_bound(t, p, q, d, sign):
     return min(1.0, max(0.0, up) / d + t.spread[p])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _error_bound(t, p, q, d2, lref):
     """The oracle of a link between nodes p, q whose boxes are d = sqrt(d2) apart: the bound on
     the light it carries, max(rho_p A_q Lhat_q, rho_q A_p Lhat_p) c_p c_q / (pi d^2 lref) (the
@@ -206,7 +206,7 @@ def _error_bound(t, p, q, d2, lref):
     return np.inf if rel == np.inf else carried * rel  # near: never kept
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _exposure(t, e, x, ux, uy, uz):
     """(S_x(u), the largest max(0, n_i . u)) over node x's elements."""
     s = 0.0
@@ -220,7 +220,7 @@ def _exposure(t, e, x, ux, uy, uz):
     return s, cmax
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _error_estimate(t, e, p, q, d2, lref):
     """The oracle's estimate where the bound (_error_bound) says split: the light the link
     carries to the most exposed element of either end, from the other end's projected area
@@ -241,7 +241,7 @@ def _error_estimate(t, e, p, q, d2, lref):
     return np.inf if rel == np.inf else carried * rel  # near: never kept
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def refine_clusters(t, e, eps, lref, cap):
     """The cluster refinement from the root's self-link: (links (k, 2) int64 node pairs kept as
     cluster links, pairs (j, 2) int64 originals I < J handed to the element-level refinement,
@@ -320,7 +320,7 @@ def refine_clusters(t, e, eps, lref, cap):
     return links[:nl], pairs[:npr], counts
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _projected(t, e, x, ux, uy, uz):
     """S_x(u) = sum over the elements of node x of A_i max(0, n_i . u)."""
     s = 0.0
@@ -332,7 +332,7 @@ def _projected(t, e, x, ux, uy, uz):
     return s
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _pick(t, e, x, ux, uy, uz, k, out, a):
     """k elements of node x stratified by their projected area toward u (A_i max(0, n_i . u)),
     into out[a, :]; by area where no element faces u."""
@@ -360,7 +360,7 @@ def _pick(t, e, x, ux, uy, uz, k, out, a):
         j += 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def link_samples(t, e, links, k):
     """The sample elements of cluster links (p, q): k of each end, stratified by their projected
     area toward the other end's centroid (the elements that carry the link's transfer),
@@ -381,7 +381,7 @@ def link_samples(t, e, links, k):
 FF_SAMPLES = 16  # sample pairs of elements per cluster link for its form factors
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _kernel(e, i, j):
     """max(0, cos_i) max(0, cos_j) / (pi r^2) between the centroids of elements i and j."""
     dx = e.center[j, 0] - e.center[i, 0]
@@ -398,7 +398,7 @@ def _kernel(e, i, j):
     return ci * cj / (np.pi * r2)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _sampled_ff(t, e, links, sp, sq):
     """(k, 2) F_pq, F_qp of cluster links from sample pairs (sp[a, m], sq[a, m]) drawn in
     proportion to A_i max(0, n_i . u) at each end (link_samples): the point kernel between the

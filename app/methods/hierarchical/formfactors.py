@@ -9,7 +9,7 @@ import numpy as np
 
 from radiosity.core.exact import _point_ff, _polygon_ff, point_ff
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _spread(V, x, nv, nx, ny, nz, C, y, mx, my, mz, As, fc):
     """The disc estimate F(v -> c) between the point c = C[y] (normal m, area As) and the
     vertices v of polygon V[x, :nv] (normal n), against its value fc at the polygon's centroid:
@@ -33,7 +33,7 @@ def _spread(V, x, nv, nx, ny, nz, C, y, mx, my, mz, As, fc):
 G2 = 0.5 / np.sqrt(3.0)  # 2 x 2 Gauss-Legendre on [0, 1]: 0.5 -+ G2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_factor):
     """F_pq, F_qp of a near link, exact to quadrature accuracy: where the smaller polygon is
     farther from the larger one's box than gap_factor times its size, Lambert's exact
@@ -99,7 +99,7 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
     return fs * Aq / Ap, fs
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def centroid_to_polygon(Lv, Ln, Lc, p, q, Ap, gp, Aq, gq, normal, op, oq, S, Sc):
     """F_pq, F_qp of a far link (p, q) between nodes of originals op, oq (normals normal[op],
     normal[oq]): the exact form factor from a differential element at the smaller node's

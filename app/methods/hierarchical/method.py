@@ -73,7 +73,7 @@ class HierarchicalMethod:
                                      f"exact, got {fg!r}")
             # the final gather evaluates form factors afresh (exact, from each leaf's centroid):
             # the solve's row caps and balancing, made for the links' approximate form factors,
-            # do not apply to them (docs/measurements.md); in a closed scene its rows are
+            # do not apply to them (docs/src/measurements/hierarchical.md); in a closed scene its rows are
             # balanced to 1 in turn (every leaf sees the whole enclosure; else rho -> 1 turns
             # their row error into the answer's)
             op.configure(fg_levels=int(settings.hierarchy.final_gather_levels), fg_mode=fg,
@@ -96,6 +96,13 @@ class HierarchicalMethod:
                                  "final_gather_evaluations": int(getattr(op, "evals", 0)),
                                  "time_final_gather_s": round(t_fg, 4)}}
         return arrays, figures
+
+    def radiance_at(self, rs, settings, pts, porig, side, pixel, footprint):
+        """Radiance (K, 3) leaving points on originals `porig`, side `side`: leaves coarser
+        than the view's pixels gathered at the points over their links (views.radiance_at)."""
+        from radiosity.methods.hierarchical.views import radiance_at
+
+        return radiance_at(rs, settings, pts, porig, side, pixel, footprint)
 
     def kept(self, rs) -> str | None:
         from radiosity.methods.hierarchical.store import LinkStore

@@ -96,7 +96,7 @@ def push(G, parent, leaf_node, d, y):
                 y[s, c, l] += f * G[s, c, leaf_node[l]]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def gs_sweep(L, Le, rho, S, ends, nodes, geo, d, need):
     """One block Gauss-Seidel sweep over the originals in order, in place on L (2, C, M): for
     original e, gather into its nodes from the directed link ends ptr[e]:ptr[e + 1] (target
@@ -332,7 +332,7 @@ def linear_gather(Lbar, links, sel, nodes, geo, ncap, mode, S0, S1, far):
                 gx, gy, gz = gu * ex + gv * fx, gu * ey + gv * fy, gu * ez + gv * fz
             # limited so that 1 + g . (x - c_t) >= 0 at t's vertices, hence at every leaf of t
             # (t is convex): a link adds no negative light anywhere (where F0 is small against
-            # the vertices' values the unlimited plane dives below zero: docs/measurements.md)
+            # the vertices' values the unlimited plane dives below zero: docs/src/measurements/hierarchical.md)
             lowest = 0.0
             for j in range(nverts[t]):
                 lowest = min(lowest, gx * (verts[t, j, 0] - ct0) + gy * (verts[t, j, 1] - ct1)
@@ -374,7 +374,7 @@ def linear_push(S0, S1, origs, noff, parent, node_leaf, leaf_center, d, y):
                                             + S1[s_, c, 1, i] * x[1] + S1[s_, c, 2, i] * x[2])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def node_min(leaf_value, lo, hi):
     """Minimum of leaf_value over each node's leaves lo:hi, (N,)."""
     out = np.empty(lo.shape[0])
@@ -387,7 +387,7 @@ def node_min(leaf_value, lo, hi):
 
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _sum_up(s, parent):
     for i in range(parent.shape[0] - 1, 0, -1):
         if parent[i] >= 0:
@@ -396,14 +396,14 @@ def _sum_up(s, parent):
 
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _count_ends(p, q, orig, cnt):
     for k in range(p.shape[0]):
         cnt[orig[p[k]]] += 1
         cnt[orig[q[k]]] += 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _fill_ends(p, q, wpq, wqp, sp, sq, v, orig, cur, tp, ts, sn, ss, w, vv):
     """Both ends of links (p, q) into their target originals' slots (cur: next free slot)."""
     for k in range(p.shape[0]):

@@ -65,14 +65,14 @@ def new_table(cap: int) -> NodeTable:
                      np.zeros(cap, np.bool_))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _grow(a, n):
     out = np.zeros((n,) + a.shape[1:], a.dtype)
     out[:a.shape[0]] = a
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _blocks(o, V, p, nP, q, nQ, everts, envert, enormal, eoffset, pad, sp, sq):
     """Does occluder o alone cut every segment between polygons V[p, :nP] and V[q, :nQ]? Its
     plane must separate them strictly (beyond pad), and every crossing point of a segment
@@ -111,7 +111,7 @@ def _blocks(o, V, p, nP, q, nQ, everts, envert, enormal, eoffset, pad, sp, sq):
     return True
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _pick(prefer, can_p, can_q, other):
     """Which node to split: the preferred one (1: q, 0: p) if it can, else the other if
     `other` (near links, the error oracles, epsilon = 0); -1: keep the link."""
@@ -121,7 +121,7 @@ def _pick(prefer, can_p, can_q, other):
 
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _plane_range(nx, ny, nz, d0, V, x, nv):
     lo, hi = np.inf, -np.inf
     for i in range(nv):
@@ -132,7 +132,7 @@ def _plane_range(nx, ny, nz, d0, V, x, nv):
 
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _new_node(x, verts, nv, orig, path, depth, pnode, can, tab, c):
     """Node x of the local table `tab`: polygon verts[:nv], its name (orig, path, depth), the
     partition node pnode, whether it can split; c (3,): scratch."""
@@ -160,7 +160,7 @@ def _new_node(x, verts, nv, orig, path, depth, pnode, can, tab, c):
     Lcan[x] = can
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _copy_tree_node(x, t, tree, min_size, tab):
     """Node x of the local table `tab`: partition node t of `tree`."""
     t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig, t_depth, t_path, ext = tree
@@ -184,7 +184,7 @@ def _copy_tree_node(x, t, tree, min_size, tab):
                                      and t_depth[t] < MAX_DEPTH)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, counts):
     """refine's loop, until the stack is empty or an array is full (refine grows it and calls
     again; st: [ns, cnt, nk, nw, npool]). No array variable is reassigned here: in a loop that
@@ -433,7 +433,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
     st[0], st[1], st[2], st[3], st[4] = ns, cnt, nk, nw, npool
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts):
     """One round of refinement from `entries` (Entries: local node ids p, q; candidate
     occluders pool[c0:c1]; frac: the visible fraction measured by rays, or -1 not yet measured).
@@ -512,7 +512,7 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
             Waiting(wp[:nw], wq[:nw], wc[:nw], wpool[:npool]))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
     """The first entries of a task: the root link of each pair (I, J) with the occluders that
     may cut a segment between the two originals (shafts.tree_candidates). Returns the

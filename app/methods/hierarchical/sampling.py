@@ -34,7 +34,7 @@ def triangle_strata(k: int) -> np.ndarray:
     return np.array(uv, np.float64)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _strata(V, nv, s, tri_uv, out, at):
     """The k = s^2 stratified points of polygon V into out[at:at + k]: a quad's s x s cell
     centres of its bilinear map, a triangle's sub-triangle centroids."""
@@ -52,7 +52,7 @@ def _strata(V, nv, s, tri_uv, out, at):
                                   + u * v * V[2, c] + (1 - u) * v * V[3, c])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def link_points(Lv, Ln, Lc, Lo, p, q, s, tri_uv, perm):
     """Ray end points of links (p, q): (2 n k, 3) points (the k samples of each p, then the k
     samples of each q in the order perm pairs them with p's) and their originals (2 n k,)."""
@@ -76,7 +76,7 @@ def link_points(Lv, Ln, Lc, Lo, p, q, s, tri_uv, perm):
     return pts, orig
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _weighted(occ, pts, e, normal, n, k):
     """Kernel-weighted visible fraction of each link: sum_j K_j V_j / sum_j K_j over its k
     rays, K_j = |cos_a cos_b| / r^4 of the sample pair (unnormalised cosines), (n,)."""

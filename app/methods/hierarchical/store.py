@@ -6,7 +6,7 @@ the task plan, the manifest, and the node table.
                  visible fraction v and the sides sp, sq (0 front, 1 back) that face
    <task>-nodes  (j,) NODE_DTYPE: the nodes the task split below the camera's partition (12 bytes each)
 
-Design notes and measurements: docs/design/methods-hierarchical-store.md.
+Design notes and measurements: docs/src/design/methods-hierarchical-store.md.
 """
 
 from __future__ import annotations

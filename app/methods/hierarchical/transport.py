@@ -26,8 +26,8 @@ from radiosity.runtime.cluster import default_workers, scatterable
 LINK_CACHE_KEY = "links"
 # The linear final gather takes the point kernel's analytic gradient over a receiver whose
 # source lies farther than FG_FAR times both nodes' sizes (and not grazing: passes.FG_FAR_COS2)
-# instead of five exact evaluations; 0: never. Measured: docs/measurements.md, "Hierarchical
-# links".
+# instead of five exact evaluations; 0: never. Measured: docs/src/measurements/hierarchical.md,
+# "Hierarchical links".
 FG_FAR = 6.0
 
 
@@ -155,7 +155,7 @@ def task_link_arrays(inp: LinkSolveInputs, task: int):
                              "the node table: run the link stage again")
         v = links["v"].astype(np.float64)
         # node indices as int32 and sides as int8: 34 bytes a link as the passes hold them (56
-        # with int64; docs/measurements.md)
+        # with int64; docs/src/measurements/hierarchical.md)
         return LinkArrays(p.astype(np.int32), q.astype(np.int32), links["fpq"] * v,
                           links["fqp"] * v, np.ascontiguousarray(links["sp"]),
                           np.ascontiguousarray(links["sq"]), v)
@@ -169,7 +169,7 @@ _SCRATCH = threading.local()
 
 def scratch(shape: tuple) -> tuple[np.ndarray, np.ndarray]:
     """Two (2, C, N) node arrays per thread, kept across passes (a fresh array of tens of MiB
-    costs more in page faults than the pass's arithmetic: docs/measurements.md)."""
+    costs more in page faults than the pass's arithmetic: docs/src/measurements/hierarchical.md)."""
     got = getattr(_SCRATCH, "arrays", None)
     if got is None or got[0].shape != shape:
         got = (np.empty(shape), np.empty(shape))

@@ -87,4 +87,18 @@ class PairsMethod:
         return ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)")
 
 
+    def radiance_at(self, rs, settings, pts, porig, side, pixel, footprint):
+        """Radiance (K, 3) leaving points on originals `porig`, side `side`: the stored radiance
+        of the sub-element holding each point (the pairs method keeps no links to gather
+        over), and the figures."""
+        from radiosity.scene.subdivide import lookup
+
+        sub = lookup(rs.load_partition(), pts, np.asarray(porig, np.int32))
+        radiance = rs.read_arrays("solution")["radiance"]
+        out = np.zeros((len(pts), 3))
+        ok = sub >= 0
+        out[ok] = radiance[sub[ok], np.asarray(side)[ok]]
+        return out, {"points": int(len(pts)), "evaluations": 0, "lookup": "sub-element"}
+
+
 PAIRS = PairsMethod()

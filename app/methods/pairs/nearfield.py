@@ -1,6 +1,6 @@
 """Near-field correction: accurate form factors for pairs of sub-elements that are close.
 
-Design notes and measurements: docs/design/methods-pairs-nearfield.md.
+Design notes and measurements: docs/src/design/methods-pairs-nearfield.md.
 """
 
 from __future__ import annotations

@@ -31,12 +31,12 @@ Caps = namedtuple("Caps", "cap cmode")
 Samples = namedtuple("Samples", "pts w")
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _scale(cmode, ca, cb):
     return min(ca, cb) if cmode == CAP_MIN else ca * cb
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _row_fast(kid, mask, row, la, C, cols, cap, cmode, L, y, mode):
     """One row of a tile where neither element is two-sided: every visible pair is front-front
     (ca > 0 and cb > 0), so the loop is branch-free over the columns and vectorises. row: the
@@ -78,7 +78,7 @@ def _row_fast(kid, mask, row, la, C, cols, cap, cmode, L, y, mode):
     return s0, s1, s2
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _row_fast1(kid, mask, row, la0, C, cols, cap, cmode, L0, y0, mode):
     """_row_fast for one channel (grey scenes, effects.py): la0, L0, y0 that channel."""
     ax, ay, az, anx, any_, anz, aa, capa = row
@@ -98,7 +98,7 @@ def _row_fast1(kid, mask, row, la0, C, cols, cap, cmode, L0, y0, mode):
     return s0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _row_sided(kid, mask, a, b0, C, geo, caps, L, y, mode):
     """One row of a tile with a two-sided element: each pair picks the sides that face."""
     cx, cy, cz, nx, ny, nz, area = geo
@@ -126,7 +126,7 @@ def _row_sided(kid, mask, a, b0, C, geo, caps, L, y, mode):
                 y[sb, k, b] += fba * L[sa, k, a]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _add_pair_sampled(kid, a, b, f, to_a, to_b, geo, caps, smp, L, y):
     """y += f F L for pair (a, b) of a sampled kernel: into a (if to_a) and into b (if to_b)."""
     cx, cy, cz, nx, ny, nz, area = geo
@@ -142,7 +142,7 @@ def _add_pair_sampled(kid, a, b, f, to_a, to_b, geo, caps, smp, L, y):
             y[ib, k, b] += acc * area[a] * L[ia, k, a]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _row_sampled(kid, mask, a, b0, C, geo, caps, smp, L, y, mode):
     """One row of a tile for the sampled kernels (nxm, mc): S or S^2 point kernels per pair.
     Written out rather than through _add_pair_sampled: this is the hot loop, and the shared
@@ -170,7 +170,7 @@ def _row_sampled(kid, mask, a, b0, C, geo, caps, smp, L, y, mode):
                 y[ib, k, b] += fba * L[ia, k, a]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def partial_apply(kid, pairs, phi, geo, caps, smp, L, y, orig, need):
     """y += (phi - 1) F L over the partly visible pairs of one visibility task (pairs (k, 3)
     [a, b, visible rays], phi (k,)): the pass counted them whole, the kernel with a visibility
@@ -185,7 +185,7 @@ def partial_apply(kid, pairs, phi, geo, caps, smp, L, y, orig, need):
     return 2 * pairs.shape[0]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def tile_apply(kid, packed, R, C, a0, b0, geo, caps, sided, smp, L, y, mode, row_live, col_live):
     """y += F L over one tile: rows a0..a0+R against columns b0..b0+C, bits packed row-major,
     little-endian (see plan.py). mode BOTH applies F_ab (into rows) and F_ba (into columns);
@@ -249,7 +249,7 @@ def tile_apply(kid, packed, R, C, a0, b0, geo, caps, sided, smp, L, y, mode, row
     return terms
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def tiles_apply(kid, data, base, tiles, offsets, geo, caps, sided, smp, L, y, mode, live, need):
     """tile_apply over many tiles whose bytes lie in `data` starting at byte `base` (geo, caps,
     sided, smp as in tile_apply).
@@ -273,7 +273,7 @@ def tiles_apply(kid, data, base, tiles, offsets, geo, caps, sided, smp, L, y, mo
     return terms
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def gs_sweep(kid, data, tiles, index, offsets, geo, caps, sided, smp, L, Le, rho, y, need, sparse):
     """One block Gauss-Seidel sweep (in place on L): for each original e in order, gather
     y_e = sum_J F_eJ L_J from its row tiles (e, J) and the transposed column tiles (J, e) with

@@ -3,7 +3,7 @@
 
 Bit order: a tile's bits are packed row-major (bit k is pair (r0 + k // nJ, k % nJ) of the
 block), little-endian within each byte (bit k is `(byte[k >> 3] >> (k & 7)) & 1`), from a byte
-boundary; every task starts on a chunk boundary. Details: docs/design/methods-pairs-plan.md.
+boundary; every task starts on a chunk boundary. Details: docs/src/design/methods-pairs-plan.md.
 """
 
 from __future__ import annotations

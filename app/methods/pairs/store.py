@@ -1,5 +1,5 @@
 """The pairs method's part of the run store: the packed visibility bits, the partly visible
-pairs of sampled kernels, and the visibility task manifest (layout in the README's store table).
+pairs of sampled kernels, and the visibility task manifest (layout: docs/src/reference/run-directory.md).
 
     visibility/bits  (total,) uint8, chunked: bit-packed tiles (bit order in plan.py)
     visibility/tiles, tasks, culled: the plan (plan.VisibilityPlan)

@@ -1,6 +1,6 @@
 """The radiosity operator y = F L, matrix-free, and the executors that apply it.
 
-Design notes and measurements: docs/design/methods-pairs-transport.md.
+Design notes and measurements: docs/src/design/methods-pairs-transport.md.
 """
 
 from __future__ import annotations

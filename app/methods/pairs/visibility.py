@@ -1,7 +1,7 @@
 """The visibility matrix (seed §4.3, SPEC §5): one bit per pair of sub-elements, computed by a
 dynamic master that keeps every worker busy, written as bit-packed tiles into the run's store.
 
-Design notes and measurements: docs/design/methods-pairs-visibility.md.
+Design notes and measurements: docs/src/design/methods-pairs-visibility.md.
 """
 
 from __future__ import annotations

@@ -60,7 +60,7 @@ def test_closed_scenes_with_rho_near_one_converge_to_le_over_one_minus_rho(clien
     1e-9 in a handful of CG passes; with rows only capped it is off by 11.6 % (0.99) and 57 %
     (0.999) on average (measured at 12^2, the default partition: unseen faces refined): the
     answer then hangs on the last percent of the row sums. The cube is convex (every bit 1), so
-    the figures are deterministic; the margin 0.01 is their rounding in README."""
+    the figures are deterministic; the margin 0.01 is their rounding in docs/src/measurements/kernels.md."""
     cube = scene_path("furnace-cube")
     src = open(cube).read().replace("reflectance = [0.5, 0.5, 0.5]", f"reflectance = [{rho}, {rho}, {rho}]")
     src = src.replace('path = "furnace-cube.obj"',
@@ -248,10 +248,10 @@ def test_pass_accumulates_1e5_elements_in_float64(rng):
     assert abs(y[0, 0, 0] / exact - 1) < 1e-12
 
 
-# README's accuracy table (form-factor error at camera resolutions 8 / 16 / 32, and the order:
+# The accuracy table of docs/src/measurements/kernels.md (form-factor error at camera resolutions 8 / 16 / 32, and the order:
 # log-log slope of the error against the element size), the rows this test regenerates; the
 # nxm N = 16 and mc k = 64 rows come from benchmarks/bench_kernels.py
-README_TABLE = {
+DOCS_TABLE = {
     "parallel-squares": {"point": ([2.7e-2, 1.3e-2, 2.9e-3], 1.8), "disc": ([6.0e-3, 1.3e-3, 1.1e-3], 1.3),
                          "point-nf": ([1.2e-2, 7.8e-3, 2.9e-3], 1.1), "nxm": ([6.5e-3, 3.0e-3, 7.3e-4], 1.7),
                          "mc": ([1.2e-2, 5.1e-3, 1.9e-3], 1.4)},
@@ -266,7 +266,7 @@ README_TABLE = {
 def test_validation_scenes_and_convergence_order(client, tmp_path, name, exact):
     """The form factor from the run's operator against Howell's value, at 8 / 16 / 32, for the
     kernels point, disc, point-nf, nxm (4 points per element) and mc (16 sample pairs, seed 0):
-    every error and order of README's table, to the precision printed there. Neither scene has
+    every error and order of the docs' table, to the precision printed there. Neither scene has
     an occluder (every bit is 1) and mc is seeded, so the figures are deterministic: the margins
     are the table's rounding (two significant digits: 5 % of the error; one decimal: 0.05 of the
     order), nothing more. Also what the table says in words: more sample points less error at
@@ -286,7 +286,7 @@ def test_validation_scenes_and_convergence_order(client, tmp_path, name, exact):
             errs[k].append(abs(f / exact - 1))
     orders = {k: float(np.polyfit(np.log(sizes), np.log(np.maximum(v, 1e-16)), 1)[0]) for k, v in errs.items()}
     print(f"{name}: errors {errs}; orders {orders}")
-    for k, (want, order) in README_TABLE[name].items():
+    for k, (want, order) in DOCS_TABLE[name].items():
         np.testing.assert_allclose(errs[k], want, rtol=0.05, err_msg=f"{name} {k}")
         assert orders[k] == pytest.approx(order, abs=0.05), (name, k)
     assert all(n < 0.6 * p for n, p in zip(errs["nxm"], errs["point"]))  # more points: less error

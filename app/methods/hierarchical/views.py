@@ -1,0 +1,267 @@
+"""Radiance at any point of a solved run, for views the solution was not refined for (issue 28):
+each point is located in the leaves of the union tree and gathers over the links into its leaf
+and the leaf's ancestors, with the exact point-to-polygon form factor from the point itself (the
+exact final gather of passes.final_gather, at points instead of leaf centroids). A region the
+first camera left coarse thus gets the light that reaches each of its points, not its leaf's
+mean: no re-solve, no new links; cluster links add their leaves' uniform share as in the solve.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from radiosity.core.exact import point_ff
+
+
+@numba.njit(cache=True, nogil=True)
+def _inside(p, V, nv, n) -> bool:
+    """p in the convex polygon V[:nv] (plane normal n), with a tolerance relative to its size."""
+    size = 0.0
+    for k in range(nv):
+        size = max(size, abs(V[k, 0] - V[0, 0]) + abs(V[k, 1] - V[0, 1]) + abs(V[k, 2] - V[0, 2]))
+    tol = 1e-9 * size * size
+    pos = 0
+    neg = 0
+    for k in range(nv):
+        a, b = V[k], V[(k + 1) % nv]
+        ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+        qx, qy, qz = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+        s = n[0] * (ey * qz - ez * qy) + n[1] * (ez * qx - ex * qz) + n[2] * (ex * qy - ey * qx)
+        if s > tol:
+            pos += 1
+        elif s < -tol:
+            neg += 1
+    return pos == 0 or neg == 0
+
+
+@numba.njit(cache=True, nogil=True)
+def locate_leaves(pts, porig, noff, child, verts, nverts, normal, node_leaf, out):
+    """out[i] = the leaf (M-index) of the union tree holding point i on original porig[i]: down
+    from the original's root, into the child whose polygon holds the point (the other child
+    when neither holds it within tolerance: points on a split line)."""
+    for i in range(pts.shape[0]):
+        o = porig[i]
+        if o < 0:
+            out[i] = -1
+            continue
+        t = noff[o]
+        while child[t, 0] >= 0:
+            c0 = child[t, 0]
+            t = c0 if _inside(pts[i], verts[c0], nverts[c0], normal[o]) else child[t, 1]
+        out[i] = node_leaf[t]
+
+
+@numba.njit(cache=True, nogil=True)
+def point_pairs(ends, origs, nodes, geo, pts, pside, lptr, far, fill, I, E, F):
+    """The (point, link end) pairs of a gather at points pts (K, 3), sorted by leaf (lptr
+    (M + 1,): the points of leaf l are lptr[l]:lptr[l + 1]), on side pside (K,): the directed
+    link ends into originals `origs` whose target node holds the point's leaf, whose source
+    the point is in front of, with F the exact form factor from a differential element at the
+    point (its side's normal) to the source polygon (the point-to-disc kernel beyond `far`
+    times the source's size). Counts them (fill False) or writes them into I (point), E
+    (end), F (fill True). Returns the count."""
+    tp, ts, sn, ss, v, ptr = ends.tp, ends.ts, ends.sn, ends.ss, ends.v, ends.ptr
+    node_leaf, lo, hi, node_orig = nodes.node_leaf, nodes.lo, nodes.hi, nodes.orig
+    normal, verts, nverts = geo.normal, geo.verts, geo.nverts
+    node_center, node_area = geo.node_center, geo.node_area
+    far2 = far * far
+    Qc = np.empty((2 * verts.shape[1] + 2, 3))
+    n = 0
+    for e in origs:
+        for k in range(ptr[e], ptr[e + 1]):
+            t, s = tp[k], sn[k]
+            l0, l1 = (node_leaf[t], node_leaf[t] + 1) if node_leaf[t] >= 0 else (lo[t], hi[t])
+            if lptr[l1] == lptr[l0]:
+                continue
+            gt = 1.0 if ts[k] == 0 else -1.0
+            gs = 1.0 if ss[k] == 0 else -1.0
+            ot, os_ = node_orig[t], node_orig[s]
+            nx, ny, nz = gt * normal[ot, 0], gt * normal[ot, 1], gt * normal[ot, 2]
+            mx, my, mz = gs * normal[os_, 0], gs * normal[os_, 1], gs * normal[os_, 2]
+            S = verts[s]
+            m0 = mx * S[0, 0] + my * S[0, 1] + mz * S[0, 2]
+            for i in range(lptr[l0], lptr[l1]):
+                if pside[i] != ts[k]:
+                    continue
+                x = pts[i]
+                if mx * x[0] + my * x[1] + mz * x[2] <= m0:  # behind the source
+                    continue
+                if fill:
+                    c = node_center[s]
+                    dx, dy, dz = c[0] - x[0], c[1] - x[1], c[2] - x[2]
+                    d2 = dx * dx + dy * dy + dz * dz
+                    if d2 > far2 * node_area[s]:  # far: the point-to-disc kernel, to O(A/d^2)
+                        ci = (nx * dx + ny * dy + nz * dz) / math.sqrt(d2)
+                        cj = -(mx * dx + my * dy + mz * dz) / math.sqrt(d2)
+                        f = node_area[s] * ci * cj / (math.pi * d2) if ci > 0 and cj > 0 else 0.0
+                    else:
+                        f = point_ff(x[0], x[1], x[2], nx, ny, nz, S, nverts[s], Qc)
+                    if f <= 0.0:
+                        continue
+                    I[n], E[n], F[n] = i, k, f
+                n += 1
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
+def visibility_queries(pts, I, E, sn, verts, nverts, node_center, P, Q, owner):
+    """Segments from each pair's point to up to 4 points of its source (halfway from the
+    source's centroid to its vertices): P, Q (R, 3) filled, owner (R,) the pair. Returns R."""
+    R = 0
+    for j in range(I.shape[0]):
+        s = sn[E[j]]
+        c = node_center[s]
+        for a in range(min(nverts[s], 4)):
+            for d in range(3):
+                P[R, d] = pts[I[j], d]
+                Q[R, d] = c[d] + 0.5 * (verts[s, a, d] - c[d])
+            owner[R] = j
+            R += 1
+    return R
+
+
+@numba.njit(cache=True, nogil=True)
+def accumulate(I, E, F, vis, Lbar, ss, sn, y, r):
+    """y (G, C) += vis F Lbar[source side, :, source], r (G,) += vis F, pair by pair."""
+    C = y.shape[1]
+    for j in range(I.shape[0]):
+        w = vis[j] * F[j]
+        if w == 0.0:
+            continue
+        i, k = I[j], E[j]
+        r[i] += w
+        for c in range(C):
+            y[i, c] += w * Lbar[ss[k], c, sn[k]]
+
+
+#: Beyond this many times a source's size (sqrt of its area) a point gathers from it with the
+#: point-to-disc kernel instead of the exact point-to-polygon form factor (as FG_FAR does for
+#: the linear final gather).
+FAR = 6.0
+#: Originals per batch of (point, link) pairs (bounds the pairs held at once).
+ORIGINALS_PER_BATCH = 64
+#: A leaf is gathered at the view's points when its area exceeds this many pixel footprints
+#: there (the camera-driven rule refines each seen leaf to at most one pixel of its camera).
+COARSE_FOOTPRINTS = 2.0
+
+
+def radiance_at(rs, settings, pts: np.ndarray, porig: np.ndarray, side: np.ndarray,
+                pixel: np.ndarray, footprint: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Radiance (K, 3) leaving points `pts` (K, 3) on originals `porig` (K,) (-1: nothing: 0) on
+    side `side` (K,) (0 front, 1 back), and the figures. A point whose leaf is at most
+    COARSE_FOOTPRINTS times its pixel's footprint there (`footprint` (K,), m^2) takes the
+    leaf's stored radiance (the solve's final gather); in a coarser leaf the points of one pixel
+    (`pixel` (K,)) share one gather at their mean, over the leaf's links (point_gather)."""
+    import time
+
+    import dask
+
+    from radiosity.methods.hierarchical.passes import pull, push
+    from radiosity.tracing.rays import RayCaster
+    from radiosity.methods.hierarchical.transport import (_cluster_gather, _directed,
+                                                         open_link_operator, scratch)
+
+    t0 = time.perf_counter()
+    op, table, el, part = open_link_operator(rs, None, "driver", settings)
+    inp = op.inp
+    sol = rs.read_arrays("solution")
+    M = len(inp.leaf_node)
+    K = len(pts)
+    leaf = np.full(K, -1, np.int64)
+    hit = porig >= 0
+    found = np.empty(int(hit.sum()), np.int64)
+    locate_leaves(np.ascontiguousarray(pts[hit], float), porig[hit].astype(np.int64), inp.noff,
+                  inp.child, inp.verts, inp.nverts, inp.normal, inp.node_leaf, found)
+    leaf[hit] = found
+    ok = leaf >= 0
+    side = np.asarray(side, np.int64)
+    out = np.zeros((K, 3))
+    # fine enough leaves: the stored radiance of their sub-element
+    # leaves the run's own camera saw and refined to its pixels keep their solved value where
+    # they are no larger than this view's pixels; the others (coarser, or never seen: their
+    # links' visibility was judged from their centroids) are gathered at the view's points
+    seen = np.zeros(len(part), bool)
+    raster = rs.read_arrays("raster")["sub"].ravel()
+    seen[raster[raster >= 0]] = True
+    coarse = ok & ((inp.leaf_area[np.maximum(leaf, 0)] > COARSE_FOOTPRINTS * footprint)
+                   | ~seen[table["leaf_sub"][np.maximum(leaf, 0)]])
+    flat = ok & ~coarse
+    out[flat] = sol["radiance"][table["leaf_sub"][leaf[flat]], side[flat]]
+    # coarse leaves: one gather per (pixel, leaf, side), at the mean of its points
+    idx = np.nonzero(coarse)[0]
+    key = (np.asarray(pixel, np.int64)[idx] * M + leaf[idx]) * 2 + side[idx]
+    uk, inv = np.unique(key, return_inverse=True)
+    G = len(uk)
+    P = np.zeros((G, 3))
+    np.add.at(P, inv, pts[idx])
+    P /= np.bincount(inv, minlength=G)[:, None]
+    gleaf, gside = (uk // 2) % M, uk % 2
+    evals = rays = 0
+    if G:
+        L = np.ascontiguousarray(np.transpose(sol["leaf_radiance"], (1, 2, 0)))
+        mode = (rs.group_attrs("solution").get("row_sums") or {}).get("mode")
+        order = np.argsort(gleaf, kind="stable")
+        lptr = np.zeros(M + 1, np.int64)
+        np.cumsum(np.bincount(gleaf, minlength=M), out=lptr[1:])
+        Po, So, lo_ = np.ascontiguousarray(P[order]), np.ascontiguousarray(gside[order]), gleaf[order]
+        Sbuf, Gn = scratch((L.shape[0], L.shape[1], len(inp.parent)))
+        Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, np.zeros(0), Sbuf)
+        ends = _directed(inp)
+        origs = np.unique(inp.leaf_orig[lo_]).astype(np.int64)
+        nodes, geo = inp.nodes(), inp.geometry()
+        caster = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
+        pside_orig = inp.leaf_orig[lo_]
+
+        def batch(g):
+            y, r = np.zeros((G, L.shape[1])), np.zeros(G)
+            z = np.zeros(0, np.int64)
+            n = point_pairs(ends, g, nodes, geo, Po, So, lptr, FAR, False, z, z, np.zeros(0))
+            I, E, F = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n)
+            n = point_pairs(ends, g, nodes, geo, Po, So, lptr, FAR, True, I, E, F)
+            I, E, F = I[:n], E[:n], F[:n]
+            vis = ends.v[E].astype(np.float64)
+            partial = np.nonzero(vis < 1.0)[0]  # not proven visible: rays from the point itself
+            R = 0
+            if len(partial):
+                P_, Q_ = np.empty((4 * len(partial), 3)), np.empty((4 * len(partial), 3))
+                own = np.empty(4 * len(partial), np.int64)
+                R = visibility_queries(Po, I[partial], E[partial], ends.sn, inp.verts, inp.nverts,
+                                       inp.node_center, P_, Q_, own)
+                own = own[:R]
+                blocked = caster.occluded(P_[:R], Q_[:R], pside_orig[I[partial]][own],
+                                          inp.orig[ends.sn[E[partial]]][own])
+                seen = np.bincount(own, ~blocked, minlength=len(partial))
+                vis[partial] = seen / np.maximum(np.bincount(own, minlength=len(partial)), 1)
+            accumulate(I, E, F, vis, Lbar, ends.ss, ends.sn, y, r)
+            return y, r, n, R
+
+        batches = np.array_split(origs, max(2, -(-len(origs) // ORIGINALS_PER_BATCH)))
+        parts = dask.compute(*[dask.delayed(batch)(g) for g in batches if len(g)],
+                             scheduler="threads", num_workers=2)
+        y = sum(p[0] for p in parts)
+        r = sum(p[1] for p in parts)
+        evals = int(sum(p[2] for p in parts))
+        rays = int(sum(p[3] for p in parts))
+        if inp.clusters is not None and inp.clusters.links:  # uniform, as in the solve
+            Gn[...] = 0.0
+            _cluster_gather(inp, inp.cap_args(), Lbar, Gn)
+            yc = np.zeros_like(L)
+            push(Gn, inp.parent, inp.leaf_node, np.zeros(0), yc)
+            y = y + yc[So, :, lo_]
+            Gn[...] = 0.0  # and its share of the rows (closed scenes' balancing)
+            _cluster_gather(inp, inp.cap_args(), np.ones_like(Lbar[:, :1]), Gn[:, :1])
+            yc = np.zeros_like(L[:, :1])
+            push(np.ascontiguousarray(Gn[:, :1]), inp.parent, inp.leaf_node, np.zeros(0), yc)
+            r = r + yc[So, 0, lo_]
+        if mode == "closed":  # rows balanced to 1, as in the solve's final gather
+            y = y / np.where(r > 0, r, 1.0)[:, None]
+        o = inp.leaf_orig[lo_]
+        val = np.zeros((G, 3))
+        val[order] = el.emission[o, So] + el.reflectance[o, So] * y
+        out[idx] = val[inv]
+    return out, {"points": K, "gathered_points": int(G), "coarse_samples": int(len(idx)),
+                 "evaluations": evals, "rays": int(rays),
+                 "time_s": round(time.perf_counter() - t0, 4)}

@@ -1,0 +1,239 @@
+"""Which way the faces point: the per-mesh fix (`orient` in a [[mesh]] entry) and the facts the
+checks before any heavy work need (runtime/checks.py): what the camera sees of the one-sided
+elements, whether each emitter's light reaches any element, and which meshes enclose the camera
+with their normals pointing out.
+
+A one-sided element is black from behind, so a room modelled with its normals out, a camera
+inside a wall or a lamp outside the room renders an all-black image with no error otherwise
+(issue 26). Everything here is cheap: a few thousand Embree rays and one pass over the faces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from radiosity.core.bundles import Elements
+from radiosity.errors import SceneError
+
+#: Values of a [[mesh]] entry's `orient` key. as-is: the file's winding (counter-clockwise seen
+#: from the front); flip: every face reversed; inward / outward: every face reversed when the
+#: mesh's normals point, on the whole, out of (inward) or into (outward) the volume it encloses
+#: (`facing_volume`); a room's shell is inward, a solid object outward.
+ORIENTS = ("as-is", "flip", "inward", "outward")
+#: Sample rays per emitter (one material of one mesh): enough that a lamp whose light reaches
+#: only a small part of its hemisphere is still seen to reach something (a miss of all 256
+#: rays means under about 1 % of its light reaches any element), few enough to be free.
+EMITTER_RAYS = 256
+#: At most this many emitter rays in all (scenes with very many emitting materials).
+MAX_EMITTER_RAYS = 1 << 16
+#: A mesh whose one-sided faces wind this much or more around the camera encloses it with its
+#: normals pointing out (a closed mesh gives exactly 1, an open one less; 0: the camera is
+#: outside, -1: inside and pointing in).
+ENCLOSING = 0.5
+
+
+class OrientationError(SceneError):
+    """A scene whose faces point the wrong way for its camera or its lights: the image would be
+    black or wrong. One line naming the mesh and the fix."""
+
+
+# ----------------------------------------------------------------------------- the fix
+
+def flip_polygons(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
+    """The same polygons wound the other way (their normals reversed): (n, 4, 3) float64.
+
+    verts (n, 4, 3), nverts (n,) in {3, 4} as in Elements; the first vertex stays first, a
+    triangle's slot 3 keeps repeating its last vertex."""
+    verts = np.asarray(verts, np.float64)
+    tri = np.asarray(nverts) == 3
+    out = verts[:, [0, 3, 2, 1]]
+    out[tri] = verts[tri][:, [0, 2, 1, 1]]
+    return out
+
+
+def facing_volume(verts: np.ndarray, nverts: np.ndarray) -> float:
+    """sum over faces of A n . (c - o) / 3 with o the mean vertex: the enclosed volume for a
+    closed mesh (positive when the normals point out of it, negative when in), and for an open
+    one (a room without a wall) still positive when the faces point away from its middle."""
+    from radiosity.core.geometry import polygon_properties
+
+    verts = np.asarray(verts, np.float64)
+    area, normal, center = polygon_properties(verts, np.asarray(nverts))
+    o = verts.reshape(-1, 3).mean(axis=0)
+    return float(np.sum(area * np.einsum("ij,ij->i", normal, center - o)) / 3.0)
+
+
+def orient_polygons(verts: np.ndarray, nverts: np.ndarray, orient: str, where: str) -> np.ndarray:
+    """A mesh's polygons (n, 4, 3) wound as its `orient` key says (ORIENTS); `where` names the
+    [[mesh]] entry in the error for an unknown value."""
+    if orient not in ORIENTS:
+        raise SceneError(f"{where}: orient = {orient!r} is not one of {', '.join(ORIENTS)}")
+    if orient == "as-is" or not len(verts):
+        return verts
+    if orient == "flip":
+        return flip_polygons(verts, nverts)
+    v = facing_volume(verts, nverts)
+    if (orient == "inward") == (v > 0.0):
+        return flip_polygons(verts, nverts)
+    return verts
+
+
+# ----------------------------------------------------------------------------- the camera
+
+def winding_number(verts: np.ndarray, nverts: np.ndarray, point: np.ndarray) -> float:
+    """How many times the polygons wind around `point` (the generalised winding number,
+    Jacobson et al. 2013): the sum of their signed solid angles seen from it over 4 pi (Van
+    Oosterom & Strackee's formula per triangle). 1 inside a closed mesh whose normals point
+    out, -1 inside one whose normals point in, 0 outside; an open mesh gives the fraction of
+    the sphere of directions it covers."""
+    from radiosity.tracing.rays import element_triangles
+
+    if not len(verts):
+        return 0.0
+    tris, _ = element_triangles(np.asarray(verts, np.float64), np.asarray(nverts))
+    r = tris - np.asarray(point, np.float64)[None, None, :]
+    a, b, c = r[:, 0], r[:, 1], r[:, 2]
+    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+    num = np.einsum("ij,ij->i", a, np.cross(b, c))
+    den = (la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb
+           + np.einsum("ij,ij->i", b, c) * la)
+    # solid angle of each triangle, positive when its front faces away from the point
+    return float(np.sum(2.0 * np.arctan2(num, den)) / (4.0 * np.pi))
+
+
+@dataclass(frozen=True)
+class Enclosure:
+    """A [[mesh]] entry that winds around the camera with its normals pointing out."""
+
+    source: int          # index into Elements.sources (one per [[mesh]] entry)
+    winding: float       # the one-sided faces' winding number at the camera (about 1)
+    watertight: bool     # trimesh finds the mesh closed (every edge shared by two faces)
+    faces: int           # its one-sided elements
+
+
+def outward_enclosures(elements: Elements, point: np.ndarray) -> list:
+    """The [[mesh]] entries whose one-sided faces wind ENCLOSING or more around `point` (the
+    camera centre): their normals point out of a volume that holds the camera, so it sees their
+    backs (black). Returns [Enclosure], in the entries' order."""
+    out = []
+    two = np.asarray(elements.two_sided, bool)
+    for s in np.unique(elements.source):
+        sel = (elements.source == s) & ~two
+        if not sel.any():
+            continue
+        w = winding_number(elements.verts[sel], elements.nverts[sel], point)
+        if w >= ENCLOSING:
+            out.append(Enclosure(int(s), w, _watertight(elements.verts[sel], elements.nverts[sel]),
+                                 int(sel.sum())))
+    return out
+
+
+def _watertight(verts: np.ndarray, nverts: np.ndarray) -> bool:
+    """trimesh's answer: every edge of the (vertex-merged) triangles shared by exactly two."""
+    import trimesh
+
+    from radiosity.tracing.rays import element_triangles
+
+    tris, _ = element_triangles(np.asarray(verts, np.float64), np.asarray(nverts))
+    m = trimesh.Trimesh(vertices=tris.reshape(-1, 3), faces=np.arange(3 * len(tris)).reshape(-1, 3),
+                        process=True)
+    return bool(m.is_watertight)
+
+
+def facing(elements: Elements, elem: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """Whether each hit element `elem` (k,) int (-1: none) shows a lit side to `origin` ((3,),
+    or (k, 3) one per hit): its front, or either side of a two-sided element. (k,) bool, False
+    for -1."""
+    elem = np.asarray(elem)
+    out = np.zeros(len(elem), bool)
+    h = elem >= 0
+    e = elem[h]
+    o = np.asarray(origin, np.float64)
+    o = o[h] if o.ndim == 2 else o[None, :]
+    front = np.einsum("ij,ij->i", elements.normal[e], o - elements.center[e]) > 0
+    out[h] = front | np.asarray(elements.two_sided, bool)[e]
+    return out
+
+
+# ----------------------------------------------------------------------------- the emitters
+
+@dataclass(frozen=True)
+class Emitter:
+    """The emitting elements of one material in one [[mesh]] entry and where their rays went."""
+
+    source: int          # index into Elements.sources
+    material: int        # index into Elements.material_names
+    elements: int        # emitting elements of the group
+    example: int         # one of them (the largest), for the message
+    rays: int            # rays cast from their emitting sides
+    reached: int         # rays that met the lit side of another element
+    backs: int           # rays that met the back of a one-sided element
+    escaped: int         # rays that met nothing
+
+
+def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
+                  max_rays: int = MAX_EMITTER_RAYS, seed: int = 0) -> list:
+    """Where the light of each emitter goes: cosine-distributed rays from area-uniform points
+    on the emitting sides of each group (one material of one [[mesh]] entry), against the
+    scene (`caster`: a tracing.rays.RayCaster of `elements`). Returns [Emitter]; empty when
+    nothing emits."""
+    from radiosity.scene.closure import _directions, _frame
+
+    em = np.asarray(elements.emission, np.float64)
+    side_emits = em.max(axis=2) > 0.0                     # (n, 2): front, back
+    if not side_emits.any():
+        return []
+    rng = np.random.default_rng(seed)
+    two = np.asarray(elements.two_sided, bool)
+    groups = {}
+    for i in np.nonzero(side_emits.any(axis=1))[0]:
+        groups.setdefault((int(elements.source[i]), int(elements.material[i])), []).append(i)
+    per = max(16, min(rays, max_rays // max(1, len(groups))))
+    lo = elements.verts.reshape(-1, 3).min(0)
+    hi = elements.verts.reshape(-1, 3).max(0)
+    # off the surface beyond Embree's float32 rounding (rays.epsilon is relative to the scene)
+    step = 64.0 * caster.epsilon * float(np.linalg.norm(hi - lo) or 1.0)
+    out = []
+    for (src, mat), ids in groups.items():
+        ids = np.asarray(ids)
+        # the emitting sides: (element, sign of the normal), chosen by area
+        sides = [(i, 1.0) for i in ids if side_emits[i, 0]] + \
+                [(i, -1.0) for i in ids if side_emits[i, 1] and two[i]]
+        if not sides:
+            continue
+        el = np.array([s[0] for s in sides])
+        sign = np.array([s[1] for s in sides])
+        p = elements.area[el] / elements.area[el].sum()
+        pick = rng.choice(len(el), size=per, p=p)
+        e, sg = el[pick], sign[pick]
+        pts = _points_on(elements.verts[e], elements.nverts[e], rng)
+        nrm = sg[:, None] * elements.normal[e]
+        t1, t2 = _frame(nrm)
+        loc = _directions(per, rng)
+        d = loc[:, :1] * t1 + loc[:, 1:2] * t2 + loc[:, 2:] * nrm
+        hit = caster.first_hit(pts + step * nrm, d)
+        lit = facing(elements, hit, pts)
+        # a hit on the emitter itself (rounding at the start) says nothing: not counted
+        own = hit == e
+        reached = int((lit & ~own).sum())
+        escaped = int((hit < 0).sum())
+        backs = int(((hit >= 0) & ~lit & ~own).sum())
+        big = ids[np.argmax(elements.area[ids])]
+        out.append(Emitter(src, mat, len(ids), int(big), int(per - own.sum()), reached, backs,
+                           escaped))
+    return out
+
+
+def _points_on(verts: np.ndarray, nverts: np.ndarray, rng) -> np.ndarray:
+    """One uniformly distributed point on each polygon (k, 4, 3), (k, 3): a quad's triangle
+    by area, then uniform barycentric coordinates."""
+    v0, v1, v2, v3 = (verts[:, i] for i in range(4))
+    a1 = np.linalg.norm(np.cross(v1 - v0, v2 - v0), axis=1)
+    a2 = np.where(nverts == 4, np.linalg.norm(np.cross(v2 - v0, v3 - v0), axis=1), 0.0)
+    second = rng.random(len(verts)) * (a1 + a2) >= a1
+    b, c = np.where(second[:, None], v2, v1), np.where(second[:, None], v3, v2)
+    r1, r2 = rng.random(len(verts)), rng.random(len(verts))
+    s = np.sqrt(r1)
+    return (1 - s)[:, None] * v0 + (s * (1 - r2))[:, None] * b + (s * r2)[:, None] * c

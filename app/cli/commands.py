@@ -42,11 +42,22 @@ def _samples(camera, subpixel) -> int:
 
 def _run_samples(rs) -> int | None:
     """_samples of a preprocessed run directory (its store's attributes), None if unknown."""
-    a = rs.attrs()
+    a = rs.attrs
     try:
         return int(a["camera"]["width"]) * int(a["camera"]["height"]) * int(a["subpixel"]) ** 2
     except (KeyError, TypeError, ValueError):
         return None
+
+
+def _load_scene(scene: str, resolution, st):
+    """load_scene, saying what it chose where the file said nothing (a mesh file's camera, as
+    a [camera] table to copy into a scene file)."""
+    from radiosity.scene.load import load_scene
+
+    sc = load_scene(scene, resolution=resolution, settings=st)
+    if sc.chosen:
+        click.echo(sc.chosen)
+    return sc
 
 
 class OneLineGroup(click.Group):
@@ -112,12 +123,11 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, force, work
     """Camera-driven subdivision of SCENE (seed §3) into the run directory OUT."""
     from radiosity.runtime.checks import check_new_run_dir, check_scene
     from radiosity.runtime.runlock import run_lock
-    from radiosity.scene.load import load_scene
     from radiosity.stages.preprocess import preprocess as run
 
     st = settings_from_flags(subdivide__subpixel=subpixel, subdivide__variant=variant,
                              subdivide__subscenes=subscenes)
-    sc = load_scene(scene, resolution=resolution, settings=st)
+    sc = _load_scene(scene, resolution, st)
     check_scene(sc, st)
     check_new_run_dir(out, force)
     _started(out, resume=False)
@@ -315,10 +325,9 @@ def plan(scene, resolution, subpixel, tol):
     from radiosity.pipeline import scene_plan
     from radiosity.scene.effects import describe
     from radiosity.runtime.checks import check_scene
-    from radiosity.scene.load import load_scene
 
     st = settings_from_flags(subdivide__subpixel=subpixel, solve__tol=tol)
-    sc = load_scene(scene, resolution=resolution, settings=st)
+    sc = _load_scene(scene, resolution, st)
     check_scene(sc, st)
     planned = scene_plan(sc, settings=st)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
@@ -363,12 +372,11 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
     from radiosity.pipeline import render_scene
     from radiosity.runtime.checks import check_new_run_dir, check_scene, check_solve
     from radiosity.runtime.runlock import run_lock
-    from radiosity.scene.load import load_scene
 
     st = settings_from_flags(subdivide__subpixel=subpixel, solve__solver=solver,
                              solve__kernel=kernel, solve__tol=tol,
                              solve__max_iterations=max_iterations)
-    sc = load_scene(scene, resolution=resolution, settings=st)
+    sc = _load_scene(scene, resolution, st)
     check_solve(st)
     check_scene(sc, st)
     check_new_run_dir(out, force)
@@ -410,10 +418,9 @@ def reference(scene, out, spp, passes, resolution, seed, variant, force):
     camera); mean radiance, per-pixel standard error and figures into OUT."""
     from radiosity.runtime.checks import check_new_run_dir
     from radiosity.validation.reference import make_reference
-    from radiosity.scene.load import load_scene
 
     st = settings_from_flags()
-    sc = load_scene(scene, resolution=resolution, settings=st)
+    sc = _load_scene(scene, resolution, st)
     check_new_run_dir(out, force)
     fig = make_reference(sc, out, spp=spp, passes=passes, seed=seed, variant=variant,
                          echo=click.echo, settings=st)
@@ -499,6 +506,17 @@ def study():
     """Studies: what accuracy costs in time."""
 
 
+def _check_study_out(out: str, force: bool, summary: str) -> None:
+    """A study's --out: as every command's (check_new_run_dir), where a folder holding the
+    study's `summary` file or its runs/ (run directories) is one of ours, written again."""
+    from radiosity.runtime.checks import check_new_run_dir
+
+    runs = os.path.join(out, "runs")
+    ours = os.path.isfile(os.path.join(out, summary)) or (os.path.isdir(runs) and any(
+        os.path.exists(os.path.join(runs, d, "report.json")) for d in os.listdir(runs)))
+    check_new_run_dir(out, force or ours)
+
+
 def _floats(s: str, kind=float):
     return [kind(x) for x in s.split(",") if x.strip()]
 
@@ -530,10 +548,12 @@ def _floats(s: str, kind=float):
               callback=_number_list(int, 0, "positive integers"),
               help="With --epsilons: the hierarchical method's rays per link (squares).")
 @click.option("--solver", default=None, help="Solver (default: radiosity.solve.solver).")
+@force_option
 @cluster_options
 @_friendly
 def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, reference_spp,
-                   path_tracer_spp, epsilons, link_rays, solver, workers, scheduler, cluster_kind):
+                   path_tracer_spp, epsilons, link_rays, solver, force, workers, scheduler,
+                   cluster_kind):
     """Sweep resolution x sub-pixel x kernel x tolerance on SCENE (and, with --epsilons, the
     hierarchical method's epsilon x link rays); time every stage, measure the error; write
     results.csv, results.md and accuracy.png (error against time, Pareto front)."""
@@ -551,6 +571,7 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
     elif reference is not None and not os.path.isfile(reference):
         raise RadiosityError(f"--reference {reference}: no such file (give an EXR image, or auto)")
     pts = _floats(path_tracer_spp, int) if path_tracer_spp else None
+    _check_study_out(out, force, "results.md")
     with _client(workers, scheduler, cluster_kind) as client:
         rows = accuracy(scene, out, client, _floats(resolutions, int), _floats(subpixels, int), ks,
                         _floats(tols), reference=reference, solver=solver, echo=click.echo,
@@ -566,13 +587,15 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
               callback=_number_list(int, 0, "positive integers"))
 @click.option("--speedup-resolution", type=POSITIVE_INT, default=96, show_default=True)
 @click.option("--max-workers", type=POSITIVE_INT, default=None, help="Largest LocalCluster for the speedup.")
+@force_option
 @_friendly
-def study_seed(scene, out, resolutions, speedup_resolution, max_workers):
+def study_seed(scene, out, resolutions, speedup_resolution, max_workers, force):
     """Reproduce the seed's experiments on SCENE: Fig. 3, Fig. 4, the speedup table and the image
     series; writes PNG plots and seed.md into OUT."""
     from radiosity.runtime.cluster import default_workers, open_client
     from radiosity.validation.study import seed
 
+    _check_study_out(out, force, "seed.md")
     n = max_workers or default_workers()
     res = seed(scene, out, lambda w: open_client(w, quiet=True), _floats(resolutions, int),
                list(range(1, n + 1)), speedup_resolution, echo=click.echo)

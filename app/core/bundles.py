@@ -105,6 +105,7 @@ class Scene:
     elements: Elements
     camera: Camera
     validation: dict = field(default_factory=dict)  # exact answers of validation scenes
+    chosen: str = ""  # what the loader chose where the file said nothing (a mesh file's camera)
 
 
 @dataclass(frozen=True)

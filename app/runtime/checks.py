@@ -250,7 +250,9 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
                 f"sees no emitter: the image would be black. Is the lamp outside the room or "
                 f"facing away? Move or turn it (its front is counter-clockwise), or for the "
                 f"mesh it faces, {_FIX}")
-    for g in dark:
+    # a scene of emitters alone (a geometry check) has nothing to light: nothing to say
+    others = bool((el.emission.max(axis=(1, 2)) <= 0).any())
+    for g in dark if others else [g for g in dark if g.backs]:
         warnings.warn(f"{where}: the light of material '{el.material_names[g.material]}' of "
                       f"{mesh(g.source)} reaches no element ({g.backs} of {g.rays} rays meet "
                       f"the backs of one-sided elements, {g.escaped} meet nothing): is the lamp "

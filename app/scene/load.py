@@ -1,4 +1,5 @@
-"""Scene files (TOML) -> original elements, materials and camera (`load_scene`).
+"""Scene files (TOML), or a bare mesh file (scene/meshscene.py) -> original elements,
+materials and camera (`load_scene`).
 
 The mesh files a scene names are read by scene.meshes (re-exported here). Every problem with user
 input raises `SceneError` naming the file and the face, material or option, so the CLI can print
@@ -20,6 +21,8 @@ from radiosity.scene.orientation import orient_polygons
 from radiosity.scene.meshes import (MAX_COORD, MESH_FORMATS, RawMesh, SceneWarning, _warn,
                                     load_mesh, load_obj, load_trimesh, merge_parallelograms,
                                     polygons_from_raw)
+from radiosity.scene.meshscene import (DEFAULT_RESOLUTION, DOCS as MESH_DOCS, camera_toml,
+                                       default_camera, is_mesh_path, require_emitter)
 from radiosity.settings import Settings, resolve
 
 __all__ = ["MAX_COORD", "MAX_RESOLUTION", "MESH_FORMATS", "TINY", "DEFAULT_REFLECTANCE", "RawMesh",
@@ -54,20 +57,40 @@ def _vec(val, what: str, fn: str, n: int = 3) -> np.ndarray:
     return a
 
 
+def _pixels(v) -> int:
+    """A whole number of pixels: an integer, an integral float (64.0) or its text; anything
+    else (64.5, true, "64.5") raises ValueError instead of being truncated."""
+    if isinstance(v, bool):
+        raise ValueError
+    if isinstance(v, str):
+        return int(v.strip())
+    if isinstance(v, float):
+        if not v.is_integer():
+            raise ValueError
+        return int(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    raise TypeError
+
+
 def parse_resolution(val, where: str) -> tuple[int, int]:
-    """`N`, `[W, H]` or `"WxH"` -> (W, H), both positive."""
+    """`N`, `[W, H]` or `"WxH"` -> (W, H), both positive whole numbers (`where` names the
+    option or the file in the error)."""
     try:
         if isinstance(val, str):
             parts = val.lower().split("x")
-            w, h = (int(parts[0]), int(parts[-1]))
+            if len(parts) > 2:
+                raise ValueError
+            w, h = (_pixels(parts[0]), _pixels(parts[-1]))
         elif isinstance(val, (list, tuple)):
             if len(val) != 2:
                 raise ValueError
-            w, h = int(val[0]), int(val[1])
+            w, h = _pixels(val[0]), _pixels(val[1])
         else:
-            w = h = int(val)
+            w = h = _pixels(val)
     except (TypeError, ValueError, OverflowError):
-        raise SceneError(f"{where}: resolution must be N, [W, H] or 'WxH', got {val!r}") from None
+        raise SceneError(f"{where}: resolution must be a whole number of pixels: N, [W, H] or "
+                         f"'WxH', got {val!r}") from None
     if w <= 0 or h <= 0:
         raise SceneError(f"{where}: resolution must be positive, got {w}x{h}")
     if max(w, h) > MAX_RESOLUTION:
@@ -150,24 +173,30 @@ def _rgb(val, what, fn) -> np.ndarray:
 
 def load_scene(path: str, resolution=None, settings: Settings | None = None) -> Scene:
     """Read a scene TOML (or a folder holding scene.toml) into a Scene: its meshes, material
-    overrides and camera. A bare mesh file is not a scene (it has no camera): write a TOML with
-    one [[mesh]] entry and a [camera] table. settings: the scene.* tolerances (None: resolved
-    here)."""
+    overrides and camera. A bare mesh file (OBJ, glTF, GLB, PLY) is a scene too: its own
+    materials, which must include an emitter, and a default camera (scene/meshscene.py; the
+    Scene's `chosen` says which, as a [camera] table to copy). settings: the scene.*
+    tolerances and the rays' epsilon (None: resolved here)."""
     s = resolve(base=settings)
     path = os.path.abspath(path)
     if os.path.isdir(path) and os.path.exists(os.path.join(path, "scene.toml")):
         path = os.path.join(path, "scene.toml")
     if not os.path.exists(path):
         raise SceneError(f"scene file not found: {path}")
-    try:
-        with open(path, "rb") as f:
-            doc = tomllib.load(f)
-    except tomllib.TOMLDecodeError as e:
-        raise SceneError(f"{path}: not valid TOML: {e}") from None
-    except UnicodeDecodeError as e:
-        raise SceneError(f"{path}: not valid TOML: not UTF-8 text (byte {e.start})") from None
-    except OSError as e:
-        raise SceneError(f"cannot read scene file {path}: {e.strerror}") from None
+    mesh_scene = is_mesh_path(path)
+    if mesh_scene:  # one [[mesh]] entry, nothing overridden, the camera chosen below
+        stem, _ = os.path.splitext(os.path.basename(path))
+        doc = {"name": stem, "mesh": [{"path": os.path.basename(path)}]}
+    else:
+        try:
+            with open(path, "rb") as f:
+                doc = tomllib.load(f)
+        except tomllib.TOMLDecodeError as e:
+            raise SceneError(f"{path}: not valid TOML: {e}") from None
+        except UnicodeDecodeError as e:
+            raise SceneError(f"{path}: not valid TOML: not UTF-8 text (byte {e.start})") from None
+        except OSError as e:
+            raise SceneError(f"cannot read scene file {path}: {e.strerror}") from None
     unknown = set(doc) - _TOP_KEYS
     if unknown:
         raise SceneError(f"{path}: unknown key(s) {sorted(unknown)}; a scene file has {sorted(_TOP_KEYS)}")
@@ -235,7 +264,10 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
         for what, val in (("reflectance", r), ("back_reflectance", rb)):
             if np.any(val < 0) or np.any(val >= 1):
                 raise SceneError(f"{where}: material '{name}' {what} {val.tolist()} is outside [0, 1) "
-                                 "(a reflectance of 1 or more creates energy)")
+                                 "(a reflectance of 1 or more creates energy)"
+                                 + (f": lower it in the mesh, or write a scene.toml that sets "
+                                    f"[material.{name}] reflectance (see {MESH_DOCS})"
+                                    if mesh_scene else ""))
         for what, val in (("emission", e), ("back_emission", eb)):
             if np.any(val < 0):
                 raise SceneError(f"{where}: material '{name}' {what} {val.tolist()} is negative")
@@ -256,7 +288,16 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
                         material=material, source=np.concatenate(all_src),
                         face=np.concatenate(all_f), material_names=tuple(names),
                         sources=tuple(sources))
-    camera = parse_camera(doc.get("camera"), path, resolution)
+    chosen = ""
+    if mesh_scene:
+        require_emitter(elements, path)
+        res = (DEFAULT_RESOLUTION,) * 2 if resolution is None else \
+            parse_resolution(resolution, "resolution")
+        camera, table, why = default_camera(elements, res, float(s.rays.epsilon), path)
+        chosen = (f"camera: {os.path.basename(path)} has none, so {why}; to change it, put this "
+                  f"in a scene file (see {MESH_DOCS}):\n{camera_toml(table)}")
+    else:
+        camera = parse_camera(doc.get("camera"), path, resolution)
     name = doc.get("name", os.path.basename(base))
     validation = doc.get("validation", {})
     unknown = set(validation) - _VALIDATION_KEYS
@@ -268,4 +309,4 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
             raise SceneError(f"{path}: [validation] {k} = {validation[k]!r} is not a material of "
                              f"the scene ({names})")
     return Scene(name=str(name), path=path, elements=elements, camera=camera,
-                 validation=dict(validation))
+                 validation=dict(validation), chosen=chosen)

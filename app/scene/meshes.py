@@ -232,7 +232,10 @@ def _gltf_json(fn: str) -> dict:
 
 
 def load_trimesh(fn: str, default_material: str) -> RawMesh:
-    """glTF/GLB and PLY through trimesh (node transforms applied)."""
+    """glTF/GLB and PLY through trimesh (node transforms applied). Materials: glTF's by name
+    (baseColorFactor, and its texture's mean, as reflectance; emissiveFactor x
+    KHR_materials_emissive_strength, and its texture's mean, as emission; doubleSided); a PLY's
+    face or vertex colours as materials `colour-RRGGBB` unless `default_material` names one."""
     import trimesh
 
     try:
@@ -250,7 +253,11 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
         gnames = _gltf_material_names(gltf, fn)
         for name, m in zip(gnames, gltf):
             pbr = m.get("pbrMetallicRoughness", {})
-            props = {"reflectance": list(pbr.get("baseColorFactor", [1, 1, 1, 1]))[:3]}
+            # no baseColorFactor: the default reflectance, as an MTL material without Kd (glTF's
+            # own default, 1, would create energy); a texture scales it (_texture_means)
+            props = {}
+            if "baseColorFactor" in pbr or "baseColorTexture" in pbr:
+                props["reflectance"] = list(pbr.get("baseColorFactor", [1, 1, 1, 1]))[:3]
             strength = m.get("extensions", {}).get("KHR_materials_emissive_strength", {})
             e = np.asarray(m.get("emissiveFactor", [0, 0, 0]), float) * float(
                 strength.get("emissiveStrength", 1.0))
@@ -259,6 +266,7 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
             gmats[name] = props
     verts, faces, fmat = [], [], []
     base = 0
+    textured = set()
     for node in loaded.graph.nodes_geometry:
         transform, gname = loaded.graph[node]
         mesh = loaded.geometry[gname]
@@ -267,18 +275,80 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
         v = trimesh.transformations.transform_points(np.asarray(mesh.vertices, float), transform)
         name = default_material
         mat = getattr(getattr(mesh, "visual", None), "material", None)
+        f = np.asarray(mesh.faces)
+        names = None
         if gltf and mat is not None:
             idx = _gltf_material_of(mat, gltf, fn)
             if idx is not None:
                 name = gnames[idx]
+                if name not in textured:
+                    textured.add(name)
+                    _texture_means(gmats[name], mat, gltf[idx])
+        elif not gltf and default_material == "default" and len(f):
+            names = _colour_materials(mesh, gmats)  # PLY: its face or vertex colours
         verts.append(v)
-        f = np.asarray(mesh.faces)
         if len(f):
             faces.extend((f.astype(np.int64) + base).tolist())
-            fmat.extend([name] * len(f))
+            fmat.extend(names if names is not None else [name] * len(f))
         base += len(v)
     v = np.concatenate(verts) if verts else np.zeros((0, 3))
     return RawMesh(v, faces, fmat, gmats)
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] -> linear ones (IEC 61966-2-1), as glTF textures and 8-bit
+    colours are encoded."""
+    c = np.asarray(c, float)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def _image_mean(img) -> np.ndarray | None:
+    """The mean linear RGB (3,) of an sRGB texture image (PIL), from at most 256 x 256 pixels;
+    None if it cannot be read."""
+    try:
+        im = img.convert("RGB")
+        im.thumbnail((256, 256))
+        px = np.asarray(im, float).reshape(-1, 3) / 255.0
+    except Exception:  # noqa: BLE001 - a texture we cannot read: the factor alone
+        return None
+    return srgb_to_linear(px).mean(axis=0) if len(px) else None
+
+
+def _texture_means(props: dict, mat, doc: dict) -> None:
+    """A glTF material's baseColorTexture and emissiveTexture, as their means: the
+    reflectance and emission factors scaled by the mean linear colour of the texture (the
+    elements are flat-coloured; a texture's detail below them is averaged)."""
+    pbr = doc.get("pbrMetallicRoughness", {})
+    if "baseColorTexture" in pbr:
+        m = _image_mean(getattr(mat, "baseColorTexture", None))
+        if m is not None:
+            props["reflectance"] = (np.asarray(props["reflectance"], float) * m).tolist()
+    if "emissiveTexture" in doc:
+        m = _image_mean(getattr(mat, "emissiveTexture", None))
+        if m is not None:
+            props["emission"] = (np.asarray(props["emission"], float) * m).tolist()
+
+
+def _colour_materials(mesh, mats: dict) -> list | None:
+    """Per-face material names of a mesh with face or vertex colours (PLY), one material per
+    distinct colour, named `colour-RRGGBB` (8-bit sRGB, as stored) with that colour, linear,
+    as its reflectance; a face of vertex colours takes their mean. None without colours."""
+    visual = getattr(mesh, "visual", None)
+    kind = getattr(visual, "kind", None)
+    if kind == "face":
+        rgb = np.asarray(visual.face_colors, float)[:, :3]
+    elif kind == "vertex":
+        rgb = np.asarray(visual.vertex_colors, float)[:, :3][np.asarray(mesh.faces)].mean(axis=1)
+    else:
+        return None
+    rgb = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+    uniq, inv = np.unique(rgb, axis=0, return_inverse=True)
+    names = []
+    for c in uniq:
+        name = "colour-" + "".join(f"{int(x):02x}" for x in c)
+        mats.setdefault(name, {"reflectance": srgb_to_linear(c / 255.0).tolist()})
+        names.append(name)
+    return [names[k] for k in inv.ravel().tolist()]
 
 
 def _gltf_material_names(gltf: list, fn: str) -> list[str]:

@@ -1,5 +1,5 @@
 """New views of a solved run (issue 28): another camera's image from the stored solution, with no
-re-solve. Each pixel averages K x K sub-pixel rays; every ray's hit point asks the run's method
+re-solve. Each pixel averages K x K rays over its area; every ray's hit point asks the run's method
 for the radiance leaving that point (the hierarchical method gathers at the point over its
 leaf's links: methods/hierarchical/views.py; the pairs method looks up its sub-element). A view
 goes to its own folder, RUN/views/NAME/ (image.exr, image.png, view.json); the run's own image
@@ -19,12 +19,14 @@ from radiosity.core.bundles import Camera
 from radiosity.errors import RadiosityError
 from radiosity.methods.base import method_of_run
 from radiosity.runtime.store import RunStore, update_report
-from radiosity.stages.pixels import downsample, tonemap, write_exr, write_png
+from radiosity.stages.pixels import (area_offsets, sample_directions, tonemap, write_exr,
+                                     write_png)
 from radiosity.tracing.rays import RayCaster, raster_band
 
-#: Sub-pixel rays per pixel side of a view (K x K per pixel, box-averaged).
+#: Rays per pixel side of a view (K x K per pixel on the image stage's sheared lattice,
+#: box-averaged: the render.area-samples default).
 VIEW_SAMPLES = 4
-#: Fine-raster rows per Embree batch.
+#: Rays per Embree batch is about ROWS_PER_BATCH * 64.
 ROWS_PER_BATCH = 256
 
 
@@ -89,33 +91,41 @@ def view_name(name: str | None, run_dir: str) -> str:
 
 
 def hit_points(elements, camera: Camera, samples: int, epsilon: float):
-    """First hits of the camera's K x K sub-pixel rays: (orig (P,) int, points (P, 3)) in fine
-    raster order (H*K rows of W*K)."""
+    """First hits of the camera's `samples` x `samples` rays per pixel, on the image stage's
+    sheared lattice (pixels.area_offsets): (orig (P,) int, points (P, 3), pixel (P,)) in
+    pixel-major order (the S = samples^2 rays of pixel 0, then of pixel 1, ...)."""
+    offsets = area_offsets(samples)
+    S = len(offsets)
     rc = RayCaster(elements.verts, elements.nverts, epsilon)
-    h = camera.height * samples
+    origin = np.asarray(camera.center, np.float64)
+    band = max(1, ROWS_PER_BATCH * 64 // (camera.width * S))
     orig, pts = [], []
-    for r0 in range(0, h, ROWS_PER_BATCH):
-        e, p = raster_band(rc, elements.normal, elements.center, camera, samples,
-                           slice(r0, min(h, r0 + ROWS_PER_BATCH)))
-        orig.append(np.asarray(e, np.int64))
-        pts.append(p)
-    return np.concatenate(orig), np.concatenate(pts)
+    for r0 in range(0, camera.height, band):
+        r1 = min(camera.height, r0 + band)
+        d = sample_directions(camera, 1, offsets, r0, r1).reshape(-1, 3)
+        e = np.asarray(rc.first_hit(origin, d.astype(np.float32), unit=True), np.int64)
+        hit = e >= 0
+        t = np.zeros(len(e))
+        with np.errstate(divide="ignore", invalid="ignore"):  # the exact hit on its plane
+            t[hit] = (np.einsum("ij,ij->i", elements.normal[e[hit]], elements.center[e[hit]] - origin)
+                      / np.einsum("ij,ij->i", elements.normal[e[hit]], d[hit]))
+        orig.append(e)
+        pts.append(origin + t[:, None] * d)
+    pixel = np.repeat(np.arange(camera.width * camera.height), S)
+    return np.concatenate(orig), np.concatenate(pts), pixel
 
 
-def pixel_footprints(camera: Camera, samples: int, pts: np.ndarray, normal: np.ndarray):
-    """For the fine raster's samples (H*K x W*K, in order) hitting `pts` on planes of `normal`:
-    the pixel (H x W raster index) each belongs to, and that pixel's footprint there (m^2:
-    its solid angle times distance^2 over the cosine at the surface, floored at 0.05)."""
-    K, W, H = int(samples), camera.width, camera.height
-    rows, cols = np.divmod(np.arange(H * K * W * K), W * K)
-    pixel = (rows // K) * W + cols // K
+def pixel_footprints(camera: Camera, pts: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """The footprint (m^2) of a pixel of `camera` at points `pts` on planes of `normal`: its
+    solid angle times distance^2 over the cosine at the surface (floored at 0.05)."""
+    W, H = camera.width, camera.height
     d = pts - camera.center[None, :]
     t = np.linalg.norm(d, axis=1)
     u = d / np.where(t > 0, t, 1.0)[:, None]
     cos_axis = np.clip(u @ (camera.z / np.linalg.norm(camera.z)), 1e-3, 1.0)
     omega = (2 * camera.half_w / W) * (2 * camera.half_h / H) / camera.focal ** 2 * cos_axis ** 3
     cos_surf = np.maximum(np.abs(np.einsum("ij,ij->i", u, normal)), 0.05)
-    return pixel, omega * t * t / cos_surf
+    return omega * t * t / cos_surf
 
 
 def render_view(run_dir: str, camera: Camera, name: str | None = None, settings=None,
@@ -132,17 +142,16 @@ def render_view(run_dir: str, camera: Camera, name: str | None = None, settings=
     el = rs.load_elements()
     folder = os.path.join(run_dir, "views", view_name(name, run_dir))
     os.makedirs(folder, exist_ok=True)
-    orig, pts = hit_points(el, camera, samples, float(s.rays.epsilon))
+    orig, pts, pixel = hit_points(el, camera, samples, float(s.rays.epsilon))
     hit = orig >= 0
     o = np.maximum(orig, 0)
     side = (np.einsum("ij,ij->i", el.normal[o], camera.center[None, :] - pts) <= 0.0).astype(np.int64)
     t_rays = time.perf_counter() - t0
-    pixel, footprint = pixel_footprints(camera, samples, pts, el.normal[o])
+    footprint = pixel_footprints(camera, pts, el.normal[o])
     L, gathered = method.radiance_at(rs, s, pts, np.where(hit, orig, -1), side, pixel, footprint)
     back = hit & (side == 1) & ~np.asarray(el.two_sided, bool)[o]
     L[back | ~hit] = 0.0
-    fine = L.reshape(camera.height * samples, camera.width * samples, 3)
-    img = downsample(fine, samples, "box")
+    img = L.reshape(camera.height, camera.width, samples * samples, 3).mean(axis=2)
     if exposure is None:  # the run's own exposure, so that views of one run compare
         rep = _report(run_dir)
         exposure = rep.get("render", {}).get("exposure")

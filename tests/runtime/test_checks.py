@@ -118,7 +118,9 @@ def test_a_lamp_outside_among_lamps_that_light_is_a_warning(tmp_path):
                                        .replace("f 5 6 7 8", "usemtl light2\nf 5 6 7 8"))
     with open(path, "a") as f:
         f.write("\n[material.light2]\nemission = [5.0, 5.0, 5.0]\nreflectance = [0.0, 0.0, 0.0]\n")
-    with pytest.warns(UserWarning, match=r"light of material 'light2' of lamp.obj \(\[\[mesh\]\] 2\) reaches no element \(\d+ of 256 rays meet the backs"):
+    said = (r"light of material 'light2' of lamp.obj \(\[\[mesh\]\] 2\) reaches no element "
+            r"\(\d+ of 256 rays meet the backs")
+    with pytest.warns(UserWarning, match=said):
         fig = check_scene(load_scene(path), resolve())
     assert {e["material"]: e["reached"] > 0 for e in fig["orientation"]["emitters"]} == \
         {"light": True, "light2": False}

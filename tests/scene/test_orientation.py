@@ -49,7 +49,8 @@ def test_orient_inward_and_outward_whatever_the_file_says(inward):
 
 def test_an_unknown_orient_names_the_entry_and_the_values():
     verts, n = box_polygons()
-    with pytest.raises(SceneError, match=r"scene.toml: \[\[mesh\]\] 2: orient = 'in' is not one of"):
+    with pytest.raises(SceneError,
+                       match=r"scene.toml: \[\[mesh\]\] 2: orient = 'in' is not one of"):
         orient_polygons(verts, n, "in", "scene.toml: [[mesh]] 2")
     assert ORIENTS[0] == "as-is"
 

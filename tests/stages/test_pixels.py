@@ -106,11 +106,11 @@ def test_an_edge_pixel_is_the_coverage_weighted_mean_of_its_two_sides(edge_run):
     """Pixels the light's edge crosses (10-90 % covered): the pixel-area image (default, 4 x 4
     rays) is the coverage-weighted mean c L_light + (1 - c) L_ceiling of its two sides, with c
     right to a few % of the pixel (the share of the pixel it gives the light); the point-sampled
-    option gives each pixel wholly to one side. (Relative to the pixel's value the error is
-    larger where the light covers little of a pixel: at a contrast of 30 a pixel 10 % covered
-    is 0.78, and 3 % of the pixel given to the light moves it by 22 %.) Pixels wholly on one side are the same either
+    option gives each pixel wholly to one side. Pixels wholly on one side are the same either
     way. Errors as the share of the pixel given to the wrong side, and the edge's total
-    brightness (the sum over the edge pixels) against the exact one."""
+    brightness (the sum over the edge pixels) against the exact one. (Relative to a pixel's
+    value the error is larger where the light covers little of it: at a contrast of 30 a pixel
+    10 % covered is 0.78, and 3 % of the pixel given to the light moves it by 22 %.)"""
     from radiosity.stages.image import read_exr, render_outputs
 
     sc, out = edge_run
@@ -132,3 +132,24 @@ def test_an_edge_pixel_is_the_coverage_weighted_mean_of_its_two_sides(edge_run):
     # point 30 % on average (its total is about right too: its errors cancel along an edge)
     assert err["area"][0] < 0.04 and err["area"][1] < 0.12 and abs(err["area"][2]) < 0.02, err
     assert err["point"][0] > 0.2, err
+
+
+def test_the_flags_choose_the_sampling_and_the_report_says_which(edge_run):
+    """`radiosity image --sampling point` / `--area-samples K` (recorded as overrides of
+    render.sampling and render.area-samples, never written into dask.config)."""
+    import json
+
+    import dask.config
+    from click.testing import CliRunner
+
+    from radiosity.cli.commands import main
+
+    _, out = edge_run
+    for flags, want in ((["--sampling", "point"], ("point", 1, 0)),
+                        (["--area-samples", "2"], ("area", 2, 20 * 20 * 4)),
+                        ([], ("area", 4, 20 * 20 * 16))):
+        r = CliRunner().invoke(main, ["image", out, *flags])
+        assert r.exit_code == 0, r.output
+        rep = json.load(open(f"{out}/report.json"))["render"]
+        assert (rep["sampling"], rep["area_samples"], rep["rays"]) == want
+    assert dask.config.get("radiosity.render.sampling") == "area"

@@ -126,3 +126,67 @@ def box_polygons(lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0), inward=True, faces=rang
             q = q[[0, 3, 2, 1]]
         out.append(q)
     return np.array(out), np.full(len(out), 4, np.int8)
+
+
+# ----------------------------------------------------------------------------- a GLB room
+
+ROOM = (4.0, 2.5, 3.0)  # the GLB room: x, y (up), z
+
+
+def _quad(p0, u, v):
+    import trimesh
+
+    p0, u, v = (np.asarray(x, float) for x in (p0, u, v))
+    return trimesh.Trimesh([p0, p0 + u, p0 + u + v, p0 + v], [[0, 1, 2], [0, 2, 3]], process=False)
+
+
+def glb_room(emissive=(1.0, 1.0, 1.0), closed=True, strength=None, **lamp_material):
+    """A GLB (bytes): a box room L x H x D = 4 x 2.5 x 3 (y up), normals inward, white walls and
+    a red one (x = 0), without its z = 0 wall unless closed, and a lamp: a 1 x 1 quad just below
+    the ceiling facing down, of emissiveFactor `emissive` (KHR strength `strength`), other
+    PBRMaterial keywords in lamp_material (a texture: the lamp gets texture coordinates)."""
+    import trimesh
+    from trimesh.visual.material import PBRMaterial
+
+    L, H, D = ROOM
+    s = trimesh.Scene()
+    walls = {"floor": _quad([0, 0, 0], [0, 0, D], [L, 0, 0]),
+             "ceiling": _quad([0, H, 0], [L, 0, 0], [0, 0, D]),
+             "back": _quad([0, 0, D], [0, H, 0], [L, 0, 0]),
+             "left": _quad([0, 0, 0], [0, H, 0], [0, 0, D]),
+             "right": _quad([L, 0, 0], [0, 0, D], [0, H, 0])}
+    if closed:
+        walls["front"] = _quad([0, 0, 0], [L, 0, 0], [0, H, 0])
+    for k, m in walls.items():
+        red = k == "left"
+        m.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(
+            name="red" if red else "white",
+            baseColorFactor=[0.7, 0.1, 0.1, 1.0] if red else [0.7, 0.7, 0.7, 1.0]))
+        s.add_geometry(m, node_name=k)
+    lamp = _quad([1.5, H - 0.01, 1.0], [1.0, 0, 0], [0, 0, 1.0])
+    uv = np.zeros((4, 2)) if lamp_material else None  # a texture is written with coordinates
+    lamp.visual = trimesh.visual.TextureVisuals(uv=uv, material=PBRMaterial(
+        name="lamp", baseColorFactor=[0.5, 0.5, 0.5, 1.0], emissiveFactor=list(emissive),
+        **lamp_material))
+    s.add_geometry(lamp, node_name="lamp")
+    data = s.export(file_type="glb")
+    if strength is not None:  # KHR_materials_emissive_strength, which trimesh does not write
+        data = edit_glb(data, lambda doc: [m.setdefault("extensions", {}).update(
+            KHR_materials_emissive_strength={"emissiveStrength": strength})
+            for m in doc["materials"] if m.get("name") == "lamp"])
+    return data
+
+
+def edit_glb(data: bytes, edit) -> bytes:
+    """The GLB with its JSON chunk edited in place (edit(doc) changes the dict)."""
+    import json
+    import struct
+
+    n = struct.unpack("<I", data[12:16])[0]
+    doc = json.loads(data[20:20 + n])
+    edit(doc)
+    body = json.dumps(doc).encode()
+    body += b" " * (-len(body) % 4)
+    rest = data[20 + n:]
+    out = struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(body) + len(rest))
+    return out + struct.pack("<I4s", len(body), b"JSON") + body + rest

@@ -108,11 +108,13 @@ def _score(rc, el: Elements, cam: Camera) -> int:
     return int(_front(el, hit, d).sum())
 
 
-def default_camera(el: Elements, resolution: tuple[int, int], epsilon: float, where: str):
+def default_camera(el: Elements, resolution: tuple[int, int], epsilon: float, where: str,
+                   parse_camera):
     """The default camera of a mesh scene (the rule in the module docstring): (Camera, its
-    [camera] table as a dict the look-at form of parse_camera reads, why in a few words).
-    epsilon: radiosity.rays.epsilon; where: the file, for errors."""
-    from radiosity.scene.load import parse_camera
+    [camera] table as a dict, why in a few words). epsilon: radiosity.rays.epsilon; where: the
+    file, for errors; parse_camera: scene.load's reader of [camera] tables (passed in: the
+    camera used is the table read as a scene file's would be, so the printed table gives the
+    same camera to the bit)."""
     from radiosity.tracing.rays import RayCaster
 
     pts = el.verts.reshape(-1, 3)  # a triangle's slot 3 repeats its vertex 2

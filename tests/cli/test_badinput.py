@@ -34,6 +34,8 @@ CASES = [
     (["plan", S, "--tol", "1"], ["--tol"]),
     (["plan", S, "--subpixel", "0"], ["--subpixel", "0"]),
     (["plan", S, "--resolution", "0x5"], ["--resolution", "positive"]),
+    (["plan", S, "--resolution", "64.5"], ["--resolution", "whole number of pixels", "'64.5'"]),
+    (["render", S, *OUT, "--resolution", "64x32.5"], ["--resolution", "whole number"]),
     (["render", S, *OUT, "--tol", "-1"], ["--tol"]),
     (["render", S, *OUT, "--max-iterations", "-3"], ["--max-iterations", "-3"]),
     (["render", S, *OUT, "--max-iterations", "0"], ["--max-iterations"]),
@@ -88,6 +90,62 @@ def test_out_that_is_a_file_or_under_a_file(tmp_path):
     r = CliRunner().invoke(main, ["preprocess", S, "--out", str(f / "sub" / "run")])
     one_line_error(r, f"lies under {f}, which is a file")
     assert f.read_text() == "x"
+
+
+#: every command that writes into --out, with the rest of a command line that gets that far
+OUT_COMMANDS = {
+    "render": ["render", S], "preprocess": ["preprocess", S], "reference": ["reference", S],
+    "compare": ["compare", "A.exr", "B.exr"], "viewfactors": ["viewfactors", S],
+    "study accuracy": ["study", "accuracy", S], "study seed": ["study", "seed", S]}
+
+
+@pytest.mark.parametrize("command", OUT_COMMANDS)
+def test_out_into_a_folder_of_the_users_is_refused_in_one_line(tmp_path, command):
+    """--out into a non-empty folder that is not one of ours: refused before anything starts,
+    the user's files untouched (it once overwrote their image.png and report.json)."""
+    d = tmp_path / "mine"
+    d.mkdir()
+    (d / "image.png").write_text("the user's")
+    r = CliRunner().invoke(main, [*OUT_COMMANDS[command], "--out", str(d)])
+    one_line_error(r, f"--out {d} is a folder with other files in it (image.png), not a run "
+                      "directory: choose a new or empty folder, or add --force to write into it")
+    assert sorted(os.listdir(d)) == ["image.png"] and (d / "image.png").read_text() == "the user's"
+
+
+def test_force_writes_into_a_folder_of_the_users(tmp_path):
+    import numpy as np
+
+    from radiosity.stages.pixels import write_exr
+
+    a, b = tmp_path / "a.exr", tmp_path / "b.exr"
+    write_exr(str(a), np.full((4, 4, 3), 1.0, np.float32))
+    write_exr(str(b), np.full((4, 4, 3), 2.0, np.float32))
+    d = tmp_path / "mine"
+    d.mkdir()
+    (d / "notes.txt").write_text("the user's")
+    r = CliRunner().invoke(main, ["compare", str(a), str(b), "--out", str(d), "--force"])
+    assert r.exit_code == 0, r.output
+    assert {"notes.txt", "compare.json", "compare.png"} <= set(os.listdir(d))
+    r = CliRunner().invoke(main, ["compare", str(a), str(b), "--out", str(d)])  # ours now
+    assert r.exit_code == 0, r.output
+
+
+def test_a_study_folder_is_written_again_without_force(tmp_path):
+    """A study's own folder (its summary, or run directories in runs/) is not the user's."""
+    from radiosity.cli.commands import _check_study_out
+
+    d = tmp_path / "study"
+    (d / "runs" / "r8-kpoint").mkdir(parents=True)
+    (d / "runs" / "r8-kpoint" / "report.json").write_text("{}")
+    (d / "accuracy.png").write_text("png")
+    _check_study_out(str(d), False, "results.md")
+    e = tmp_path / "other"
+    e.mkdir()
+    (e / "results.csv").write_text("the user's")
+    from radiosity.errors import StoreError
+
+    with pytest.raises(StoreError, match="or add --force"):
+        _check_study_out(str(e), False, "results.md")
 
 
 # ----------------------------------------------------------------------------- the scene

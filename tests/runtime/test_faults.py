@@ -415,7 +415,9 @@ class Watched:
 
 
 CORNELL = scene_path("cornell-box")
-LONG = ["--resolution", "16", "--workers", "2", "--no-preview", "--solver", "jacobi", "--tol", "1e-10"]
+# worker processes: these tests kill workers (a small scene would run them as threads)
+LONG = ["--resolution", "16", "--workers", "2", "--processes", "true", "--solver", "jacobi",
+        "--tol", "1e-10"]
 
 
 @pytest.fixture(scope="module")

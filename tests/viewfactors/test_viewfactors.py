@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -551,6 +552,12 @@ def test_cli_end_to_end_npz_and_csv(client, tmp_path):
     assert facets["area"].sum() == pytest.approx(10.0) and facets["row_sum"] == pytest.approx(np.ones(24))
     rep = json.load(open(out / "report.json"))["viewfactors"]
     assert rep["nonzeros"] == M.nnz and rep["balanced"] and rep["reciprocity_residual_max"] < 1e-12
+    # the whole command's wall time, in the summary and in report.json's run section (issue 27)
+    [wall] = [ln for ln in r.output.splitlines() if ln.strip().startswith("wall time")]
+    assert wall.strip().endswith("s (the whole command)"), wall
+    run = json.load(open(out / "report.json"))["run"]
+    assert run["command"].startswith("radiosity viewfactors ") and run["scene"] == "room.obj"
+    assert run["stage"] == "viewfactors" and run["wall_s"] >= rep["time_s"] > 0
     # the Python API gives the same matrix
     import radiosity
 
@@ -586,6 +593,9 @@ def test_interrupted_run_resumes_and_corruption_is_recomputed(client, tmp_path):
         ref = run(client, tmp_path, mesh, "ref")
         with pytest.raises(Stop):
             run(client, tmp_path, mesh, "run", on_done=stop)
+        from radiosity.cli.summary import kept  # what an interrupted command's line says
+
+        assert re.fullmatch(r"4 of \d+ view-factor tasks", kept(str(tmp_path / "run")))
         res = run(client, tmp_path, mesh, "run", resume=True)
         assert res.figures["tasks"] > 8
         assert res.figures["tasks_reused"] == 4

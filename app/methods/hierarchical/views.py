@@ -151,72 +151,126 @@ COARSE_FOOTPRINTS = 2.0
 def radiance_at(rs, settings, pts: np.ndarray, porig: np.ndarray, side: np.ndarray,
                 pixel: np.ndarray, footprint: np.ndarray) -> tuple[np.ndarray, dict]:
     """Radiance (K, 3) leaving points `pts` (K, 3) on originals `porig` (K,) (-1: nothing: 0) on
-    side `side` (K,) (0 front, 1 back), and the figures. A point whose leaf is at most
-    COARSE_FOOTPRINTS times its pixel's footprint there (`footprint` (K,), m^2) takes the
-    leaf's stored radiance (the solve's final gather); in a coarser leaf the points of one pixel
-    (`pixel` (K,)) share one gather at their mean, over the leaf's links (point_gather)."""
-    import time
+    side `side` (K,) (0 front, 1 back), and the figures: `PointGather(rs, settings)` for one
+    view (see PointGather.radiance_at)."""
+    return PointGather(rs, settings).radiance_at(pts, porig, side, pixel, footprint)
 
-    import dask
 
-    from radiosity.methods.hierarchical.passes import pull, push
-    from radiosity.tracing.rays import RayCaster
-    from radiosity.methods.hierarchical.transport import (_cluster_gather, _directed,
-                                                         open_link_operator, scratch)
+class PointGather:
+    """A solved run's links opened once for gathers at the points of many views (a
+    walkthrough's frames; stages/views.Viewer): the link operator's inputs, the node means of
+    the solution (pulled once), the directed link ends, the cluster links' share per leaf
+    (point-independent: computed once) and the occlusion caster. Read-only after __init__;
+    radiance_at may run from several threads."""
 
-    t0 = time.perf_counter()
-    op, table, el, part = open_link_operator(rs, None, "driver", settings)
-    inp = op.inp
-    sol = rs.read_arrays("solution")
-    M = len(inp.leaf_node)
-    K = len(pts)
-    leaf = np.full(K, -1, np.int64)
-    hit = porig >= 0
-    found = np.empty(int(hit.sum()), np.int64)
-    locate_leaves(np.ascontiguousarray(pts[hit], float), porig[hit].astype(np.int64), inp.noff,
-                  inp.child, inp.verts, inp.nverts, inp.normal, inp.node_leaf, found)
-    leaf[hit] = found
-    ok = leaf >= 0
-    side = np.asarray(side, np.int64)
-    out = np.zeros((K, 3))
-    # fine enough leaves: the stored radiance of their sub-element
-    # leaves the run's own camera saw and refined to its pixels keep their solved value where
-    # they are no larger than this view's pixels; the others (coarser, or never seen: their
-    # links' visibility was judged from their centroids) are gathered at the view's points
-    seen = np.zeros(len(part), bool)
-    raster = rs.read_arrays("raster")["sub"].ravel()
-    seen[raster[raster >= 0]] = True
-    coarse = ok & ((inp.leaf_area[np.maximum(leaf, 0)] > COARSE_FOOTPRINTS * footprint)
-                   | ~seen[table["leaf_sub"][np.maximum(leaf, 0)]])
-    flat = ok & ~coarse
-    out[flat] = sol["radiance"][table["leaf_sub"][leaf[flat]], side[flat]]
-    # coarse leaves: one gather per (pixel, leaf, side), at the mean of its points
-    idx = np.nonzero(coarse)[0]
-    key = (np.asarray(pixel, np.int64)[idx] * M + leaf[idx]) * 2 + side[idx]
-    uk, inv = np.unique(key, return_inverse=True)
-    G = len(uk)
-    P = np.zeros((G, 3))
-    np.add.at(P, inv, pts[idx])
-    P /= np.bincount(inv, minlength=G)[:, None]
-    gleaf, gside = (uk // 2) % M, uk % 2
-    evals = rays = 0
-    if G:
-        L = np.ascontiguousarray(np.transpose(sol["leaf_radiance"], (1, 2, 0)))
-        mode = (rs.group_attrs("solution").get("row_sums") or {}).get("mode")
+    def __init__(self, rs, settings):
+        import time
+
+        from radiosity.methods.hierarchical.passes import pull, push
+        from radiosity.methods.hierarchical.transport import (_cluster_gather, _directed,
+                                                             open_link_operator, scratch)
+        from radiosity.tracing.rays import RayCaster
+
+        t0 = time.perf_counter()
+        op, table, el, part = open_link_operator(rs, None, "driver", settings)
+        inp = self.inp = op.inp
+        self.table, self.el = table, el
+        sol = rs.read_arrays("solution")
+        self.radiance = sol["radiance"]
+        self.M = len(inp.leaf_node)
+        # leaves the run's own camera saw (their stored radiance is kept where fine enough)
+        seen = np.zeros(len(part), bool)
+        raster = rs.read_arrays("raster")["sub"].ravel()
+        seen[raster[raster >= 0]] = True
+        self.leaf_seen = seen[table["leaf_sub"]]
+        self.closed = (rs.group_attrs("solution").get("row_sums") or {}).get("mode") == "closed"
+        L = np.ascontiguousarray(np.transpose(sol["leaf_radiance"], (1, 2, 0)))  # (2, C, M)
+        self.C = L.shape[1]
+        Sbuf, Gn = scratch((L.shape[0], L.shape[1], len(inp.parent)))
+        self.Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area,
+                         np.zeros(0), Sbuf).copy()
+        self.ends = _directed(inp)
+        self.nodes, self.geo = inp.nodes(), inp.geometry()
+        self.caster = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
+        # cluster links add their leaves' uniform share, as in the solve: the same at every
+        # point of a leaf, so once per leaf here (and their share of the rows, for balancing)
+        self.yc = self.rc = None
+        if inp.clusters is not None and inp.clusters.links:
+            Gn[...] = 0.0
+            _cluster_gather(inp, inp.cap_args(), self.Lbar, Gn)
+            self.yc = np.zeros_like(L)
+            push(Gn, inp.parent, inp.leaf_node, np.zeros(0), self.yc)
+            Gn[...] = 0.0
+            _cluster_gather(inp, inp.cap_args(), np.ones_like(self.Lbar[:, :1]), Gn[:, :1])
+            rc = np.zeros_like(L[:, :1])
+            push(np.ascontiguousarray(Gn[:, :1]), inp.parent, inp.leaf_node, np.zeros(0), rc)
+            self.rc = rc[:, 0, :]
+        self.time_open_s = round(time.perf_counter() - t0, 4)
+
+    def radiance_at(self, pts: np.ndarray, porig: np.ndarray, side: np.ndarray,
+                    pixel: np.ndarray, footprint: np.ndarray) -> tuple[np.ndarray, dict]:
+        """Radiance (K, 3) leaving points `pts` (K, 3) on originals `porig` (K,) (-1: nothing:
+        0) on side `side` (K,) (0 front, 1 back), and the figures. A point whose leaf is at
+        most COARSE_FOOTPRINTS times its pixel's footprint there (`footprint` (K,), m^2) and
+        was seen by the run's camera takes the leaf's stored radiance (the solve's final
+        gather); in a coarser leaf the points of one pixel (`pixel` (K,)) share one gather at
+        their mean, over the leaf's links (point_pairs)."""
+        import time
+
+        t0 = time.perf_counter()
+        inp, M = self.inp, self.M
+        K = len(pts)
+        leaf = np.full(K, -1, np.int64)
+        hit = porig >= 0
+        found = np.empty(int(hit.sum()), np.int64)
+        locate_leaves(np.ascontiguousarray(pts[hit], float), porig[hit].astype(np.int64),
+                      inp.noff, inp.child, inp.verts, inp.nverts, inp.normal, inp.node_leaf, found)
+        leaf[hit] = found
+        ok = leaf >= 0
+        side = np.asarray(side, np.int64)
+        out = np.zeros((K, 3))
+        # leaves the run's own camera saw and refined to its pixels keep their solved value
+        # where they are no larger than this view's pixels; the others (coarser, or never
+        # seen: their links' visibility was judged from their centroids) are gathered at the
+        # view's points
+        lf = np.maximum(leaf, 0)
+        coarse = ok & ((inp.leaf_area[lf] > COARSE_FOOTPRINTS * footprint) | ~self.leaf_seen[lf])
+        flat = ok & ~coarse
+        out[flat] = self.radiance[self.table["leaf_sub"][leaf[flat]], side[flat]]
+        # coarse leaves: one gather per (pixel, leaf, side), at the mean of its points
+        idx = np.nonzero(coarse)[0]
+        key = (np.asarray(pixel, np.int64)[idx] * M + leaf[idx]) * 2 + side[idx]
+        uk, inv = np.unique(key, return_inverse=True)
+        G = len(uk)
+        P = np.zeros((G, 3))
+        np.add.at(P, inv, pts[idx])
+        P /= np.bincount(inv, minlength=G)[:, None]
+        evals = rays = 0
+        if G:
+            val, evals, rays = self.gather(P, (uk // 2) % M, uk % 2)
+            out[idx] = val[inv]
+        return out, {"points": K, "gathered_points": int(G), "coarse_samples": int(len(idx)),
+                     "evaluations": evals, "rays": int(rays),
+                     "time_s": round(time.perf_counter() - t0, 4)}
+
+    def gather(self, P: np.ndarray, gleaf: np.ndarray, gside: np.ndarray):
+        """Radiance (G, 3) leaving points P (G, 3) in leaves `gleaf` (G,) on sides `gside`
+        (G,), gathered over the links into each leaf and its ancestors (point_pairs), with
+        rays from the point for links not proven visible; and (link evaluations, rays)."""
+        import dask
+
+        inp, M, ends = self.inp, self.M, self.ends
+        G = len(P)
         order = np.argsort(gleaf, kind="stable")
         lptr = np.zeros(M + 1, np.int64)
         np.cumsum(np.bincount(gleaf, minlength=M), out=lptr[1:])
         Po, So, lo_ = np.ascontiguousarray(P[order]), np.ascontiguousarray(gside[order]), gleaf[order]
-        Sbuf, Gn = scratch((L.shape[0], L.shape[1], len(inp.parent)))
-        Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, np.zeros(0), Sbuf)
-        ends = _directed(inp)
         origs = np.unique(inp.leaf_orig[lo_]).astype(np.int64)
-        nodes, geo = inp.nodes(), inp.geometry()
-        caster = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
+        nodes, geo, caster = self.nodes, self.geo, self.caster
         pside_orig = inp.leaf_orig[lo_]
 
         def batch(g):
-            y, r = np.zeros((G, L.shape[1])), np.zeros(G)
+            y, r = np.zeros((G, self.C)), np.zeros(G)
             z = np.zeros(0, np.int64)
             n = point_pairs(ends, g, nodes, geo, Po, So, lptr, FAR, False, z, z, np.zeros(0))
             I, E, F = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n)
@@ -235,7 +289,7 @@ def radiance_at(rs, settings, pts: np.ndarray, porig: np.ndarray, side: np.ndarr
                                           inp.orig[ends.sn[E[partial]]][own])
                 seen = np.bincount(own, ~blocked, minlength=len(partial))
                 vis[partial] = seen / np.maximum(np.bincount(own, minlength=len(partial)), 1)
-            accumulate(I, E, F, vis, Lbar, ends.ss, ends.sn, y, r)
+            accumulate(I, E, F, vis, self.Lbar, ends.ss, ends.sn, y, r)
             return y, r, n, R
 
         batches = np.array_split(origs, max(2, -(-len(origs) // ORIGINALS_PER_BATCH)))
@@ -245,23 +299,12 @@ def radiance_at(rs, settings, pts: np.ndarray, porig: np.ndarray, side: np.ndarr
         r = sum(p[1] for p in parts)
         evals = int(sum(p[2] for p in parts))
         rays = int(sum(p[3] for p in parts))
-        if inp.clusters is not None and inp.clusters.links:  # uniform, as in the solve
-            Gn[...] = 0.0
-            _cluster_gather(inp, inp.cap_args(), Lbar, Gn)
-            yc = np.zeros_like(L)
-            push(Gn, inp.parent, inp.leaf_node, np.zeros(0), yc)
-            y = y + yc[So, :, lo_]
-            Gn[...] = 0.0  # and its share of the rows (closed scenes' balancing)
-            _cluster_gather(inp, inp.cap_args(), np.ones_like(Lbar[:, :1]), Gn[:, :1])
-            yc = np.zeros_like(L[:, :1])
-            push(np.ascontiguousarray(Gn[:, :1]), inp.parent, inp.leaf_node, np.zeros(0), yc)
-            r = r + yc[So, 0, lo_]
-        if mode == "closed":  # rows balanced to 1, as in the solve's final gather
+        if self.yc is not None:  # the cluster links' uniform share, as in the solve
+            y = y + self.yc[So, :, lo_]
+            r = r + self.rc[So, lo_]
+        if self.closed:  # rows balanced to 1, as in the solve's final gather
             y = y / np.where(r > 0, r, 1.0)[:, None]
         o = inp.leaf_orig[lo_]
         val = np.zeros((G, 3))
-        val[order] = el.emission[o, So] + el.reflectance[o, So] * y
-        out[idx] = val[inv]
-    return out, {"points": K, "gathered_points": int(G), "coarse_samples": int(len(idx)),
-                 "evaluations": evals, "rays": int(rays),
-                 "time_s": round(time.perf_counter() - t0, 4)}
+        val[order] = self.el.emission[o, So] + self.el.reflectance[o, So] * y
+        return val, evals, rays

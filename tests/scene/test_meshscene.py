@@ -1,0 +1,164 @@
+"""A bare mesh file as a scene (issue 27): its materials (glTF factors and texture means, MTL
+Kd/Ke, PLY colours), the default camera (inside a closed room, outside an open one; the printed
+[camera] table is the camera used), and the one-line refusal without an emitter."""
+
+from __future__ import annotations
+
+import tomllib
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+from radiosity.errors import SceneError
+from radiosity.scene.load import load_scene, parse_camera
+from radiosity.scene.meshes import srgb_to_linear
+from radiosity.scene.meshscene import DEFAULT_RESOLUTION
+
+from helpers import edit_glb, glb_room  # noqa: E402
+
+L, H, D = 4.0, 2.5, 3.0
+
+
+def write_room(tmp_path, name="room.glb", **kw) -> str:
+    fn = tmp_path / name
+    fn.write_bytes(glb_room(**kw))
+    return str(fn)
+
+
+def _table_of(chosen: str) -> dict:
+    """The [camera] table printed in Scene.chosen, read as TOML."""
+    return tomllib.loads(chosen[chosen.index("[camera]"):])["camera"]
+
+
+def _same_camera(a, b):
+    for k in ("center", "x", "y", "z"):
+        np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
+    assert (a.focal, a.width, a.height, a.half_w, a.half_h) == \
+        (b.focal, b.width, b.height, b.half_w, b.half_h)
+
+
+def test_a_closed_glb_room_is_a_scene_seen_from_inside(tmp_path):
+    fn = write_room(tmp_path, strength=4.0)
+    sc = load_scene(fn)
+    el = sc.elements
+    assert sc.name == "room" and sc.path == fn
+    assert set(el.material_names) == {"lamp", "red", "white"}
+    m = {name: i for i, name in enumerate(el.material_names)}
+    lamp = el.material == m["lamp"]
+    np.testing.assert_allclose(el.emission[lamp, 0], 4.0)  # emissiveFactor x strength
+    np.testing.assert_allclose(el.reflectance[el.material == m["red"], 0], [[0.7, 0.1, 0.1]],
+                               atol=1 / 255)
+    assert not el.emission[~lamp].any()
+    # the camera: inside, along x (the longest horizontal axis), the whole far wall in view
+    assert "inside: a closed room, looking along +x" in sc.chosen
+    cam = sc.camera
+    assert 0 < cam.center[0] < 0.1 * L and 0 < cam.center[1] < H and 0 < cam.center[2] < D
+    np.testing.assert_allclose(cam.z, [1, 0, 0])
+    assert (cam.width, cam.height) == (DEFAULT_RESOLUTION, DEFAULT_RESOLUTION)
+    # what is printed is the camera used, to the bit, as parse_camera reads it
+    table = _table_of(sc.chosen)
+    _same_camera(parse_camera(table, "printed"), cam)
+    assert table["resolution"] == [DEFAULT_RESOLUTION, DEFAULT_RESOLUTION]
+
+
+def test_an_open_room_is_seen_from_its_open_side_and_resolution_overrides(tmp_path):
+    from radiosity.settings import resolve
+    from radiosity.runtime.checks import check_scene
+
+    sc = load_scene(write_room(tmp_path, closed=False), resolution=(24, 16))
+    assert "outside: not a closed room; from the -z side" in sc.chosen
+    assert sc.camera.center[2] < 0 and (sc.camera.width, sc.camera.height) == (24, 16)
+    _same_camera(parse_camera(_table_of(sc.chosen), "printed"), sc.camera)
+    assert check_scene(sc, resolve())["hits"] > 0  # it sees the room
+
+
+def test_a_mesh_without_an_emitter_is_refused_in_one_line(tmp_path):
+    with pytest.raises(SceneError) as e:
+        load_scene(write_room(tmp_path, name="dark.glb", emissive=(0.0, 0.0, 0.0)))
+    msg = str(e.value)
+    assert "\n" not in msg
+    assert msg.startswith("dark.glb has no emissive material (lamp, red, white): give one "
+                          "material an emissiveFactor")
+    assert 'write a scene.toml with [[mesh]] path = "dark.glb"' in msg
+    assert "meshes-as-scenes.md" in msg
+
+
+def test_obj_with_mtl_takes_kd_and_ke_and_says_what_is_missing(tmp_path):
+    obj = ("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nv 0 1 0\nv 1 1 0\nv 1 1 1\nv 0 1 1\n"
+           "usemtl floor\nf 1 4 3 2\nusemtl lamp\nf 5 6 7 8\n")
+    (tmp_path / "box.obj").write_text(obj)
+    (tmp_path / "m.mtl").write_text("newmtl floor\nKd 0.3 0.4 0.5\nnewmtl lamp\nKd 0.1 0.1 0.1\n"
+                                    "Ke 5 4 3\n")
+    sc = load_scene(str(tmp_path / "box.obj"))
+    el = sc.elements
+    f, lamp = (el.material_names.index(n) for n in ("floor", "lamp"))
+    np.testing.assert_array_equal(el.reflectance[el.material == f, 0], [[0.3, 0.4, 0.5]])
+    np.testing.assert_array_equal(el.emission[el.material == lamp, 0], [[5, 4, 3]])
+    assert "outside" in sc.chosen  # two facing quads are no closed room
+    (tmp_path / "m.mtl").write_text("newmtl floor\nKd 0.3 0.4 0.5\nnewmtl lamp\nKd 0.1 0.1 0.1\n")
+    with pytest.raises(SceneError, match=r"box.obj has no emissive material \(floor, lamp\): give "
+                                         r"one material of its MTL file a Ke line"):
+        load_scene(str(tmp_path / "box.obj"))
+
+
+def test_ply_colours_become_materials(tmp_path):
+    """Face colours (8-bit sRGB) -> one material per colour, its reflectance the linear colour;
+    a PLY holds no emission, which the refusal says."""
+    m = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1], [0, 1, 0], [1, 1, 0]],
+                        [[0, 3, 2], [0, 2, 1], [0, 1, 5], [0, 5, 4]], process=False)
+    m.visual.face_colors = [[200, 30, 30, 255]] * 2 + [[128, 128, 128, 255]] * 2
+    m.export(tmp_path / "c.ply")
+    with pytest.raises(SceneError, match="c.ply has no emissive material .*a PLY file holds no "
+                                         "emission, or write a scene.toml"):
+        load_scene(str(tmp_path / "c.ply"))
+    # in a scene file the colour materials can be given an emission
+    (tmp_path / "s.toml").write_text(
+        '[[mesh]]\npath = "c.ply"\n[material.colour-808080]\nemission = [1, 1, 1]\n'
+        '[camera]\nposition = [0.5, 0.5, 3]\nlook_at = [0.5, 0.5, 0]\nfov_y = 60\nresolution = 8\n')
+    el = load_scene(str(tmp_path / "s.toml")).elements
+    assert el.material_names == ("colour-808080", "colour-c81e1e")
+    np.testing.assert_allclose(el.reflectance[el.material == 1, 0],
+                               [srgb_to_linear(np.array([200, 30, 30]) / 255)])
+    np.testing.assert_array_equal(el.emission[el.material == 0, 0], [[1, 1, 1]])
+
+
+def test_gltf_texture_means_and_a_material_without_base_colour(tmp_path):
+    """baseColorTexture: the factor times the texture's mean linear colour; a material with no
+    baseColorFactor (glTF's default is 1, which would create energy): the default 0.5."""
+    from PIL import Image
+
+    img = Image.new("RGB", (4, 4), (188, 188, 94))
+    fn = tmp_path / "t.glb"
+    fn.write_bytes(edit_glb(glb_room(baseColorTexture=img), lambda doc: [
+        m["pbrMetallicRoughness"].pop("baseColorFactor")
+        for m in doc["materials"] if m.get("name") == "white"]))
+    el = load_scene(str(fn)).elements
+    names = el.material_names
+    lamp = el.material == names.index("lamp")
+    want = 0.5 * srgb_to_linear(np.array([188, 188, 94]) / 255)
+    np.testing.assert_allclose(el.reflectance[lamp, 0], [want], rtol=1 / 250)  # 8-bit factor
+    np.testing.assert_array_equal(el.reflectance[el.material == names.index("white"), 0][0],
+                                  [0.5, 0.5, 0.5])
+
+
+def test_resolution_must_be_whole_pixels_in_a_scene_file(tmp_path):
+    from helpers import FLOOR_AND_TRIANGLE, write_scene
+
+    cam = ('[camera]\nposition = [0, 2, 0]\nlook_at = [0, 0, 0]\nup = [0, 0, 1]\nfov_y = 60\n'
+           'resolution = 64.5\n')
+    fn = write_scene(tmp_path, FLOOR_AND_TRIANGLE, "[material.default]\nemission = [1, 1, 1]\n",
+                     camera=cam)
+    with pytest.raises(SceneError, match=r"scene.toml \[camera\]: resolution must be a whole "
+                                         r"number of pixels: N, \[W, H\] or 'WxH', got 64.5"):
+        load_scene(fn)
+
+
+def test_the_cornell_box_loads_without_a_warning():
+    from helpers import scene_path
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        el = load_scene(scene_path("cornell-box")).elements
+    assert len(el) == 20 and (el.nverts == 3).sum() == 2  # the red wall's two triangles

@@ -227,14 +227,15 @@ def render_preview(scene: Scene, out: str, client, settings=None, exposure=None)
 @dataclass(frozen=True)
 class Rendered:
     """What `render` gives back: the run directory (None when it was temporary), the image as
-    linear radiance (H, W, 3) and in sRGB (H, W, 3) uint8, the figures of every stage, and the
-    report (report.json) as a dict."""
+    linear radiance (H, W, 3) and in sRGB (H, W, 3) uint8, the figures of every stage, the
+    report (report.json) as a dict, and for a mesh file the camera the loader chose."""
 
     out: str | None
     image: np.ndarray
     image_srgb: np.ndarray
     figures: RenderFigures
     report: dict
+    chosen: str = ""  # what the loader chose for a mesh file: its camera, as a [camera] table
 
     def summary(self) -> str:
         """The table the CLI prints."""
@@ -280,6 +281,8 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
     check_solve(st)
     check_scene(sc, st)
     say = echo or (lambda *a, **k: None)
+    if sc.chosen:
+        say(sc.chosen)
     with contextlib.ExitStack() as stack:
         run = out if out is not None else stack.enter_context(
             tempfile.TemporaryDirectory(prefix="radiosity-render-"))
@@ -293,4 +296,4 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
         fig = render_scene(sc, run, client, st, progress=progress, echo=say, **options)
         image = read_exr(os.path.join(run, "image.exr"))
         srgb = tonemap(image, fig["render"].get("exposure"))
-        return Rendered(out, image, srgb, fig, dict(fig.report))
+        return Rendered(out, image, srgb, fig, dict(fig.report), sc.chosen)

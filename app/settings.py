@@ -82,6 +82,9 @@ class SubdivideSettings(_Section):
     unseen: str
     unseen_factor: float
     unseen_budget: float
+    hidden: str
+    hidden_factor: float
+    hidden_rays: int
     subscenes: int
     rays_per_task: int
 

@@ -97,7 +97,8 @@ def errors(client, resolutions, settings):
             exact = load_scene(path).validation["form_factor"]
             for res in resolutions:
                 run = os.path.join(d, f"{name}-{res}")
-                preprocess(load_scene(path, resolution=res), run, client, progress=False)
+                with dask.config.set({"radiosity.subdivide.hidden": "keep"}):  # the camera's
+                    preprocess(load_scene(path, resolution=res), run, client, progress=False)
                 part = RunStore(run).load_partition()
                 m, size = len(part), float(np.sqrt(part.area.mean()))
                 for label, kernel, cfg in settings:

@@ -1,12 +1,5 @@
-"""`python -m radiosity.cli` runs the command line, as the `radiosity` script does (Ctrl-C
-while the command line is still being imported: the one line, no traceback)."""
+"""`python -m radiosity.cli` runs the command line, as the `radiosity` script does."""
 
-import sys
+from radiosity.cli import run
 
-try:
-    from radiosity.cli.commands import main
-except KeyboardInterrupt:
-    print("interrupted", file=sys.stderr)
-    sys.exit(130)
-
-main()
+run()

@@ -277,6 +277,52 @@ def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up,
 
 
 @main.command()
+@click.argument("run_dir", type=click.Path())
+@click.option("--path", "path_file", required=True, type=click.Path(),
+              help="The camera path: a TOML file of [[keyframe]] tables (position, look_at; "
+                   "optional time, up, fov_y) and frames, fps, resolution.")
+@click.option("--out", "-o", default=None, type=click.Path(),
+              help="The video: .mp4 (also .mkv, .mov, .avi), .gif or .webp (default "
+                   "RUN_DIR/walkthroughs/NAME/NAME.mp4).")
+@click.option("--name", default=None,
+              help="The folder under RUN_DIR/walkthroughs for the frames (default: the path "
+                   "file's name).")
+@click.option("--frames", type=POSITIVE_INT, default=None, help="Number of frames (replaces the file's).")
+@click.option("--fps", type=POSITIVE, default=None, help="Frames per second (replaces the file's).")
+@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+              help="The frames' resolution (default: the path file's, else the run's).")
+@click.option("--exposure", type=POSITIVE, default=None,
+              help="Exposure of the frames (default: the run's, so that they match its image).")
+@click.option("--keep-frames/--no-keep-frames", default=True, show_default=True,
+              help="Keep every frame as a PNG beside walkthrough.json.")
+@_friendly
+def walkthrough(run_dir, path_file, out, name, frames, fps, resolution, exposure, keep_frames):
+    """Render a camera path through a solved RUN_DIR into a video: every frame a view of its
+    one solution (no re-solve; the run opened once for all frames), with progress."""
+    from radiosity.runtime.checks import check_run_dir
+    from radiosity.runtime.runlock import run_lock
+    from radiosity.stages.walkthrough import check_output, load_path, render_walkthrough
+
+    path = load_path(path_file, {k: v for k, v in (("frames", frames), ("fps", fps),
+                                                   ("resolution", resolution)) if v is not None})
+    if out is not None:
+        check_output(out)
+    check_run_dir(run_dir)
+    with run_lock(run_dir, _command_line()):
+        w = render_walkthrough(run_dir, path, out, name, settings=settings_from_flags(),
+                               exposure=exposure, keep_frames=keep_frames)
+    f = w.figures
+    click.echo(_table([("frames", f"{f['frames']} at {f['resolution'][0]}x{f['resolution'][1]}, "
+                                  f"{f['samples_per_pixel']} rays a pixel, {f['method']} solution"),
+                       ("gathered", f"{f['gathered_points']} points in leaves coarser than "
+                                    "their pixels"),
+                       ("time", f"{f['time_s']:.1f} s ({f['time_open_s']:.1f} s opening the run, "
+                                f"{f['time_per_frame_s']:.2f} s a frame)")]))
+    click.echo(f"wrote {w.video}" + (f" and {w.frames} frames in {w.folder}" if keep_frames
+                                     else ""))
+
+
+@main.command()
 @click.option("--methods", default="hierarchical,pairs", metavar="LIST",
               help="The methods whose kernels to compile (comma-separated).")
 @click.option("--json", "json_path", type=click.Path(), default=None,

@@ -131,6 +131,10 @@ class TransportMethod(Protocol):
         (0 front, 1 back), seen through pixel `pixel` whose footprint there is `footprint`
         (m^2), from the stored solution: for views the run was not refined for."""
 
+    def open_views(self, rs, settings):
+        """The run opened once for many views (a walkthrough's frames): an object whose
+        radiance_at(pts, porig, side, pixel, footprint) answers as radiance_at does."""
+
     def kept(self, rs) -> str | None:
         """What a rerun reuses of this method's stage ("14 of 18 link tasks"), or None."""
 

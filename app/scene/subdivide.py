@@ -268,6 +268,7 @@ def subdivide_scene(elements, camera, subpixel: int = 1, max_depth: int = 48, ca
     """The sequential preprocessing: full raster, then every element in one call.
 
     Returns (Partition, raster_orig (H*K, W*K) int32, points (H*K*W*K, 3), figures).
+    (scene/hidden.subdivide_scene_hidden adds the rule for sub-elements no pixel hits.)
     """
     from radiosity.tracing.rays import RayCaster, raster_band
 
@@ -279,6 +280,17 @@ def subdivide_scene(elements, camera, subpixel: int = 1, max_depth: int = 48, ca
                           max_depth)
     warn_depth_guard(fig["guarded"], fig["guarded_first"], max_depth)
     return part, elem.reshape(h, -1), pts, fig
+
+
+def pixel_size(points: np.ndarray) -> float:
+    """A seen pixel's size: the median distance from a camera hit point (p, 3) to its nearest
+    neighbour (over at most about 4096 of them), in world units; 0 with fewer than two."""
+    from scipy.spatial import cKDTree
+
+    if len(points) < 2:
+        return 0.0
+    sample = points[:: max(1, len(points) // 4096)]
+    return float(np.median(cKDTree(points).query(sample, k=2)[0][:, 1]))
 
 
 def lookup(part: Partition, points: np.ndarray, orig: np.ndarray) -> np.ndarray:

@@ -20,7 +20,9 @@ from radiosity.runtime.packing import subscene_ranges
 from radiosity.tracing.rays import RayCaster, caster_for, raster_band
 from radiosity.runtime.runner import run_tasks
 from radiosity.runtime.store import RunStore, StageFigures
-from radiosity.scene.subdivide import importance_points, lookup, merge_partitions, subdivide, warn_depth_guard
+from radiosity.scene.hidden import anchors, split_hidden
+from radiosity.scene.subdivide import (importance_points, lookup, merge_partitions, pixel_size,
+                                       subdivide, warn_depth_guard)
 from radiosity.core.bundles import Scene
 
 
@@ -64,12 +66,19 @@ class PreprocessFigures(StageFigures):
     peak_rss_mb: dict
     sub_elements_exact: int | None = None     # seed variant: the exact partition's size
     over_refined_elements: int | None = None  # seed variant: originals split differently
+    hidden_mode: str = "keep"    # refine: sub-elements no pixel hits split where seen ones see them
+    hidden_split: int = 0        # sub-elements no pixel hits that were split (scene/hidden.py)
+    hidden_added: int = 0        # sub-elements that added
+    hidden_rays: int = 0
+    time_hidden_s: float = 0.0
 
     def rows(self):
         rows = [("original elements", self.original_elements), ("sub-elements", self.sub_elements),
                 ("max depth", self.max_depth),
                 ("unseen", f"{self.unseen_refined} refined into {self.unseen_sub_elements} "
                            f"sub-elements, {self.unseen_unsplit} left whole ({self.unseen_mode})"),
+                ("hidden", f"{self.hidden_split} split into {self.hidden_added} more "
+                           f"sub-elements ({self.hidden_mode})"),
                 ("pixels hit", self.pixels_hit), ("time", f"{self.time_total_s:.2f} s")]
         if self.sub_elements_exact is not None:
             rows.insert(2, ("sub-elements (exact variant)", self.sub_elements_exact))
@@ -110,6 +119,17 @@ def task_seed_subscene(inp: RasterInputs, start, stop, max_depth, rows_per_batch
 
 # ----------------------------------------------------------------------------- the stage
 
+def subscene_args(el, ranges, points, point_elem, max_depth):
+    """task_subdivide's arguments for each subscene (ranges of original ids): its elements and
+    the points (pixels, unseen and hidden importance points) on them, in local ids."""
+    order = np.argsort(point_elem, kind="stable")
+    he, hp = point_elem[order], points[order]
+    starts = np.searchsorted(he, [a for a, _ in ranges] + [len(el)])
+    return [(el.verts[a:b], el.nverts[a:b], el.normal[a:b], hp[starts[i]:starts[i + 1]],
+             he[starts[i]:starts[i + 1]] - a, max_depth, np.arange(a, b))
+            for i, (a, b) in enumerate(ranges)]
+
+
 def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
                variant: str | None = None, subscenes: int | None = None,
                progress: bool = True, settings=None) -> PreprocessFigures:
@@ -144,7 +164,8 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     shared = Scattered(client, inp)
     # task keys: deterministic per run directory and inputs (never shared between two runs)
     token = tokenize(key, cam.to_dict(), subpixel, variant, max_depth, ntasks, rows_per_task,
-                     inp.epsilon, store.path, sd.unseen, sd.unseen_factor, sd.unseen_budget)
+                     inp.epsilon, store.path, sd.unseen, sd.unseen_factor, sd.unseen_budget,
+                     sd.hidden, sd.hidden_factor, sd.hidden_rays)
     repair = f"run radiosity preprocess again into {out}"
 
     # 1. the ID raster of the original scene (row bands), needed by both variants for the image
@@ -170,21 +191,20 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     t1 = time.perf_counter()
     seen = np.zeros(len(el), bool)
     seen[elem[hit]] = True
-    unseen_mode = sd.unseen
-    if unseen_mode not in ("refine", "keep"):
-        raise SceneError(f"radiosity.subdivide.unseen must be refine or keep, got {unseen_mode!r}")
+    unseen_mode, hidden_mode = sd.unseen, sd.hidden
+    for key_, mode in (("unseen", unseen_mode), ("hidden", hidden_mode)):
+        if mode not in ("refine", "keep"):
+            raise SceneError(f"radiosity.subdivide.{key_} must be refine or keep, got {mode!r}")
     up, ue = np.zeros((0, 3)), np.zeros(0, np.int64)
+    budget = int(float(sd.unseen_budget) * hit.sum())  # sub-elements no pixel hits may add
+    pixel = 0.0  # a seen pixel's size: where the two rules stop splitting
+    if variant == "exact" and ((unseen_mode == "refine" and (~seen).any()) or hidden_mode == "refine"):
+        pixel = pixel_size(pts[hit])
     if unseen_mode == "refine" and variant == "exact" and (~seen).any():
-        hp_all, he_all = pts[hit], elem[hit]
-        sample = hp_all[:: max(1, len(hp_all) // 4096)]
-        from scipy.spatial import cKDTree
-
-        pixel = float(np.median(cKDTree(hp_all).query(sample, k=2)[0][:, 1]))
         up, ue = importance_points(el.verts, el.nverts, el.normal, el.two_sided,
-                                   np.nonzero(~seen)[0], hp_all, el.normal[he_all],
+                                   np.nonzero(~seen)[0], pts[hit], el.normal[elem[hit]],
                                    float(sd.unseen_factor), pixel,
-                                   int(float(sd.unseen_budget) * hit.sum())
-                                   + int((~seen).sum()), max_depth)
+                                   budget + int((~seen).sum()), max_depth)
     if variant == "none":  # no preprocessing: every original is one element (seed §6, image 1)
         ranges = [(0, len(el))]
         args = [(el.verts, el.nverts, el.normal, np.zeros((0, 3)), np.zeros(0, np.int64),
@@ -193,14 +213,8 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     elif variant == "exact":
         e_all = np.concatenate([elem[hit], ue]).astype(np.int64)
         p_all = np.concatenate([pts[hit], up])
-        counts = np.bincount(e_all, minlength=len(el))
-        ranges = subscene_ranges(counts + 1.0, ntasks)
-        order = np.argsort(e_all, kind="stable")
-        he, hp = e_all[order], p_all[order]
-        starts = np.searchsorted(he, [a for a, _ in ranges] + [len(el)])
-        args = [(el.verts[a:b], el.nverts[a:b], el.normal[a:b], hp[starts[i]:starts[i + 1]],
-                 he[starts[i]:starts[i + 1]] - a, max_depth, np.arange(a, b))
-                for i, (a, b) in enumerate(ranges)]
+        ranges = subscene_ranges(np.bincount(e_all, minlength=len(el)) + 1.0, ntasks)
+        args = subscene_args(el, ranges, p_all, e_all, max_depth)
         fn, args_of = task_subdivide, args.__getitem__
     else:
         ranges = subscene_ranges(np.ones(len(el)), ntasks)
@@ -213,6 +227,29 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
               window=window, retries=retries, on_result=pieces.__setitem__, progress=progress,
               repair=repair)
     part = merge_partitions([p for p, _ in pieces], ranges, len(el))
+
+    # 2b. the sub-elements no pixel hits that seen surfaces see at close range (scene/hidden.py),
+    # unseen originals' only with subdivide.unseen: refine; the subscenes they lie in run again
+    hfig = {"split": 0, "added": 0, "rays": 0}
+    t_hidden = time.perf_counter()
+    if hidden_mode == "refine" and variant == "exact":
+        count, anchor = anchors(part, p_all, e_all)
+        if unseen_mode != "refine":  # the seed's rule for unseen originals: they stay whole
+            count[np.isin(part.orig, np.nonzero(~seen)[0])] = 2  # (as if made by two points)
+        hp, he, hfig = split_hidden(part, count, anchor, el, cam,
+                                    caster_for(key, el.verts, el.nverts, inp.epsilon),
+                                    float(sd.hidden_factor), pixel,
+                                    budget - max(0, len(ue) - int((~seen).sum())), max_depth,
+                                    int(sd.hidden_rays), subpixel)
+        if len(hp):
+            args = subscene_args(el, ranges, np.concatenate([p_all, hp]),
+                                 np.concatenate([e_all, he]), max_depth)
+            again = [i for i, (a, b) in enumerate(ranges) if np.any((he >= a) & (he < b))]
+            run_tasks(client, task_subdivide, again, args.__getitem__, name="subdivide-hidden",
+                      token=token, window=window, retries=retries,
+                      on_result=pieces.__setitem__, progress=progress, repair=repair)
+            part = merge_partitions([p for p, _ in pieces], ranges, len(el))
+    t_hidden = time.perf_counter() - t_hidden
     guarded = sum(f["guarded"] for _, f in pieces)
     firsts = [f["guarded_first"] for _, f in pieces if f["guarded"]]
     warn_depth_guard(guarded, firsts[0] if firsts else -1, max_depth)
@@ -233,6 +270,9 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         "sub_elements_per_pixel": len(part) / max(1, int(hit.sum())),
         "subscene_tasks": len(ranges), "raster_tasks": len(bands),
         "time_raster_s": round(t_raster, 4), "time_subdivide_s": round(t_sub, 4),
+        "hidden_mode": hidden_mode, "hidden_split": int(hfig["split"]),
+        "hidden_added": int(hfig["added"]), "hidden_rays": int(hfig["rays"]),
+        "time_hidden_s": round(t_hidden, 4),
     }
     if variant == "seed":
         # the exact partition's size, for comparison with the seed's over-refinement

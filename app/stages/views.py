@@ -90,13 +90,14 @@ def view_name(name: str | None, run_dir: str) -> str:
     return f"view-{k}"
 
 
-def hit_points(elements, camera: Camera, samples: int, epsilon: float):
+def hit_points(elements, camera: Camera, samples: int, epsilon: float, caster=None):
     """First hits of the camera's `samples` x `samples` rays per pixel, on the image stage's
     sheared lattice (pixels.area_offsets): (orig (P,) int, points (P, 3), pixel (P,)) in
-    pixel-major order (the S = samples^2 rays of pixel 0, then of pixel 1, ...)."""
+    pixel-major order (the S = samples^2 rays of pixel 0, then of pixel 1, ...). caster: a
+    RayCaster of `elements` to reuse (None: built here)."""
     offsets = area_offsets(samples)
     S = len(offsets)
-    rc = RayCaster(elements.verts, elements.nverts, epsilon)
+    rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, epsilon)
     origin = np.asarray(camera.center, np.float64)
     band = max(1, ROWS_PER_BATCH * 64 // (camera.width * S))
     orig, pts = [], []
@@ -128,45 +129,91 @@ def pixel_footprints(camera: Camera, pts: np.ndarray, normal: np.ndarray) -> np.
     return omega * t * t / cos_surf
 
 
+class Viewer:
+    """A solved run opened once for many views (a walkthrough's frames): its elements, an
+    Embree scene of them, the method's opened solution (methods' open_views: for the
+    hierarchical method the links, node table and solution's node means) and the run's
+    exposure. `image` renders a camera without writing files; `render` writes a view folder
+    as render_view does. What was opened is read-only: one Viewer serves any number of
+    cameras, with the same images as separate render_view calls."""
+
+    def __init__(self, run_dir: str, settings=None):
+        from radiosity.settings import resolve
+
+        t0 = time.perf_counter()
+        self.run_dir = run_dir
+        self.settings = s = resolve(base=settings)
+        self.store = rs = RunStore(run_dir)
+        if not rs.has("solution"):
+            raise RadiosityError(f"{run_dir} has no solution yet: run radiosity render (or solve) "
+                                 "first")
+        self.method = method_of_run(rs)
+        self.elements = el = rs.load_elements()
+        self.epsilon = float(s.rays.epsilon)
+        self.caster = RayCaster(el.verts, el.nverts, self.epsilon)
+        self.two_sided = np.asarray(el.two_sided, bool)
+        self.source = self.method.open_views(rs, s)
+        # the run's own exposure, so that views of one run compare
+        self.exposure = _report(run_dir).get("render", {}).get("exposure")
+        self.time_open_s = round(time.perf_counter() - t0, 4)
+
+    def image(self, camera: Camera, samples: int = VIEW_SAMPLES) -> tuple[np.ndarray, dict]:
+        """The image (H, W, 3) float64 linear radiance of `camera` (samples x samples rays a
+        pixel, box-averaged) and its figures; no files written."""
+        t0 = time.perf_counter()
+        el = self.elements
+        orig, pts, pixel = hit_points(el, camera, samples, self.epsilon, self.caster)
+        hit = orig >= 0
+        o = np.maximum(orig, 0)
+        side = (np.einsum("ij,ij->i", el.normal[o], camera.center[None, :] - pts) <= 0.0
+                ).astype(np.int64)
+        t_rays = time.perf_counter() - t0
+        footprint = pixel_footprints(camera, pts, el.normal[o])
+        L, gathered = self.source.radiance_at(pts, np.where(hit, orig, -1), side, pixel,
+                                              footprint)
+        back = hit & (side == 1) & ~self.two_sided[o]
+        L[back | ~hit] = 0.0
+        img = L.reshape(camera.height, camera.width, samples * samples, 3).mean(axis=2)
+        figures = {"camera": camera.to_dict(), "samples_per_pixel": samples * samples,
+                   "method": self.method.name, "rays": int(len(orig)),
+                   "hit_fraction": float(hit.mean()),
+                   "mean_radiance": img.reshape(-1, 3).mean(0).tolist(),
+                   "time_rays_s": round(t_rays, 4), "gather": gathered,
+                   "time_s": round(time.perf_counter() - t0, 4)}
+        return img, figures
+
+    def render(self, camera: Camera, name: str | None = None, samples: int = VIEW_SAMPLES,
+               exposure: float | None = None) -> View:
+        """The view of `camera` into RUN/views/NAME/ (image.exr, image.png, view.json) and the
+        run's report.json "views" section; exposure None: the run's."""
+        t0 = time.perf_counter()
+        run_dir = self.run_dir
+        folder = os.path.join(run_dir, "views", view_name(name, run_dir))
+        os.makedirs(folder, exist_ok=True)
+        img, figures = self.image(camera, samples)
+        if exposure is None:
+            exposure = self.exposure
+        write_exr(os.path.join(folder, "image.exr"), img.astype(np.float32))
+        write_png(os.path.join(folder, "image.png"), tonemap(img, exposure))
+        figures = {**figures, "exposure": exposure,
+                   "time_s": round(time.perf_counter() - t0, 4)}
+        with open(os.path.join(folder, "view.json"), "w") as f:
+            json.dump(figures, f, indent=1)
+        update_report(run_dir, "views", {os.path.basename(folder): {
+            k: figures[k] for k in ("time_s", "rays", "mean_radiance")}})
+        return View(folder, img, figures)
+
+
 def render_view(run_dir: str, camera: Camera, name: str | None = None, settings=None,
                 samples: int = VIEW_SAMPLES, exposure: float | None = None) -> View:
-    """The image of `camera` from the solved run in `run_dir`, into RUN/views/NAME/."""
-    from radiosity.settings import resolve
-
-    s = resolve(base=settings)
+    """The image of `camera` from the solved run in `run_dir`, into RUN/views/NAME/ (a Viewer
+    opened for this one view; open a Viewer for many)."""
     t0 = time.perf_counter()
-    rs = RunStore(run_dir)
-    if not rs.has("solution"):
-        raise RadiosityError(f"{run_dir} has no solution yet: run radiosity render (or solve) first")
-    method = method_of_run(rs)
-    el = rs.load_elements()
-    folder = os.path.join(run_dir, "views", view_name(name, run_dir))
-    os.makedirs(folder, exist_ok=True)
-    orig, pts, pixel = hit_points(el, camera, samples, float(s.rays.epsilon))
-    hit = orig >= 0
-    o = np.maximum(orig, 0)
-    side = (np.einsum("ij,ij->i", el.normal[o], camera.center[None, :] - pts) <= 0.0).astype(np.int64)
-    t_rays = time.perf_counter() - t0
-    footprint = pixel_footprints(camera, pts, el.normal[o])
-    L, gathered = method.radiance_at(rs, s, pts, np.where(hit, orig, -1), side, pixel, footprint)
-    back = hit & (side == 1) & ~np.asarray(el.two_sided, bool)[o]
-    L[back | ~hit] = 0.0
-    img = L.reshape(camera.height, camera.width, samples * samples, 3).mean(axis=2)
-    if exposure is None:  # the run's own exposure, so that views of one run compare
-        rep = _report(run_dir)
-        exposure = rep.get("render", {}).get("exposure")
-    write_exr(os.path.join(folder, "image.exr"), img.astype(np.float32))
-    write_png(os.path.join(folder, "image.png"), tonemap(img, exposure))
-    figures = {"camera": camera.to_dict(), "samples_per_pixel": samples * samples,
-               "method": method.name, "rays": int(len(orig)), "hit_fraction": float(hit.mean()),
-               "mean_radiance": img.reshape(-1, 3).mean(0).tolist(), "exposure": exposure,
-               "time_rays_s": round(t_rays, 4), "gather": gathered,
-               "time_s": round(time.perf_counter() - t0, 4)}
-    with open(os.path.join(folder, "view.json"), "w") as f:
-        json.dump(figures, f, indent=1)
-    update_report(run_dir, "views", {os.path.basename(folder): {
-        k: figures[k] for k in ("time_s", "rays", "mean_radiance")}})
-    return View(folder, img, figures)
+    v = Viewer(run_dir, settings).render(camera, name, samples, exposure)
+    v.figures["time_s"] = round(time.perf_counter() - t0, 4)  # the opening included, as before
+    with open(os.path.join(v.out, "view.json"), "w") as f:
+        json.dump(v.figures, f, indent=1)
+    return v
 
 
 def _report(run_dir: str) -> dict:

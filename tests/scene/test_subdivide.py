@@ -140,8 +140,14 @@ def test_scale_invariance(factor):
 
 
 def test_parallel_partition_equals_sequential(client, tmp_path):
+    from radiosity.scene.hidden import subdivide_scene_hidden
+    from radiosity.settings import resolve
+
     sc = load_scene(scene_path("cornell-box"), resolution=64)
-    seq, raster, pts, _ = subdivide_scene(sc.elements, sc.camera, 2)
+    s = resolve().subdivide  # with the default rule for hidden sub-elements (scene/hidden.py)
+    seq, raster, pts, fig = subdivide_scene_hidden(sc.elements, sc.camera, s.hidden_factor,
+                                                   s.unseen_budget, s.hidden_rays, 2)
+    assert s.hidden == "refine" and fig["hidden"]["split"] > 0
     fig = preprocess(sc, str(tmp_path / "run"), client, subpixel=2, subscenes=5, progress=False)
     assert fig["subscene_tasks"] == 5
     st_ = RunStore(str(tmp_path / "run"))

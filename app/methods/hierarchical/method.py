@@ -104,6 +104,13 @@ class HierarchicalMethod:
 
         return radiance_at(rs, settings, pts, porig, side, pixel, footprint)
 
+    def open_views(self, rs, settings):
+        """The run's links opened once for many views (views.PointGather): its
+        radiance_at(pts, porig, side, pixel, footprint) is radiance_at's, without the opening."""
+        from radiosity.methods.hierarchical.views import PointGather
+
+        return PointGather(rs, settings)
+
     def kept(self, rs) -> str | None:
         from radiosity.methods.hierarchical.store import LinkStore
 

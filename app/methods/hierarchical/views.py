@@ -4,6 +4,9 @@ and the leaf's ancestors, with the exact point-to-polygon form factor from the p
 exact final gather of passes.final_gather, at points instead of leaf centroids). A region the
 first camera left coarse thus gets the light that reaches each of its points, not its leaf's
 mean: no re-solve, no new links; cluster links add their leaves' uniform share as in the solve.
+The points gathered at are the nodes of a lattice on each original's plane (about
+LATTICE_PIXELS pixels apart, dyadic levels that nest), interpolated bilinearly at the view's
+points: a PointGather keeps them, so the frames of a walkthrough gather each node once.
 """
 
 from __future__ import annotations
@@ -41,17 +44,24 @@ def _inside(p, V, nv, n) -> bool:
 def locate_leaves(pts, porig, noff, child, verts, nverts, normal, node_leaf, out):
     """out[i] = the leaf (M-index) of the union tree holding point i on original porig[i]: down
     from the original's root, into the child whose polygon holds the point (the other child
-    when neither holds it within tolerance: points on a split line)."""
+    when neither holds it within tolerance: points on a split line). A point that the previous
+    point's leaf holds takes that leaf without the descent (a pixel's rays, a lattice's
+    neighbouring nodes: most of them)."""
+    last, last_o = -1, -1
     for i in range(pts.shape[0]):
         o = porig[i]
         if o < 0:
             out[i] = -1
+            continue
+        if o == last_o and _inside(pts[i], verts[last], nverts[last], normal[o]):
+            out[i] = node_leaf[last]
             continue
         t = noff[o]
         while child[t, 0] >= 0:
             c0 = child[t, 0]
             t = c0 if _inside(pts[i], verts[c0], nverts[c0], normal[o]) else child[t, 1]
         out[i] = node_leaf[t]
+        last, last_o = t, o
 
 
 @numba.njit(cache=True, nogil=True)
@@ -107,17 +117,26 @@ def point_pairs(ends, origs, nodes, geo, pts, pside, lptr, far, fill, I, E, F):
 
 
 @numba.njit(cache=True, nogil=True)
-def visibility_queries(pts, I, E, sn, verts, nverts, node_center, P, Q, owner):
+def visibility_queries(pts, I, E, sn, verts, nverts, node_center, P, Q, owner, far=np.inf,
+                       node_area=np.zeros(0)):
     """Segments from each pair's point to up to 4 points of its source (halfway from the
-    source's centroid to its vertices): P, Q (R, 3) filled, owner (R,) the pair. Returns R."""
+    source's centroid to its vertices), or to its centroid alone where the source is beyond
+    `far` times its size (sqrt of node_area) from the point: P, Q (R, 3) filled, owner (R,)
+    the pair. Returns R."""
     R = 0
+    far2 = far * far
     for j in range(I.shape[0]):
         s = sn[E[j]]
         c = node_center[s]
-        for a in range(min(nverts[s], 4)):
+        x = pts[I[j]]
+        one = False
+        if far2 < np.inf:
+            d2 = (c[0] - x[0]) ** 2 + (c[1] - x[1]) ** 2 + (c[2] - x[2]) ** 2
+            one = d2 > far2 * node_area[s]
+        for a in range(1 if one else min(nverts[s], 4)):
             for d in range(3):
-                P[R, d] = pts[I[j], d]
-                Q[R, d] = c[d] + 0.5 * (verts[s, a, d] - c[d])
+                P[R, d] = x[d]
+                Q[R, d] = c[d] if one else c[d] + 0.5 * (verts[s, a, d] - c[d])
             owner[R] = j
             R += 1
     return R
@@ -146,6 +165,19 @@ ORIGINALS_PER_BATCH = 64
 #: A leaf is gathered at the view's points when its area exceeds this many pixel footprints
 #: there (the camera-driven rule refines each seen leaf to at most one pixel of its camera).
 COARSE_FOOTPRINTS = 2.0
+#: Points in coarse leaves take their radiance from a lattice on their original, gathered at
+#: its nodes and interpolated bilinearly, with nodes about this many pixels apart (the
+#: dyadic level whose spacing is at most LATTICE_PIXELS times the pixel's footprint side);
+#: 0: one gather per (pixel, leaf), at the mean of its points. Lattice nodes are the same for
+#: every view (nested levels), so the frames of a walkthrough reuse them: Lattice.
+#: MEASURED: see docs/src/how-to/views.md (bench_views.py).
+LATTICE_PIXELS = 2.0
+#: Beyond this many times a source's size a point's visibility of a link not proven visible
+#: is one ray to the source's centroid instead of 4 (inf: always 4).
+#: MEASURED: see docs/src/how-to/views.md (bench_views.py).
+RAY_FAR = 6.0
+#: Finest lattice level (2^LEVELS nodes along an original's longer side).
+LEVELS = 18
 
 
 def radiance_at(rs, settings, pts: np.ndarray, porig: np.ndarray, side: np.ndarray,
@@ -160,10 +192,11 @@ class PointGather:
     """A solved run's links opened once for gathers at the points of many views (a
     walkthrough's frames; stages/views.Viewer): the link operator's inputs, the node means of
     the solution (pulled once), the directed link ends, the cluster links' share per leaf
-    (point-independent: computed once) and the occlusion caster. Read-only after __init__;
-    radiance_at may run from several threads."""
+    (point-independent: computed once), the occlusion caster, and the Lattice of nodes
+    gathered so far (radiance_at adds to it: one caller at a time)."""
 
-    def __init__(self, rs, settings):
+    def __init__(self, rs, settings, lattice_pixels: float = LATTICE_PIXELS,
+                 ray_far: float = RAY_FAR):
         import time
 
         from radiosity.methods.hierarchical.passes import pull, push
@@ -205,6 +238,9 @@ class PointGather:
             rc = np.zeros_like(L[:, :1])
             push(np.ascontiguousarray(Gn[:, :1]), inp.parent, inp.leaf_node, np.zeros(0), rc)
             self.rc = rc[:, 0, :]
+        self.lattice_pixels = float(lattice_pixels)
+        self.ray_far = float(ray_far)
+        self.lattice = Lattice(inp.verts[inp.noff[:-1]], inp.nverts[inp.noff[:-1]], inp.normal)
         self.time_open_s = round(time.perf_counter() - t0, 4)
 
     def radiance_at(self, pts: np.ndarray, porig: np.ndarray, side: np.ndarray,
@@ -237,20 +273,39 @@ class PointGather:
         coarse = ok & ((inp.leaf_area[lf] > COARSE_FOOTPRINTS * footprint) | ~self.leaf_seen[lf])
         flat = ok & ~coarse
         out[flat] = self.radiance[self.table["leaf_sub"][leaf[flat]], side[flat]]
-        # coarse leaves: one gather per (pixel, leaf, side), at the mean of its points
         idx = np.nonzero(coarse)[0]
-        key = (np.asarray(pixel, np.int64)[idx] * M + leaf[idx]) * 2 + side[idx]
-        uk, inv = np.unique(key, return_inverse=True)
-        G = len(uk)
-        P = np.zeros((G, 3))
-        np.add.at(P, inv, pts[idx])
-        P /= np.bincount(inv, minlength=G)[:, None]
-        evals = rays = 0
-        if G:
+        evals = rays = G = reused = 0
+        if len(idx) and self.lattice_pixels > 0:
+            # coarse leaves: the lattice nodes around each point, gathered once (for every view
+            # of this PointGather), interpolated bilinearly
+            o, sd = np.asarray(porig, np.int64)[idx], side[idx]
+            keys, w = self.lattice.corners(pts[idx], o, sd,
+                                           self.lattice_pixels * np.sqrt(footprint[idx]))
+            uk, inv = np.unique(keys.ravel(), return_inverse=True)
+            have = self.lattice.find(uk)
+            new = np.nonzero(have < 0)[0]
+            G, reused = len(new), len(uk) - len(new)
+            if G:
+                P, no, ns = self.lattice.nodes(uk[new])
+                nl = np.empty(G, np.int64)
+                locate_leaves(P, no, inp.noff, inp.child, inp.verts, inp.nverts, inp.normal,
+                              inp.node_leaf, nl)
+                val, evals, rays = self.gather(P, nl, ns)
+                self.lattice.add(uk[new], val)
+            vals = self.lattice.values(uk)[inv].reshape(len(idx), 4, 3)
+            out[idx] = np.einsum("kc,kcj->kj", w, vals)
+        elif len(idx):
+            # one gather per (pixel, leaf, side), at the mean of its points
+            key = (np.asarray(pixel, np.int64)[idx] * M + leaf[idx]) * 2 + side[idx]
+            uk, inv = np.unique(key, return_inverse=True)
+            G = len(uk)
+            P = np.zeros((G, 3))
+            np.add.at(P, inv, pts[idx])
+            P /= np.bincount(inv, minlength=G)[:, None]
             val, evals, rays = self.gather(P, (uk // 2) % M, uk % 2)
             out[idx] = val[inv]
-        return out, {"points": K, "gathered_points": int(G), "coarse_samples": int(len(idx)),
-                     "evaluations": evals, "rays": int(rays),
+        return out, {"points": K, "gathered_points": int(G), "reused_points": int(reused),
+                     "coarse_samples": int(len(idx)), "evaluations": evals, "rays": int(rays),
                      "time_s": round(time.perf_counter() - t0, 4)}
 
     def gather(self, P: np.ndarray, gleaf: np.ndarray, gside: np.ndarray):
@@ -283,7 +338,7 @@ class PointGather:
                 P_, Q_ = np.empty((4 * len(partial), 3)), np.empty((4 * len(partial), 3))
                 own = np.empty(4 * len(partial), np.int64)
                 R = visibility_queries(Po, I[partial], E[partial], ends.sn, inp.verts, inp.nverts,
-                                       inp.node_center, P_, Q_, own)
+                                       inp.node_center, P_, Q_, own, self.ray_far, inp.node_area)
                 own = own[:R]
                 blocked = caster.occluded(P_[:R], Q_[:R], pside_orig[I[partial]][own],
                                           inp.orig[ends.sn[E[partial]]][own])
@@ -308,3 +363,122 @@ class PointGather:
         val = np.zeros((G, 3))
         val[order] = self.el.emission[o, So] + self.el.reflectance[o, So] * y
         return val, evals, rays
+
+
+class Lattice:
+    """Dyadic lattices on the originals' planes and the radiance gathered at their nodes. On
+    original o (local axes e1 along its first edge, e2 = n x e1, origin at the corner of its
+    bounding rectangle, side h0 the rectangle's longer side) level L has nodes at
+    (i, j) h0 / 2^L, i, j = 0 .. 2^L; a node is keyed by its place on the finest level, so
+    levels nest and every view finds the nodes earlier views gathered. Key bits (int64, most
+    significant first): original * 2 + side, then i and j at level LEVELS (`bits` each).
+    Nodes outside the original's polygon are gathered at the nearest point inside it."""
+
+    def __init__(self, verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray):
+        n = len(verts)
+        e1 = verts[:, 1] - verts[:, 0]
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(normal, e1)
+        e2 /= np.linalg.norm(e2, axis=1, keepdims=True)
+        mask = np.arange(verts.shape[1])[None, :] < nverts[:, None]
+        u = np.einsum("nkd,nd->nk", verts, e1)
+        v = np.einsum("nkd,nd->nk", verts, e2)
+        big = np.where(mask, 0.0, np.inf)
+        u0, v0 = np.min(u + big, axis=1), np.min(v + big, axis=1)
+        self.h0 = np.maximum(np.max(u - big, axis=1) - u0, np.max(v - big, axis=1) - v0)
+        self.origin = u0[:, None] * e1 + v0[:, None] * e2 + (
+            np.einsum("nd,nd->n", verts[:, 0], normal)[:, None] * normal)
+        self.e1, self.e2, self.normal = e1, e2, normal
+        # the polygons in lattice units (0..1 along h0), for clamping nodes into them
+        self.poly = np.stack([(u - u0[:, None]), (v - v0[:, None])], -1) / self.h0[:, None, None]
+        self.nverts = np.asarray(nverts, np.int64)
+        self.bits = min(LEVELS + 1, (62 - int(2 * n).bit_length()) // 2)
+        self.levels = self.bits - 1
+        self.keys = np.zeros(0, np.int64)
+        self.vals = np.zeros((0, 3))
+
+    def corners(self, pts: np.ndarray, orig: np.ndarray, side: np.ndarray, spacing: np.ndarray):
+        """Keys (K, 4) int64 of the lattice nodes around points pts (K, 3) on originals
+        `orig` (K,), sides `side` (K,), on the coarsest level whose node spacing is at most
+        `spacing` (K,) (world units), and their bilinear weights (K, 4) float64."""
+        d = pts - self.origin[orig]
+        h0 = self.h0[orig]
+        u = np.einsum("kd,kd->k", d, self.e1[orig]) / h0
+        v = np.einsum("kd,kd->k", d, self.e2[orig]) / h0
+        with np.errstate(divide="ignore"):
+            lev = np.ceil(np.log2(h0 / np.maximum(spacing, 1e-300)))
+        lev = np.clip(lev, 0, self.levels).astype(np.int64)
+        n = (1 << lev).astype(np.float64)
+        x, y = np.clip(u, 0.0, 1.0) * n, np.clip(v, 0.0, 1.0) * n
+        ci = np.minimum(np.floor(x), n - 1)
+        cj = np.minimum(np.floor(y), n - 1)
+        fx, fy = x - ci, y - cj
+        shift = self.levels - lev
+        i0, j0 = ci.astype(np.int64) << shift, cj.astype(np.int64) << shift
+        step = np.int64(1) << shift
+        head = ((orig.astype(np.int64) * 2 + side) << (2 * self.bits))
+        keys = np.stack([head | (i0 << self.bits) | j0,
+                         head | ((i0 + step) << self.bits) | j0,
+                         head | (i0 << self.bits) | (j0 + step),
+                         head | ((i0 + step) << self.bits) | (j0 + step)], 1)
+        w = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
+        return keys, w
+
+    def nodes(self, keys: np.ndarray):
+        """The gather points (G, 3) of nodes `keys` (G,) (clamped into their original's
+        polygon), their originals (G,) and sides (G,)."""
+        mask = (np.int64(1) << self.bits) - 1
+        j = (keys & mask).astype(np.float64) / (1 << self.levels)
+        i = ((keys >> self.bits) & mask).astype(np.float64) / (1 << self.levels)
+        head = keys >> (2 * self.bits)
+        o, sd = head // 2, head % 2
+        q = clamp_into(np.stack([i, j], 1), self.poly[o], self.nverts[o])
+        h0 = self.h0[o][:, None]
+        P = self.origin[o] + h0 * (q[:, :1] * self.e1[o] + q[:, 1:] * self.e2[o])
+        return np.ascontiguousarray(P), o, sd
+
+    def find(self, keys: np.ndarray) -> np.ndarray:
+        """Index of each of `keys` (sorted, unique) among the gathered nodes, -1 where none."""
+        if not len(self.keys):
+            return np.full(len(keys), -1, np.int64)
+        at = np.minimum(np.searchsorted(self.keys, keys), len(self.keys) - 1)
+        return np.where(self.keys[at] == keys, at, -1)
+
+    def add(self, keys: np.ndarray, vals: np.ndarray) -> None:
+        """Nodes `keys` (G,) not yet held, with their radiance vals (G, 3)."""
+        k = np.concatenate([self.keys, keys])
+        order = np.argsort(k, kind="stable")
+        self.keys = k[order]
+        self.vals = np.concatenate([self.vals, vals])[order]
+
+    def values(self, keys: np.ndarray) -> np.ndarray:
+        """Radiance (G, 3) of held nodes `keys` (G,)."""
+        return self.vals[np.searchsorted(self.keys, keys)]
+
+
+def clamp_into(q: np.ndarray, poly: np.ndarray, nverts: np.ndarray,
+               inset: float = 1e-6) -> np.ndarray:
+    """Points q (G, 2) moved to the nearest point of their convex polygons poly (G, V, 2)
+    (nverts (G,) corners, either orientation) where outside, then `inset` (polygon units)
+    towards the polygon's centroid so that they lie strictly inside. (G, 2) float64."""
+    G, V = poly.shape[:2]
+    k = np.arange(V)[None, :]
+    valid = k < nverts[:, None]
+    nxt = np.where(k + 1 < nverts[:, None], k + 1, 0)
+    a = poly
+    b = np.take_along_axis(poly, nxt[..., None], 1)
+    e = b - a
+    cross = e[..., 0] * (q[:, None, 1] - a[..., 1]) - e[..., 1] * (q[:, None, 0] - a[..., 0])
+    area = np.sum(np.where(valid, a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], 0.0), axis=1)
+    sgn = np.where(area >= 0, 1.0, -1.0)[:, None]
+    inside = np.all(~valid | (sgn * cross >= 0), axis=1)
+    t = np.clip(np.einsum("gvd,gvd->gv", q[:, None, :] - a, e)
+                / np.maximum(np.einsum("gvd,gvd->gv", e, e), 1e-300), 0.0, 1.0)
+    near = a + t[..., None] * e
+    d2 = np.where(valid, np.sum((near - q[:, None, :]) ** 2, -1), np.inf)
+    best = np.take_along_axis(near, np.argmin(d2, 1)[:, None, None], 1)[:, 0]
+    out = np.where(inside[:, None], q, best)
+    c = np.sum(np.where(valid[..., None], poly, 0.0), 1) / nverts[:, None]
+    step = c - out
+    dist = np.linalg.norm(step, axis=1, keepdims=True)
+    return out + np.where(dist > inset, inset / np.maximum(dist, 1e-300), 1.0) * step

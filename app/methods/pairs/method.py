@@ -91,13 +91,28 @@ class PairsMethod:
         """Radiance (K, 3) leaving points on originals `porig`, side `side`: the stored radiance
         of the sub-element holding each point (the pairs method keeps no links to gather
         over), and the figures."""
+        return self.open_views(rs, settings).radiance_at(pts, porig, side, pixel, footprint)
+
+    def open_views(self, rs, settings):
+        """The run's partition and solution opened once for many views (SubElementLookup)."""
+        return SubElementLookup(rs.load_partition(), rs.read_arrays("solution")["radiance"])
+
+
+class SubElementLookup:
+    """A pairs run opened for views: the stored radiance of the sub-element holding a point."""
+
+    def __init__(self, partition, radiance: np.ndarray):
+        self.partition, self.radiance = partition, radiance
+
+    def radiance_at(self, pts, porig, side, pixel, footprint):
+        """Radiance (K, 3) leaving points `pts` (K, 3) on originals `porig`, side `side`, and
+        the figures (pixel and footprint are not needed: there are no links to gather over)."""
         from radiosity.scene.subdivide import lookup
 
-        sub = lookup(rs.load_partition(), pts, np.asarray(porig, np.int32))
-        radiance = rs.read_arrays("solution")["radiance"]
+        sub = lookup(self.partition, pts, np.asarray(porig, np.int32))
         out = np.zeros((len(pts), 3))
         ok = sub >= 0
-        out[ok] = radiance[sub[ok], np.asarray(side)[ok]]
+        out[ok] = self.radiance[sub[ok], np.asarray(side)[ok]]
         return out, {"points": int(len(pts)), "evaluations": 0, "lookup": "sub-element"}
 
 

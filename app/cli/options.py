@@ -236,3 +236,16 @@ def force_option(fn):
     return click.option("--force", is_flag=True,
                         help="Write into OUT even when it is a non-empty folder that is not a "
                              "run directory (its files of the same names are replaced).")(fn)
+
+
+def _client(workers, scheduler, cluster_kind, st=None, samples: int | None = None, **kw):
+    """open_client with the cluster flags (adaptive, tls, batch-job options); with the settings
+    `st`, a local cluster's workers are threads or processes by radiosity.cluster.processes
+    for a scene of `samples` camera samples (runtime/cluster.local_mode)."""
+    from radiosity.runtime.cluster import local_mode, open_client
+
+    if st is not None:
+        kw["in_process"], kw["where"] = local_mode(st.cluster.processes, samples,
+                                                   st.cluster.in_process_samples)
+    return open_client(workers, scheduler, cluster_kind, echo=click.echo,
+                       **{**cluster_from_flags(), **kw})

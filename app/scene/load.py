@@ -19,8 +19,8 @@ from radiosity.core.geometry import polygon_properties
 from radiosity.core.bundles import Camera, Elements, Scene
 from radiosity.scene.orientation import orient_polygons
 from radiosity.scene.meshes import (MAX_COORD, MESH_FORMATS, RawMesh, SceneWarning, _warn,
-                                    load_mesh, load_obj, load_trimesh, merge_parallelograms,
-                                    polygons_from_raw)
+                                    load_obj, merge_parallelograms, polygons_from_raw)
+from radiosity.scene.trimeshes import load_mesh, load_trimesh
 from radiosity.scene.meshscene import (DEFAULT_RESOLUTION, DOCS as MESH_DOCS, camera_toml,
                                        default_camera, is_mesh_path, require_emitter)
 from radiosity.settings import Settings, resolve
@@ -71,6 +71,22 @@ def _pixels(v) -> int:
     if isinstance(v, (int, np.integer)):
         return int(v)
     raise TypeError
+
+
+def read_toml(path: str, what: str = "", error=SceneError,
+              unreadable: str = "{name}: {why}") -> dict:
+    """The TOML document at `path`, or one line (`error`) naming the file (after `what`, e.g.
+    the flag that gave it) and what is wrong with it."""
+    name = f"{what} {path}" if what else path
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except tomllib.TOMLDecodeError as e:
+        raise error(f"{name}: not valid TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise error(f"{name}: not valid TOML: not UTF-8 text (byte {e.start})") from None
+    except OSError as e:
+        raise error(unreadable.format(name=name, path=path, why=e.strerror)) from None
 
 
 def parse_resolution(val, where: str) -> tuple[int, int]:
@@ -188,15 +204,7 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
         stem, _ = os.path.splitext(os.path.basename(path))
         doc = {"name": stem, "mesh": [{"path": os.path.basename(path)}]}
     else:
-        try:
-            with open(path, "rb") as f:
-                doc = tomllib.load(f)
-        except tomllib.TOMLDecodeError as e:
-            raise SceneError(f"{path}: not valid TOML: {e}") from None
-        except UnicodeDecodeError as e:
-            raise SceneError(f"{path}: not valid TOML: not UTF-8 text (byte {e.start})") from None
-        except OSError as e:
-            raise SceneError(f"cannot read scene file {path}: {e.strerror}") from None
+        doc = read_toml(path, unreadable="cannot read scene file {path}: {why}")
     unknown = set(doc) - _TOP_KEYS
     if unknown:
         raise SceneError(f"{path}: unknown key(s) {sorted(unknown)}; a scene file has {sorted(_TOP_KEYS)}")

@@ -21,7 +21,7 @@ from radiosity.methods.base import method_of_run
 from radiosity.runtime.store import RunStore, update_report
 from radiosity.stages.pixels import (area_offsets, sample_directions, tonemap, write_exr,
                                      write_png)
-from radiosity.tracing.rays import RayCaster, raster_band
+from radiosity.tracing.rays import RayCaster
 
 #: Rays per pixel side of a view (K x K per pixel on the image stage's sheared lattice,
 #: box-averaged: the render.area-samples default).
@@ -44,19 +44,11 @@ def view_camera(run_camera: Camera, path: str | None = None, position=None, look
     """The camera of a new view: the [camera] table of the TOML file `path` (a scene file or a
     file with only that table), then the look-at values given (position, look_at, up, fov_y:
     each replaces the file's), at `resolution` (default: the file's, else the run's)."""
-    import tomllib
-
-    from radiosity.scene.load import parse_camera
+    from radiosity.scene.load import parse_camera, read_toml
 
     cam, where = {}, "the view options"
     if path is not None:
-        try:
-            with open(path, "rb") as f:
-                data = tomllib.load(f)
-        except OSError as e:
-            raise RadiosityError(f"--camera {path}: {e.strerror}") from None
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-            raise RadiosityError(f"--camera {path}: not valid TOML: {e}") from None
+        data = read_toml(path, "--camera", RadiosityError)
         cam = data.get("camera")
         if not isinstance(cam, dict):
             raise RadiosityError(f"--camera {path}: no [camera] table (position, look_at, fov_y)")

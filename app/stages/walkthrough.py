@@ -15,7 +15,6 @@ import json
 import math
 import os
 import time
-import tomllib
 from dataclasses import dataclass
 
 import numpy as np
@@ -140,13 +139,9 @@ def load_path(fn: str, overrides: dict | None = None) -> CameraPath:
 
     `overrides` replace top-level keys (the command's --frames, --fps, --resolution).
     Raises PathError naming the file and the key."""
-    try:
-        with open(fn, "rb") as f:
-            data = tomllib.load(f)
-    except OSError as e:
-        raise PathError(f"--path {fn}: {e.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise PathError(f"--path {fn}: not valid TOML: {e}") from None
+    from radiosity.scene.load import read_toml
+
+    data = read_toml(fn, "--path", PathError)
     return parse_path({**data, **(overrides or {})}, fn)
 
 

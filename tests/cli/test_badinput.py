@@ -132,7 +132,7 @@ def test_force_writes_into_a_folder_of_the_users(tmp_path):
 
 def test_a_study_folder_is_written_again_without_force(tmp_path):
     """A study's own folder (its summary, or run directories in runs/) is not the user's."""
-    from radiosity.cli.commands import _check_study_out
+    from radiosity.cli.studies import _check_study_out
 
     d = tmp_path / "study"
     (d / "runs" / "r8-kpoint").mkdir(parents=True)

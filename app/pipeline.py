@@ -11,7 +11,7 @@ import os
 import shutil
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -56,9 +56,13 @@ class RenderFigures(StageFigures):
                       f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"
                       + ("" if sol.get("converged", True) else f", NOT converged: solution "
                          f"{sol.get('solution', 'written')}")),
+            *([("views", f"{len(st['views'])} more camera(s): "
+                         + ", ".join(f"views/{n}/image.png" for n in st["views"]))]
+              if st.get("views") else []),
             ("times", f"preprocess {st['preprocess_s']:.1f} s, visibility {st['visibility_s']:.1f} s, "
                       f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, "
-                      f"total {st['total_s']:.1f} s"),
+                      + (f"views {st['views_s']:.1f} s, " if "views_s" in st else "")
+                      + f"total {st['total_s']:.1f} s"),
             *light_rows(self.report.get("light"))]  # per material: lux, cd/m^2 (tables.py)
 
 
@@ -152,6 +156,7 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
             at = rs.attrs
             reuse = (at.get("scene") == scene.path and at.get("scene_digest") == digest
                      and at.get("camera") == scene.camera.to_dict()
+                     and at.get("views", {}) == {n: c.to_dict() for n, c in scene.views}
                      and at.get("subpixel") == int(s.subdivide.subpixel) and rs.has("raster"))
         except Exception:
             reuse = False
@@ -194,6 +199,15 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
     t = time.perf_counter()
     fig = render_outputs(out, filter=filter, sigma=sigma, exposure=exposure, settings=s)
     stages["image_s"] = time.perf_counter() - t
+    if scene.views:  # the other cameras: views of the one solution (stages/views.py)
+        from radiosity.stages.views import Viewer
+
+        t = time.perf_counter()
+        viewer = Viewer(out, s)
+        for name, cam in scene.views:
+            viewer.render(cam, name, exposure=fig.exposure)
+        stages["views"] = [name for name, _ in scene.views]
+        stages["views_s"] = time.perf_counter() - t
     if preview:
         t = time.perf_counter()
         stages["preview"] = render_preview(scene, out, client, s, exposure=fig.exposure)
@@ -228,7 +242,8 @@ def render_preview(scene: Scene, out: str, client, settings=None, exposure=None)
 class Rendered:
     """What `render` gives back: the run directory (None when it was temporary), the image as
     linear radiance (H, W, 3) and in sRGB (H, W, 3) uint8, the figures of every stage, the
-    report (report.json) as a dict, and for a mesh file the camera the loader chose."""
+    report (report.json) as a dict, for a mesh file the camera the loader chose, and the image
+    (linear radiance) of each of the scene's other cameras by name ([[camera]] entries)."""
 
     out: str | None
     image: np.ndarray
@@ -236,6 +251,7 @@ class Rendered:
     figures: RenderFigures
     report: dict
     chosen: str = ""  # what the loader chose for a mesh file: its camera, as a [camera] table
+    views: dict = field(default_factory=dict)  # name -> (H, W, 3) linear radiance
 
     def summary(self) -> str:
         """The table the CLI prints."""
@@ -296,4 +312,5 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
         fig = render_scene(sc, run, client, st, progress=progress, echo=say, **options)
         image = read_exr(os.path.join(run, "image.exr"))
         srgb = tonemap(image, fig["render"].get("exposure"))
-        return Rendered(out, image, srgb, fig, dict(fig.report), sc.chosen)
+        views = {n: read_exr(os.path.join(run, "views", n, "image.exr")) for n, _ in sc.views}
+        return Rendered(out, image, srgb, fig, dict(fig.report), sc.chosen, views)

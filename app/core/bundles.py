@@ -106,6 +106,14 @@ class Scene:
     camera: Camera
     validation: dict = field(default_factory=dict)  # exact answers of validation scenes
     chosen: str = ""  # what the loader chose where the file said nothing (a mesh file's camera)
+    # more cameras ([[camera]] entries after the first): (name, Camera) pairs; the subdivision
+    # follows every camera, and each gets its image from the one solution (RUN/views/NAME/)
+    views: tuple = ()
+
+    @property
+    def cameras(self) -> tuple:
+        """Every camera: the run's own (`camera`) first, then the named `views`."""
+        return (self.camera, *(c for _, c in self.views))
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import tomllib
 
 import numpy as np
@@ -27,7 +28,8 @@ from radiosity.settings import Settings, resolve
 
 __all__ = ["MAX_COORD", "MAX_RESOLUTION", "MESH_FORMATS", "TINY", "DEFAULT_REFLECTANCE", "RawMesh",
            "SceneWarning", "load_mesh", "load_obj", "load_trimesh", "merge_parallelograms",
-           "polygons_from_raw", "parse_resolution", "parse_camera", "load_scene"]
+           "polygons_from_raw", "parse_resolution", "parse_camera", "parse_cameras",
+           "load_scene"]
 
 #: Largest camera resolution a side (a raster of 65536^2 int32 is 16 GiB already).
 MAX_RESOLUTION = 65536
@@ -112,6 +114,29 @@ def parse_resolution(val, where: str) -> tuple[int, int]:
     if max(w, h) > MAX_RESOLUTION:
         raise SceneError(f"{where}: resolution {w}x{h} is beyond {MAX_RESOLUTION} pixels a side")
     return w, h
+
+
+def parse_cameras(cams, fn: str, resolution=None) -> tuple[Camera, tuple]:
+    """A scene's cameras: one [camera] table, or [[camera]] entries, each with an optional
+    `name` (letters, digits, - and _; default camera-N). Returns the first camera (the run's
+    own image) and the others as (name, Camera) pairs; `resolution` applies to all of them."""
+    if not isinstance(cams, list):
+        return parse_camera(cams, fn, resolution), ()
+    if not cams:
+        raise SceneError(f"{fn}: [[camera]] has no entries")
+    out, seen = [], set()
+    for i, cam in enumerate(cams):
+        if not isinstance(cam, dict):
+            raise SceneError(f"{fn}: [[camera]] {i + 1} must be a table")
+        name = cam.get("name", f"camera-{i + 1}")
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_\-]+", name):
+            raise SceneError(f"{fn}: [[camera]] {i + 1} name {name!r}: use letters, digits, - and _")
+        if name in seen:
+            raise SceneError(f"{fn}: [[camera]] {i + 1}: the name {name!r} is used twice")
+        seen.add(name)
+        table = {k: v for k, v in cam.items() if k != "name"}
+        out.append((name, parse_camera(table, f"{fn} [[camera]] {name!r}", resolution)))
+    return out[0][1], tuple(out[1:])
 
 
 def parse_camera(cam: dict, fn: str, resolution=None) -> Camera:
@@ -306,7 +331,7 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
         chosen = (f"camera: {os.path.basename(path)} has none, so {why}; to change it, put this "
                   f"in a scene file (see {MESH_DOCS}):\n{camera_toml(table)}")
     else:
-        camera = parse_camera(doc.get("camera"), path, resolution)
+        camera, views = parse_cameras(doc.get("camera"), path, resolution)
     name = doc.get("name", os.path.basename(base))
     validation = doc.get("validation", {})
     unknown = set(validation) - _VALIDATION_KEYS
@@ -318,4 +343,4 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
             raise SceneError(f"{path}: [validation] {k} = {validation[k]!r} is not a material of "
                              f"the scene ({names})")
     return Scene(name=str(name), path=path, elements=elements, camera=camera,
-                 validation=dict(validation), chosen=chosen)
+                 validation=dict(validation), chosen=chosen, views=views if not mesh_scene else ())

@@ -119,12 +119,16 @@ def _toward(v: np.ndarray, seg: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------- the loop
 
 def subdivide(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, points: np.ndarray,
-              point_elem: np.ndarray, max_depth: int = 48, element_ids: np.ndarray | None = None):
+              point_elem: np.ndarray, max_depth: int = 48, element_ids: np.ndarray | None = None,
+              point_group: np.ndarray | None = None):
     """Split elements until no sub-element holds two points (seed §3.2, the basic criterion).
 
     verts (n, 4, 3), nverts (n,), normal (n, 3): the elements of one subscene.
     points (p, 3) float64: hit points of the pixels on these elements; point_elem (p,) int: the
     element (0..n-1) of each point. element_ids (n,): global ids, only for warnings.
+    point_group (p,) int (None: all one): the camera of each point; a sub-element is split while
+    it holds two points of one group, so the partition is the union of each camera's own (the
+    split of a polygon depends on its shape only).
     Returns a Partition whose `orig` is local (0..n-1), and a dict of figures.
     """
     n = len(verts)
@@ -144,9 +148,14 @@ def subdivide(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, points:
     total_nodes = n
     levels = 0
     guarded = np.zeros(0, np.int64)
+    group = None if point_group is None else np.asarray(point_group, np.int64)
+    G = 1 if group is None or not len(group) else int(group.max()) + 1
     while True:
-        counts = np.bincount(pleaf, minlength=len(leaf_node))
-        over = counts > 1
+        if G == 1:
+            over = np.bincount(pleaf, minlength=len(leaf_node)) > 1
+        else:
+            over = (np.bincount(pleaf * G + group, minlength=len(leaf_node) * G)
+                    .reshape(-1, G) > 1).any(axis=1)
         split = over & (leaf_depth < max_depth)
         guarded = np.nonzero(over & ~split)[0]
         if not split.any():

@@ -28,14 +28,19 @@ from radiosity.core.bundles import Scene
 
 @dataclass(frozen=True)
 class RasterInputs:
-    """What every preprocessing task needs (scattered once): the original elements, the camera,
-    the sub-pixel factor, the Embree cache key and the ray epsilon (resolved on the driver)."""
+    """What every preprocessing task needs (scattered once): the original elements, the cameras
+    (the run's own first), the sub-pixel factor, the Embree cache key and the ray epsilon
+    (resolved on the driver)."""
 
     elements: object
-    camera: object
+    cameras: tuple
     subpixel: int
     key: str
     epsilon: float
+
+    @property
+    def camera(self):
+        return self.cameras[0]
 
 
 @dataclass(frozen=True)
@@ -66,6 +71,7 @@ class PreprocessFigures(StageFigures):
     peak_rss_mb: dict
     sub_elements_exact: int | None = None     # seed variant: the exact partition's size
     over_refined_elements: int | None = None  # seed variant: originals split differently
+    cameras: int = 1             # cameras the subdivision followed ([[camera]] entries)
     hidden_mode: str = "keep"    # refine: sub-elements no pixel hits split where seen ones see them
     hidden_split: int = 0        # sub-elements no pixel hits that were split (scene/hidden.py)
     hidden_added: int = 0        # sub-elements that added
@@ -87,16 +93,18 @@ class PreprocessFigures(StageFigures):
 
 # ----------------------------------------------------------------------------- tasks
 
-def task_raster(inp: RasterInputs, r0: int, r1: int):
-    """Camera rays of fine-raster rows r0:r1 against the whole scene -> (orig, points)."""
+def task_raster(inp: RasterInputs, c: int, r0: int, r1: int):
+    """Rays of camera c's fine-raster rows r0:r1 against the whole scene -> (orig, points)."""
     el = inp.elements
     rc = caster_for(inp.key, el.verts, el.nverts, inp.epsilon)
-    return raster_band(rc, el.normal, el.center, inp.camera, inp.subpixel, slice(r0, r1))
+    return raster_band(rc, el.normal, el.center, inp.cameras[c], inp.subpixel, slice(r0, r1))
 
 
-def task_subdivide(verts, nverts, normal, points, point_elem, max_depth, ids):
-    """One subscene: split its elements given the pixels that hit them."""
-    return subdivide(verts, nverts, normal, points, point_elem, max_depth, element_ids=ids)
+def task_subdivide(verts, nverts, normal, points, point_elem, max_depth, ids, group=None):
+    """One subscene: split its elements given the pixels that hit them (group: the camera of
+    each point, None for one camera)."""
+    return subdivide(verts, nverts, normal, points, point_elem, max_depth, element_ids=ids,
+                     point_group=group)
 
 
 def task_seed_subscene(inp: RasterInputs, start, stop, max_depth, rows_per_batch):
@@ -119,14 +127,17 @@ def task_seed_subscene(inp: RasterInputs, start, stop, max_depth, rows_per_batch
 
 # ----------------------------------------------------------------------------- the stage
 
-def subscene_args(el, ranges, points, point_elem, max_depth):
+def subscene_args(el, ranges, points, point_elem, max_depth, group=None):
     """task_subdivide's arguments for each subscene (ranges of original ids): its elements and
-    the points (pixels, unseen and hidden importance points) on them, in local ids."""
+    the points (pixels, unseen and hidden importance points) on them, in local ids, with the
+    camera of each point where there are several (group, None for one)."""
     order = np.argsort(point_elem, kind="stable")
     he, hp = point_elem[order], points[order]
+    hg = None if group is None else np.asarray(group)[order]
     starts = np.searchsorted(he, [a for a, _ in ranges] + [len(el)])
     return [(el.verts[a:b], el.nverts[a:b], el.normal[a:b], hp[starts[i]:starts[i + 1]],
-             he[starts[i]:starts[i + 1]] - a, max_depth, np.arange(a, b))
+             he[starts[i]:starts[i + 1]] - a, max_depth, np.arange(a, b),
+             None if hg is None else hg[starts[i]:starts[i + 1]])
             for i, (a, b) in enumerate(ranges)]
 
 
@@ -134,8 +145,10 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
                variant: str | None = None, subscenes: int | None = None,
                progress: bool = True, settings=None) -> PreprocessFigures:
     """Camera-driven subdivision as Dask tasks; writes elements, partition and raster to the
-    store. settings: a settings.Settings (None: resolved here); the other arguments override
-    its subdivide section."""
+    store. With several cameras (scene.views) each sub-element is small enough for every
+    camera that sees it (the union of each camera's partition); the raster stored is the run's
+    own camera's. settings: a settings.Settings (None: resolved here); the other arguments
+    override its subdivide section."""
     from radiosity.settings import resolve
 
     st = resolve({"subdivide.subpixel": subpixel, "subdivide.variant": variant,
@@ -147,7 +160,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         raise SceneError(f"--subpixel must be 1 or more, got {subpixel}")
     if variant not in ("exact", "seed", "none"):
         raise SceneError(f"unknown subdivision variant {variant!r}: use exact, seed or none")
-    el, cam = scene.elements, scene.camera
+    el, cam, cams = scene.elements, scene.camera, scene.cameras
     threads = sum(client.nthreads().values()) or 1
     ntasks = int(sd.subscenes or 2 * threads)
     window = max(1, int(st.visibility.window_per_worker) * threads)
@@ -158,51 +171,65 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     Monitor(client).stage("preprocess", out, scene.name)
     store = RunStore(out, "w")
     store.save_elements(el)
-    store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(), subpixel=subpixel)
+    store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(), subpixel=subpixel,
+                    views={name: c.to_dict() for name, c in scene.views})
     key = tokenize(el.verts, el.nverts)
-    inp = RasterInputs(el, cam, subpixel, key, float(st.rays.epsilon))
+    inp = RasterInputs(el, tuple(cams), subpixel, key, float(st.rays.epsilon))
     shared = Scattered(client, inp)
     # task keys: deterministic per run directory and inputs (never shared between two runs)
-    token = tokenize(key, cam.to_dict(), subpixel, variant, max_depth, ntasks, rows_per_task,
-                     inp.epsilon, store.path, sd.unseen, sd.unseen_factor, sd.unseen_budget,
+    token = tokenize(key, [c.to_dict() for c in cams], subpixel, variant, max_depth, ntasks,
+                     rows_per_task, inp.epsilon, store.path, sd.unseen, sd.unseen_factor, sd.unseen_budget,
                      sd.hidden, sd.hidden_factor, sd.hidden_rays)
     repair = f"run radiosity preprocess again into {out}"
 
-    # 1. the ID raster of the original scene (row bands), needed by both variants for the image
-    bands = [(r0, min(h, r0 + rows_per_task)) for r0 in range(0, h, rows_per_task)]
-    elem = np.full(h * w, -1, np.int32)
-    pts = np.zeros((h * w, 3))
+    # 1. the ID raster of the original scene (row bands of every camera), needed by both
+    # variants for the image; the other cameras' hit points join the exact variant's split
+    bands, rasters = [], []
+    for c, cm in enumerate(cams):
+        hc, wc = cm.height * subpixel, cm.width * subpixel
+        rpt = max(1, int(sd.rays_per_task) // wc)
+        bands += [(c, r0, min(hc, r0 + rpt)) for r0 in range(0, hc, rpt)]
+        rasters.append((np.full(hc * wc, -1, np.int32), np.zeros((hc * wc, 3)), wc))
 
     def got_band(i, res):
-        a, b = bands[i]
-        elem[a * w:b * w], pts[a * w:b * w] = res
+        c, a, b = bands[i]
+        e_c, p_c, wc = rasters[c]
+        e_c[a * wc:b * wc], p_c[a * wc:b * wc] = res
 
     run_tasks(client, task_raster, range(len(bands)), lambda i: (shared.future(), *bands[i]),
               name="raster", token=token, window=window, retries=retries, on_result=got_band,
               progress=progress, repair=repair)
     t_raster = time.perf_counter() - t0
+    for (e_c, _, _), cm, name in zip(rasters, cams, ("", *(n for n, _ in scene.views))):
+        if not (e_c >= 0).any():
+            raise SceneError(f"{scene.path}: the camera{f' {name!r}' if name else ''} sees no "
+                             f"element (at {cm.center.tolist()}, looking along {cm.z.tolist()}): "
+                             "check [camera]")
+    elem, pts = rasters[0][0], rasters[0][1]
     hit = elem >= 0
-    if not hit.any():
-        raise SceneError(f"{scene.path}: the camera sees no element (at {cam.center.tolist()}, "
-                         f"looking along {cam.z.tolist()}): check [camera]")
+    # every camera's hit points, and the camera of each (group), for the exact variant
+    seen_e = np.concatenate([e_c[e_c >= 0] for e_c, _, _ in rasters])
+    seen_p = np.concatenate([p_c[e_c >= 0] for e_c, p_c, _ in rasters])
+    seen_g = np.concatenate([np.full(int((e_c >= 0).sum()), c, np.int64)
+                             for c, (e_c, _, _) in enumerate(rasters)])
 
     # 2. subdivision, one task per subscene (contiguous ranges of original ids); the unseen
     # originals get importance points of their own (subdivide.importance_points)
     t1 = time.perf_counter()
     seen = np.zeros(len(el), bool)
-    seen[elem[hit]] = True
+    seen[seen_e] = True
     unseen_mode, hidden_mode = sd.unseen, sd.hidden
     for key_, mode in (("unseen", unseen_mode), ("hidden", hidden_mode)):
         if mode not in ("refine", "keep"):
             raise SceneError(f"radiosity.subdivide.{key_} must be refine or keep, got {mode!r}")
     up, ue = np.zeros((0, 3)), np.zeros(0, np.int64)
-    budget = int(float(sd.unseen_budget) * hit.sum())  # sub-elements no pixel hits may add
+    budget = int(float(sd.unseen_budget) * len(seen_e))  # sub-elements no pixel hits may add
     pixel = 0.0  # a seen pixel's size: where the two rules stop splitting
     if variant == "exact" and ((unseen_mode == "refine" and (~seen).any()) or hidden_mode == "refine"):
-        pixel = pixel_size(pts[hit])
+        pixel = pixel_size(seen_p)
     if unseen_mode == "refine" and variant == "exact" and (~seen).any():
         up, ue = importance_points(el.verts, el.nverts, el.normal, el.two_sided,
-                                   np.nonzero(~seen)[0], pts[hit], el.normal[elem[hit]],
+                                   np.nonzero(~seen)[0], seen_p, el.normal[seen_e],
                                    float(sd.unseen_factor), pixel,
                                    budget + int((~seen).sum()), max_depth)
     if variant == "none":  # no preprocessing: every original is one element (seed §6, image 1)
@@ -211,10 +238,13 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
                  max_depth, np.arange(len(el)))]
         fn, args_of = task_subdivide, args.__getitem__
     elif variant == "exact":
-        e_all = np.concatenate([elem[hit], ue]).astype(np.int64)
-        p_all = np.concatenate([pts[hit], up])
+        # the unseen rule's points join the run's own camera's (group 0), where its hidden
+        # rule's points go too: the rules make leaves of one point per group (hidden.py)
+        e_all = np.concatenate([seen_e, ue]).astype(np.int64)
+        p_all = np.concatenate([seen_p, up])
+        g_all = np.concatenate([seen_g, np.zeros(len(ue), np.int64)]) if len(cams) > 1 else None
         ranges = subscene_ranges(np.bincount(e_all, minlength=len(el)) + 1.0, ntasks)
-        args = subscene_args(el, ranges, p_all, e_all, max_depth)
+        args = subscene_args(el, ranges, p_all, e_all, max_depth, g_all)
         fn, args_of = task_subdivide, args.__getitem__
     else:
         ranges = subscene_ranges(np.ones(len(el)), ntasks)
@@ -233,17 +263,27 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     hfig = {"split": 0, "added": 0, "rays": 0}
     t_hidden = time.perf_counter()
     if hidden_mode == "refine" and variant == "exact":
-        count, anchor = anchors(part, p_all, e_all)
-        if unseen_mode != "refine":  # the seed's rule for unseen originals: they stay whole
-            count[np.isin(part.orig, np.nonzero(~seen)[0])] = 2  # (as if made by two points)
-        hp, he, hfig = split_hidden(part, count, anchor, el, cam,
-                                    caster_for(key, el.verts, el.nverts, inp.epsilon),
-                                    float(sd.hidden_factor), pixel,
-                                    budget - max(0, len(ue) - int((~seen).sum())), max_depth,
-                                    int(sd.hidden_rays), subpixel)
+        rc = caster_for(key, el.verts, el.nverts, inp.epsilon)
+        room = budget - max(0, len(ue) - int((~seen).sum()))
+        hps, hes, hgs = [], [], []
+        for c, cm in enumerate(cams):  # each camera's own points and hidden parts
+            mine = (g_all == c) if g_all is not None else slice(None)
+            count, anchor = anchors(part, p_all[mine], e_all[mine])
+            if unseen_mode != "refine":  # the seed's rule for unseen originals: they stay whole
+                count[np.isin(part.orig, np.nonzero(~seen)[0])] = 2  # (as if made by two points)
+            hp_c, he_c, f_c = split_hidden(part, count, anchor, el, cm, rc,
+                                           float(sd.hidden_factor), pixel, room, max_depth,
+                                           int(sd.hidden_rays), subpixel)
+            room -= int(f_c["added"])
+            hps.append(hp_c)
+            hes.append(he_c)
+            hgs.append(np.full(len(he_c), c, np.int64))
+            hfig = {k: hfig[k] + int(f_c.get(k, 0)) for k in hfig}
+        hp, he = np.concatenate(hps), np.concatenate(hes)
         if len(hp):
             args = subscene_args(el, ranges, np.concatenate([p_all, hp]),
-                                 np.concatenate([e_all, he]), max_depth)
+                                 np.concatenate([e_all, he]), max_depth,
+                                 None if g_all is None else np.concatenate([g_all, *hgs]))
             again = [i for i, (a, b) in enumerate(ranges) if np.any((he >= a) & (he < b))]
             run_tasks(client, task_subdivide, again, args.__getitem__, name="subdivide-hidden",
                       token=token, window=window, retries=retries,
@@ -268,7 +308,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         "unseen_sub_elements": unseen_subs, "unseen_mode": unseen_mode, "pixels_hit": int(hit.sum()),
         "max_pixels_per_sub_element": int(per_sub.max(initial=0)), "depth_guarded": guarded,
         "sub_elements_per_pixel": len(part) / max(1, int(hit.sum())),
-        "subscene_tasks": len(ranges), "raster_tasks": len(bands),
+        "subscene_tasks": len(ranges), "raster_tasks": len(bands), "cameras": len(cams),
         "time_raster_s": round(t_raster, 4), "time_subdivide_s": round(t_sub, 4),
         "hidden_mode": hidden_mode, "hidden_split": int(hfig["split"]),
         "hidden_added": int(hfig["added"]), "hidden_rays": int(hfig["rays"]),

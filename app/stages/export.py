@@ -284,6 +284,14 @@ function reset() {
   var aspect = canvas.clientWidth / Math.max(1, canvas.clientHeight);
   var half = Math.min(FOV / 2, Math.atan(Math.tan(FOV / 2) * aspect));
   view.dist = 1.05 * R / Math.sin(half);
+  // a view given in the address: #yaw=DEG&pitch=DEG&zoom=F (yaw from the initial one)
+  var q = {};
+  (location.hash || "").replace(/^#/, "").split("&").forEach(function (kv) {
+    var p = kv.split("="); if (p.length == 2) q[p[0]] = parseFloat(p[1]);
+  });
+  if (isFinite(q.yaw)) view.yaw = META.yaw + q.yaw * Math.PI / 180;
+  if (isFinite(q.pitch)) view.pitch = Math.max(-1.55, Math.min(1.55, q.pitch * Math.PI / 180));
+  if (isFinite(q.zoom) && q.zoom > 0) view.dist /= q.zoom;
 }
 function matrix() {
   var cp = Math.cos(view.pitch), d = [0, 0, 0];

@@ -232,13 +232,15 @@ def _error_estimate(t, e, p, q, d2, lref):
     r2 = dx * dx + dy * dy + dz * dz
     if r2 <= d2 or r2 <= 0.0:
         return np.inf
+    rel = _relative_error(t, p, q, np.sqrt(d2))
+    if rel == np.inf:  # near: never kept (and the element sums below not spent on it)
+        return np.inf
     r = np.sqrt(r2)
     ux, uy, uz = dx / r, dy / r, dz / r
     sp, cp = _exposure(t, e, p, ux, uy, uz)
     sq, cq = _exposure(t, e, q, -ux, -uy, -uz)
     carried = max(t.rho[p] * sq * cp * t.lhat[q], t.rho[q] * sp * cq * t.lhat[p]) / (np.pi * r2 * lref)
-    rel = _relative_error(t, p, q, np.sqrt(d2))
-    return np.inf if rel == np.inf else carried * rel  # near: never kept
+    return carried * rel
 
 
 @numba.njit(cache=True, nogil=True)
@@ -433,37 +435,58 @@ def _sampled_ff(t, e, links, sp, sq):
     return out
 
 
+#: Cluster links per chunk of the form factors and rays (bounds the sample arrays: 2^16 links
+#: x 16 samples x 2 ends x 8 bytes = 16 MiB).
+CHUNK = 1 << 16
+
+
 def link_form_factors(ct: ClusterTree, links: np.ndarray, samples: int = FF_SAMPLES) -> np.ndarray:
     """F_pq, F_qp (len(links), 2) of cluster links (p, q): sum_ij A_i A_j K_ij / A_p and / A_q
     estimated from `samples` stratified pairs of elements (_sampled_ff); A_p F_pq = A_q F_qp."""
+    return link_weights(ct, links, None, 0, samples)[0]
+
+
+def _visible(caster, e, ep: np.ndarray, eq: np.ndarray) -> np.ndarray:
+    """1 - the blocked fraction of the rays between the centroids of elements ep[a, m] and
+    eq[a, m] (a link's k rays on one row), (len(ep),) float64."""
+    n = ep.size
+    pts = np.concatenate([e.center[ep.ravel()], e.center[eq.ravel()]])
+    ids = np.concatenate([ep.ravel(), eq.ravel()])
+    idx = np.arange(n)
+    occ = caster.occluded_pairs(pts, idx, idx + n, ids)
+    return 1.0 - occ.reshape(ep.shape).mean(axis=1)
+
+
+def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
+                 samples: int = FF_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
+    """Form factors (len(links), 2) and visible fractions (len(links),) of cluster links, CHUNK
+    links at a time. The form factors from `samples` element pairs stratified by projected area
+    (link_samples, _sampled_ff); the visible fraction from k rays between the centroids of k
+    such pairs (the second end's samples rotated by half a stride), taken from the same samples
+    (every samples/k-th: one per stratum of the k) where k divides `samples`. caster None or
+    k = 0: every link fully visible."""
+    F = np.zeros((len(links), 2))
+    v = np.ones(len(links))
     if len(links) == 0:
-        return np.zeros((0, 2))
-    sp, sq = link_samples(ct.tree, ct.elems, np.ascontiguousarray(links), samples)
+        return F, v
     shift = (np.arange(samples) + samples // 2) % samples
-    return _sampled_ff(ct.tree, ct.elems, np.ascontiguousarray(links), sp,
-                       np.ascontiguousarray(sq[:, shift]))
-
-
-def link_visibility(caster, ct: ClusterTree, links: np.ndarray, k: int) -> np.ndarray:
-    """Visible fraction of cluster links: k rays each between the centroids of elements of both
-    ends stratified by their projected area toward the other end (link_samples; the second
-    end's samples rotated by half a stride), (len(links),) float64."""
-    if len(links) == 0:
-        return np.zeros(0)
-    out = np.empty(len(links))
-    step = max(1, (1 << 19) // k)
-    shift = (np.arange(k) + k // 2) % k
-    for a in range(0, len(links), step):
-        lk = links[a:a + step]
-        ep, eq = link_samples(ct.tree, ct.elems, np.ascontiguousarray(lk), k)
-        eq = eq[:, shift]
-        n = ep.size
-        pts = np.concatenate([ct.elems.center[ep.ravel()], ct.elems.center[eq.ravel()]])
-        ids = np.concatenate([ep.ravel(), eq.ravel()])
-        idx = np.arange(n)
-        occ = caster.occluded_pairs(pts, idx, idx + n, ids)
-        out[a:a + len(lk)] = 1.0 - occ.reshape(len(lk), k).mean(axis=1)
-    return out
+    reuse = caster is not None and 0 < k <= samples and samples % k == 0
+    for a in range(0, len(links), CHUNK):
+        lk = np.ascontiguousarray(links[a:a + CHUNK])
+        sp, sq = link_samples(ct.tree, ct.elems, lk, samples)
+        sq = np.ascontiguousarray(sq[:, shift])
+        F[a:a + len(lk)] = _sampled_ff(ct.tree, ct.elems, lk, sp, sq)
+        if caster is None or k <= 0:
+            continue
+        if reuse:
+            mid = samples // k // 2  # the middle of each stratum of samples / k samples
+            cols = np.arange(k) * (samples // k) + mid
+            ep, eq = sp[:, cols], sq[:, cols]
+        else:
+            ep, eq = link_samples(ct.tree, ct.elems, lk, k)
+            eq = eq[:, (np.arange(k) + k // 2) % k]
+        v[a:a + len(lk)] = _visible(caster, ct.elems, ep, eq)
+    return F, v
 
 
 # ----------------------------------------------------------------------------- transport
@@ -546,14 +569,12 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     links, pairs, counts = refine_clusters(ct.tree, ct.elems, float(epsilon), ct.lref,
                                            max(1024, 8 * n))
     t1 = time.perf_counter()
-    F = link_form_factors(ct, links)
+    caster = None
     if occlusion and len(links):
         from radiosity.tracing.rays import RayCaster
 
         caster = RayCaster(elements.verts, elements.nverts, ray_offset)
-        v = link_visibility(caster, ct, links, int(rays))
-    else:
-        v = np.ones(len(links))
+    F, v = link_weights(ct, links, caster, int(rays))
     order = np.lexsort((pairs[:, 1], pairs[:, 0])) if len(pairs) else np.zeros(0, np.int64)
     pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
     cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), links[:, 0].copy(),

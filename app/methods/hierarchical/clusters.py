@@ -244,25 +244,36 @@ def _error_estimate(t, e, p, q, d2, lref):
 
 
 @numba.njit(cache=True, nogil=True)
-def refine_clusters(t, e, eps, lref, cap):
-    """The cluster refinement from the root's self-link: (links (k, 2) int64 node pairs kept as
-    cluster links, pairs (j, 2) int64 originals I < J handed to the element-level refinement,
-    counts [evaluated, culled by orientation, kept, pairs]). A link between nodes p, q (neither
+def refine_clusters(t, e, eps, lref, cap, init, frontier):
+    """The cluster refinement from the links `init` (s, 2) int64 (the root's self-link (0, 0):
+    the whole refinement): (links (k, 2) int64 node pairs kept as cluster links, pairs (j, 2)
+    int64 originals I < J handed to the element-level refinement, counts [evaluated, culled by
+    orientation, kept, pairs], pending (r, 2) int64). A link between nodes p, q (neither
     holding a two-sided original, boxes apart) is kept when its error bound (_error_bound) is at
-    most eps (two originals: one link over both, as the element-level refinement's root link); otherwise the end with more area (the larger solid
-    angle from the other) is split. eps = 0 lists exactly the facing pairs of originals."""
+    most eps (two originals: one link over both, as the element-level refinement's root link);
+    otherwise the end with more area (the larger solid angle from the other) is split. eps = 0
+    lists exactly the facing pairs of originals. frontier > 0: breadth first, stop once that
+    many links wait to be refined and return them as `pending` (the cut into tasks: refining
+    each of them on its own gives the same links and pairs); 0: depth first to the end (pending
+    empty)."""
     links = np.empty((max(cap, 16), 2), np.int64)
     pairs = np.empty((max(cap, 16), 2), np.int64)
     nl = 0
     npr = 0
     counts = np.zeros(4, np.int64)
-    stack = np.empty((1024, 2), np.int64)
-    ns = 1
-    stack[0, 0] = 0
-    stack[0, 1] = 0
-    while ns > 0:
-        ns -= 1
-        p, q = stack[ns, 0], stack[ns, 1]
+    stack = np.empty((max(1024, 2 * init.shape[0]), 2), np.int64)
+    ns = init.shape[0]
+    stack[:ns] = init
+    head = 0  # breadth first (frontier > 0): links are taken from stack[head], else from the top
+    while ns > head:
+        if frontier > 0:
+            if ns - head >= frontier:
+                break
+            p, q = stack[head, 0], stack[head, 1]
+            head += 1
+        else:
+            ns -= 1
+            p, q = stack[ns, 0], stack[ns, 1]
         if ns + 3 >= stack.shape[0]:
             grown = np.empty((2 * stack.shape[0], 2), np.int64)
             grown[:stack.shape[0]] = stack
@@ -319,7 +330,7 @@ def refine_clusters(t, e, eps, lref, cap):
         ns += 2
     counts[2] = nl
     counts[3] = npr
-    return links[:nl], pairs[:npr], counts
+    return links[:nl], pairs[:npr], counts, stack[head:ns].copy()
 
 
 @numba.njit(cache=True, nogil=True)
@@ -555,26 +566,99 @@ def cluster_gather(Lroot, parent, leaf_orig, area, p, q, wpq, wqp, ncap, G):
 
 # ----------------------------------------------------------------------------- the stage's part
 
+def refine_all(ct: ClusterTree, eps: float, cap: int = 1024):
+    """The whole cluster refinement in this process, from the root's self-link: (links, pairs,
+    counts) as refine_clusters gives them."""
+    links, pairs, counts, _ = refine_clusters(ct.tree, ct.elems, float(eps), ct.lref, cap,
+                                              np.zeros((1, 2), np.int64), 0)
+    return links, pairs, counts
+
+
+#: Links waiting at the cut of the cluster refinement into tasks, per task (about).
+CUT_PER_TASK = 16
+
+
+@dataclass(frozen=True)
+class ClusterInputs:
+    """What every cluster task needs (scattered once): the tree, the oracle's epsilon, the rays
+    per link (0: nothing can block) and the Embree cache key and ray offset of the originals."""
+
+    ct: ClusterTree
+    epsilon: float
+    rays: int
+    key: str
+    verts: np.ndarray
+    nverts: np.ndarray
+    ray_offset: float
+
+
+def task_clusters(inp: ClusterInputs, init: np.ndarray) -> tuple:
+    """One task: refine the links `init` to the end, then the kept links' form factors and
+    visible fractions -> (links, pairs, counts, F, v)."""
+    ct = inp.ct
+    links, pairs, counts, _ = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
+                                              max(1024, 8 * len(init)), init, 0)
+    F, v = link_weights(ct, links, _caster(inp, links), inp.rays)
+    return links, pairs, counts, F, v
+
+
+def _caster(inp: ClusterInputs, links: np.ndarray):
+    """The originals' RayCaster (one per process, cached), None where no ray is needed."""
+    if inp.rays <= 0 or not len(links):
+        return None
+    from radiosity.tracing.rays import caster_for
+
+    return caster_for(inp.key, inp.verts, inp.nverts, inp.ray_offset)
+
+
 def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
-                  ray_offset: float):
+                  ray_offset: float, client=None, progress: bool = False):
     """The cluster layer of a link stage: the tree, its refinement at `epsilon` with the oracle's
     weights (wrho, lhat, lref: links.oracle_weights), the kept links' form factors and visible
-    fractions (`rays` rays each; 1 when nothing can block). Returns (ClusterLinks, pairs (t, 2)
+    fractions (`rays` rays each; 1 when nothing can block). With a `client`, the refinement is
+    cut where CUT_PER_TASK links per worker thread wait and every waiting link's subtree is a
+    task (refinement, form factors, rays) on the cluster; the links come out sorted, so the
+    result does not depend on the cut or the workers. Returns (ClusterLinks, pairs (t, 2)
     int64 of originals I < J sorted, for the element-level refinement; figures dict)."""
     import time
+
+    from dask.base import tokenize
 
     t0 = time.perf_counter()
     ct = cluster_tree(elements, *weights)
     n = len(elements)
-    links, pairs, counts = refine_clusters(ct.tree, ct.elems, float(epsilon), ct.lref,
-                                           max(1024, 8 * n))
-    t1 = time.perf_counter()
-    caster = None
-    if occlusion and len(links):
-        from radiosity.tracing.rays import RayCaster
+    root = np.zeros((1, 2), np.int64)
+    threads = sum(client.nthreads().values()) if client is not None else 0
+    inp = ClusterInputs(ct, float(epsilon), int(rays) if occlusion else 0,
+                        tokenize(elements.verts, elements.nverts), elements.verts,
+                        elements.nverts, float(ray_offset))
+    frontier = CUT_PER_TASK * 4 * threads if threads > 1 else 0
+    links, pairs, counts, pending = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
+                                                    max(1024, 8 * n), root, frontier)
+    parts = [(links, pairs, counts, *link_weights(ct, links, _caster(inp, links), inp.rays))]
+    ntasks = 0
+    if len(pending):
+        from radiosity.runtime.cluster import Scattered
+        from radiosity.runtime.runner import run_tasks
 
-        caster = RayCaster(elements.verts, elements.nverts, ray_offset)
-    F, v = link_weights(ct, links, caster, int(rays))
+        cuts = np.array_split(pending, max(1, len(pending) // CUT_PER_TASK))
+        ntasks = len(cuts)
+        shared = Scattered(client, inp)
+        got = [None] * ntasks
+        run_tasks(client, task_clusters, range(ntasks), lambda i: (shared.future(), cuts[i]),
+                  name="clusters", token=tokenize(inp.key, inp.epsilon, inp.rays, ct.lref,
+                                                  pending), window=2 * threads,
+                  on_result=got.__setitem__, progress=progress,
+                  repair="run the render again")
+        parts += got
+    links = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
+    pairs = np.concatenate([p[1] for p in parts]).reshape(-1, 2)
+    counts = np.sum([p[2] for p in parts], axis=0)
+    F = np.concatenate([p[3] for p in parts]).reshape(-1, 2)
+    v = np.concatenate([p[4] for p in parts])
+    t1 = time.perf_counter()
+    order = np.lexsort((links[:, 1], links[:, 0])) if len(links) else np.zeros(0, np.int64)
+    links, F, v = links[order], F[order], v[order]
     order = np.lexsort((pairs[:, 1], pairs[:, 0])) if len(pairs) else np.zeros(0, np.int64)
     pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
     cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), links[:, 0].copy(),
@@ -582,7 +666,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     figures = {"nodes": ct.nodes, "links": int(len(links)), "pairs_to_elements": int(len(pairs)),
                "evaluated": int(counts[0]), "culled_orientation": int(counts[1]),
                "rays": int(len(links) * rays if occlusion else 0),
-               "visible_mean": float(v.mean()) if len(v) else 1.0,
+               "visible_mean": float(v.mean()) if len(v) else 1.0, "tasks": ntasks,
                "time_refine_s": round(t1 - t0, 4),
                "time_s": round(time.perf_counter() - t0, 4)}
     return cl, pairs, figures

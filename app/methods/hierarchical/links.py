@@ -405,8 +405,10 @@ class LinkPlan:
     cluster_figures: dict | None = None
 
 
-def plan_links(rs, part, el, s, unit: str | None, occlusion: bool) -> LinkPlan:
-    """The link stage's plan for run store `rs` (its partition, elements) under settings `s`."""
+def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
+               progress: bool = False) -> LinkPlan:
+    """The link stage's plan for run store `rs` (its partition, elements) under settings `s`;
+    with a `client`, the cluster layer runs as tasks on it (clusters.plan_clusters)."""
     from dask.base import tokenize
 
     from radiosity.runtime.packing import choose_unit
@@ -434,7 +436,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool) -> LinkPlan:
                                       f"originals > plan.max-facing-pairs")
     if on:  # links start at the root of the tree over the originals (SPEC §9)
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon, oracle_weights(el, weight), prm.rays,
-                                         occlusion, s.rays.epsilon)
+                                         occlusion, s.rays.epsilon, client, progress)
         cfig["why"] = why_clusters
         bi, bj = cpairs[:, 0], cpairs[:, 1]
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit, int(s.hierarchy.max_task_cost))
@@ -473,7 +475,7 @@ def compute_links(run_dir: str, client, settings=None, *, kernel: str | None = N
     t_start = time.perf_counter()
     rs = RunStore(run_dir, "r+")
     part, el = rs.load_partition(), rs.load_elements()
-    lp = plan_links(rs, part, el, s, unit, occlusion)
+    lp = plan_links(rs, part, el, s, unit, occlusion, client, progress)
     ls = LinkStore(rs)
 
     def create():

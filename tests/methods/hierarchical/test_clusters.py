@@ -9,7 +9,7 @@ import pytest
 
 from radiosity.core.bundles import Elements
 from radiosity.core.geometry import polygon_properties
-from radiosity.methods.hierarchical.clusters import cluster_tree, link_form_factors, refine_clusters
+from radiosity.methods.hierarchical.clusters import cluster_tree, link_form_factors, refine_all
 from radiosity.scene.originals import facing_pairs, tree_of
 
 
@@ -80,7 +80,7 @@ def test_epsilon_zero_lists_exactly_the_facing_pairs_of_originals():
     n = np.concatenate([n1, n2, n3])
     el = _elements(v, n)
     ct = _tree(el)
-    links, pairs, counts = refine_clusters(ct.tree, ct.elems, 0.0, ct.lref, 64)
+    links, pairs, counts = refine_all(ct, 0.0, 64)
     assert len(links) == 0
     bi, bj, _ = facing_pairs(tree_of(el))
     got = {tuple(p) for p in pairs.tolist()}
@@ -98,7 +98,7 @@ def test_far_groups_are_one_cluster_link_whose_form_factor_is_the_exact_sum():
     v2, n2 = _grid(32, d, False, size=1.0)
     el = _elements(np.concatenate([v1, v2]), np.concatenate([n1, n2]))
     ct = _tree(el)
-    links, pairs, _ = refine_clusters(ct.tree, ct.elems, 1e-2, ct.lref, 64)
+    links, pairs, _ = refine_all(ct, 1e-2, 64)
     assert len(pairs) == 0 and len(links) >= 1
     F = link_form_factors(ct, links)
     A = ct.tree.area
@@ -122,7 +122,7 @@ def test_cluster_links_grow_like_n_log_n_on_a_closed_sphere():
         v, nv = _sphere(k, 2 * k)
         el = _elements(v, nv)
         ct = _tree(el)
-        links, pairs, c = refine_clusters(ct.tree, ct.elems, 5e-3, ct.lref, 1024)
+        links, pairs, c = refine_all(ct, 5e-3, 1024)
         counts[len(v)] = len(links) + len(pairs)
     ns = sorted(counts)
     for a, b in zip(ns, ns[1:]):
@@ -146,7 +146,7 @@ def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
     el = _elements(v, np.concatenate([n1, n2, n3]))
     ct = _tree(el)
     eps = 2e-3
-    links, _, _ = refine_clusters(ct.tree, ct.elems, eps, ct.lref, 64)
+    links, _, _ = refine_all(ct, eps, 64)
     assert len(links) > 10
     F = link_form_factors(ct, links)
     t = ct.tree
@@ -301,3 +301,32 @@ def test_a_closed_sphere_of_5000_triangles_is_the_furnace(client, tmp_path):
     assert fig["plan"]["method"] == "hierarchical" and fig["links"]["cluster_links"] > 0
     img = read_exr(f"{out}/image.exr")
     np.testing.assert_allclose(img, 10.0, rtol=5e-3)
+
+
+@pytest.mark.cluster
+def test_the_cluster_layer_is_the_same_in_tasks_and_in_one_process(client):
+    """The cluster refinement cut into tasks on the cluster (a frontier of waiting links, each
+    one's subtree a task with its form factors and rays) gives the same links, pairs and
+    weights as the whole refinement in one process: the result does not depend on the cut or
+    the workers."""
+    from radiosity.methods.hierarchical import clusters
+    from radiosity.methods.hierarchical.links import oracle_weights
+
+    v, n = _sphere(40, 64)
+    el = _elements(v, n, rho=0.8, emit=np.where(np.arange(len(v))[:, None, None] < 40, 1.0, 0.0)
+                   * np.ones((len(v), 2, 3)))
+    w = oracle_weights(el, "bf")
+    one = clusters.plan_clusters(el, 1e-3, w, 4, True, 1e-6)
+    assert one[2]["tasks"] == 0 and one[0].links > 1000
+    for cut in (4, 16):
+        old = clusters.CUT_PER_TASK
+        clusters.CUT_PER_TASK = cut
+        try:
+            many = clusters.plan_clusters(el, 1e-3, w, 4, True, 1e-6, client=client)
+        finally:
+            clusters.CUT_PER_TASK = old
+        assert many[2]["tasks"] > 1
+        for k, a in one[0].arrays().items():
+            assert np.array_equal(a, many[0].arrays()[k]), k
+        assert np.array_equal(one[1], many[1])
+        assert many[2]["evaluated"] == one[2]["evaluated"]

@@ -162,24 +162,45 @@ def check_scene(scene, settings) -> dict:
                            int(settings.plan.max_facing_pairs), scene.path)
     subpixel = int(settings.subdivide.subpixel)
     rc = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
+    seen = _camera_hits(scene, rc, cam, subpixel)
+    for name, view in scene.views:  # the other cameras ([[camera]] entries): seen and lit
+        _check_view(scene, rc, view, name, _camera_hits(scene, rc, view, subpixel, name))
+    return {"hits": int(len(seen)), "facing_pairs_estimate": est,
+            "orientation": check_orientation(scene, rc, seen)}
+
+
+def _camera_hits(scene, rc, cam, subpixel: int, name: str = "") -> np.ndarray:
+    """The elements (k,) int hit by a coarse grid of the camera's fine pixels (the whole raster
+    when that grid hits nothing); a camera that sees no element is a SceneError."""
     h, w = cam.height * subpixel, cam.width * subpixel
     # a coarse grid of fine pixels first (cheap), the whole raster only when it hits nothing
     ys = np.unique(np.linspace(0, h - 1, min(h, COARSE_RAYS)).round().astype(np.int64))
     xs = np.unique(np.linspace(0, w - 1, min(w, COARSE_RAYS)).round().astype(np.int64))
     seen = _hits(rc, cam, subpixel, ys, xs)
-    hits = int((seen >= 0).sum())
-    if hits == 0 and (len(ys) < h or len(xs) < w):
+    if not (seen >= 0).any() and (len(ys) < h or len(xs) < w):
         band = max(1, (1 << 20) // max(w, 1))
         for r0 in range(0, h, band):
             seen = _hits(rc, cam, subpixel, np.arange(r0, min(h, r0 + band)), np.arange(w))
-            hits += int((seen >= 0).sum())
-            if hits:
+            if (seen >= 0).any():
                 break
-    if hits == 0:
-        raise SceneError(f"{scene.path}: the camera sees no element (at {cam.center.tolist()}, "
-                         f"looking along {cam.z.tolist()}): check [camera]")
-    return {"hits": hits, "facing_pairs_estimate": est,
-            "orientation": check_orientation(scene, rc, seen[seen >= 0])}
+    if not (seen >= 0).any():
+        raise SceneError(f"{scene.path}: the camera{f' {name!r}' if name else ''} sees no "
+                         f"element (at {cam.center.tolist()}, looking along {cam.z.tolist()}): "
+                         "check [camera]")
+    return seen[seen >= 0]
+
+
+def _check_view(scene, rc, cam, name: str, seen: np.ndarray) -> None:
+    """Another camera of the scene (a [[camera]] entry): one that sees only the backs of
+    one-sided elements would make a black image: an OrientationError naming it."""
+    from radiosity.scene.orientation import OrientationError, facing
+
+    if len(seen) and not facing(scene.elements, seen, cam.center).any():
+        e = int(np.bincount(seen).argmax())
+        raise OrientationError(
+            f"{scene.path}: the camera {name!r} sees only the backs of one-sided elements (most "
+            f"on {scene.elements.describe(e)}): its image would be black. Move it ([[camera]] "
+            f"{name!r} position), or turn the faces it looks at ({_FIX})")
 
 
 def _hits(rc, cam, subpixel, ys, xs) -> np.ndarray:

@@ -66,6 +66,29 @@ def test_bad_camera_entries_are_one_line_naming_the_entry(tmp_path, second, says
     assert str(f) in str(e.value) and "\n" not in str(e.value)
 
 
+@pytest.mark.parametrize("look, error, says", [
+    (dict(position=[278.0, 273.0, -800.0], look_at=[278.0, 273.0, -1600.0]), "SceneError",
+     "sees no element"),
+    (dict(position=[278.0, 273.0, 1400.0], look_at=[278.0, 273.0, 0.0]), "OrientationError",
+     "only the backs"),
+])
+def test_a_camera_that_would_make_a_black_image_is_refused_by_name(tmp_path, look, error, says):
+    """The checks before any cluster starts cover every camera: one that sees nothing, or only
+    the backs of one-sided faces (the Cornell box from behind its back wall), is one line that
+    names it."""
+    from radiosity.errors import RadiosityError
+    from radiosity.runtime.checks import check_scene
+    from radiosity.scene.load import load_scene
+    from radiosity.settings import resolve
+
+    f = tmp_path / "two.toml"
+    f.write_text(cornell_with(_table("[[camera]]", FRONT, "front") + "\n"
+                              + _table("[[camera]]", {**look, "fov_y": 40.0}, "bad")))
+    with pytest.raises(RadiosityError, match=says) as e:
+        check_scene(load_scene(str(f)), resolve())
+    assert type(e.value).__name__ == error and "'bad'" in str(e.value)
+
+
 # ----------------------------------------------------------------------------- the partition
 
 def _nodes(part) -> set:

@@ -56,6 +56,8 @@ class RenderFigures(StageFigures):
                       f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"
                       + ("" if sol.get("converged", True) else f", NOT converged: solution "
                          f"{sol.get('solution', 'written')}")),
+            ("closure", (sol.get("closure") or self.report.get("plan", {}).get("closure")
+                         or {}).get("reason", "-")),
             *([("views", f"{len(st['views'])} more camera(s): "
                          + ", ".join(f"views/{n}/image.png" for n in st["views"]))]
               if st.get("views") else []),
@@ -191,8 +193,12 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
     stages["visibility_s"] = time.perf_counter() - t
     t = time.perf_counter()
     if effects.interreflection:
-        run_solve(out, client, s, progress=progress, effects=effects, preview=previewer(out),
-                  closure=planned.closure, keep_unconverged=keep_unconverged, method=name)
+        from radiosity.stages.rounds import solve_with_rounds
+
+        # hierarchy.rounds: refinement by the solved radiance after the first solve (rounds.py)
+        solve_with_rounds(out, client, s, unit=unit, occlusion=effects.occlusion,
+                          progress=progress, echo=echo, effects=effects, preview=previewer(out),
+                          closure=planned.closure, keep_unconverged=keep_unconverged, method=name)
     else:
         write_direct_solution(out)
     stages["solve_s"] = time.perf_counter() - t

@@ -153,6 +153,10 @@ class HierarchySettings(_Section):
     shadow_factor: float
     min_node_size: float
     split_hidden: bool
+    rounds: int
+    rounds_epsilon: float
+    rounds_change: float
+    rounds_rays: int
     task_unit: str
     max_task_cost: int
     driver_solve_links: int

@@ -68,3 +68,23 @@ def test_auto_takes_threads_for_small_scenes_and_processes_for_large():
     assert local_mode("auto", 512 * 512, 65536)[0] is False
     assert local_mode("auto", None, 65536)[0] is False  # a run directory of unknown size
     assert local_mode(True, 16, 65536)[0] is False and local_mode("false", 10 ** 9, 1)[0] is True
+
+
+def test_render_summary_prints_the_closure_decision_in_one_line():
+    """The render's summary says closed or open and why (issue 26): from the solve section,
+    else from the plan's."""
+    from radiosity.pipeline import RenderFigures
+
+    sol = {"solver": "cg", "kernel": "point-nf", "iterations": 3, "final_residual": 1e-6,
+           "channels": 1, "method": "pairs"}
+    report = {"preprocess": {"sub_elements": 10, "original_elements": 2},
+              "visibility": {"rays": 4, "pairs_total": 8},
+              "solve": {**sol, "closure": {"reason": "closed: 0 of 10 hemisphere rays escape"}}}
+    stages = {"preprocess_s": 0.1, "visibility_s": 0.1, "solve_s": 0.1, "image_s": 0.1,
+              "total_s": 0.4}
+    rows = dict(RenderFigures(stages, report).rows())
+    assert rows["closure"] == "closed: 0 of 10 hemisphere rays escape"
+    report["solve"] = sol
+    report["plan"] = {"closure": {"reason": "open: 3 of 10 hemisphere rays escape"}}
+    rows = dict(RenderFigures(stages, report).rows())
+    assert rows["closure"].startswith("open") and "\n" not in rows["closure"]

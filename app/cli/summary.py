@@ -234,6 +234,9 @@ def _viewfactors_summary(fig: dict, extra: list = ()) -> str:
             ("nonzeros", fig["nonzeros"]),
             ("enclosure", ("balanced" if fig["balanced"] else "not balanced")
              + ("" if fig["enclosure"] else f" ({fig['not_enclosure_because']})")),
+            *([("contact", f"{fig['contact_facets']} facets covered by a touching surface take "
+                           f"no part; {fig.get('partly_covered_facets', 0)} partly covered: "
+                           "capped, not balanced")] if fig.get("contact_facets") else []),
             ("row sums", f"{fig['row_sum_min']:.12g} .. {fig['row_sum_max']:.12g}"
              + (f", balanced: {fig['row_sum_final_min']:.15g} .. {fig['row_sum_final_max']:.15g}"
                 if fig["balanced"] else "")),

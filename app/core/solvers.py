@@ -30,9 +30,10 @@ def anorm(x: np.ndarray, area: np.ndarray) -> float:
 
 # ----------------------------------------------------------------------------- solvers
 
-def _fixed_point(step, Le, area, tol, max_iter, callback) -> SolveResult:
-    """Iterate L <- step(L) from L = Le until the update is at most tol ||Le||_A."""
-    L = Le.copy()
+def _fixed_point(step, Le, area, tol, max_iter, callback, x0=None) -> SolveResult:
+    """Iterate L <- step(L) from L = Le (or the warm start x0) until the update is at most
+    tol ||Le||_A."""
+    L = Le.copy() if x0 is None else np.array(x0, dtype=float)
     nb = anorm(Le, area) or 1.0
     res = []
     for k in range(1, max_iter + 1):
@@ -46,27 +47,34 @@ def _fixed_point(step, Le, area, tol, max_iter, callback) -> SolveResult:
     return SolveResult(L, max_iter, res, False)
 
 
-def jacobi(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
+def jacobi(op, Le, rho, area, tol, max_iter, callback=None, x0=None) -> SolveResult:
     """The seed's iteration of eq. 4: L <- Le + rho F L. Its update is the residual of the
-    previous iterate, Le + rho F L - L."""
-    return _fixed_point(lambda L: Le + rho * op.apply(L), Le, area, tol, max_iter, callback)
+    previous iterate, Le + rho F L - L. x0: a warm start (None: Le)."""
+    return _fixed_point(lambda L: Le + rho * op.apply(L), Le, area, tol, max_iter, callback, x0)
 
 
-def gauss_seidel(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
+def gauss_seidel(op, Le, rho, area, tol, max_iter, callback=None, x0=None) -> SolveResult:
     """Block Gauss-Seidel by original element (rows in order, latest values), one Dask task per
-    sweep. Stops on the size of the last update, a bound on the residual's decrease."""
-    return _fixed_point(lambda L: op.gs_sweep(L, Le, rho), Le, area, tol, max_iter, callback)
+    sweep. Stops on the size of the last update, a bound on the residual's decrease. x0: a
+    warm start (None: Le)."""
+    return _fixed_point(lambda L: op.gs_sweep(L, Le, rho), Le, area, tol, max_iter, callback,
+                        x0)
 
 
 def progressive(op, Le, rho, area, tol, max_iter, callback=None,
-                shoot_fraction: float = 0.25) -> SolveResult:
+                shoot_fraction: float = 0.25, x0=None) -> SolveResult:
     """Progressive refinement (2nd seed; Cohen et al. 1988): shoot the unshot radiance of the
     sub-elements with the largest unshot power A dL (all within `shoot-fraction` of the largest
     shoot together, one pass). The ambient term (unshot power spread uniformly and reflected
     with the mean reflectance) makes early previews plausible; it is not added to the answer.
-    Stops when the unshot radiance ||dL||_A <= tol ||Le||_A."""
-    L = Le.copy()
-    dL = Le.copy()
+    Stops when the unshot radiance ||dL||_A <= tol ||Le||_A. x0: a warm start; what it has
+    not shot yet is its residual r = Le + rho F x0 - x0 (one pass), and L starts at x0 + r."""
+    if x0 is None:
+        L = Le.copy()
+        dL = Le.copy()
+    else:
+        dL = Le + rho * op.apply(x0) - x0  # L includes what it has not shot, as from Le
+        L = x0 + dL
     nb = anorm(Le, area) or 1.0
     total_area = area.sum()
     nch = Le.shape[1]
@@ -94,13 +102,14 @@ def progressive(op, Le, rho, area, tol, max_iter, callback=None,
     return SolveResult(L, max_iter, res, False, ambient=ambient)
 
 
-def cg(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
+def cg(op, Le, rho, area, tol, max_iter, callback=None, x0=None) -> SolveResult:
     """Conjugate gradients on the symmetric form (SPEC §6): with D = diag(A / rho),
     D (I - rho F) = D - diag(A) F is symmetric by reciprocity (A_a F_ab = A_b F_ba), and positive
     definite when rho < 1 and row sums <= 1. D itself is the preconditioner (it is the diagonal,
     F_aa = 0), which removes the spread of element areas from the conditioning. Entries with
     rho = 0 are known (L = Le) and move to the right-hand side. One product per iteration; the
-    three channels are three systems solved in the same passes."""
+    three channels are three systems solved in the same passes. x0: a warm start (None: Le;
+    its entries with rho = 0 are Le whatever x0 says)."""
     if not get_kernel(op.kernel).reciprocal:
         raise RadiosityError(f"the cg solver needs a reciprocal kernel (A_a F_ab = A_b F_ba); "
                              f"'{op.kernel}' is not: use --kernel point, or --solver jacobi, "
@@ -117,7 +126,7 @@ def cg(op, Le, rho, area, tol, max_iter, callback=None) -> SolveResult:
     def dot(u, v):  # per channel
         return (u * v).sum(axis=(0, 2))
 
-    x = np.where(U, Le, 0.0)
+    x = np.where(U, Le if x0 is None else x0, 0.0)
     r = b - M(x)
     z = Dinv * r
     p = z.copy()

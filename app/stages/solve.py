@@ -99,18 +99,95 @@ def row_mode(mode, closure) -> str:
 
 def resolve_closure(setting, elements, epsilon: float):
     """closure.Closure for solve.closure = auto (detected with rays offset by `epsilon`, the
-    rays.epsilon setting), on or off (stated)."""
+    rays.epsilon setting), on or off (stated; contact sides are found all the same)."""
+    from radiosity.scene.contact import find_contacts
+
     setting = {True: "on", False: "off", None: "auto"}.get(setting, setting)
     if setting not in ("auto", "on", "off"):
         raise RadiosityError(f"radiosity.solve.closure must be auto, on or off, got {setting!r}")
     if setting == "auto":
         return detect_closure(elements, float(epsilon))
     closed = setting == "on"
+    contact = find_contacts(elements, float(epsilon)) if len(elements) else np.zeros((0, 2), bool)
+    k = int(contact.sum())
     return Closure(closed, 0, 0, -1, 0.0, f"{'closed' if closed else 'open'}: stated "
-                   f"(closure: {setting})" + (": rows balanced to exactly 1" if closed else ""))
+                   f"(closure: {setting})" + (f"; {k} contact sides take no part" if k else "")
+                   + (": rows balanced to exactly 1" if closed else ""),
+                   contact=contact, counts={"contact_sides": k})
 
 
-def normalise_rows(op, mode="cap"):
+@dataclass(frozen=True)
+class RowTargets:
+    """What the closure decision asks of the rows of the unknowns (m,): target, the row sum
+    over the sides that transport (closure.Closure.target summed); balance, rows that may be
+    balanced to it (every side's target exact); dead, unknowns whose every
+    transporting side is a contact side (their rows and columns are zeroed); sided, the
+    two-sided flags with contact backs made one-sided."""
+
+    target: np.ndarray
+    balance: np.ndarray
+    dead: np.ndarray
+    sided: np.ndarray
+
+    @classmethod
+    def of(cls, closure, orig: np.ndarray, sided: np.ndarray) -> "RowTargets | None":
+        if closure is None or closure.contact is None:
+            return None
+        c = closure.contact[orig]
+        sided = np.asarray(sided, bool) & ~c[:, 1]
+        dead = c[:, 0] & ~sided
+        if closure.target is None:  # stated: every row's target is 1
+            return cls(np.ones(len(orig)), np.full(len(orig), bool(closure.closed)) & ~dead,
+                       dead, sided)
+        t, x = closure.target[orig], closure.exact[orig]
+        target = t[:, 0] + np.where(sided, t[:, 1], 0.0)
+        # (used in the closed mode only: auto chooses it for a closed scene; a stated
+        # normalise-rows=closed on an open one balances the sides that see no way out)
+        balance = x[:, 0] & (~sided | x[:, 1]) & ~dead & (target > 0)
+        return cls(target, balance, dead, sided)
+
+
+BALANCE_MIN = 0.5  # rows below this fraction of their target are capped, not balanced
+D_MAX = 4.0        # the balancing scales a row by at most this factor either way
+
+
+def _balance(op, sums, target, balance, dead):
+    """Symmetric scaling d (m,) of K -> D K D: rows in `balance` sum (over their sides) to
+    `target`, the others are capped (each side at most 1), the dead rows and columns are 0.
+    Returns d, the passes, the final error and the number of rows stopped at D_MAX."""
+    total = sums.sum(axis=0)
+    live = (total > 0) & ~dead
+    # a row far below its target is a partly covered sub-element (under a block's edge, a
+    # table top's underside where a leg stands): it is capped, not balanced (balancing it
+    # would multiply its form factors many times over)
+    bal = balance & live & (total >= BALANCE_MIN * target)
+    cap = live & ~bal
+    d = np.where(bal, np.sqrt(np.where(bal, target, 1.0) / np.where(live, total, 1.0)), 1.0)
+    d[dead] = 0.0
+    m, err = len(d), 0.0
+    for it in range(100):
+        y = op.apply(np.broadcast_to(d, (2, 1, m)).copy(), use_need=False)[:, 0, :]
+        Fd, Fm = y.sum(axis=0), y.max(axis=0)
+        err = max(np.abs(d * Fd - target)[bal].max(initial=0.0),
+                  np.maximum(d * Fm - 1.0, 0.0)[cap].max(initial=0.0))
+        if err < 1e-12:
+            break
+        d = np.where(bal, np.sqrt(d * np.where(bal, target, 1.0) / np.where(bal & (Fd > 0), Fd, 1.0)), d)
+        d = np.where(cap & (Fm > 0), np.minimum(1.0, np.sqrt(d / np.where(Fm > 0, Fm, 1.0))), d)
+        # a scaling beyond D_MAX either way is not a kernel error balanced away but a pair of
+        # surfaces in a thin gap whose kernel rows cannot be balanced together (a cushion 1 mm
+        # over a seat: d ran to 0.002 in room-2400): those rows stop at the bound
+        d = np.where(bal, np.clip(d, 1.0 / D_MAX, D_MAX), d)
+    stuck = bal & ((d <= 1.0 / D_MAX) | (d >= D_MAX))
+    if stuck.any():  # the error of the rows that could be balanced
+        y = op.apply(np.broadcast_to(d, (2, 1, m)).copy(), use_need=False)[:, 0, :]
+        Fd, Fm = y.sum(axis=0), y.max(axis=0)
+        err = max(np.abs(d * Fd - target)[bal & ~stuck].max(initial=0.0),
+                  np.maximum(d * Fm - 1.0, 0.0)[cap].max(initial=0.0))
+    return d, it + 1, float(err), int(stuck.sum())
+
+
+def normalise_rows(op, mode="cap", rows: RowTargets | None = None):
     """Detect rows of F that sum to more than 1 (the point kernel near large elements close
     together, where 1/r^2 blows up) and decide how to handle them. Returns (figures, scaling):
     what was found and done, and the operator inputs to configure ({} for none: cap (m,) and
@@ -119,10 +196,14 @@ def normalise_rows(op, mode="cap"):
     cap (default): scale each pair by min(cap_a, cap_b), cap = 1 / row sum on the rows above 1:
         rows then sum to at most 1 and reciprocity still holds (A_a F'_ab = A_b F'_ba), so every
         solver converges for rho < 1.
-    closed: for closed scenes, where every row must sum to exactly 1: scale pairs by d_a d_b
-        with d from the symmetric balancing iteration d <- sqrt(d / (F d)) (reciprocity kept);
-        what is left of the kernel's error no longer decides the answer when rho -> 1.
+    closed: for closed scenes, where every row must sum to exactly its target (1; the sides'
+        targets summed, RowTargets): scale pairs by d_a d_b with d from the symmetric
+        balancing iteration d <- sqrt(d t / (F d)) (reciprocity kept); what is left of the
+        kernel's error no longer decides the answer when rho -> 1. Rows whose target is not
+        exact (a side that sees out) are capped in the same iteration instead.
     off (or False): only report.
+    rows: the closure's RowTargets; with contact unknowns (rows.dead) every mode scales by
+    d_a d_b, d = 0 on them: they neither receive nor send.
     """
     mode = {True: "cap", False: "off", None: "cap", "auto": "cap"}.get(mode, mode)
     if mode not in ("cap", "closed", "off"):
@@ -133,27 +214,34 @@ def normalise_rows(op, mode="cap"):
     out = {"rows_over_1": int(over.sum()), "max_row_sum": float(rs.max(initial=0.0)),
            "min_row_sum": float(sums.sum(axis=0).min(initial=0.0)), "mode": mode,
            "normalised": bool(mode == "cap" and over.any())}
+    m = sums.shape[1]
+    dead = rows.dead if rows is not None else np.zeros(m, bool)
     scaling = {}
-    if out["normalised"]:
+    if dead.any():
+        out["contact_unknowns"] = int(dead.sum())
+        if mode == "off":
+            scaling = {"cap": np.where(dead, 0.0, 1.0), "cmode": CAP_PRODUCT}
+            return out, scaling
+        target = rows.target if mode == "closed" else np.ones(m)
+        balance = rows.balance if mode == "closed" else np.zeros(m, bool)
+        d, passes, err, stuck = _balance(op, sums, target, balance, dead)
+        scaling = {"cap": d, "cmode": CAP_PRODUCT}
+        out.update({"normalised": True, "balancing_passes": passes, "balancing_error": err,
+                    "rows_at_scaling_bound": stuck})
+    elif out["normalised"]:
         scaling = {"cap": np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0), "cmode": CAP_MIN}
     elif mode == "closed":
-        total = sums.sum(axis=0)
         # sub-elements that see nothing (under a block standing on the floor) keep their empty
-        # rows; every other row is balanced to 1
-        live = total > 0
-        if not live.any():
+        # rows; every other row is balanced to its target (1 unless the closure says otherwise)
+        if not (sums.sum(axis=0) > 0).any():
             raise RadiosityError("normalise-rows=closed needs a closed scene: no element sees "
                                  "another")
-        d = np.where(live, 1.0 / np.sqrt(np.where(live, total, 1.0)), 1.0)
-        m = len(d)
-        for it in range(100):
-            Fd = op.apply(np.broadcast_to(d, (2, 1, m)).copy(), use_need=False)[:, 0, :].sum(axis=0)
-            err = np.abs(d * Fd - 1.0)[live].max()
-            if err < 1e-12:
-                break
-            d = np.where(live, np.sqrt(d / np.where(live, Fd, 1.0)), 1.0)
+        target = rows.target if rows is not None else np.ones(m)
+        balance = rows.balance if rows is not None else np.ones(m, bool)
+        d, passes, err, stuck = _balance(op, sums, target, balance, dead)
         scaling = {"cap": d, "cmode": CAP_PRODUCT}  # pairs scaled by the product d_a d_b
-        out.update({"normalised": True, "balancing_passes": it + 1, "balancing_error": float(err)})
+        out.update({"normalised": True, "balancing_passes": passes, "balancing_error": err,
+                    "rows_at_scaling_bound": stuck})
     return out, scaling
 
 
@@ -174,7 +262,7 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
               kernel: str | None = None, tol: float | None = None, max_iter: int | None = None,
               progress: bool = True, callback=None, normalise=None, effects=None, preview=None,
               closure=None, keep_unconverged: bool = False, method: str | None = None,
-              where: str = "auto") -> SolveFigures:
+              where: str = "auto", x0=None) -> SolveFigures:
     """Solve the run's radiosity system with the method whose stage it holds (or `method`);
     write solution/ and the report's "solve" section.
 
@@ -187,7 +275,8 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     two-sided elements reached from one side are solved one-sided). preview: a function
     (2, C, m) radiance per sub-element -> (h, w, 3) uint8 image for the dashboard
     (image.previewer), or None. closure: a closure.Closure already decided (the plan's), else
-    solve.closure. where: the hierarchical method's driver / cluster choice."""
+    solve.closure. where: the hierarchical method's driver / cluster choice. x0: a warm start,
+    a function of the opened method (methods.base.Opened) -> (2, C, M) (hierarchical/rounds.py)."""
     from radiosity.methods.base import get_method, method_of_run
     from radiosity.settings import resolve
 
@@ -209,10 +298,16 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     mode = s.solve.normalise_rows
     if mode in ("auto", None) and closure is None:
         closure = resolve_closure(s.solve.closure, rs.load_elements(), s.rays.epsilon)
-    rows, changes = normalise_rows(op, row_mode(mode, closure))
+    sided = (effects.two_sided if effects is not None
+             else rs.load_elements().two_sided.astype(bool))[opened.orig]
+    targets = RowTargets.of(closure, opened.orig, sided)
+    if targets is not None and (targets.sided != sided).any():
+        op.configure(sided=targets.sided)  # contact backs: those elements solved one-sided
+    rows, changes = normalise_rows(op, row_mode(mode, closure), targets)
     channels = 3
     if effects is not None:
-        changes["sided"] = effects.two_sided[opened.orig]
+        changes["sided"] = effects.two_sided[opened.orig] & (
+            targets.sided if targets is not None else True)
         changes["need"] = effects.gather if not effects.gather.all() else np.zeros(0, np.bool_)
         if not effects.colour:  # grey: one channel, broadcast at the end
             channels = 1
@@ -242,7 +337,8 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
             callback(k, r, L)
 
     clock, terms0 = _PassClock(op), op.terms  # the solver's own passes, for the throughput
-    res = fn(clock, Le, rho, area, tol, max_iter, cb)
+    warm = {} if x0 is None else {"x0": np.ascontiguousarray(x0(opened)[:, :Le.shape[1]])}
+    res = fn(clock, Le, rho, area, tol, max_iter, cb, **warm)
     t_iter, iter_terms = clock.seconds, op.terms - terms0
     bar.close()
     mon.solve(solver, op.kernel, history, force=True)

@@ -102,26 +102,39 @@ class Balance:
     residual_after: float
 
 
-def balance(F, tol: float = 1e-13, max_iterations: int = 10000):
+def balance(F, tol: float = 1e-13, max_iterations: int = 10000, exact: np.ndarray | None = None):
     """Scale the CSR matrix F (n x n, rows summing to about 1, A F symmetric) to
     F'_ij = d_i F_ij d_j with every row summing to 1 (docs/src/design/viewfactors-method.md). Rows that
-    are all zero are left alone (d_i = 1). Returns (F' as a new CSR matrix, Balance)."""
+    are all zero are left alone (d_i = 1). exact (n,) bool: the rows whose target is 1 (None:
+    all); the others (facets partly covered by a touching surface: they see less than their
+    hemisphere) are only capped at 1 in the same iteration (d_i <= 1). Returns (F' as a new
+    CSR matrix, Balance)."""
     import scipy.sparse as sp
 
     F = sp.csr_matrix(F)
     n = F.shape[0]
-    live = np.asarray(F.sum(axis=1)).ravel() > 0
+    rows0 = np.asarray(F.sum(axis=1)).ravel()
+    live = rows0 > 0
+    bal = live if exact is None else live & exact
+    cap = live & ~bal
     d = np.ones(n)
-    before = float(np.abs(np.asarray(F.sum(axis=1)).ravel()[live] - 1.0).max(initial=0.0))
+    before = float(np.abs(rows0[bal] - 1.0).max(initial=0.0))
+
+    def residual(d):
+        r = d * (F @ d)
+        return max(float(np.abs(r[bal] - 1.0).max(initial=0.0)),
+                   float(np.maximum(r[cap] - 1.0, 0.0).max(initial=0.0)))
+
     it = 0
-    res = before
+    res = residual(d)
     while res > tol and it < max_iterations:
         Fd = F @ d
-        d = np.where(live, np.sqrt(d / np.where(live, Fd, 1.0)), 1.0)
+        safe = np.where(Fd > 0, Fd, 1.0)
+        d = np.where(bal, np.sqrt(d / safe), np.where(cap, np.minimum(1.0, np.sqrt(d / safe)), d))
         it += 1
-        res = float(np.abs((d * (F @ d))[live] - 1.0).max(initial=0.0))
+        res = residual(d)
     rows = np.repeat(np.arange(n), np.diff(F.indptr))
     out = sp.csr_matrix((F.data * (d[rows] * d[F.indices]), F.indices.copy(), F.indptr.copy()),
                         shape=F.shape)
-    after = float(np.abs(np.asarray(out.sum(axis=1)).ravel()[live] - 1.0).max(initial=0.0))
+    after = float(np.abs(np.asarray(out.sum(axis=1)).ravel()[bal] - 1.0).max(initial=0.0))
     return out, Balance(d, it, res <= tol, before, after)

@@ -176,7 +176,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     t_asm = time.perf_counter()
     asm = assemble(ledger.rs, fac, tree, {t: run.done[t] for t in range(len(tasks))})
     t_asm = time.perf_counter() - t_asm
-    fig = finish(ledger.rs, out, fac, asm, vf, fmt)
+    fig = finish(ledger.rs, out, fac, asm, vf, fmt, float(s.rays.epsilon))
     fig.update({
         "facets": n, "accuracy": prm.accuracy, "cutoff": prm.cutoff,
         "cheap_kernel_relative_bound": prm.cheap_rel, "max_points_per_side": prm.smax,

@@ -29,12 +29,28 @@ def _worst(fac: Facets, values: np.ndarray, idx: np.ndarray, k: int = 5) -> str:
     return "; ".join(f"{fac.describe(int(i))}: {values[i]:.6g}" for i in idx[:k])
 
 
-def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str) -> dict:
+def covered_fraction(fac: Facets, epsilon: float, points: int = 64) -> np.ndarray:
+    """(n,) the fraction of each facet's front covered by a touching surface (scene/contact.py,
+    `points` stratified sample points per facet)."""
+    from types import SimpleNamespace
+
+    from radiosity.core.kernels import Sampling, sample_points
+    from radiosity.scene.contact import contact_points
+
+    el = SimpleNamespace(verts=fac.verts, nverts=fac.nverts, normal=fac.normal,
+                         two_sided=np.zeros(len(fac), bool))
+    pts, _ = sample_points(fac.verts, fac.nverts, Sampling("nxm", points))
+    return contact_points(el, pts, epsilon)[:, :, 0].mean(axis=1)
+
+
+def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
+           epsilon: float = 1e-6) -> dict:
     """Enclosure test (vf.enclosure: auto | on | off) and balancing of the assembled matrix
     `asm` (master.Assembled), checks and warnings against vf.accuracy, outputs (fmt: npz |
     csv). Returns the figures (with the final matrix under "_matrix")."""
     import scipy.sparse as sp
 
+    from radiosity.scene.contact import COVERED
     from radiosity.viewfactors.enclosure import balance, mesh_closure
     from radiosity.viewfactors.store import write_vf_matrix
     from radiosity.viewfactors.loops import reciprocity_residual
@@ -43,12 +59,22 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str) -> 
     F = asm.matrix
     n = F.shape[0]
     A = fac.area
+    # facets covered by a touching surface take no part, as in the radiosity path; facets
+    # partly covered see less than their hemisphere: not balanced to 1, only capped
+    cover = covered_fraction(fac, epsilon)
+    contact = cover >= COVERED
+    if contact.any():
+        keep = sp.diags(np.where(contact, 0.0, 1.0))
+        F = sp.csr_matrix(keep @ F @ keep)
+        F.eliminate_zeros()
     rows0 = np.asarray(F.sum(axis=1)).ravel()
     cl = mesh_closure(fac.verts, fac.nverts)
     do_balance = mode == "on" or (mode == "auto" and cl.enclosure)
     fig: dict = {"enclosure_mode": mode, "closed": cl.closed, "normals_inward": cl.inward,
                  "enclosure": cl.enclosure, "not_enclosure_because": cl.reason,
                  "balanced": do_balance, "nonzeros": int(F.nnz),
+                 "contact_facets": int(contact.sum()),
+                 "partly_covered_facets": int(((cover > 0) & ~contact).sum()),
                  "row_sum_min": float(rows0.min()), "row_sum_max": float(rows0.max()),
                  "row_sum_histogram": row_histogram(rows0),
                  "obstructed_over_unobstructed": asm.violations,
@@ -59,14 +85,14 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str) -> 
                       "their rows are balanced to 1 all the same")
     scale = np.ones(n)
     if do_balance:
-        dev = np.abs(rows0 - 1.0)
+        dev = np.where(cover == 0, np.abs(rows0 - 1.0), 0.0)
         bad = np.argsort(-dev)
         if dev[bad[0]] > 10 * accuracy:
             warnings.warn(f"enclosure rows sum to 1 +- {dev[bad[0]]:.3g} before balancing "
                           f"(more than 10 x the accuracy {accuracy:g}); worst rows: "
                           f"{_worst(fac, rows0, bad)}")
         F, bal = balance(F, tol=float(vf.balance_tol),
-                         max_iterations=int(vf.balance_max_iterations))
+                         max_iterations=int(vf.balance_max_iterations), exact=cover == 0)
         scale = bal.scale
         fig.update({"balance_iterations": bal.iterations, "balance_converged": bal.converged,
                     "balance_scale_min": float(scale.min()), "balance_scale_max": float(scale.max())})

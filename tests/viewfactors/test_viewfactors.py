@@ -24,7 +24,7 @@ from radiosity.core.exact import (coaxial_discs, pair_form_factors_exact, parall
                        perpendicular_rectangles, polygon_form_factor)
 from radiosity.viewfactors.api import compute_viewfactors, load_facets
 
-from helpers import ROOT  # noqa: E402
+from helpers import ROOT, scene_path  # noqa: E402
 
 
 def run(client, tmp_path, mesh, name="run", **kw):
@@ -640,3 +640,27 @@ def test_killed_driver_resumes_with_the_same_matrix(client, tmp_path):
     assert 3 <= finished < res.figures["tasks"]
     assert res.figures["tasks_reused"] >= finished
     assert (res.matrix != ref.matrix).nnz == 0
+
+
+def test_furnished_room_with_contact_rows_and_reciprocity(client, tmp_path):
+    """The furnished room (legs touching the table top, a shelf on the floor against a wall):
+    its 16 contact facets take no part (zero rows and columns), the facets partly covered are
+    only capped, every other row is balanced to 1; at the default accuracy every row lies in
+    [0, 1 + 1e-3] (before contact handling: up to 1.037, and balancing gave NaN), reciprocity
+    to 1e-12 (issue 26)."""
+    from radiosity.viewfactors.outputs import covered_fraction
+
+    res = run(client, tmp_path, scene_path("furnished-room"))
+    fig, M, A = res.figures, res.matrix, res.area
+    assert fig["enclosure"] and fig["balanced"] and fig["balance_converged"]
+    assert fig["contact_facets"] == 16 and fig["partly_covered_facets"] > 0
+    rows = np.asarray(M.sum(axis=1)).ravel()
+    assert rows.min() >= 0 and rows.max() <= 1 + 1e-3 and np.isfinite(rows).all()
+    cover = covered_fraction(res.facets, 1e-6)
+    contact = cover >= 0.999
+    assert contact.sum() == 16
+    assert rows[contact].max() == 0 and abs(M[:, np.nonzero(contact)[0]]).sum() == 0
+    assert np.abs(rows[cover == 0] - 1).max() < 1e-12
+    assert rows[(cover > 0) & ~contact].max() <= 1 + 1e-12
+    S = (sp.diags(A) @ M).toarray()
+    assert np.abs(S - S.T).max() < 1e-12

@@ -20,8 +20,10 @@ from radiosity.tracing.shafts import _faces, _same_side, _shaft_excludes, tree_c
 # center, lo / hi (node boxes), child (k, 2), orig, depth, path (uint64); ext (k,): leaves that
 # may be split on demand below the camera's partition (links.LinkInputs).
 Tree = namedtuple("Tree", "verts nverts area center lo hi child orig depth path ext")
-# Per original (n): normal (n, 3), two_sided; the oracle's weights wrho, lhat (n, 2) and lref.
-Elements = namedtuple("Elements", "normal two_sided wrho lhat lref")
+# Per original (n): normal (n, 3), two_sided; the oracle's weights wrho, lhat (n, 2) and lref;
+# nhat (k, 2): a source's radiance per partition node (refinement by the solved radiance,
+# rounds.py), used instead of lhat for the nodes of the partition; (0, 2): none (lhat alone).
+Elements = namedtuple("Elements", "normal two_sided wrho lhat lref nhat")
 # Per original as an occluder (shafts.occluders): padded boxes lo / hi, polygons verts /
 # nverts, planes normal / offset, the plane tolerance pad, and the tree over them
 # (shafts.OccluderTree) that finds a shaft's candidates without visiting every occluder.
@@ -221,7 +223,8 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
     wp, wq, wc, wpool = waiting
     Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab
     t_child = tree.child
-    normal, two_sided, wrho, lhat, lref = elem
+    normal, two_sided, wrho, lhat, lref, nhat = elem
+    by_node = nhat.shape[0] > 0
     elo, ehi, everts, envert, enormal, eoffset, pad = occ.lo, occ.hi, occ.verts, occ.nverts, \
         occ.normal, occ.offset, occ.pad
     eps, shadow, near_f, min_size, kid = prm.eps, prm.shadow, prm.near, prm.min_size, prm.kid
@@ -275,8 +278,13 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
         sq = 0 if cb > 0 else 1
         fpq = Aq * g / (r2 * (np.pi * r2 + Aq))
         fqp = Ap * g / (r2 * (np.pi * r2 + Ap))
-        wpq = wrho[op, sp] * lhat[oq, sq] / lref
-        wqp = wrho[oq, sq] * lhat[op, sp] / lref
+        if by_node:  # the solved radiance of the source node (rounds.py)
+            lq = nhat[Lpn[q], sq] if Lpn[q] >= 0 else lhat[oq, sq]
+            lp = nhat[Lpn[p], sp] if Lpn[p] >= 0 else lhat[op, sp]
+        else:
+            lq, lp = lhat[oq, sq], lhat[op, sp]
+        wpq = wrho[op, sp] * lq / lref
+        wqp = wrho[oq, sq] * lp / lref
         amount = max(fpq * wpq, fqp * wqp)  # weighted transfer (partly visible links)
         prefer = 1 if Aq >= Ap else 0       # the node that looks larger from the other
         near = np.sqrt(r2) < near_f * max(np.sqrt(Ap), np.sqrt(Aq))

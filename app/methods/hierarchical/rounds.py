@@ -1,0 +1,315 @@
+"""Refinement by the solved radiance (issue 26; Hanrahan, Salzman & Aupperle 1991's "BF
+refinement"; SPEC §8): the link oracle weighs a link p <- q by rho_p F_pq L_q / lref with an
+a-priori radiance L_q (emission plus an ambient term: links.oracle_weights), which does not know
+where indirect light goes. After a first solve, rounds weigh the links by the solved radiance:
+
+1. per node of the partition's split trees and side, the solved radiance (the area-weighted
+   mean of its sub-elements, largest channel) divided by hierarchy.rounds-epsilon (the solved
+   test's target as a multiple of epsilon), and never below the a-priori weight nor below the
+   weight already used: the oracle's weights only rise, so the refinement of a pair only
+   deepens (refine._refine_loop takes them as nhat);
+2. every stored link gets the oracle's error estimate again under the old and the new weights
+   (links_to_refine, from the node table's polygons); a link task is made again, with the new
+   weights, when one of its links would now be split (estimate above epsilon, or partly
+   visible above the shadow threshold, with a node that can split) and its estimate rose by
+   more than hierarchy.rounds-change times the target. The other tasks keep their links (the
+   stage's resume: only the tasks taken out of the manifest run). A task holds whole pairs of
+   originals and starts again from their root links (the oracle is deterministic: what met
+   the target under the new weights comes out as before);
+3. the node table is rebuilt and the system solved again from the previous solution (warm
+   start: warm_start), until no link is picked or after hierarchy.rounds rounds; only the last
+   solve does the final gather.
+
+The loop of solves and rounds is stages/rounds.solve_with_rounds (a method does not call the
+solve stage). The links stay in the store as the link stage writes them (the plan's token
+changes to one that names the round), so views, exports and tables read them as any run's.
+Design and measurements: docs/src/design/methods-hierarchical-rounds.md.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numba
+import numpy as np
+
+from radiosity.errors import RadiosityError
+from radiosity.methods.hierarchical.formfactors import _spread
+
+
+def rounds_of(settings) -> tuple[int, float, float]:
+    """(rounds, epsilon factor, change) of hierarchy.rounds, rounds-epsilon, rounds-change,
+    checked."""
+    h = settings.hierarchy
+    try:
+        n, f, c = int(h.rounds), float(h.rounds_epsilon), float(h.rounds_change)
+    except (TypeError, ValueError):
+        raise RadiosityError(f"radiosity.hierarchy.rounds, rounds-epsilon and rounds-change must "
+                             f"be numbers, got {h.rounds!r}, {h.rounds_epsilon!r}, "
+                             f"{h.rounds_change!r}") from None
+    if n < 0 or not f > 0 or not c >= 0:
+        raise RadiosityError(f"radiosity.hierarchy.rounds must be >= 0, rounds-epsilon > 0 and "
+                             f"rounds-change >= 0, got {n}, {f}, {c}")
+    return n, f, c
+
+
+def node_radiance(tree, area: np.ndarray, radiance: np.ndarray) -> np.ndarray:
+    """(k, 2): per node of the partition's split trees (splittrees.TreeNodes: its sub-elements
+    lo:hi) and side, the largest channel of the area-weighted mean of the sub-elements'
+    radiance (m, 2, C)."""
+    w = area[:, None, None] * radiance
+    cs = np.concatenate([np.zeros((1,) + w.shape[1:]), np.cumsum(w, axis=0)])
+    ca = np.concatenate([[0.0], np.cumsum(area)])
+    lo, hi = np.asarray(tree.lo, np.int64), np.asarray(tree.hi, np.int64)
+    a = ca[hi] - ca[lo]
+    mean = (cs[hi] - cs[lo]) / np.where(a > 0, a, 1.0)[:, None, None]
+    return mean.max(axis=2)
+
+
+def previous_solution(rs) -> dict:
+    """What a warm start needs from the run's solution and node table: radiance per
+    sub-element (m, 2, C), per leaf (M, 2, C), and the leaves' names (original, node code)."""
+    sol = rs.read_arrays("solution")
+    t = rs.read_arrays("hierarchy")
+    leaf = t["leaf_node"]
+    return {"radiance": sol["radiance"], "leaf_radiance": sol["leaf_radiance"],
+            "orig": t["orig"][leaf], "code": t["code"][leaf]}
+
+
+def warm_start(prev: dict):
+    """x0 for run_solve (previous_solution's `prev`): each leaf of the opened hierarchical
+    method starts at its own previous radiance when it was a leaf before, else at the previous
+    radiance of its sub-element."""
+    def x0(opened):
+        t = opened.state["table"]
+        leaf = t["leaf_node"]
+        out = np.array(prev["radiance"][t["leaf_sub"]], dtype=float)  # (M, 2, C)
+        where = {(int(o), int(c)): i for i, (o, c) in enumerate(zip(prev["orig"], prev["code"]))}
+        lr = prev["leaf_radiance"]
+        for j, (o, c) in enumerate(zip(t["orig"][leaf].tolist(), t["code"][leaf].tolist())):
+            i = where.get((o, c))
+            if i is not None:
+                out[j] = lr[i]
+        return np.ascontiguousarray(np.transpose(out, (1, 2, 0)))
+
+    return x0
+
+
+@numba.njit(cache=True, nogil=True)
+def _weighted(a, b, sa, sb, V, NV, A, C, orig, normal, wrho, wnode, can, lref, oracle,
+              far_polygon):
+    """(transfer, error estimate) of link a <- b (sides sa, sb) under the node weights wnode
+    (N, 2): refine._refine_loop's, from the node table's polygons."""
+    op, oq = orig[a], orig[b]
+    gp = 1.0 if sa == 0 else -1.0
+    gq = 1.0 if sb == 0 else -1.0
+    npx, npy, npz = normal[op, 0], normal[op, 1], normal[op, 2]
+    nqx, nqy, nqz = normal[oq, 0], normal[oq, 1], normal[oq, 2]
+    dx, dy, dz = C[b, 0] - C[a, 0], C[b, 1] - C[a, 1], C[b, 2] - C[a, 2]
+    r2 = dx * dx + dy * dy + dz * dz + 1e-300
+    g = abs((npx * dx + npy * dy + npz * dz) * (nqx * dx + nqy * dy + nqz * dz))
+    Ap, Aq = A[a], A[b]
+    fpq = Aq * g / (r2 * (np.pi * r2 + Aq))
+    fqp = Ap * g / (r2 * (np.pi * r2 + Ap))
+    wpq = wrho[op, sa] * wnode[b, sb] / lref
+    wqp = wrho[oq, sb] * wnode[a, sa] / lref
+    amount = max(fpq * wpq, fqp * wqp)
+    if oracle == 0:
+        return amount, amount
+    if oracle == 1:
+        return amount, amount * ((np.sqrt(Ap) if can[a] else 0.0)
+                                 + (np.sqrt(Aq) if can[b] else 0.0)) / np.sqrt(r2)
+    ep = eq = 0.0
+    if can[a]:
+        big, curv = _spread(V, a, NV[a], gp * npx, gp * npy, gp * npz, C, b, gq * nqx,
+                            gq * nqy, gq * nqz, Aq, fpq)
+        ep = wpq * big
+        if Ap <= Aq or not far_polygon:
+            ep += max(wpq, wqp) * curv
+    if can[b]:
+        big, curv = _spread(V, b, NV[b], gq * nqx, gq * nqy, gq * nqz, C, a, gp * npx,
+                            gp * npy, gp * npz, Ap, fqp)
+        eq = wqp * big
+        if Aq < Ap or not far_polygon:
+            eq += max(wpq, wqp) * curv
+    return amount, max(ep, eq)
+
+
+@numba.njit(cache=True, nogil=True)
+def links_to_refine(p, q, sp, sq, v, V, NV, A, C, orig, normal, wrho, old, new, can, lref,
+                    eps, shadow, change, oracle, far_polygon):
+    """(k,) bool: the stored links p <- q (node table indices, sides, visible fractions) that
+    the oracle would split under the new node weights (k nodes, 2) and whose estimate grew by
+    more than `change` times its target since the old weights: error above epsilon, or partly
+    visible with a transfer above `shadow`, and a node that can split."""
+    out = np.zeros(p.shape[0], np.bool_)
+    for k in range(p.shape[0]):
+        a, b = p[k], q[k]
+        if not (can[a] or can[b]):
+            continue
+        am1, e1 = _weighted(a, b, sp[k], sq[k], V, NV, A, C, orig, normal, wrho, new, can,
+                            lref, oracle, far_polygon)
+        am0, e0 = _weighted(a, b, sp[k], sq[k], V, NV, A, C, orig, normal, wrho, old, can,
+                            lref, oracle, far_polygon)
+        if 0.0 < v[k] < 1.0:
+            out[k] = am1 > shadow and am1 - am0 > change * shadow
+        else:
+            out[k] = e1 > eps and e1 - e0 > change * eps
+    return out
+
+
+class Rounds:
+    """The state of the rounds of one run: the weights the links were made with per partition
+    node (k, 2), the a-priori ones, and the figures of each round."""
+
+    def __init__(self, run_dir: str, settings, unit=None, occlusion: bool = True):
+        from radiosity.methods.hierarchical.links import LinkInputs, plan_links
+        from radiosity.runtime.store import RunStore
+        from radiosity.scene.splittrees import tree_nodes
+
+        self.run_dir, self.s, self.unit, self.occlusion = run_dir, settings, unit, occlusion
+        self.rounds, self.factor, self.change = rounds_of(settings)
+        rs = RunStore(run_dir)
+        self.part, self.el = rs.load_partition(), rs.load_elements()
+        self.tree = tree_nodes(self.part, self.el)
+        self.lp = plan_links(rs, self.part, self.el, settings, unit, occlusion)
+        # the stored task plan is the one the rounds refine (the same as lp's unless a
+        # setting changed since the link stage)
+        from radiosity.methods.hierarchical.store import LinkStore
+
+        self.pairs, self.first = LinkStore(rs).plan()
+        same = (np.array_equal(self.pairs, self.lp.pairs)
+                and np.array_equal(self.first, self.lp.first))
+        self.cost = self.lp.cost if same else np.diff(self.first).astype(np.int64)
+        from dask.base import tokenize
+
+        k = int(settings.hierarchy.rounds_rays) or self.lp.prm.rays
+        if k < 1 or int(round(np.sqrt(k))) ** 2 != k:
+            raise RadiosityError(f"radiosity.hierarchy.rounds-rays must be 0 or a square (1, 4, "
+                                 f"9, 16, ...), got {k}")
+        import dataclasses
+
+        prm = dataclasses.replace(self.lp.prm, rays=k)  # the rays of the links made again
+        self.inp = LinkInputs(self.tree, self.part, self.el, self.lp.seen, prm,
+                              self.lp.weight, tokenize(self.el.verts, self.el.nverts),
+                              settings.rays.epsilon, self.lp.hit)
+        self.apriori = self.inp.lhat[np.asarray(self.tree.orig, np.int64)]  # (k, 2)
+        self.used = self.apriori.copy()
+        self.figures: list[dict] = []
+
+    def weights(self, radiance: np.ndarray) -> np.ndarray:
+        """The new weights (k, 2) from the solved radiance per sub-element (m, 2, C): the
+        solved node radiance / rounds-epsilon, never below the weights used so far."""
+        solved = node_radiance(self.tree, self.part.area, radiance) / self.factor
+        return np.maximum(self.used, solved)
+
+    def tasks(self, new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the link tasks to refine again, the originals whose links they hold): those with a
+        stored link that the oracle would split under the new weights and whose error estimate
+        grew by more than rounds-change times the target (links_to_refine)."""
+        from radiosity.core.geometry import polygon_properties
+        from radiosity.methods.hierarchical.store import LinkStore, read_links
+        from radiosity.runtime.store import RunStore
+        from radiosity.scene.splittrees import MAX_DEPTH, find_codes
+
+        rs = RunStore(self.run_dir)
+        ls = LinkStore(rs)
+        done = ls.finished(ls.token())
+        t = ls.read_nodes()
+        orig, path = t["orig"].astype(np.int64), t["path"]
+        depth, noff, pnode = t["depth"].astype(np.int64), t["noff"].astype(np.int64), t["pnode"]
+        V, NV = t["verts"], t["nverts"].astype(np.int64)
+        A, _, C = polygon_properties(V, t["nverts"])
+        inp, prm = self.inp, self.lp.prm
+        # can a node split (refine._copy_tree_node, and split-off nodes)?
+        pn = np.maximum(pnode, 0)
+        can = np.where(pnode >= 0,
+                       (inp.t_child[pn, 0] >= 0) | (inp.ext[pn] & (np.sqrt(inp.t_area[pn])
+                                                                   > prm.min_size)
+                                                    & (inp.t_depth[pn] < MAX_DEPTH)),
+                       (np.sqrt(A) > prm.min_size) & (depth < MAX_DEPTH))
+        # node weights as the kernel takes them: partition nodes nhat, split-off nodes lhat
+        per_orig = inp.lhat[orig]
+        old = np.where((pnode >= 0)[:, None], self.used[pn], per_orig)
+        nw = np.where((pnode >= 0)[:, None], new[pn], per_orig)
+        todo, touched = [], np.zeros(len(self.el), bool)
+        for task in sorted(done):
+            links, _ = read_links(rs.path, task, done[task])
+            p = find_codes(orig, path, depth, noff, links["po"].astype(np.int64), links["pc"])
+            q = find_codes(orig, path, depth, noff, links["qo"].astype(np.int64), links["qc"])
+            hit = links_to_refine(p, q, links["sp"].astype(np.int64),
+                                  links["sq"].astype(np.int64), links["v"].astype(np.float64),
+                                  V, NV, A, C, orig, inp.normal, inp.wrho, old, nw,
+                                  can.astype(np.bool_), float(inp.lref), prm.epsilon, prm.shadow,
+                                  self.change, prm.oracle, prm.far_polygon)
+            if hit.any():
+                todo.append(task)
+                touched[links["po"][hit]] = True
+                touched[links["qo"][hit]] = True
+        return np.array(todo, np.int64), touched
+
+    def refine(self, client, radiance: np.ndarray, progress: bool = False) -> dict:
+        """One round: new weights from the solved radiance, the raised originals' link tasks
+        refined again, the node table rebuilt. Returns the round's figures ({"tasks": 0}: nothing
+        to refine)."""
+        from dask.base import tokenize
+
+        from radiosity.methods.hierarchical.links import link_figures, node_table_of, task_links
+        from radiosity.methods.hierarchical.refine import COUNTERS
+        from radiosity.methods.hierarchical.store import LinkStore
+        from radiosity.runtime.cluster import Scattered
+        from radiosity.runtime.stage import StagePlan, run_stage
+        from radiosity.runtime.store import RunStore, update_report
+
+        t0 = time.perf_counter()
+        new = self.weights(radiance)
+        todo, raised = self.tasks(new)
+        fig = {"round": len(self.figures) + 1, "originals": int(raised.sum()),
+               "tasks": int(len(todo))}
+        self.used = new  # what the links not made again were checked against, too
+        if not len(todo):
+            fig["time_s"] = round(time.perf_counter() - t0, 4)
+            self.figures.append(fig)
+            return fig
+        rs = RunStore(self.run_dir, "r+")
+        ls = LinkStore(rs)
+        old = ls.token()
+        token = tokenize(old, "rounds", fig["round"], new)
+        done = ls.finished(old)
+        keep = {t: e for t, e in done.items() if t not in set(todo.tolist())}
+        # the plan's token names the round: the stage's resume keeps the other tasks
+        rs.root["links"].update_attributes({"token": token})
+        if "clusters" in rs.root:
+            rs.root["clusters"].update_attributes({"token": token})
+        ls.rewrite_manifest(token, keep)
+        self.inp.nhat = np.ascontiguousarray(new)
+        shared = Scattered(client, self.inp)
+        s, lp = self.s, self.lp
+        cpu = [0.0, 0.0, 0.0]
+
+        def on_result(task, res, done):
+            for k, v in enumerate(res["cpu"]):
+                cpu[k] += v
+
+        def create():  # never: the token was just written
+            raise RadiosityError(f"rounds: the links of {self.run_dir} changed under the round")
+
+        pairs, first = self.pairs, self.first
+        plan = StagePlan("links (round)", token, rs.path, len(first) - 1, self.cost,
+                         f"rerun with: radiosity visibility {self.run_dir} --method hierarchical",
+                         int(s.visibility.window_per_worker), int(s.visibility.retries))
+        run = run_stage(client, plan, task_links,
+                        lambda t: (shared.future(), pairs[first[t]:first[t + 1]], rs.path, t),
+                        ls, resume=True, create=create, ncounters=len(COUNTERS),
+                        on_result=on_result, progress=progress)
+        table, split = node_table_of(rs, self.tree, self.part, run.done, plan.ntasks, token)
+        links = link_figures(s, lp, run, len(self.part), table, split, cpu, self.occlusion,
+                             client)
+        fig.update(links=int(links["links"]), leaves=int(links["leaves"]),
+                   rays=int(links["rays"]), time_s=round(time.perf_counter() - t0, 4))
+        self.figures.append(fig)
+        keep_keys = ("links", "links_per_leaf", "leaves", "nodes", "split_off_nodes", "rays",
+                     "ray_links", "refined", "evaluated", "exact", "shaft_visible",
+                     "shaft_blocked")
+        update_report(self.run_dir, "links", {k: links[k] for k in keep_keys if k in links})
+        return fig

@@ -171,15 +171,15 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     Monitor(client).stage("preprocess", out, scene.name)
     store = RunStore(out, "w")
     store.save_elements(el)
-    store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(), subpixel=subpixel,
-                    views={name: c.to_dict() for name, c in scene.views})
+    store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(),
+                    subpixel=subpixel, views={name: c.to_dict() for name, c in scene.views})
     key = tokenize(el.verts, el.nverts)
     inp = RasterInputs(el, tuple(cams), subpixel, key, float(st.rays.epsilon))
     shared = Scattered(client, inp)
     # task keys: deterministic per run directory and inputs (never shared between two runs)
     token = tokenize(key, [c.to_dict() for c in cams], subpixel, variant, max_depth, ntasks,
-                     rows_per_task, inp.epsilon, store.path, sd.unseen, sd.unseen_factor, sd.unseen_budget,
-                     sd.hidden, sd.hidden_factor, sd.hidden_rays)
+                     rows_per_task, inp.epsilon, store.path, sd.unseen, sd.unseen_factor,
+                     sd.unseen_budget, sd.hidden, sd.hidden_factor, sd.hidden_rays)
     repair = f"run radiosity preprocess again into {out}"
 
     # 1. the ID raster of the original scene (row bands of every camera), needed by both

@@ -311,7 +311,7 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
         if out is not None:
             check_new_run_dir(out, force or bool(options.get("resume")))
         if client is None:
-            samples = sc.camera.width * sc.camera.height * int(st.subdivide.subpixel) ** 2
+            samples = sum(c.width * c.height for c in sc.cameras) * int(st.subdivide.subpixel) ** 2
             inproc, why = local_mode(st.cluster.processes, samples, st.cluster.in_process_samples)
             client = stack.enter_context(open_client(workers, scheduler, quiet=echo is None,
                                                      echo=say, in_process=inproc, where=why))

@@ -23,9 +23,10 @@ from radiosity.cli.studies import study
 from radiosity.errors import RadiosityError
 
 
-def _samples(camera, subpixel) -> int:
-    """Camera samples of a run (width x height x subpixel^2): the size local_mode weighs."""
-    return int(camera.width) * int(camera.height) * int(subpixel) ** 2
+def _samples(cameras, subpixel) -> int:
+    """Camera samples of a run (width x height x subpixel^2, summed over its cameras): the size
+    local_mode weighs."""
+    return sum(int(c.width) * int(c.height) for c in cameras) * int(subpixel) ** 2
 
 
 def _run_samples(rs) -> int | None:
@@ -122,7 +123,7 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, force, work
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
     with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind, st,
-                                                 _samples(sc.camera, st.subdivide.subpixel)) as client:
+                                                 _samples(sc.cameras, st.subdivide.subpixel)) as client:
         fig = run(sc, out, client, settings=st)
         _record_run(out, sc.name)
     click.echo(_table(_finish(out, fig.rows())))
@@ -418,7 +419,7 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
     with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind, st,
-                                                 _samples(sc.camera, st.subdivide.subpixel)) as client:
+                                                 _samples(sc.cameras, st.subdivide.subpixel)) as client:
         rep = render_scene(sc, out, client, st, unit=task_unit, resume=resume, filter=filter_,
                            sigma=sigma, exposure=exposure,
                            preview=preview, echo=click.echo, full=full,

@@ -377,6 +377,21 @@ def plan(scene, resolution, subpixel, tol):
     method, why = choose_method(planned.sub_elements, st, originals=len(sc.elements),
                                 facing_pairs=est.get("facing_original_pairs",
                                                      est.get("facing_original_pairs_estimate")))
+    n = len(sc.elements)
+    clustered = st.hierarchy.clustered(n)[0] or "(clustered)" in why
+    if method == "hierarchical" and clustered:
+        from radiosity.methods.hierarchical.clusters import LINKS_PER_ORIGINAL, LINKS_PER_THREAD_S
+
+        lo, hi = (k * n for k in LINKS_PER_ORIGINAL)
+        threads = os.cpu_count() or 1
+        click.echo(f"method: {why}")
+        click.echo(f"clusters: a tree of {2 * n - 1} clusters over the {n} originals; links start "
+                   f"at its root (SPEC §9): about {lo:.2g} to {hi:.2g} links "
+                   f"({LINKS_PER_ORIGINAL[0]:g}-{LINKS_PER_ORIGINAL[1]:g} per original as measured "
+                   f"on a terrain and a tessellated box), a link stage of about "
+                   f"{lo / (LINKS_PER_THREAD_S[1] * threads):.2g} to "
+                   f"{hi / (LINKS_PER_THREAD_S[0] * threads):.2g} s on {threads} local thread(s)")
+        return
     lo, hi = (k * planned.sub_elements for k in LINKS_PER_LEAF)
     click.echo(f"method: {why}; the hierarchical method would keep {lo:.2g} to {hi:.2g} links "
                f"({LINKS_PER_LEAF[0]:g}-{LINKS_PER_LEAF[1]:g} per sub-element as measured, "

@@ -19,6 +19,12 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+# What a clustered scene costs, as measured (benchmarks/bench_clusters.py, results/clusters.json:
+# a terrain and the Cornell box cut into triangles, 128^2, default epsilon): links in all
+# (cluster and element level) per original, and links made per second per worker thread in the
+# link stage; `radiosity plan` estimates from them.
+LINKS_PER_ORIGINAL = (186.0, 227.0)
+LINKS_PER_THREAD_S = (46e3, 82e3)
 # A link is near when its ends' box diagonals summed exceed this many times the distance
 # between the boxes: never kept between clusters (the estimate from sample pairs, and the
 # receivers' uniform share, fail there; docs/src/design/methods-hierarchical-clusters.md).

@@ -519,6 +519,16 @@ def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_pat
     assert r.exit_code == 0, r.output
     line = [ln for ln in r.output.splitlines() if ln.startswith("method: ")]
     assert len(line) == 1 and "hierarchical: auto" in line[0] and "links" in line[0], r.output
+    # clustered: the tree over the originals, the links and the link stage's time estimated
+    # per original (clusters.LINKS_PER_ORIGINAL, LINKS_PER_THREAD_S)
+    from radiosity.methods.hierarchical.clusters import LINKS_PER_ORIGINAL
+
+    with dask.config.set({"radiosity.hierarchy.clusters": "on"}):
+        r = CliRunner().invoke(main, ["plan", scene_path("three-rectangles"), "--resolution", "64"])
+    assert r.exit_code == 0, r.output
+    line = [ln for ln in r.output.splitlines() if ln.startswith("clusters: ")]
+    assert len(line) == 1 and "a tree of 5 clusters over the 3 originals" in line[0], r.output
+    assert f"about {LINKS_PER_ORIGINAL[0] * 3:.2g} to" in line[0] and " s on " in line[0]
 
 
 def test_epsilon_auto_scales_with_the_raster_and_reaches_the_links(client, tmp_path):

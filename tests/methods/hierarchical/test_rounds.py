@@ -114,17 +114,18 @@ def test_rounds_off_is_the_plain_solve(client, tmp_path):
 
 
 def test_rounds_bring_the_indirect_box_toward_a_tight_epsilon(client, tmp_path):
-    """The Cornell box lit only indirectly at 24^2: against an --epsilon 1e-4 render, the
-    default (a-priori weights) is off by more than 8 % on some surface (the red wall), with two
-    rounds every surface is within 6 % and the mean error is lower; the rounds' links are in
-    the store (a solve from scratch on them gives the rounds' answer)."""
+    """The Cornell box lit only indirectly at 24^2: against an --epsilon 1e-4 render, epsilon
+    5e-4 with the a-priori weights (the default base this was measured with) is off by more
+    than 8 % on some surface (the red wall), with two rounds every surface is within 6 % and
+    the mean error is lower; the rounds' links are in the store (a solve from scratch on them
+    gives the rounds' answer)."""
     path = scene_path("cornell-box-indirect")
     _render(client, path, str(tmp_path / "ref"), 24, rounds=0, epsilon=1e-4)
     ref = _surface_means(str(tmp_path / "ref"))
     errs = {}
     for name, n in (("default", 0), ("rounds", 2)):
         out = str(tmp_path / name)
-        fig = _render(client, path, out, 24, rounds=n)
+        fig = _render(client, path, out, 24, rounds=n, epsilon=5e-4)
         got = _surface_means(out)
         errs[name] = {e: got[e] / ref[e] - 1 for e in ref if ref[e] > 0}
     worst = {k: max(abs(x) for x in v.values()) for k, v in errs.items()}

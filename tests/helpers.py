@@ -190,3 +190,49 @@ def edit_glb(data: bytes, edit) -> bytes:
     rest = data[20 + n:]
     out = struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(body) + len(rest))
     return out + struct.pack("<I4s", len(body), b"JSON") + body + rest
+
+
+def link_power_balance(run_dir: str) -> tuple[float, float, float]:
+    """(emitted, absorbed, escaped) power of a solved hierarchical run, the escaped part from
+    each leaf's total outgoing form factor summed directly from the stored links over its
+    ancestors (not through the operator): they balance only if pull and push weigh by area
+    consistently."""
+    import numpy as np
+
+    from radiosity.methods.hierarchical.transport import (leaf_vectors, open_link_operator,
+                                                          task_link_arrays)
+    from radiosity.runtime.store import RunStore
+
+    rs = RunStore(run_dir)
+    op, table, el, _ = open_link_operator(rs, None)
+    Le, rho, A = leaf_vectors(table, el)
+    L = np.transpose(rs.read_arrays("solution")["leaf_radiance"], (1, 2, 0))
+    H = op.apply(L)
+    # independently: sum of F v over the links of each node, per side, then down the tree
+    N = len(table["orig"])
+    R = np.zeros((2, N))
+    for t in range(len(op.inp.entries)):
+        p, q, wpq, wqp, sp, sq, _ = task_link_arrays(op.inp, t)
+        np.add.at(R, (sp, p), wpq)
+        np.add.at(R, (sq, q), wqp)
+    for i in range(N):
+        if table["parent"][i] >= 0:
+            R[:, i] += R[:, table["parent"][i]]
+    R = R[:, table["leaf_node"]][:, None, :]
+    emitted = np.pi * np.sum(A * Le)
+    absorbed = np.pi * np.sum(A * (1 - rho) * H)
+    escaped = np.pi * np.sum(A * L * (1 - R))
+    return float(emitted), float(absorbed), float(escaped)
+
+
+def per_surface(img, ref, orig, min_pixels: int = 40) -> dict:
+    """Relative difference of two images summed over each original's pixels (orig: the raster
+    of originals), for originals covering at least min_pixels: {original: img / ref - 1}."""
+    import numpy as np
+
+    out = {}
+    for o in np.unique(orig[orig >= 0]):
+        m = orig == o
+        if m.sum() >= min_pixels:
+            out[int(o)] = float(img[m].sum() / ref[m].sum() - 1)
+    return out

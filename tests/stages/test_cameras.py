@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from helpers import scene_path
+from helpers import per_surface, scene_path
 
 R = 32
 FRONT = dict(position=[278.0, 273.0, -800.0], look_at=[278.0, 273.0, 0.0], up=[0.0, 1.0, 0.0],
@@ -130,15 +130,6 @@ def test_the_partition_of_two_cameras_is_the_union_of_each_cameras():
 
 # ----------------------------------------------------------------------------- whole renders
 
-def _per_surface(img, ref, orig, min_pixels=20):
-    out = {}
-    for o in np.unique(orig[orig >= 0]):
-        m = orig == o
-        if m.sum() >= min_pixels:
-            out[int(o)] = float(img[m].sum() / ref[m].sum() - 1)
-    return out
-
-
 @pytest.mark.cluster
 def test_each_cameras_image_matches_its_single_camera_render(tmp_path):
     """One render of a scene with two cameras (front, above: the floor behind the blocks and
@@ -169,7 +160,7 @@ def test_each_cameras_image_matches_its_single_camera_render(tmp_path):
     for img, ref, run in ((both.image, front.image, "front"), (both.views["above"], above.image,
                                                                "above")):
         orig = RunStore(str(tmp_path / run)).read_arrays("raster")["orig"]
-        diffs = _per_surface(img, ref, orig)
+        diffs = per_surface(img, ref, orig, min_pixels=20)
         assert len(diffs) >= 5, (run, diffs)
         assert max(abs(x) for x in diffs.values()) < 0.02, (run, diffs)
         assert abs(img.mean() / ref.mean() - 1) < 0.01, run

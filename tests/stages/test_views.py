@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from helpers import scene_path
+from helpers import per_surface, scene_path
 
 pytestmark = pytest.mark.cluster
 
@@ -40,15 +40,6 @@ def runs(tmp_path_factory):
     return d, a, b
 
 
-def _per_surface(img, ref, orig, min_pixels=40):
-    out = {}
-    for o in np.unique(orig[orig >= 0]):
-        m = orig == o
-        if m.sum() >= min_pixels:
-            out[int(o)] = float(img[m].sum() / ref[m].sum() - 1)
-    return out
-
-
 def test_a_view_from_above_equals_a_fresh_render_from_there(runs):
     from radiosity.runtime.store import RunStore
     from radiosity.stages.views import render_view
@@ -59,7 +50,7 @@ def test_a_view_from_above_equals_a_fresh_render_from_there(runs):
     assert v.figures["gather"]["gathered_points"] > 0  # the floor behind the blocks was unseen
     assert abs(v.image.mean() / b.image.mean() - 1) < 0.01
     orig = RunStore(str(d / "B")).read_arrays("raster")["orig"]
-    diffs = _per_surface(v.image, b.image, orig)
+    diffs = per_surface(v.image, b.image, orig)
     assert len(diffs) >= 5 and max(abs(x) for x in diffs.values()) < 0.03, diffs
 
 
@@ -82,7 +73,7 @@ def test_a_view_from_the_runs_own_camera_shows_its_solution(runs):
             <= 0).astype(int)
     point = np.where((sub >= 0)[..., None], rad[np.maximum(sub, 0), side[np.maximum(sub, 0)]], 0.0)
     assert abs(v.image.mean() / point.mean() - 1) < 0.002
-    diffs = _per_surface(v.image, point, orig)
+    diffs = per_surface(v.image, point, orig)
     assert max(abs(x) for x in diffs.values()) < 0.005, diffs
 
 

@@ -21,7 +21,7 @@ from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
                                                    RefineParams, Tree, new_table, refine, roots)
-from radiosity.methods.hierarchical.clusters import plan_clusters
+from radiosity.methods.hierarchical.clustertasks import plan_clusters
 from radiosity.methods.hierarchical.sampling import link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
@@ -412,7 +412,7 @@ class LinkPlan:
 def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
                progress: bool = False) -> LinkPlan:
     """The link stage's plan for run store `rs` (its partition, elements) under settings `s`;
-    with a `client`, the cluster layer runs as tasks on it (clusters.plan_clusters)."""
+    with a `client`, the cluster layer runs as tasks on it (clustertasks.plan_clusters)."""
     from dask.base import tokenize
 
     from radiosity.runtime.packing import choose_unit

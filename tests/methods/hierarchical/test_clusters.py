@@ -9,7 +9,8 @@ import pytest
 
 from radiosity.core.bundles import Elements
 from radiosity.core.geometry import polygon_properties
-from radiosity.methods.hierarchical.clusters import cluster_tree, link_form_factors, refine_all
+from radiosity.methods.hierarchical.clusters import cluster_tree, link_form_factors
+from radiosity.methods.hierarchical.clustertasks import refine_all
 from radiosity.scene.originals import facing_pairs, tree_of
 
 
@@ -309,7 +310,7 @@ def test_the_cluster_layer_is_the_same_in_tasks_and_in_one_process(client):
     one's subtree a task with its form factors and rays) gives the same links, pairs and
     weights as the whole refinement in one process: the result does not depend on the cut or
     the workers."""
-    from radiosity.methods.hierarchical import clusters
+    from radiosity.methods.hierarchical import clustertasks as clusters
     from radiosity.methods.hierarchical.links import oracle_weights
 
     v, n = _sphere(40, 64)

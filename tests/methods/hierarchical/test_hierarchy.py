@@ -13,14 +13,14 @@ import pytest
 from radiosity.core.exact import differential_to_rectangle, pair_form_factors_exact
 from radiosity.scene.splittrees import decode, node_table, seen_originals, tree_nodes
 from radiosity.methods.hierarchical.links import COUNTERS, LinkInputs, compute_links, refine_pairs, resolve_params
-from radiosity.methods.hierarchical.transport import (LinkOperator, LocalLinkOperator, leaf_vectors,
-                                                      open_link_operator, task_link_arrays)
+from radiosity.methods.hierarchical.transport import (LinkOperator, LocalLinkOperator,
+                                                      open_link_operator)
 from radiosity.tracing.rays import RayCaster
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
 from radiosity.scene.subdivide import split_polygons, subdivide_scene
 from radiosity.settings import resolve
-from helpers import prepared, radiance, scene_path, write_scene
+from helpers import link_power_balance, prepared, radiance, scene_path, write_scene
 
 ALL_PAIRS = {"radiosity.hierarchy.min-node-size": 1e9, "radiosity.hierarchy.weight": "none",
              "radiosity.hierarchy.near-gauss-gap": float("inf"),
@@ -310,25 +310,7 @@ def test_push_pull_conserves_energy_in_an_open_scene(client, tmp_path):
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 16, visibility=False)
     fig = compute_links(out, client, progress=False)
     run_solve_links(out, client, solver="gauss-seidel", tol=1e-13, max_iter=500, progress=False)
-    rs = RunStore(out)
-    op, table, el, part = open_link_operator(rs, None)
-    Le, rho, A = leaf_vectors(table, el)
-    L = np.transpose(rs.read_arrays("solution")["leaf_radiance"], (1, 2, 0))
-    H = op.apply(L)
-    # independently: sum of F v over the links of each node, per side, then down the tree
-    N = len(table["orig"])
-    R = np.zeros((2, N))
-    for t in range(len(op.inp.entries)):
-        p, q, wpq, wqp, sp, sq, _ = task_link_arrays(op.inp, t)
-        np.add.at(R, (sp, p), wpq)
-        np.add.at(R, (sq, q), wqp)
-    for i in range(N):
-        if table["parent"][i] >= 0:
-            R[:, i] += R[:, table["parent"][i]]
-    R = R[:, table["leaf_node"]][:, None, :]
-    emitted = np.pi * np.sum(A * Le)
-    absorbed = np.pi * np.sum(A * (1 - rho) * H)
-    escaped = np.pi * np.sum(A * L * (1 - R))
+    emitted, absorbed, escaped = link_power_balance(out)
     assert fig["links"] < fig["leaves"] ** 2 / 4 and escaped > 0.01 * emitted
     assert absorbed + escaped == pytest.approx(emitted, rel=1e-9)
 
@@ -521,7 +503,7 @@ def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_pat
     assert len(line) == 1 and "hierarchical: auto" in line[0] and "links" in line[0], r.output
     # clustered: the tree over the originals, the links and the link stage's time estimated
     # per original (clusters.LINKS_PER_ORIGINAL, LINKS_PER_THREAD_S)
-    from radiosity.methods.hierarchical.clusters import LINKS_PER_ORIGINAL
+    from radiosity.methods.hierarchical.clustertasks import LINKS_PER_ORIGINAL
 
     with dask.config.set({"radiosity.hierarchy.clusters": "on"}):
         r = CliRunner().invoke(main, ["plan", scene_path("three-rectangles"), "--resolution", "64"])

@@ -13,7 +13,7 @@ import pytest
 from radiosity.core.solvers import cg, jacobi, progressive
 from radiosity.methods.hierarchical.links import refine_pairs
 from radiosity.runtime.store import RunStore
-from helpers import prepared, radiance, scene_path
+from helpers import link_power_balance, prepared, radiance, scene_path
 
 from test_hierarchy import in_process  # noqa: E402  (tests/methods/hierarchical on sys.path)
 
@@ -162,31 +162,11 @@ def test_closed_cube_with_rounds_stays_exact(client, tmp_path):
 def test_push_pull_conserves_energy_after_rounds(client, tmp_path):
     """three-rectangles (open) with the first round's links: emitted = absorbed + escaped, as
     on the stage's own links (test_hierarchy's energy test, on links made in two rounds)."""
-    from radiosity.methods.hierarchical.transport import (leaf_vectors, open_link_operator,
-                                                          task_link_arrays)
-
     out = str(tmp_path / "run")
     fig = _render(client, scene_path("three-rectangles"), out, 16, rounds=1,
                   **{"rounds-epsilon": 0.05})
     assert fig.report["rounds"]["rounds"][0]["tasks"] > 0
-    rs = RunStore(out)
-    op, table, el, part = open_link_operator(rs, None)
-    Le, rho, A = leaf_vectors(table, el)
-    L = np.transpose(rs.read_arrays("solution")["leaf_radiance"], (1, 2, 0))
-    H = op.apply(L)
-    N = len(table["orig"])
-    R = np.zeros((2, N))
-    for t in range(len(op.inp.entries)):
-        p, q, wpq, wqp, sp, sq, _ = task_link_arrays(op.inp, t)
-        np.add.at(R, (sp, p), wpq)
-        np.add.at(R, (sq, q), wqp)
-    for i in range(N):
-        if table["parent"][i] >= 0:
-            R[:, i] += R[:, table["parent"][i]]
-    R = R[:, table["leaf_node"]][:, None, :]
-    emitted = np.pi * np.sum(A * Le)
-    absorbed = np.pi * np.sum(A * (1 - rho) * H)
-    escaped = np.pi * np.sum(A * L * (1 - R))
+    emitted, absorbed, escaped = link_power_balance(out)
     # the final gather changes solution/radiance, not the leaves' fixed point L = Le + rho K L
     assert absorbed + escaped == pytest.approx(emitted, rel=1e-5)
 

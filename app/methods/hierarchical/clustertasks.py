@@ -1,0 +1,130 @@
+"""The cluster layer of a link stage as tasks (SPEC §9): the cluster refinement
+(clusters.refine_clusters) cut breadth first into subtrees of links, each a task that refines
+its links to the end and computes their form factors and rays (clusters.link_weights), and the
+figures `radiosity plan` estimates a clustered scene's cost from.
+
+Design notes and measurements: docs/src/design/methods-hierarchical-clusters.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from radiosity.methods.hierarchical.clusters import (ClusterLinks, ClusterTree, cluster_tree,
+                                                     link_weights, refine_clusters)
+
+# What a clustered scene costs, as measured (benchmarks/bench_clusters.py, results/clusters.json:
+# a terrain and the Cornell box cut into triangles, 128^2, default epsilon): links in all
+# (cluster and element level) per original, and links made per second per worker thread in the
+# link stage; `radiosity plan` estimates from them.
+LINKS_PER_ORIGINAL = (186.0, 227.0)
+LINKS_PER_THREAD_S = (46e3, 82e3)
+
+
+
+def refine_all(ct: ClusterTree, eps: float, cap: int = 1024):
+    """The whole cluster refinement in this process, from the root's self-link: (links, pairs,
+    counts) as refine_clusters gives them."""
+    links, pairs, counts, _ = refine_clusters(ct.tree, ct.elems, float(eps), ct.lref, cap,
+                                              np.zeros((1, 2), np.int64), 0)
+    return links, pairs, counts
+
+
+#: Links waiting at the cut of the cluster refinement into tasks, per task (about).
+CUT_PER_TASK = 16
+
+
+@dataclass(frozen=True)
+class ClusterInputs:
+    """What every cluster task needs (scattered once): the tree, the oracle's epsilon, the rays
+    per link (0: nothing can block) and the Embree cache key and ray offset of the originals."""
+
+    ct: ClusterTree
+    epsilon: float
+    rays: int
+    key: str
+    verts: np.ndarray
+    nverts: np.ndarray
+    ray_offset: float
+
+
+def task_clusters(inp: ClusterInputs, init: np.ndarray) -> tuple:
+    """One task: refine the links `init` to the end, then the kept links' form factors and
+    visible fractions -> (links, pairs, counts, F, v)."""
+    ct = inp.ct
+    links, pairs, counts, _ = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
+                                              max(1024, 8 * len(init)), init, 0)
+    F, v = link_weights(ct, links, _caster(inp, links), inp.rays)
+    return links, pairs, counts, F, v
+
+
+def _caster(inp: ClusterInputs, links: np.ndarray):
+    """The originals' RayCaster (one per process, cached), None where no ray is needed."""
+    if inp.rays <= 0 or not len(links):
+        return None
+    from radiosity.tracing.rays import caster_for
+
+    return caster_for(inp.key, inp.verts, inp.nverts, inp.ray_offset)
+
+
+def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
+                  ray_offset: float, client=None, progress: bool = False):
+    """The cluster layer of a link stage: the tree, its refinement at `epsilon` with the oracle's
+    weights (wrho, lhat, lref: links.oracle_weights), the kept links' form factors and visible
+    fractions (`rays` rays each; 1 when nothing can block). With a `client`, the refinement is
+    cut where CUT_PER_TASK links per worker thread wait and every waiting link's subtree is a
+    task (refinement, form factors, rays) on the cluster; the links come out sorted, so the
+    result does not depend on the cut or the workers. Returns (ClusterLinks, pairs (t, 2)
+    int64 of originals I < J sorted, for the element-level refinement; figures dict)."""
+    import time
+
+    from dask.base import tokenize
+
+    t0 = time.perf_counter()
+    ct = cluster_tree(elements, *weights)
+    n = len(elements)
+    root = np.zeros((1, 2), np.int64)
+    threads = sum(client.nthreads().values()) if client is not None else 0
+    inp = ClusterInputs(ct, float(epsilon), int(rays) if occlusion else 0,
+                        tokenize(elements.verts, elements.nverts), elements.verts,
+                        elements.nverts, float(ray_offset))
+    frontier = CUT_PER_TASK * 4 * threads if threads > 1 else 0
+    links, pairs, counts, pending = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
+                                                    max(1024, 8 * n), root, frontier)
+    parts = [(links, pairs, counts, *link_weights(ct, links, _caster(inp, links), inp.rays))]
+    ntasks = 0
+    if len(pending):
+        from radiosity.runtime.cluster import Scattered
+        from radiosity.runtime.runner import run_tasks
+
+        cuts = np.array_split(pending, max(1, len(pending) // CUT_PER_TASK))
+        ntasks = len(cuts)
+        shared = Scattered(client, inp)
+        got = [None] * ntasks
+        run_tasks(client, task_clusters, range(ntasks), lambda i: (shared.future(), cuts[i]),
+                  name="clusters", token=tokenize(inp.key, inp.epsilon, inp.rays, ct.lref,
+                                                  pending), window=2 * threads,
+                  on_result=got.__setitem__, progress=progress,
+                  repair="run the render again")
+        parts += got
+    links = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
+    pairs = np.concatenate([p[1] for p in parts]).reshape(-1, 2)
+    counts = np.sum([p[2] for p in parts], axis=0)
+    F = np.concatenate([p[3] for p in parts]).reshape(-1, 2)
+    v = np.concatenate([p[4] for p in parts])
+    t1 = time.perf_counter()
+    order = np.lexsort((links[:, 1], links[:, 0])) if len(links) else np.zeros(0, np.int64)
+    links, F, v = links[order], F[order], v[order]
+    order = np.lexsort((pairs[:, 1], pairs[:, 0])) if len(pairs) else np.zeros(0, np.int64)
+    pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
+    cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), links[:, 0].copy(),
+                      links[:, 1].copy(), F[:, 0] * v, F[:, 1] * v)
+    figures = {"nodes": ct.nodes, "links": int(len(links)), "pairs_to_elements": int(len(pairs)),
+               "evaluated": int(counts[0]), "culled_orientation": int(counts[1]),
+               "rays": int(len(links) * rays if occlusion else 0),
+               "visible_mean": float(v.mean()) if len(v) else 1.0, "tasks": ntasks,
+               "time_refine_s": round(t1 - t0, 4),
+               "time_s": round(time.perf_counter() - t0, 4)}
+    return cl, pairs, figures

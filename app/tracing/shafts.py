@@ -70,8 +70,8 @@ def _seg_box(px, py, pz, qx, qy, qz, lo, hi):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _box_side(X, N, D, o, pad):
-    """+1 if box X lies entirely in front of plane (N[o], D[o]) (beyond pad), -1 behind, 0
-    neither."""
+    """+1 if box X lies in the closed front half-space of plane (N[o], D[o]) (within pad), -1
+    closed back, 2 both (within pad of the plane), 0 neither."""
     lo = 0.0
     hi = 0.0
     for k in range(3):
@@ -82,19 +82,57 @@ def _box_side(X, N, D, o, pad):
         else:
             lo += n * X[1, k]
             hi += n * X[0, k]
-    if lo - D[o] > pad:
+    front = lo - D[o] >= -pad
+    back = hi - D[o] <= pad
+    if front and back:
+        return 2
+    if front:
         return 1
-    if hi - D[o] < -pad:
+    if back:
         return -1
     return 0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _same_side(A, B, N, D, o, pad):
-    """Do boxes A and B lie strictly on one side of occluder o's plane (N[o], D[o])? Then no
-    segment between them can cross the (planar) occluder."""
+    """Do boxes A and B lie on one closed side of occluder o's plane (N[o], D[o])? Then a
+    segment between them meets the plane only where it lies in it or at an end in the plane:
+    measure zero (or zero kernel) in the form-factor integral, so the (planar) occluder cannot
+    block it (a coplanar neighbour of either end is no occluder; viewfactors/occlusion.py's
+    rule)."""
     sa = _box_side(A, N, D, o, pad)
-    return sa != 0 and sa == _box_side(B, N, D, o, pad)
+    sb = _box_side(B, N, D, o, pad)
+    return (sa == 2 or sb == 2 or sa == sb) and sa != 0 and sb != 0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _poly_side(V, x, nv, N, D, o, pad):
+    """_box_side of polygon x of V (k, 4, 3) with nv vertices: its vertices, not its box (the box
+    of a tilted polygon straddles the polygon's own plane and its coplanar neighbours')."""
+    mn = np.inf
+    mx = -np.inf
+    for v in range(nv):
+        d = N[o, 0] * V[x, v, 0] + N[o, 1] * V[x, v, 1] + N[o, 2] * V[x, v, 2] - D[o]
+        mn = min(mn, d)
+        mx = max(mx, d)
+    front = mn >= -pad
+    back = mx <= pad
+    if front and back:
+        return 2
+    if front:
+        return 1
+    if back:
+        return -1
+    return 0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def same_side_polys(V, a, na, b, nb, N, D, o, pad):
+    """_same_side for polygons a, b of V (their vertices; a polygon is the convex hull of its
+    vertices, so the closed half-space test on them holds for every point)."""
+    sa = _poly_side(V, a, na, N, D, o, pad)
+    sb = _poly_side(V, b, nb, N, D, o, pad)
+    return (sa == 2 or sb == 2 or sa == sb) and sa != 0 and sb != 0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -288,10 +326,13 @@ def node_boxes(left, right, start, end, order, elo, ehi):
 
 
 @numba.njit(cache=True, nogil=True)
-def tree_candidates(A, B, tree, olo, ohi, on, od, pad, skip_a, skip_b):
-    """block_candidates through the occluder tree: nodes whose box lies outside the shaft are
-    skipped whole (a box inside an excluded box is excluded too), so the cost follows the
-    occluders near the shaft, not all of them. The same ids, ascending."""
+def tree_candidates(A, B, V, a, na, b, nb, tree, olo, ohi, on, od, pad, skip_a, skip_b, limit):
+    """block_candidates through the occluder tree for the shaft between polygons a and b of V
+    (na, nb vertices; A, B their boxes): nodes whose box lies outside the shaft are skipped
+    whole (a box inside an excluded box is excluded too), so the cost follows the occluders near
+    the shaft, not all of them; an occluder whose plane holds both polygons on one closed side
+    is none. The ids, ascending; with limit > 0 the search stops once more than `limit` are
+    found (the caller leaves such a shaft to rays) and returns those, unsorted."""
     out = np.empty(64, np.int64)
     k = 0
     stack = np.empty(64, np.int64)
@@ -315,13 +356,16 @@ def tree_candidates(A, B, tree, olo, ohi, on, od, pad, skip_a, skip_b):
             o = tree.order[m]
             if o == skip_a or o == skip_b:
                 continue
-            if not (_same_side(A, B, on, od, o, pad) or _shaft_excludes(A, B, olo, ohi, o)):
+            if not (same_side_polys(V, a, na, b, nb, on, od, o, pad)
+                    or _shaft_excludes(A, B, olo, ohi, o)):
                 if k == out.shape[0]:
                     grown = np.empty(2 * k, np.int64)
                     grown[:k] = out
                     out = grown
                 out[k] = o
                 k += 1
+                if 0 < limit < k:
+                    return out[:k]
     return np.sort(out[:k])
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from radiosity.methods.hierarchical.formfactors import _spread, centroid_to_polygon, near_ff
 from radiosity.scene.splittrees import MAX_DEPTH, _bit, polygon_area_center, split_one
-from radiosity.tracing.shafts import _faces, _same_side, _shaft_excludes, tree_candidates
+from radiosity.tracing.shafts import _faces, _shaft_excludes, same_side_polys, tree_candidates
 
 # The partition's node table (splittrees.TreeNodes, k nodes): verts (k, 4, 3), nverts, area,
 # center, lo / hi (node boxes), child (k, 2), orig, depth, path (uint64); ext (k,): leaves that
@@ -301,7 +301,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                 blocked = False
                 for c in range(l0, l1):
                     o = stk_pool[c]
-                    if _same_side(A, B, enormal, eoffset, o, pad) or \
+                    if same_side_polys(Lv, p, Ln[p], q, Ln[q], enormal, eoffset, o, pad) or \
                             _shaft_excludes(A, B, elo, ehi, o):
                         continue
                     if _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal, eoffset, pad,
@@ -550,8 +550,9 @@ def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
             A[0, j], A[1, j] = Llo[ends[0], j], Lhi[ends[0], j]
             B[0, j], B[1, j] = Llo[ends[1], j], Lhi[ends[1], j]
         if prm.occlusion:
-            cand = tree_candidates(A, B, occ.tree, elo, ehi, enormal, eoffset, pad, pairs[k, 0],
-                                   pairs[k, 1])
+            cand = tree_candidates(A, B, tab.verts, ends[0], tab.nverts[ends[0]], ends[1],
+                                   tab.nverts[ends[1]], occ.tree, elo, ehi, enormal, eoffset,
+                                   pad, pairs[k, 0], pairs[k, 1], MAX_OCCLUDERS)
         else:
             cand = np.zeros(0, np.int64)
         if cand.shape[0] > MAX_OCCLUDERS:  # left to rays (l0 = -1, see _refine_loop)

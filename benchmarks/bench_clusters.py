@@ -3,8 +3,10 @@
 10^5, 10^6 triangles), a room with a finely tessellated sphere, the Cornell box with every face
 cut into triangles beside the 32-original box (the same picture). Per scene: load, plan, cluster
 links, element links, rays, time per stage, peak memory of the driver and the workers, and the
-image against a reference image (--reference-of: the plain box for the tessellated one; the
-same scene with clusters off where that fits). Writes benchmarks/results/clusters.json.
+image against a reference image (the plain box for the tessellated one; the same scene with
+clusters off where that fits) and, for both boxes, against a Mitsuba 3 reference
+(--reference-spp; its noise on a 4 x 4-pixel cell stated as ref_cell_noise, the median
+per-pixel relative standard error / 4). Writes benchmarks/results/clusters.json.
 
     python benchmarks/bench_clusters.py                      # 10^4 terrain, tessellated Cornell
     python benchmarks/bench_clusters.py --terrain 10000,100000,1000000 --room 50000
@@ -53,6 +55,11 @@ def compare(a_exr: str, b_exr: str) -> dict:
             "cell_error": float(np.abs(B[m] / A[m] - 1).mean())}
 
 
+def _against(ref: str, exr: str) -> dict:
+    """compare() against the Mitsuba reference in folder ref, keys ref_*."""
+    return {f"ref_{k}": v for k, v in compare(os.path.join(ref, "reference.exr"), exr).items()}
+
+
 def render(scene: str, out: str, env: dict | None = None) -> dict:
     t_plan, _ = _run(["plan", scene], env)
     wall, _ = _run(["render", scene, "--out", out, "--no-preview", "--force"], env)
@@ -75,6 +82,8 @@ def main():
     ap.add_argument("--room", default="", help="sphere triangle counts of the furnished room")
     ap.add_argument("--cornell", default="200,2000", help="triangles per face of the Cornell box")
     ap.add_argument("--resolution", type=int, default=128)
+    ap.add_argument("--reference-spp", type=int, default=2048,
+                    help="Mitsuba reference of the Cornell box (0: none): both boxes against it")
     ap.add_argument("--off-below", type=int, default=20000,
                     help="also render with clusters off below this many triangles (the reference)")
     a = ap.parse_args()
@@ -96,6 +105,13 @@ def main():
         src = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
         base = {"scene": "cornell-box (32 originals)",
                 **render(src, plain)} if a.cornell else None
+        ref = None
+        if base and a.reference_spp > 0:  # ground truth for both boxes (the same picture)
+            ref = os.path.join(tmp, "reference")
+            _run(["reference", src, "--out", ref, "--resolution", str(a.resolution), "--spp",
+                  str(a.reference_spp)])
+            noise = json.load(open(os.path.join(ref, "reference.json")))["rel_stderr_median"]
+            base.update(_against(ref, f"{plain}/image.exr"), ref_cell_noise=round(noise / 4, 4))
         if base:
             rows.append(base)
         for k in [int(x) for x in a.cornell.split(",") if x]:
@@ -103,11 +119,13 @@ def main():
             out = os.path.join(tmp, f"c{k}")
             rows.append({"scene": f"cornell-box, {k} triangles a face", **render(sc, out),
                          **compare(f"{plain}/image.exr", f"{out}/image.exr"),
+                         **(_against(ref, f"{out}/image.exr") if ref else {}),
                          "time_vs_plain": None})
             rows[-1]["time_vs_plain"] = round(rows[-1]["render_s"] / base["render_s"], 2)
     cols = ["scene", "originals", "method", "plan_s", "render_s", "links_s", "cluster_s",
             "cluster_links", "element_pairs", "links", "rays", "driver_mib", "worker_mib",
-            "mean_ratio", "cell_error", "off_render_s", "time_vs_plain"]
+            "mean_ratio", "cell_error", "ref_mean_ratio", "ref_cell_error", "ref_cell_noise",
+            "off_render_s", "time_vs_plain"]
     print(table(rows, cols))
     print("wrote", write("clusters", rows, {"resolution": a.resolution}))
 

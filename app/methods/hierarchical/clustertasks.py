@@ -19,8 +19,8 @@ from radiosity.methods.hierarchical.clusters import (ClusterLinks, ClusterTree, 
 # a terrain and the Cornell box cut into triangles, 128^2, default epsilon): links in all
 # (cluster and element level) per original, and links made per second per worker thread in the
 # link stage; `radiosity plan` estimates from them.
-LINKS_PER_ORIGINAL = (186.0, 227.0)
-LINKS_PER_THREAD_S = (46e3, 82e3)
+LINKS_PER_ORIGINAL = (245.0, 331.0)
+LINKS_PER_THREAD_S = (97e3, 133e3)
 
 
 

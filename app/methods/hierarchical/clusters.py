@@ -459,13 +459,22 @@ def link_form_factors(ct: ClusterTree, links: np.ndarray, samples: int = FF_SAMP
 
 def _visible(caster, e, ep: np.ndarray, eq: np.ndarray) -> np.ndarray:
     """1 - the blocked fraction of the rays between the centroids of elements ep[a, m] and
-    eq[a, m] (a link's k rays on one row), (len(ep),) float64."""
-    n = ep.size
-    pts = np.concatenate([e.center[ep.ravel()], e.center[eq.ravel()]])
-    ids = np.concatenate([ep.ravel(), eq.ravel()])
+    eq[a, m] (a link's k rays on one row), (len(ep),) float64. A ray that repeats on its row
+    (ends of one or a few elements: the stratified picks repeat) is cast once and counted as
+    often as it appears, so the fraction is the same as with every ray cast."""
+    L, k = ep.shape
+    n_el = len(e.area)
+    if float(L) * n_el * n_el < 2.0 ** 62:  # the key (row, i, j) fits in int64
+        key = (np.arange(L, dtype=np.int64)[:, None] * n_el + ep) * n_el + eq
+        uniq, inverse = np.unique(key.ravel(), return_inverse=True)
+        ui, uj = (uniq // n_el) % n_el, uniq % n_el
+    else:
+        ui, uj, inverse = ep.ravel(), eq.ravel(), np.arange(ep.size)
+    n = len(uniq)
+    pts = np.concatenate([e.center[ui], e.center[uj]])
     idx = np.arange(n)
-    occ = caster.occluded_pairs(pts, idx, idx + n, ids)
-    return 1.0 - occ.reshape(ep.shape).mean(axis=1)
+    occ = caster.occluded_pairs(pts, idx, idx + n, np.concatenate([ui, uj]))
+    return 1.0 - occ[inverse.ravel()].reshape(L, k).mean(axis=1)
 
 
 def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,

@@ -69,52 +69,10 @@ def _seg_box(px, py, pz, qx, qy, qz, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _box_side(X, N, D, o, pad):
-    """+1 if box X lies in the closed front half-space of plane (N[o], D[o]) (within pad), -1
-    closed back, 2 both (within pad of the plane), 0 neither."""
-    lo = 0.0
-    hi = 0.0
-    for k in range(3):
-        n = N[o, k]
-        if n > 0:
-            lo += n * X[0, k]
-            hi += n * X[1, k]
-        else:
-            lo += n * X[1, k]
-            hi += n * X[0, k]
-    front = lo - D[o] >= -pad
-    back = hi - D[o] <= pad
-    if front and back:
-        return 2
-    if front:
-        return 1
-    if back:
-        return -1
-    return 0
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _same_side(A, B, N, D, o, pad):
-    """Do boxes A and B lie on one closed side of occluder o's plane (N[o], D[o])? Then a
-    segment between them meets the plane only where it lies in it or at an end in the plane:
-    measure zero (or zero kernel) in the form-factor integral, so the (planar) occluder cannot
-    block it (a coplanar neighbour of either end is no occluder; viewfactors/occlusion.py's
-    rule)."""
-    sa = _box_side(A, N, D, o, pad)
-    sb = _box_side(B, N, D, o, pad)
-    return (sa == 2 or sb == 2 or sa == sb) and sa != 0 and sb != 0
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _poly_side(V, x, nv, N, D, o, pad):
-    """_box_side of polygon x of V (k, 4, 3) with nv vertices: its vertices, not its box (the box
-    of a tilted polygon straddles the polygon's own plane and its coplanar neighbours')."""
-    mn = np.inf
-    mx = -np.inf
-    for v in range(nv):
-        d = N[o, 0] * V[x, v, 0] + N[o, 1] * V[x, v, 1] + N[o, 2] * V[x, v, 2] - D[o]
-        mn = min(mn, d)
-        mx = max(mx, d)
+def side_code(mn, mx, pad):
+    """The side of a set whose signed distances to a plane lie in [mn, mx]: +1 in the closed
+    front half-space (within pad), -1 closed back, 2 both (within pad of the plane), 0
+    neither."""
     front = mn >= -pad
     back = mx <= pad
     if front and back:
@@ -127,12 +85,55 @@ def _poly_side(V, x, nv, N, D, o, pad):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def closed_apart(sa, sb):
+    """Two sets on one closed side of a plane (side_code's): a segment between them meets the
+    plane only at an end or where it lies in it, which has measure zero (or zero kernel) in
+    the form-factor integral, so a planar occluder in that plane cannot block it."""
+    return (sa == 2 or sb == 2 or sa == sb) and sa != 0 and sb != 0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _box_side(X, N, D, o, pad):
+    """side_code of box X with respect to occluder o's plane (N[o], D[o])."""
+    lo = 0.0
+    hi = 0.0
+    for k in range(3):
+        n = N[o, k]
+        if n > 0:
+            lo += n * X[0, k]
+            hi += n * X[1, k]
+        else:
+            lo += n * X[1, k]
+            hi += n * X[0, k]
+    return side_code(lo - D[o], hi - D[o], pad)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _same_side(A, B, N, D, o, pad):
+    """Do boxes A and B lie on one closed side of occluder o's plane (N[o], D[o])? Then the
+    (planar) occluder cannot block a segment between them (closed_apart); a coplanar
+    neighbour of either end is no occluder."""
+    return closed_apart(_box_side(A, N, D, o, pad), _box_side(B, N, D, o, pad))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _poly_side(V, x, nv, N, D, o, pad):
+    """side_code of polygon x of V (k, 4, 3) with nv vertices: its vertices, not its box (the
+    box of a tilted polygon straddles the polygon's own plane and its coplanar neighbours')."""
+    mn = np.inf
+    mx = -np.inf
+    for v in range(nv):
+        d = N[o, 0] * V[x, v, 0] + N[o, 1] * V[x, v, 1] + N[o, 2] * V[x, v, 2] - D[o]
+        mn = min(mn, d)
+        mx = max(mx, d)
+    return side_code(mn, mx, pad)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def same_side_polys(V, a, na, b, nb, N, D, o, pad):
     """_same_side for polygons a, b of V (their vertices; a polygon is the convex hull of its
     vertices, so the closed half-space test on them holds for every point)."""
-    sa = _poly_side(V, a, na, N, D, o, pad)
-    sb = _poly_side(V, b, nb, N, D, o, pad)
-    return (sa == 2 or sb == 2 or sa == sb) and sa != 0 and sb != 0
+    return closed_apart(_poly_side(V, a, na, N, D, o, pad), _poly_side(V, b, nb, N, D, o, pad))
 
 
 @numba.njit(cache=True, nogil=True)

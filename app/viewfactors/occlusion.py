@@ -13,6 +13,8 @@ import math
 import numba
 import numpy as np
 
+from radiosity.tracing.shafts import closed_apart, side_code
+
 
 # ----------------------------------------------------------------------------- shafts
 
@@ -52,8 +54,7 @@ def shaft_out(alo, ahi, blo, bhi, clo, chi):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _box_side(lo, hi, n, d, pad):
-    """+1: box in the closed front half-space of plane (n, d) within pad; -1 closed back;
-    2 both (within pad of the plane); 0 neither."""
+    """shafts.side_code of box [lo, hi] with respect to plane (n, d)."""
     mn = 0.0
     mx = 0.0
     for k in range(3):
@@ -63,22 +64,7 @@ def _box_side(lo, hi, n, d, pad):
         else:
             mn += n[k] * hi[k]
             mx += n[k] * lo[k]
-    front = mn - d >= -pad
-    back = mx - d <= pad
-    if front and back:
-        return 2
-    if front:
-        return 1
-    if back:
-        return -1
-    return 0
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _closed_apart(sa, sb):
-    """Both on one closed side: a segment between them meets the plane only where it lies in
-    it, which has measure zero (or zero kernel) in the form-factor integral."""
-    return (sa == 2 or sb == 2 or sa == sb) and sa != 0 and sb != 0
+    return side_code(mn - d, mx - d, pad)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -104,7 +90,7 @@ def block_occluders(nodes, flo, fhi, normal, doff, pad, alo, ahi, blo, bhi, out)
             sp += 2
             continue
         for o in range(start[v], end[v]):
-            if _closed_apart(_box_side(alo, ahi, normal[o], doff[o], pad),
+            if closed_apart(_box_side(alo, ahi, normal[o], doff[o], pad),
                              _box_side(blo, bhi, normal[o], doff[o], pad)):
                 continue
             if shaft_out(alo, ahi, blo, bhi, flo[o], fhi[o]):
@@ -116,22 +102,14 @@ def block_occluders(nodes, flo, fhi, normal, doff, pad, alo, ahi, blo, bhi, out)
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _verts_side(verts, nv, i, n, d, pad):
-    """Side of facet i's vertices with respect to plane (n, d), as _box_side."""
+    """shafts.side_code of facet i's vertices with respect to plane (n, d)."""
     mn = 1e300
     mx = -1e300
     for q in range(nv[i]):
         s = n[0] * verts[i, q, 0] + n[1] * verts[i, q, 1] + n[2] * verts[i, q, 2] - d
         mn = min(mn, s)
         mx = max(mx, s)
-    front = mn >= -pad
-    back = mx <= pad
-    if front and back:
-        return 2
-    if front:
-        return 1
-    if back:
-        return -1
-    return 0
+    return side_code(mn, mx, pad)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -175,7 +153,7 @@ def prove_unobstructed(ia, ib, blk, need, bleaf, aleaf, nodes, verts, nv, flo, f
                     if o == i or o == j:
                         continue
                     tests += 1
-                    if _closed_apart(_verts_side(verts, nv, i, normal[o], doff[o], pad),
+                    if closed_apart(_verts_side(verts, nv, i, normal[o], doff[o], pad),
                                      _verts_side(verts, nv, j, normal[o], doff[o], pad)):
                         continue
                     if shaft_out(flo[i], fhi[i], flo[j], fhi[j], flo[o], fhi[o]):

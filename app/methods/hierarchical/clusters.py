@@ -457,20 +457,20 @@ def link_form_factors(ct: ClusterTree, links: np.ndarray, samples: int = FF_SAMP
     return link_weights(ct, links, None, 0, samples)[0]
 
 
-def _visible(caster, e, ep: np.ndarray, eq: np.ndarray) -> np.ndarray:
+def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, dedupe: bool = True) -> np.ndarray:
     """1 - the blocked fraction of the rays between the centroids of elements ep[a, m] and
-    eq[a, m] (a link's k rays on one row), (len(ep),) float64. A ray that repeats on its row
-    (ends of one or a few elements: the stratified picks repeat) is cast once and counted as
-    often as it appears, so the fraction is the same as with every ray cast."""
+    eq[a, m] (a link's k rays on one row), (len(ep),) float64. With `dedupe`, a ray that repeats
+    on its row (ends of one or a few elements: the stratified picks repeat) is cast once and
+    counted as often as it appears, so the fraction is the same as with every ray cast."""
     L, k = ep.shape
     n_el = len(e.area)
-    if float(L) * n_el * n_el < 2.0 ** 62:  # the key (row, i, j) fits in int64
+    if dedupe and float(L) * n_el * n_el < 2.0 ** 62:  # the key (row, i, j) fits in int64
         key = (np.arange(L, dtype=np.int64)[:, None] * n_el + ep) * n_el + eq
         uniq, inverse = np.unique(key.ravel(), return_inverse=True)
         ui, uj = (uniq // n_el) % n_el, uniq % n_el
     else:
         ui, uj, inverse = ep.ravel(), eq.ravel(), np.arange(ep.size)
-    n = len(uniq)
+    n = len(ui)
     pts = np.concatenate([e.center[ui], e.center[uj]])
     idx = np.arange(n)
     occ = caster.occluded_pairs(pts, idx, idx + n, np.concatenate([ui, uj]))

@@ -23,7 +23,6 @@ LINKS_PER_ORIGINAL = (245.0, 331.0)
 LINKS_PER_THREAD_S = (97e3, 133e3)
 
 
-
 def refine_all(ct: ClusterTree, eps: float, cap: int = 1024):
     """The whole cluster refinement in this process, from the root's self-link: (links, pairs,
     counts) as refine_clusters gives them."""

@@ -161,6 +161,29 @@ def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
             _error_estimate(t, ct.elems, p, q, d2, ct.lref) < eps
 
 
+def test_a_repeated_ray_is_cast_once_and_the_fractions_stay_the_same():
+    """A closed sphere with a small sphere inside it (so that rays are blocked): the visible
+    fractions of its cluster links, with each ray repeated on a link's row cast once, equal
+    those with every ray cast; and repeats do occur (ends of one or two elements)."""
+    from radiosity.methods.hierarchical.clusters import _visible, link_samples
+    from radiosity.tracing.rays import RayCaster
+
+    v1, n1 = _sphere(16, 32)
+    v2, n2 = _sphere(6, 12, inward=False)
+    el = _elements(np.concatenate([v1, v2 * 0.3]), np.concatenate([n1, n2]))
+    ct = _tree(el)
+    links, _, _ = refine_all(ct, 1e-3, 64)
+    sp, sq = link_samples(ct.tree, ct.elems, links, 4)
+    sq = sq[:, [2, 3, 0, 1]]
+    caster = RayCaster(el.verts, el.nverts)
+    once = _visible(caster, ct.elems, sp, sq)
+    every = _visible(caster, ct.elems, sp, sq, dedupe=False)
+    assert np.array_equal(once, every)
+    assert ((every > 0) & (every < 1)).any() and (every == 0).any() and (every == 1).any()
+    rows = np.sort(sp * len(el) + sq, axis=1)
+    assert (rows[:, 1:] == rows[:, :-1]).any()
+
+
 # ----------------------------------------------------------------------------- through the solve
 
 def _obj(polys) -> str:

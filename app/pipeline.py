@@ -18,6 +18,7 @@ import numpy as np
 from radiosity.core.bundles import Scene
 from radiosity.methods.base import choose_method, get_method
 from radiosity.runtime.monitor import peak_rss_mb
+from radiosity.runtime.precompile import with_helper
 from radiosity.runtime.store import RunStore, StageFigures, update_report
 from radiosity.scene.effects import plan_effects
 from radiosity.settings import resolve
@@ -270,6 +271,7 @@ _RENDER_KEYWORDS = ("subpixel", "variant", "unit", "solver", "kernel", "tol", "f
                     "epsilon", "link_rays")
 
 
+@with_helper  # a first run: a helper process compiles from the other end of the kernels
 def render(scene, out: str | None = None, *, client=None, workers: int | None = None,
            scheduler: str | None = None, processes: bool | str | None = None,
            resolution=None, max_iterations: int | None = None, settings=None,

@@ -1,11 +1,12 @@
 """The Quick start as a user meets it: `radiosity render scenes/cornell-box/scene.toml --out DIR`
 timed as a whole process (interpreter start, imports, LocalCluster start, every stage, the
 preview, the outputs, shutdown), first with an empty numba cache (what the first render after
-an install pays: every kernel compiles into the cache) and then again with that cache warm (the
-OS file cache is warm too). With --install, a fresh virtual environment is made first and
+an install pays: every kernel compiles into the cache, with the compile helper of
+runtime/precompile.py; --no-helper-too also times it without) and then again with that cache
+warm (the OS file cache is warm too). With --install, a fresh virtual environment is made first and
 `pip install -e .` into it is timed as well (needs the package index).
 
-    python benchmarks/bench_quickstart.py [--resolution N] [--repeat 3] [--install]
+    python benchmarks/bench_quickstart.py [--resolution N] [--repeat 3] [--install] [--no-helper-too]
 
 The Quick start times (docs/src/measurements/index.md, "Quick start") come from this script.
 """
@@ -41,6 +42,9 @@ def main():
     ap.add_argument("--repeat", type=int, default=3, help="warm runs (median and range)")
     ap.add_argument("--install", action="store_true",
                     help="time `pip install -e .` into a fresh venv and render with it")
+    ap.add_argument("--no-helper-too", action="store_true",
+                    help="also time the first render with the compile helper turned off "
+                         "(runtime/precompile.py; RADIOSITY_NO_PRECOMPILE=1), in its own empty cache")
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -57,6 +61,12 @@ def main():
         render = [python, "-m", "radiosity.cli", "render", SCENE]
         if args.resolution:
             render += ["--resolution", str(args.resolution)]
+        if args.no_helper_too:  # the same first render with the compile helper turned off
+            alone = dict(env, NUMBA_CACHE_DIR=os.path.join(tmp, "numba-cache-alone"),
+                         RADIOSITY_NO_PRECOMPILE="1")
+            t = timed(render + ["--out", os.path.join(tmp, "cold-alone")], alone, ROOT)
+            rows.append({"what": "render, numba cache empty, no compile helper", "runs": 1,
+                         "median_s": t, "min_s": t, "max_s": t})
         t = timed(render + ["--out", os.path.join(tmp, "cold")], env, ROOT)
         rows.append({"what": "render, numba cache empty", "runs": 1, "median_s": t, "min_s": t, "max_s": t})
         warm = [timed(render + ["--out", os.path.join(tmp, f"warm{k}")], env, ROOT)
@@ -64,8 +74,9 @@ def main():
         rows.append({"what": "render, numba cache warm", "runs": len(warm),
                      "median_s": statistics.median(warm), "min_s": min(warm), "max_s": max(warm)})
     if args.install:
+        first = next(r for r in rows if r["what"] == "render, numba cache empty")
         rows.append({"what": "install + first render", "runs": 1,
-                     "median_s": sum(r["median_s"] for r in rows[:3])})
+                     "median_s": sum(r["median_s"] for r in rows[:2]) + first["median_s"]})
     print(f"radiosity render {SCENE}" + (f" --resolution {args.resolution}" if args.resolution else "")
           + f", whole processes, {os.cpu_count()} cores")
     print(table(rows, ["what", "runs", "median_s", "min_s", "max_s"]))

@@ -21,6 +21,7 @@ from radiosity.cli.summary import (_ARGV, _REAL, _T0, INTERRUPTED, NOT_CONVERGED
                                    _viewfactors_summary)
 from radiosity.cli.studies import study
 from radiosity.errors import RadiosityError
+from radiosity.runtime.precompile import with_helper
 
 
 def _samples(cameras, subpixel) -> int:
@@ -316,8 +317,12 @@ def walkthrough(run_dir, path_file, out, name, frames, fps, resolution, exposure
               help="The methods whose kernels to compile (comma-separated).")
 @click.option("--json", "json_path", type=click.Path(), default=None,
               help="Also write the compile time of every kernel to this JSON file.")
+@click.option("--record", is_flag=True,
+              help="Developers: render the Quick start (128x128) with an empty numba cache "
+                   "(NUMBA_CACHE_DIR) and write the kernels it compiles, in order, into "
+                   "runtime/kernels.txt (the first run's compile helper reads it).")
 @_friendly
-def warmup(methods, json_path):
+def warmup(methods, json_path, record):
     """Compile the kernels of a render into numba's cache now (a tiny render of the built-in
     Cornell box per method, in this process), with progress; later runs load them. Prints
     where the compile time went."""
@@ -327,11 +332,11 @@ def warmup(methods, json_path):
     from radiosity.pipeline import render as render_api
     from radiosity.runtime.warmup import recording
 
+    if record:
+        return _record_kernels()
+
     names = [m for m in methods.split(",") if m]
-    scene = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
-                         "scenes", "cornell-box", "scene.toml")
-    if not os.path.isfile(scene):
-        raise RadiosityError(f"the built-in Cornell box is not at {scene}: install from the repository")
+    scene = _builtin_cornell()
     t0 = time.perf_counter()
     with recording(echo=click.echo) as log, tempfile.TemporaryDirectory() as tmp:
         for m in names:
@@ -345,6 +350,32 @@ def warmup(methods, json_path):
     if json_path:
         with open(json_path, "w") as f:
             json.dump(log.to_dict(), f, indent=1)
+
+
+def _record_kernels():
+    """`radiosity warmup --record`: the Quick start in this process, every kernel it compiles
+    written to runtime/kernels.txt in order (runtime/precompile.py)."""
+    import tempfile
+
+    from radiosity.pipeline import render as render_api
+    from radiosity.runtime.precompile import KERNELS, recording_order, write_entries
+
+    cache = os.environ.get("NUMBA_CACHE_DIR")
+    if not cache or any(files for _, _, files in os.walk(cache)):  # (folders: made at import)
+        raise RadiosityError("warmup --record: set NUMBA_CACHE_DIR to an empty folder (the record "
+                             "must see every kernel compiled, not loaded from a warm cache)")
+    os.environ["RADIOSITY_NO_PRECOMPILE"] = "1"  # no helper: this process compiles them all
+    with recording_order() as order, tempfile.TemporaryDirectory() as tmp:
+        render_api(_builtin_cornell(), os.path.join(tmp, "run"))
+    click.echo(f"wrote {write_entries(order)} kernel signatures into {KERNELS}")
+
+
+def _builtin_cornell() -> str:
+    scene = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
+                         "scenes", "cornell-box", "scene.toml")
+    if not os.path.isfile(scene):
+        raise RadiosityError(f"the built-in Cornell box is not at {scene}: install from the repository")
+    return scene
 
 
 @main.command()
@@ -415,6 +446,7 @@ def plan(scene, resolution, subpixel, tol):
 @image_options
 @cluster_options
 @_friendly
+@with_helper  # a first run: a helper process compiles from the other end of the kernels
 def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, force, solver, kernel,
            tol, max_iterations, keep_unconverged, filter_, sigma, exposure, workers, scheduler,
            cluster_kind):

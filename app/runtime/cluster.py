@@ -283,7 +283,12 @@ def local_cluster(n: int, threads_per_worker: int | None = None, security=None, 
         kw.update(security=security, protocol="tls://", host=config.get("cluster.host"))
     elif processes:
         kw.update(host=config.get("cluster.host"))
-    # else: in-process workers talk over inproc://, which binds no socket (and takes no host)
+    else:
+        # in-process workers talk over inproc://, which binds no socket (and takes no host).
+        # No memory limit: their monitor would measure this whole process (the driver's arrays
+        # too) against a share of the machine and pause them, and a paused worker takes no
+        # task and no scatter ("No valid workers found" after a 10^6-triangle cluster layer)
+        kw.update(memory_limit=0)
     env = {}
     for key, var in _MALLOC:
         value = config.get(f"cluster.{key}")

@@ -52,6 +52,21 @@ def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback(monkeyp
     assert any(line.startswith("dashboard: http://127.0.0.1:") for line in lines)
 
 
+def test_in_process_workers_have_no_memory_limit_so_they_never_pause():
+    """Threads in this process: their memory monitor would weigh the whole process (the
+    driver's arrays too) against a share of the machine and pause them; a paused worker takes
+    no scatter, and the link stage after a large cluster layer failed with "No valid workers
+    found". Worker processes keep Dask's limit."""
+    with open_client(2, kind="local", quiet=True, in_process=True) as c:
+        limits = [w["memory_limit"] for w in c.scheduler_info()["workers"].values()]
+        assert limits == [0, 0]
+        big = np.ones(1 << 20)
+        [f] = c.scatter([big], broadcast=True)
+        assert c.submit(np.sum, f).result() == 1 << 20
+    with open_client(1, kind="local", quiet=True, in_process=False) as c:
+        assert all(w["memory_limit"] > 0 for w in c.scheduler_info()["workers"].values())
+
+
 def test_the_driver_gets_the_workers_malloc_thresholds_unless_its_environment_set_them(
         monkeypatch):
     """The driver runs the solve's passes and final gather: glibc's thresholds by mallopt, as

@@ -74,6 +74,13 @@ def _grow(a, n):
     return out
 
 
+def _grown(a: np.ndarray, n: int) -> np.ndarray:
+    """_grow outside the kernels: a copy of `a` with n rows, the new ones zero."""
+    out = np.zeros((n,) + a.shape[1:], a.dtype)
+    out[:a.shape[0]] = a
+    return out
+
+
 @numba.njit(cache=True, nogil=True)
 def _blocks(o, V, p, nP, q, nQ, everts, envert, enormal, eoffset, pad, sp, sq):
     """Does occluder o alone cut every segment between polygons V[p, :nP] and V[q, :nQ]? Its
@@ -441,14 +448,15 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
     st[0], st[1], st[2], st[3], st[4] = ns, cnt, nk, nw, npool
 
 
-@numba.njit(cache=True, nogil=True)
 def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts):
     """One round of refinement from `entries` (Entries: local node ids p, q; candidate
     occluders pool[c0:c1]; frac: the visible fraction measured by rays, or -1 not yet measured).
 
     The local node table (tab, cnt nodes; pmap: partition node -> local id) grows as nodes are
     split and is returned. Returns (tab, cnt, the kept links (Kept), the links waiting for rays
-    (Waiting)). The loop itself is _refine_loop."""
+    (Waiting)). The loop itself is the kernel _refine_loop; this driver of it is plain Python
+    (it only allocates, and grows the arrays the few times the loop stops because one is full:
+    a kernel here cost 4 s of compile on a first run, for nothing measurable per call)."""
     e_p, e_q, e_c0, e_c1, e_frac = entries
     Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab
     # kept links
@@ -469,10 +477,9 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
     wpool = np.empty(4096, np.int64)
     npool = 0
     # the depth-first stack; candidate lists live LIFO in `stk_pool` above base_end
-    maxlen = 0
-    for i in range(e_p.shape[0]):
-        maxlen = max(maxlen, e_c1[i] - e_c0[i])
-    scap = e_p.shape[0] + 4 * (2 * MAX_DEPTH + 8)
+    n = e_p.shape[0]
+    maxlen = max(0, int((e_c1 - e_c0).max())) if n else 0
+    scap = n + 4 * (2 * MAX_DEPTH + 8)
     sp_ = np.empty(scap, np.int64)
     sq_ = np.empty(scap, np.int64)
     sc0 = np.empty(scap, np.int64)
@@ -480,15 +487,10 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
     sfr = np.empty(scap)
     stk_pool = np.empty(base_end + (2 * MAX_DEPTH + 8) * maxlen + 1, np.int64)
     stk_pool[:base_end] = pool[:base_end]
-    ns = 0
-    for i in range(e_p.shape[0] - 1, -1, -1):  # reversed: the first entry is popped first
-        sp_[ns] = e_p[i]
-        sq_[ns] = e_q[i]
-        sc0[ns] = e_c0[i]
-        sc1[ns] = e_c1[i]
-        sfr[ns] = e_frac[i]
-        ns += 1
-    st = np.array([ns, cnt, nk, nw, npool], np.int64)
+    # reversed: the first entry is popped first
+    sp_[:n], sq_[:n], sc0[:n], sc1[:n], sfr[:n] = (e_p[::-1], e_q[::-1], e_c0[::-1], e_c1[::-1],
+                                                   e_frac[::-1])
+    st = np.array([n, cnt, nk, nw, npool], np.int64)
     while True:
         _refine_loop(st, Stack(sp_, sq_, sc0, sc1, sfr, stk_pool, base_end),
                      Kept(kp, kq, kf, kv, ks, kx), Waiting(wp, wq, wc, wpool),
@@ -499,22 +501,22 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
             break
         if cnt + 4 > Lo.shape[0]:
             cap = 2 * Lo.shape[0]
-            Lv, Ln, La, Lc = _grow(Lv, cap), _grow(Ln, cap), _grow(La, cap), _grow(Lc, cap)
-            Llo, Lhi, Lo, Lp = _grow(Llo, cap), _grow(Lhi, cap), _grow(Lo, cap), _grow(Lp, cap)
-            Ld, Lch, Lpn, Lcan = _grow(Ld, cap), _grow(Lch, cap), _grow(Lpn, cap), _grow(Lcan, cap)
+            Lv, Ln, La, Lc = _grown(Lv, cap), _grown(Ln, cap), _grown(La, cap), _grown(Lc, cap)
+            Llo, Lhi, Lo, Lp = _grown(Llo, cap), _grown(Lhi, cap), _grown(Lo, cap), _grown(Lp, cap)
+            Ld, Lch, Lpn, Lcan = _grown(Ld, cap), _grown(Lch, cap), _grown(Lpn, cap), _grown(Lcan, cap)
         if ns + 4 > sp_.shape[0]:
             scap = 2 * sp_.shape[0]
-            sp_, sq_, sc0, sc1, sfr = (_grow(sp_, scap), _grow(sq_, scap), _grow(sc0, scap),
-                                       _grow(sc1, scap), _grow(sfr, scap))
+            sp_, sq_, sc0, sc1, sfr = (_grown(sp_, scap), _grown(sq_, scap), _grown(sc0, scap),
+                                       _grown(sc1, scap), _grown(sfr, scap))
         if nk >= kp.shape[0]:
             kcap = 2 * kp.shape[0]
-            kp, kq, kf, kv, ks, kx = (_grow(kp, kcap), _grow(kq, kcap), _grow(kf, kcap),
-                                      _grow(kv, kcap), _grow(ks, kcap), _grow(kx, kcap))
+            kp, kq, kf, kv, ks, kx = (_grown(kp, kcap), _grown(kq, kcap), _grown(kf, kcap),
+                                      _grown(kv, kcap), _grown(ks, kcap), _grown(kx, kcap))
         if nw >= wp.shape[0]:
             wcap = 2 * wp.shape[0]
-            wp, wq, wc = _grow(wp, wcap), _grow(wq, wcap), _grow(wc, wcap)
+            wp, wq, wc = _grown(wp, wcap), _grown(wq, wcap), _grown(wc, wcap)
         while npool + (sc1[ns - 1] - sc0[ns - 1]) > wpool.shape[0]:
-            wpool = _grow(wpool, 2 * wpool.shape[0])
+            wpool = _grown(wpool, 2 * wpool.shape[0])
     return (NodeTable(Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan), cnt,
             Kept(kp[:nk], kq[:nk], kf[:nk], kv[:nk], ks[:nk], kx[:nk]),
             Waiting(wp[:nw], wq[:nw], wc[:nw], wpool[:npool]))

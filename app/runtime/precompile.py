@@ -23,8 +23,8 @@ KERNELS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "kernels.txt"
 
 def typestr(t) -> str:
     """A numba type as a Python expression over `types`, `np` and the classes it names: the
-    inverse of parse_type. Raises TypeError for a type it does not know (the recorder then
-    fails, so kernels.txt never holds a signature that cannot be read back)."""
+    inverse of parse_type. Raises TypeError for a type it does not know (literals, lists, ...):
+    the recorder leaves such a signature out, and the run compiles it itself."""
     from numba.core import types
 
     if isinstance(t, types.Array):
@@ -173,11 +173,14 @@ def compile_backwards(entries, meet: int = 3, echo=None) -> int:
 
     done, in_cache = 0, 0
     for entry in reversed(entries):
-        disp, sig = resolve(entry)
         t = time.perf_counter()
-        misses = sum(disp._cache_misses.values())
-        hits = sum(disp._cache_hits.values())
-        disp.compile(sig)  # nothing when this process compiled it already (as a callee)
+        try:
+            disp, sig = resolve(entry)
+            misses = sum(disp._cache_misses.values())
+            hits = sum(disp._cache_hits.values())
+            disp.compile(sig)  # nothing when this process compiled it already (as a callee)
+        except Exception:  # a stale line (kernel renamed, types changed): the run compiles it
+            continue
         if sum(disp._cache_misses.values()) > misses:
             done += 1
             in_cache = 0

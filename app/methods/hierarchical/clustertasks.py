@@ -79,8 +79,9 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     fractions (`rays` rays each; 1 when nothing can block). With a `client`, the refinement is
     cut where CUT_PER_TASK x TASKS_PER_THREAD links per worker thread wait, and every waiting
     link's subtree is a task (refinement, form factors, rays) on the cluster; the links come
-    out sorted, so the result does not depend on the cut or the workers. Returns (ClusterLinks, pairs (t, 2)
-    int64 of originals I < J sorted, for the element-level refinement; figures dict)."""
+    out sorted, so the result does not depend on the cut or the workers. Returns (ClusterLinks,
+    pairs (t, 2) int64 of originals I < J sorted, for the element-level refinement; figures
+    dict)."""
     import time
 
     from dask.base import tokenize

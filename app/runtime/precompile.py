@@ -203,6 +203,8 @@ def recording_order():
     compile with their caller."""
     from numba.core import event
 
+    from radiosity.runtime.warmup import listening
+
     seen, order = set(), []
 
     class Listener(event.Listener):
@@ -223,12 +225,8 @@ def recording_order():
         def on_end(self, ev):
             pass
 
-    listener = Listener()
-    event.register("numba:compile", listener)
-    try:
+    with listening(Listener()):
         yield order
-    finally:
-        event.unregister("numba:compile", listener)
 
 
 def write_entries(order, path: str = KERNELS) -> int:

@@ -74,9 +74,18 @@ def recording(echo=None, every_s: float | None = None):
                 echo(f"numba: {len(log.seconds)} kernels compiled in {log.total_s:.0f} s so far "
                      "(once per machine: later runs load them from the cache)")
 
-    listener = Listener()
+    with listening(Listener()):
+        yield log
+
+
+@contextlib.contextmanager
+def listening(listener):
+    """A numba compile-event listener (numba.core.event.Listener) registered while the block
+    runs: this recorder's, and precompile.recording_order's."""
+    from numba.core import event
+
     event.register("numba:compile", listener)
     try:
-        yield log
+        yield listener
     finally:
         event.unregister("numba:compile", listener)

@@ -55,12 +55,18 @@ class ClusterInputs:
 
 def task_clusters(inp: ClusterInputs, init: np.ndarray) -> tuple:
     """One task: refine the links `init` to the end, then the kept links' form factors and
-    visible fractions -> (links, pairs, counts, F, v)."""
+    visible fractions -> (links, pairs, counts, g, v) with g = A_p F_pq v (float32, the one
+    weight a link keeps: clusters.ClusterLinks)."""
     ct = inp.ct
     links, pairs, counts, _ = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
                                               max(1024, 8 * len(init)), init, 0)
-    F, v = link_weights(ct, links, _caster(inp, links), inp.rays)
-    return links, pairs, counts, F, v
+    return (links, pairs, counts, *_weights(ct, links, _caster(inp, links), inp.rays))
+
+
+def _weights(ct: ClusterTree, links: np.ndarray, caster, rays: int):
+    """(g, v) of links: g = A_p F_pq v as float32, v the visible fractions (link_weights)."""
+    F, v = link_weights(ct, links, caster, rays)
+    return (F[:, 0] * np.asarray(ct.tree.area)[links[:, 0]] * v).astype(np.float32), v
 
 
 def _caster(inp: ClusterInputs, links: np.ndarray):
@@ -70,6 +76,17 @@ def _caster(inp: ClusterInputs, links: np.ndarray):
     from radiosity.tracing.rays import caster_for
 
     return caster_for(inp.key, inp.verts, inp.nverts, inp.ray_offset)
+
+
+def _split_keys(key: np.ndarray, K: np.int64, chunk: int = 1 << 22):
+    """(p, q) int32 of the sort keys p K + q, a chunk at a time (no int64 temporaries of the
+    whole)."""
+    p = np.empty(len(key), np.int32)
+    q = np.empty(len(key), np.int32)
+    for a in range(0, len(key), chunk):
+        pa, qa = np.divmod(key[a:a + chunk], K)
+        p[a:a + chunk], q[a:a + chunk] = pa, qa
+    return p, q
 
 
 def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
@@ -101,12 +118,12 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     parts = [None]
 
     def compact(i, res):
-        """A task's result as the sort key p K + q (int64), the weights F v (k, 2), the pairs,
-        counts and the visible fractions' sum: 24 bytes a link kept instead of 40."""
-        lk, pr, cn, F, v = res
-        parts[i] = (lk[:, 0] * K + lk[:, 1], F * v[:, None], pr, cn, float(v.sum()))
+        """A task's result as the sort key p K + q (int64), the weight g (float32), the pairs,
+        counts and the visible fractions' sum: 12 bytes a link kept."""
+        lk, pr, cn, g, v = res
+        parts[i] = (lk[:, 0] * K + lk[:, 1], g, pr, cn, float(v.sum()))
 
-    compact(0, (links, pairs, counts, *link_weights(ct, links, _caster(inp, links), inp.rays)))
+    compact(0, (links, pairs, counts, *_weights(ct, links, _caster(inp, links), inp.rays)))
     del links, pairs
     ntasks = 0
     if len(pending):
@@ -126,20 +143,20 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     vsum = sum(x[4] for x in parts)
     pairs = np.concatenate([x[2] for x in parts]).reshape(-1, 2)
     key = np.concatenate([x[0] for x in parts])
-    w = np.concatenate([x[1] for x in parts]).reshape(-1, 2)
+    g = np.concatenate([x[1] for x in parts])
     del parts
     t1 = time.perf_counter()
     # sorted by (p, q): the cluster layer does not depend on the cut or the workers
     order = np.argsort(key, kind="stable")
     key = key[order]
-    w = w[order]
+    g = g[order]
     del order
     order = np.lexsort((pairs[:, 1], pairs[:, 0])) if len(pairs) else np.zeros(0, np.int64)
     pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
-    p = key // K
-    cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), p, key - p * K,
-                      np.ascontiguousarray(w[:, 0]), np.ascontiguousarray(w[:, 1]))
-    del key, w
+    p, q = _split_keys(key, K)
+    del key
+    cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), p, q, g)
+    del p, q, g
     figures = {"nodes": ct.nodes, "links": cl.links, "pairs_to_elements": int(len(pairs)),
                "evaluated": int(counts[0]), "culled_orientation": int(counts[1]),
                "rays": int(cl.links * rays if occlusion else 0),

@@ -452,7 +452,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
         hit[sub[sub >= 0]] = True
     token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,
                      el.emission, seen, hit, prm.to_dict(), weight, s.rays.epsilon,
-                     *([] if cl is None else [cl.p, cl.q, cl.wpq]))
+                     *([] if cl is None else [cl.p, cl.q, cl.g]))
     return LinkPlan(pairs, first, cost, unit, prm, weight, why, seen, hit, token, cl, cfig)
 
 

@@ -46,6 +46,10 @@ Waiting = namedtuple("Waiting", "p q lists pool")
 # (the tessellated Cornell box: 43 us per evaluated link). Scenes of fewer originals never have
 # this many, and are unchanged.
 MAX_OCCLUDERS = 64
+# A pair of originals that are one node each that cannot split (a mesh's small triangles)
+# skips the shaft search and leaves its visibility to rays (roots): there the search almost
+# never proves a link visible and costs about ten times its rays
+# (docs/src/design/methods-hierarchical-clusters.md).
 # The scalar settings (links.LinkParams.kernel_params).
 RefineParams = namedtuple("RefineParams", "eps shadow near min_size kid exact plane_tol oracle "
                                           "gauss_gap far_polygon occlusion")
@@ -525,7 +529,8 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
 @numba.njit(cache=True, nogil=True)
 def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
     """The first entries of a task: the root link of each pair (I, J) with the occluders that
-    may cut a segment between the two originals (shafts.tree_candidates). Returns the
+    may cut a segment between the two originals (shafts.tree_candidates), or none searched (left
+    to rays) where both originals are one node that cannot split. Returns the
     entries (p, q, c0, c1), the pool, and the count of local nodes."""
     Llo, Lhi = tab.lo, tab.hi
     elo, ehi, enormal, eoffset, pad = occ.lo, occ.hi, occ.normal, occ.offset, occ.pad
@@ -551,6 +556,9 @@ def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
         for j in range(3):
             A[0, j], A[1, j] = Llo[ends[0], j], Lhi[ends[0], j]
             B[0, j], B[1, j] = Llo[ends[1], j], Lhi[ends[1], j]
+        if prm.occlusion and not (tab.can[ends[0]] or tab.can[ends[1]]):  # two small: rays
+            e_c0[k], e_c1[k] = -1, -1
+            continue
         if prm.occlusion:
             cand = tree_candidates(A, B, tab.verts, ends[0], tab.nverts[ends[0]], ends[1],
                                    tab.nverts[ends[1]], occ.tree, elo, ehi, enormal, eoffset,

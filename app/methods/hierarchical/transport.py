@@ -221,7 +221,7 @@ def _cluster_gather(inp: LinkSolveInputs, cap, Lbar, G) -> int:
     # darken all of its light (the tessellated Cornell box: 3 %)
     Gc = np.zeros((Lbar.shape[1], len(roots)))
     terms = cluster_gather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent, cl.leaf_orig,
-                           cl.area, cl.p, cl.q, cl.wpq, cl.wqp, np.ones(1), Gc)
+                           cl.area, cl.p, cl.q, cl.g, Gc)
     G[0][:, roots] += Gc
     return terms
 

@@ -55,18 +55,20 @@ class ClusterInputs:
 
 def task_clusters(inp: ClusterInputs, init: np.ndarray) -> tuple:
     """One task: refine the links `init` to the end, then the kept links' form factors and
-    visible fractions -> (links, pairs, counts, g, v) with g = A_p F_pq v (float32, the one
-    weight a link keeps: clusters.ClusterLinks)."""
+    visible fractions -> (links, pairs, counts, g, v, rays) with g = A_p F_pq v (float32, the
+    one weight a link keeps: clusters.ClusterLinks)."""
     ct = inp.ct
     links, pairs, counts, _ = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
                                               max(1024, 8 * len(init)), init, 0)
-    return (links, pairs, counts, *_weights(ct, links, _caster(inp, links), inp.rays))
+    return (links, pairs, counts, *_weights(ct, links, _caster(inp, links), inp.rays,
+                                            inp.epsilon))
 
 
-def _weights(ct: ClusterTree, links: np.ndarray, caster, rays: int):
-    """(g, v) of links: g = A_p F_pq v as float32, v the visible fractions (link_weights)."""
-    F, v = link_weights(ct, links, caster, rays)
-    return (F[:, 0] * np.asarray(ct.tree.area)[links[:, 0]] * v).astype(np.float32), v
+def _weights(ct: ClusterTree, links: np.ndarray, caster, rays: int, eps: float):
+    """(g, v, rays) of links: g = A_p F_pq v as float32, v the visible fractions and the rays
+    cast (link_weights; one ray for links that carry at most eps)."""
+    F, v, n = link_weights(ct, links, caster, rays, faint=eps)
+    return (F[:, 0] * np.asarray(ct.tree.area)[links[:, 0]] * v).astype(np.float32), v, n
 
 
 def _caster(inp: ClusterInputs, links: np.ndarray):
@@ -120,10 +122,11 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     def compact(i, res):
         """A task's result as the sort key p K + q (int64), the weight g (float32), the pairs,
         counts and the visible fractions' sum: 12 bytes a link kept."""
-        lk, pr, cn, g, v = res
-        parts[i] = (lk[:, 0] * K + lk[:, 1], g, pr, cn, float(v.sum()))
+        lk, pr, cn, g, v, nr = res
+        parts[i] = (lk[:, 0] * K + lk[:, 1], g, pr, cn, float(v.sum()), nr)
 
-    compact(0, (links, pairs, counts, *_weights(ct, links, _caster(inp, links), inp.rays)))
+    compact(0, (links, pairs, counts, *_weights(ct, links, _caster(inp, links), inp.rays,
+                                                inp.epsilon)))
     del links, pairs
     ntasks = 0
     if len(pending):
@@ -141,6 +144,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
                   repair="run the render again")
     counts = np.sum([x[3] for x in parts], axis=0)
     vsum = sum(x[4] for x in parts)
+    nrays = sum(x[5] for x in parts)
     pairs = np.concatenate([x[2] for x in parts]).reshape(-1, 2)
     key = np.concatenate([x[0] for x in parts])
     g = np.concatenate([x[1] for x in parts])
@@ -159,7 +163,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     del p, q, g
     figures = {"nodes": ct.nodes, "links": cl.links, "pairs_to_elements": int(len(pairs)),
                "evaluated": int(counts[0]), "culled_orientation": int(counts[1]),
-               "rays": int(cl.links * rays if occlusion else 0),
+               "rays": int(nrays),
                "visible_mean": vsum / cl.links if cl.links else 1.0, "tasks": ntasks,
                "time_refine_s": round(t1 - t0, 4),
                "time_s": round(time.perf_counter() - t0, 4)}

@@ -184,6 +184,35 @@ def test_a_repeated_ray_is_cast_once_and_the_fractions_stay_the_same():
     assert (rows[:, 1:] == rows[:, :-1]).any()
 
 
+def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
+    """link_weights' `faint`: a link that carries at most that much light (the oracle's weights)
+    casts one ray, the middle of its k, and every other link its k; the form factors do not
+    change, and the one-ray links' fractions are what that middle ray alone gives."""
+    from radiosity.methods.hierarchical.clusters import _carried, link_weights
+    from radiosity.tracing.rays import RayCaster
+
+    v1, n1 = _sphere(16, 32)
+    v2, n2 = _sphere(6, 12, inward=False)
+    el = _elements(np.concatenate([v1, v2 * 0.3]), np.concatenate([n1, n2]),
+                   emit=np.full((len(v1) + len(v2), 2, 3), 1.0))
+    from radiosity.methods.hierarchical.links import oracle_weights
+
+    ct = cluster_tree(el, *oracle_weights(el, "bf"))
+    links, _, _ = refine_all(ct, 1e-3, 64)
+    caster = RayCaster(el.verts, el.nverts)
+    F4, v4, r4 = link_weights(ct, links, caster, 4)
+    assert r4 == 4 * len(links)
+    c = _carried(ct, links, F4)
+    faint = float(np.median(c))
+    F, v, r = link_weights(ct, links, caster, 4, faint=faint)
+    few = c <= faint
+    assert 0 < few.sum() < len(links) and r == 4 * (~few).sum() + few.sum()
+    assert np.array_equal(F, F4) and np.array_equal(v[~few], v4[~few])
+    F1, v1_, _ = link_weights(ct, links, caster, 4, faint=np.inf)
+    assert np.array_equal(v[few], v1_[few]) and set(np.unique(v1_)) <= {0.0, 1.0}
+    assert (v1_ != v4).any()  # one ray is not four
+
+
 # ----------------------------------------------------------------------------- through the solve
 
 def _obj(polys) -> str:

@@ -387,6 +387,18 @@ def test_links_the_shafts_prove_visible_cast_no_ray(tmp_path, occluder, rays):
         assert _count(counts, "shaft_visible") == len(links) and np.all(links["v"] == 1)
 
 
+def test_a_pair_of_originals_that_cannot_split_leaves_visibility_to_rays(tmp_path):
+    """Two unseen facing squares that may not split (min-node-size above their size, as a
+    mesh's small triangles): no shaft search, their one link takes its rays; the squares that
+    may split are proven visible by the shafts (the test above)."""
+    path = write_scene(tmp_path, TWO_SQUARES, MATERIALS, camera=CAMERA_AWAY)
+    sc, part, tree, inp = in_process(path, epsilon=1e-3, rays=4, cfg={"min-node-size": 10.0})
+    links, _, counts = refine_pairs(inp, np.array([[0, 1]]), RayCaster(sc.elements.verts,
+                                                                       sc.elements.nverts))
+    assert len(links) == 1 and links["v"][0] == 1.0
+    assert _count(counts, "shaft_visible") == 0 and _count(counts, "rays") == 4
+
+
 @pytest.mark.parametrize("height", [0.6, 1.3])
 @pytest.mark.parametrize("angle", [0.0, 30.0, 75.0])
 @pytest.mark.parametrize("k", [4, 16])
@@ -460,7 +472,7 @@ def test_dashboard_heat_map_shows_link_progress_then_links_per_pair():
     """While link tasks run the heat map is the fraction done per bin of original pairs; once
     all are done it is the links per pair on a log scale (the busiest bin 1, an empty bin -1
     on the page), titled with the total."""
-    from radiosity.runtime.monitor import link_heat
+    from radiosity.runtime.monitor import PairBins, link_heat
 
     pairs = np.array([[0, 1], [0, 2], [1, 2]])
     first = np.array([0, 2, 3])  # task 0 holds pairs (0,1), (0,2); task 1 holds (1,2)
@@ -471,6 +483,11 @@ def test_dashboard_heat_map_shows_link_progress_then_links_per_pair():
     np.testing.assert_allclose(hm[1, 2], 1.0)
     np.testing.assert_allclose(hm[0, 1], np.log1p(5) / np.log1p(99))
     assert np.isnan(hm[2, 0]) and np.isnan(hm[0, 0])
+    binned = PairBins(pairs, first, 3)  # binned once per plan, as the Monitor keeps it
+    for done in ({0: {"n": 10}}, {0: {"n": 10}, 1: {"n": 99}}):
+        a, b = link_heat(pairs, first, done, 3), link_heat(pairs, first, done, 3, binned=binned)
+        np.testing.assert_array_equal(a[0], b[0])
+        assert a[1] == b[1]
 
 
 def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_path):

@@ -55,20 +55,26 @@ class ClusterInputs:
 
 def task_clusters(inp: ClusterInputs, init: np.ndarray) -> tuple:
     """One task: refine the links `init` to the end, then the kept links' form factors and
-    visible fractions -> (links, pairs, counts, g, v, rays) with g = A_p F_pq v (float32, the
-    one weight a link keeps: clusters.ClusterLinks)."""
+    visible fractions -> _compact's (keys, g, pairs, counts, visible sum, rays)."""
     ct = inp.ct
     links, pairs, counts, _ = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
                                               max(1024, 8 * len(init)), init, 0)
-    return (links, pairs, counts, *_weights(ct, links, _caster(inp, links), inp.rays,
-                                            inp.epsilon))
+    return _compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon)
 
 
-def _weights(ct: ClusterTree, links: np.ndarray, caster, rays: int, eps: float):
-    """(g, v, rays) of links: g = A_p F_pq v as float32, v the visible fractions and the rays
-    cast (link_weights; one ray for links that carry at most eps)."""
-    F, v, n = link_weights(ct, links, caster, rays, faint=eps)
-    return (F[:, 0] * np.asarray(ct.tree.area)[links[:, 0]] * v).astype(np.float32), v, n
+def _compact(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: float) -> tuple:
+    """Links and pairs as the driver keeps them, each sorted here (so that the driver merges
+    sorted runs): the keys p K + q (int64) with g = A_p F_pq v (float32, the one weight a link
+    keeps: clusters.ClusterLinks), the pairs of originals sorted by (I, J), the counts, the
+    visible fractions' sum and the rays cast (link_weights; one ray for links that carry at
+    most eps)."""
+    F, v, nrays = link_weights(ct, links, caster, rays, faint=eps)
+    g = (F[:, 0] * np.asarray(ct.tree.area)[links[:, 0]] * v).astype(np.float32)
+    key = links[:, 0] * np.int64(ct.nodes) + links[:, 1]
+    order = np.argsort(key, kind="stable")
+    n = np.int64(len(ct.elems.area))
+    pairs = pairs[np.argsort(pairs[:, 0] * n + pairs[:, 1], kind="stable")]
+    return key[order], g[order], pairs, counts, float(v.sum()), nrays
 
 
 def _caster(inp: ClusterInputs, links: np.ndarray):
@@ -117,16 +123,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     links, pairs, counts, pending = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
                                                     max(1024, 8 * n), root, frontier)
     K = np.int64(ct.nodes)
-    parts = [None]
-
-    def compact(i, res):
-        """A task's result as the sort key p K + q (int64), the weight g (float32), the pairs,
-        counts and the visible fractions' sum: 12 bytes a link kept."""
-        lk, pr, cn, g, v, nr = res
-        parts[i] = (lk[:, 0] * K + lk[:, 1], g, pr, cn, float(v.sum()), nr)
-
-    compact(0, (links, pairs, counts, *_weights(ct, links, _caster(inp, links), inp.rays,
-                                                inp.epsilon)))
+    parts = [_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon)]
     del links, pairs
     ntasks = 0
     if len(pending):
@@ -140,7 +137,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
         run_tasks(client, task_clusters, range(ntasks), lambda i: (shared.future(), cuts[i]),
                   name="clusters", token=tokenize(inp.key, inp.epsilon, inp.rays, ct.lref,
                                                   pending), window=2 * threads,
-                  on_result=lambda i, res: compact(i + 1, res), progress=progress,
+                  on_result=lambda i, res: parts.__setitem__(i + 1, res), progress=progress,
                   repair="run the render again")
     counts = np.sum([x[3] for x in parts], axis=0)
     vsum = sum(x[4] for x in parts)
@@ -150,12 +147,13 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     g = np.concatenate([x[1] for x in parts])
     del parts
     t1 = time.perf_counter()
-    # sorted by (p, q): the cluster layer does not depend on the cut or the workers
+    # sorted by (p, q): the cluster layer does not depend on the cut or the workers (a merge
+    # of the tasks' sorted runs)
     order = np.argsort(key, kind="stable")
     key = key[order]
     g = g[order]
     del order
-    order = np.lexsort((pairs[:, 1], pairs[:, 0])) if len(pairs) else np.zeros(0, np.int64)
+    order = np.argsort(pairs[:, 0] * np.int64(n) + pairs[:, 1], kind="stable")
     pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
     p, q = _split_keys(key, K)
     del key

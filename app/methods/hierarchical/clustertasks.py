@@ -86,15 +86,50 @@ def _caster(inp: ClusterInputs, links: np.ndarray):
     return caster_for(inp.key, inp.verts, inp.nverts, inp.ray_offset)
 
 
-def _split_keys(key: np.ndarray, K: np.int64, chunk: int = 1 << 22):
-    """(p, q) int32 of the sort keys p K + q, a chunk at a time (no int64 temporaries of the
-    whole)."""
-    p = np.empty(len(key), np.int32)
-    q = np.empty(len(key), np.int32)
-    for a in range(0, len(key), chunk):
-        pa, qa = np.divmod(key[a:a + chunk], K)
-        p[a:a + chunk], q[a:a + chunk] = pa, qa
-    return p, q
+#: Buckets of p in which the driver sorts the cluster links, one bucket at a time: the sort's
+#: temporaries are one bucket's, not all links' (docs/src/design/methods-hierarchical-clusters.md).
+SORT_BUCKETS = 16
+
+
+class _Runs:
+    """The tasks' sorted runs of links (keys p K + q, weights g), kept split by bucket of p as
+    they arrive, and merged bucket by bucket into the sorted cluster links."""
+
+    def __init__(self, K: np.int64, buckets: int = SORT_BUCKETS):
+        self.K = K
+        self.bounds = (np.arange(1, buckets, dtype=np.int64) * K // buckets) * K
+        self.runs = [[] for _ in range(buckets)]
+        self.n = 0
+
+    def add(self, key: np.ndarray, g: np.ndarray) -> None:
+        cut = np.concatenate([[0], np.searchsorted(key, self.bounds), [len(key)]])
+        for b, (lo, hi) in enumerate(zip(cut[:-1], cut[1:])):
+            if hi > lo:  # copies: the task's arrays are freed once split
+                self.runs[b].append((key[lo:hi].copy(), g[lo:hi].copy()))
+        self.n += len(key)
+
+    def merged(self, chunk: int = 1 << 22) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(p, q) int32 and g float32 sorted by (p, q); each bucket's runs are freed as it is
+        merged (the keys are unique, so the order does not depend on the runs' arrival)."""
+        p = np.empty(self.n, np.int32)
+        q = np.empty(self.n, np.int32)
+        g = np.empty(self.n, np.float32)
+        at = 0
+        for b in range(len(self.runs)):
+            runs, self.runs[b] = self.runs[b], []
+            if not runs:
+                continue
+            key = np.concatenate([r[0] for r in runs])
+            gb = np.concatenate([r[1] for r in runs])
+            del runs
+            order = np.argsort(key, kind="stable")
+            g[at:at + len(key)] = gb[order]
+            del gb
+            for a in range(0, len(key), chunk):
+                pa, qa = np.divmod(key[order[a:a + chunk]], self.K)
+                p[at + a:at + a + len(pa)], q[at + a:at + a + len(pa)] = pa, qa
+            at += len(key)
+        return p, q, g
 
 
 def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
@@ -122,8 +157,15 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     frontier = CUT_PER_TASK * TASKS_PER_THREAD * threads if threads > 1 else 0
     links, pairs, counts, pending = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
                                                     max(1024, 8 * n), root, frontier)
-    K = np.int64(ct.nodes)
-    parts = [_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon)]
+    runs = _Runs(np.int64(ct.nodes))
+    rest = []  # (pairs, counts, visible sum, rays) of each task
+
+    def keep(res):
+        key, g, *other = res
+        runs.add(key, g)
+        rest.append(other)
+
+    keep(_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon))
     del links, pairs
     ntasks = 0
     if len(pending):
@@ -133,32 +175,23 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
         cuts = np.array_split(pending, max(1, len(pending) // CUT_PER_TASK))
         ntasks = len(cuts)
         shared = Scattered(client, inp)
-        parts += [None] * ntasks
         run_tasks(client, task_clusters, range(ntasks), lambda i: (shared.future(), cuts[i]),
                   name="clusters", token=tokenize(inp.key, inp.epsilon, inp.rays, ct.lref,
                                                   pending), window=2 * threads,
-                  on_result=lambda i, res: parts.__setitem__(i + 1, res), progress=progress,
+                  on_result=lambda i, res: keep(res), progress=progress,
                   repair="run the render again")
-    counts = np.sum([x[3] for x in parts], axis=0)
-    vsum = sum(x[4] for x in parts)
-    nrays = sum(x[5] for x in parts)
-    pairs = np.concatenate([x[2] for x in parts]).reshape(-1, 2)
-    key = np.concatenate([x[0] for x in parts])
-    g = np.concatenate([x[1] for x in parts])
-    del parts
+    counts = np.sum([x[1] for x in rest], axis=0)
+    vsum = sum(x[2] for x in rest)
+    nrays = sum(x[3] for x in rest)
+    pairs = np.concatenate([x[0] for x in rest]).reshape(-1, 2)
+    del rest
     t1 = time.perf_counter()
     # sorted by (p, q): the cluster layer does not depend on the cut or the workers (a merge
-    # of the tasks' sorted runs)
-    order = np.argsort(key, kind="stable")
-    key = key[order]
-    g = g[order]
-    del order
+    # of the tasks' sorted runs, bucket by bucket)
     order = np.argsort(pairs[:, 0] * np.int64(n) + pairs[:, 1], kind="stable")
     pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
-    p, q = _split_keys(key, K)
-    del key
-    cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), p, q, g)
-    del p, q, g
+    cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), *runs.merged())
+    del runs
     figures = {"nodes": ct.nodes, "links": cl.links, "pairs_to_elements": int(len(pairs)),
                "evaluated": int(counts[0]), "culled_orientation": int(counts[1]),
                "rays": int(nrays),

@@ -383,3 +383,27 @@ def test_the_cluster_layer_is_the_same_in_tasks_and_in_one_process(client):
             assert np.array_equal(a, many[0].arrays()[k]), k
         assert np.array_equal(one[1], many[1])
         assert many[2]["evaluated"] == one[2]["evaluated"]
+
+
+def test_the_driver_merges_sorted_runs_bucket_by_bucket_into_one_order():
+    """clustertasks._Runs: sorted runs of unique keys p K + q added in any order (as tasks
+    finish) merge into the links sorted by (p, q), with their weights, whatever the buckets."""
+    from radiosity.methods.hierarchical.clustertasks import _Runs
+
+    rng = np.random.default_rng(3)
+    K = np.int64(1000)
+    key = rng.choice(K * K, 20000, replace=False).astype(np.int64)
+    g = rng.random(len(key)).astype(np.float32)
+    order = np.argsort(key)
+    want = (key[order] // K, key[order] % K, g[order])
+    for buckets in (1, 7, 16):
+        runs = _Runs(K, buckets)
+        parts = np.array_split(np.arange(len(key)), 9)
+        for i in rng.permutation(len(parts)):
+            part = parts[i]
+            o = part[np.argsort(key[part])]
+            runs.add(key[o], g[o])
+        got = runs.merged(chunk=1000)
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b)
+        assert got[0].dtype == np.int32 and got[2].dtype == np.float32

@@ -179,7 +179,8 @@ def link_heat(pairs: np.ndarray, first: np.ndarray, done_tasks: dict, n: int,
         if not len(pairs):
             return np.ones((pb.b, pb.b)), None
         fin = pb.grid(done[pb.task] * pb.cnt).ravel()
-        return np.where(pb.total > 0, fin / np.maximum(pb.total, 1), np.nan).reshape(pb.b, pb.b), None
+        frac = np.where(pb.total > 0, fin / np.maximum(pb.total, 1), np.nan)
+        return frac.reshape(pb.b, pb.b), None
     per_pair = np.array([done_tasks[t]["n"] for t in range(pb.k)], float) / np.maximum(pb.pairs, 1)
     heat = pb.grid(per_pair[pb.task] * pb.cnt)
     top = float(heat.max(initial=0.0))

@@ -27,12 +27,12 @@ ADMISSIBLE = 2.0
 # left, right (K,) (-1 at a leaf), start, end (K,) ranges into order (n,); lo, hi (K, 3) vertex
 # boxes; axis (K, 3), spread (K,) the normal cone; two (K,) any two-sided element; area (K,);
 # center (K, 3) area centroid; rho, lhat (K,): the largest reflectance and a-priori radiance
-# of the elements below (the oracle's weights, front side); diag (K,) the vertex box's diagonal;
-# rec (K, 21) what the refinement reads of every link, one row a node (fewer cache misses than
-# a dozen arrays: the refinement took 2.4 times as long): lo, hi, clo, chi, axis (3 each),
-# spread, two, diag, area, rho, lhat.
+# of the elements below (the oracle's weights, front side); rec (K, 21) what the refinement
+# reads of both ends of every link, one row a node (it waits on memory more than it computes:
+# docs/src/design/methods-hierarchical-clusters.md): lo, hi, clo, chi, axis (3 each), spread,
+# two, the vertex box's diagonal, area, rho, lhat.
 CTree = namedtuple("CTree", "left right start end order lo hi clo chi axis spread two area center "
-                            "rho lhat diag rec")
+                            "rho lhat rec")
 LO, HI, CLO, CHI, AXIS, SPREAD, TWO, DIAG, AREA, RHO, LHAT = 0, 3, 6, 9, 12, 15, 16, 17, 18, 19, 20
 # The originals as the refinement reads them: normal (n, 3), offset (n,) = n . centre, verts
 # (n, 4, 3) (triangles repeat vertex 2), area (n,), center (n, 3), two_sided (n,), eps (the
@@ -100,7 +100,7 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float) -> C
                           diag[:, None], A[:, None], rho[:, None], lh[:, None]], axis=1)[new]
     tree = CTree(kid(t.left), kid(t.right), t.start[new], t.end[new], o, t.lo[new], t.hi[new],
                  t.clo[new], t.chi[new], t.axis[new], t.spread[new], t.two[new], A[new],
-                 center[new], rho[new], lh[new], diag[new], np.ascontiguousarray(rec))
+                 center[new], rho[new], lh[new], np.ascontiguousarray(rec))
     ona = np.concatenate([np.asarray(elements.normal, np.float64), area[:, None]], axis=1)[o]
     elems = CElems(np.asarray(elements.normal, np.float64), t.offset, verts, area,
                    np.asarray(elements.center, np.float64), t.two_sided, float(t.eps),
@@ -232,13 +232,14 @@ def _error_bound(t, p, q, d2, lref):
     the relative error of carrying it through the
     clusters: (diam_p + diam_q) / d for the distances and directions taken between centroids,
     plus both normal cones' spread for the cosines taken as the cluster's mean (isotropic)."""
+    if _near(t, p, q, d2):  # never kept
+        return np.inf
     d = np.sqrt(d2)
     cp = _cos_bound(t, p, q, d, 1.0)
     cq = _cos_bound(t, q, p, d, 1.0)
     a, b = t.rec[p], t.rec[q]
-    carried = max(a[RHO] * b[AREA] * b[LHAT], b[RHO] * a[AREA] * a[LHAT]) * cp * cq / (np.pi * d2 * lref)
-    if _near(t, p, q, d2):
-        return np.inf
+    carried = max(a[RHO] * b[AREA] * b[LHAT], b[RHO] * a[AREA] * a[LHAT]) * cp * cq / (
+        np.pi * d2 * lref)
     return carried * _relative_error(t, p, q, d)
 
 

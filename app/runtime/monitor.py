@@ -148,8 +148,8 @@ def heat_map(tiles_ij: np.ndarray, task_of_tile: np.ndarray, done: np.ndarray, n
 class PairBins:
     """The link tasks' pairs of originals binned once for the heat map: per (task, bin) the
     count of pairs (task, cell, count), and the pairs per bin (b * b,). A plan of millions of
-    pairs is binned once, not at every update (np.add.at over all pairs every half second took
-    a third of a core from the workers)."""
+    pairs is binned once, not at every update (binning them all every half second competed with
+    the workers for the driver's cores)."""
 
     def __init__(self, pairs: np.ndarray, first: np.ndarray, n: int, bins: int = BINS):
         self.b = b = max(1, min(bins, n))

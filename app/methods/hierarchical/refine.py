@@ -46,10 +46,6 @@ Waiting = namedtuple("Waiting", "p q lists pool")
 # (the tessellated Cornell box: 43 us per evaluated link). Scenes of fewer originals never have
 # this many, and are unchanged.
 MAX_OCCLUDERS = 64
-# A pair of originals that are one node each that cannot split (a mesh's small triangles)
-# skips the shaft search and leaves its visibility to rays (roots): there the search almost
-# never proves a link visible and costs about ten times its rays
-# (docs/src/design/methods-hierarchical-clusters.md).
 # The scalar settings (links.LinkParams.kernel_params).
 RefineParams = namedtuple("RefineParams", "eps shadow near min_size kid exact plane_tol oracle "
                                           "gauss_gap far_polygon occlusion")
@@ -530,8 +526,10 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
 def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
     """The first entries of a task: the root link of each pair (I, J) with the occluders that
     may cut a segment between the two originals (shafts.tree_candidates), or none searched (left
-    to rays) where both originals are one node that cannot split. Returns the
-    entries (p, q, c0, c1), the pool, and the count of local nodes."""
+    to rays) where both originals are one node that cannot split, as a mesh's small triangles:
+    there the search almost never proves a link visible and costs about ten times its rays
+    (docs/src/design/methods-hierarchical-clusters.md). Returns the entries (p, q, c0, c1), the
+    pool, and the count of local nodes."""
     Llo, Lhi = tab.lo, tab.hi
     elo, ehi, enormal, eoffset, pad = occ.lo, occ.hi, occ.normal, occ.offset, occ.pad
     t = pairs.shape[0]

@@ -5,7 +5,8 @@ bound on the light it carries stays below epsilon, and pairs of originals it rea
 the element-level refinement (links.py). Nothing is ever listed per pair of originals that the
 refinement did not reach.
 
-Transport through a cluster link p <- q (docs/src/design/methods-hierarchical-clusters.md):
+Form factors of a cluster link p <- q (transport: clusterlinks.py; design:
+docs/src/design/methods-hierarchical-clusters.md):
 F_pq = S_p(u) S_q(-u) / (pi r^2 A_p), S_x(u) = sum over x's elements of A_i max(0, n_i . u),
 u and r between the area centroids; q sends its elements' area-weighted mean radiance and p
 receives uniformly (Sillion's isotropic model); A_p F_pq = A_q F_qp, so energy is conserved.
@@ -560,83 +561,3 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
                                eq[few][:, k // 2:k // 2 + 1])
         rays += k * int(many.sum()) + int(few.sum())
     return F, v, rays
-    shift = (np.arange(samples) + samples // 2) % samples
-    reuse = caster is not None and 0 < k <= samples and samples % k == 0
-    for a in range(0, len(links), CHUNK):
-        lk = np.ascontiguousarray(links[a:a + CHUNK])
-        sp, sq = link_samples(ct.tree, ct.elems, lk, samples)
-        sq = np.ascontiguousarray(sq[:, shift])
-        F[a:a + len(lk)] = _sampled_ff(ct.tree, ct.elems, lk, sp, sq)
-        if caster is None or k <= 0:
-            continue
-        if reuse:
-            mid = samples // k // 2  # the middle of each stratum of samples / k samples
-            cols = np.arange(k) * (samples // k) + mid
-            ep, eq = sp[:, cols], sq[:, cols]
-        else:
-            ep, eq = link_samples(ct.tree, ct.elems, lk, k)
-            eq = eq[:, (np.arange(k) + k // 2) % k]
-        v[a:a + len(lk)] = _visible(caster, ct.elems, ep, eq)
-    return F, v
-
-
-# ----------------------------------------------------------------------------- transport
-
-@dataclass(frozen=True)
-class ClusterLinks:
-    """The cluster layer of a solve: the cluster tree (K nodes; parent (K,), leaf_orig (K,) the
-    original of each leaf or -1, area (K,)) and its links p, q (k,) int32 node ids sorted by
-    (p, q), each with one weight g (k,) float32 = A_p F_pq v = A_q F_qp v: the transfer is
-    symmetric by construction, so energy is conserved whatever g's rounding, in 12 bytes a link
-    (the 10^6-triangle terrain keeps 229 M of them). Front sides only."""
-
-    parent: np.ndarray
-    leaf_orig: np.ndarray
-    area: np.ndarray
-    p: np.ndarray
-    q: np.ndarray
-    g: np.ndarray
-
-    def arrays(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
-
-    @property
-    def links(self) -> int:
-        return len(self.p)
-
-
-@numba.njit(cache=True, nogil=True)
-def cluster_gather(Lroot, parent, leaf_orig, area, p, q, g, G):
-    """G (C, n) += the cluster links' transfer into the originals' roots (front side), from
-    Lroot (C, n) the originals' area-weighted mean radiance: pull up the cluster tree (S: the
-    nodes' A L sums), gather over the links (node a receives g S_b / (A_a A_b)), push down to
-    the leaves' originals. Returns the link terms."""
-    K = parent.shape[0]
-    C = Lroot.shape[0]
-    S = np.zeros((C, K))
-    H = np.zeros((C, K))
-    inv = np.zeros(K)
-    for x in range(K):
-        inv[x] = 1.0 / area[x] if area[x] > 0 else 0.0
-        o = leaf_orig[x]
-        if o >= 0:
-            for c in range(C):
-                S[c, x] = area[x] * Lroot[c, o]
-    for x in range(K - 1, 0, -1):
-        for c in range(C):
-            S[c, parent[x]] += S[c, x]
-    for k in range(p.shape[0]):
-        a, b = p[k], q[k]
-        w = g[k] * inv[a] * inv[b]
-        for c in range(C):
-            H[c, a] += w * S[c, b]
-            H[c, b] += w * S[c, a]
-    for x in range(1, K):
-        for c in range(C):
-            H[c, x] += H[c, parent[x]]
-    for x in range(K):
-        o = leaf_orig[x]
-        if o >= 0:
-            for c in range(C):
-                G[c, o] += H[c, x]
-    return 2 * p.shape[0]

@@ -12,8 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radiosity.methods.hierarchical.clusters import (ClusterLinks, ClusterTree, cluster_tree,
-                                                     link_weights, refine_clusters)
+from radiosity.methods.hierarchical.clusterlinks import ClusterLinks
+from radiosity.methods.hierarchical.clusters import (ClusterTree, cluster_tree, link_weights,
+                                                     refine_clusters)
 
 # What a clustered scene costs, as measured (benchmarks/bench_clusters.py, results/clusters.json:
 # a terrain and the Cornell box cut into triangles, 128^2, default epsilon): links in all

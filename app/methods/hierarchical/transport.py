@@ -213,7 +213,7 @@ def _cluster_gather(inp: LinkSolveInputs, cap, Lbar, G) -> int:
     cl = inp.clusters
     if cl is None or not cl.links:
         return 0
-    from radiosity.methods.hierarchical.clusters import cluster_gather
+    from radiosity.methods.hierarchical.clusterlinks import cluster_gather
 
     roots = inp.noff[:-1]
     # not capped: the row caps tame the point kernel near contact; cluster links are far field
@@ -476,7 +476,7 @@ def solve_inputs(rs, elements, cache_bytes: int) -> tuple:
     inp.cache_bytes = int(cache_bytes)
     arrays = ls.read_clusters(token)
     if arrays is not None:
-        from radiosity.methods.hierarchical.clusters import ClusterLinks
+        from radiosity.methods.hierarchical.clusterlinks import ClusterLinks
 
         inp.clusters = ClusterLinks(**arrays)
     return inp, table, ls.attrs().get("kernel")

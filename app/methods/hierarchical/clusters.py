@@ -37,8 +37,8 @@ CTree = namedtuple("CTree", "left right start end order lo hi clo chi axis sprea
 LO, HI, CLO, CHI, AXIS, SPREAD, TWO, DIAG, AREA, RHO, LHAT = 0, 3, 6, 9, 12, 15, 16, 17, 18, 19, 20
 # The originals as the refinement reads them: normal (n, 3), offset (n,) = n . centre, verts
 # (n, 4, 3) (triangles repeat vertex 2), area (n,), center (n, 3), two_sided (n,), eps (the
-# facing tolerance in scene units); ona (n, 4) normal and area in the tree's order (a node's
-# elements contiguous: the sums over them read memory in order).
+# facing tolerance in scene units); ona (n, 7) normal, area and centre in the tree's order (a
+# node's elements contiguous: the sums and samples over them read memory in order).
 CElems = namedtuple("CElems", "normal offset verts area center two_sided eps ona")
 
 
@@ -102,7 +102,8 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float) -> C
     tree = CTree(kid(t.left), kid(t.right), t.start[new], t.end[new], o, t.lo[new], t.hi[new],
                  t.clo[new], t.chi[new], t.axis[new], t.spread[new], t.two[new], A[new],
                  center[new], rho[new], lh[new], np.ascontiguousarray(rec))
-    ona = np.concatenate([np.asarray(elements.normal, np.float64), area[:, None]], axis=1)[o]
+    ona = np.concatenate([np.asarray(elements.normal, np.float64), area[:, None],
+                          np.asarray(elements.center, np.float64)], axis=1)[o]
     elems = CElems(np.asarray(elements.normal, np.float64), t.offset, verts, area,
                    np.asarray(elements.center, np.float64), t.two_sided, float(t.eps),
                    np.ascontiguousarray(ona))
@@ -373,20 +374,10 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
 
 
 @numba.njit(cache=True, nogil=True)
-def _projected(t, e, x, ux, uy, uz):
-    """S_x(u) = sum over the elements of node x of A_i max(0, n_i . u)."""
-    s = 0.0
-    for k in range(t.start[x], t.end[x]):
-        c = e.ona[k, 0] * ux + e.ona[k, 1] * uy + e.ona[k, 2] * uz
-        if c > 0.0:
-            s += e.ona[k, 3] * c
-    return s
-
-
-@numba.njit(cache=True, nogil=True)
 def _pick(t, e, x, ux, uy, uz, k, out, a):
     """k elements of node x stratified by their projected area toward u (A_i max(0, n_i . u)),
-    into out[a, :]; by area where no element faces u."""
+    into out[a, :] as positions in the tree's order (ascending); by area where no element faces
+    u. Returns S_x(u) = sum over the elements of A_i max(0, n_i . u) (0 where none faces u)."""
     total = 0.0
     for m in range(t.start[x], t.end[x]):
         total += e.ona[m, 3] * max(0.0, e.ona[m, 0] * ux + e.ona[m, 1] * uy + e.ona[m, 2] * uz)
@@ -401,11 +392,12 @@ def _pick(t, e, x, ux, uy, uz, k, out, a):
         else:
             acc += e.ona[m, 3] * max(0.0, e.ona[m, 0] * ux + e.ona[m, 1] * uy + e.ona[m, 2] * uz)
         while j < k and (j + 0.5) * total / k <= acc:
-            out[a, j] = t.order[m]
+            out[a, j] = m
             j += 1
     while j < k:  # rounding at the end
-        out[a, j] = t.order[t.end[x] - 1]
+        out[a, j] = t.end[x] - 1
         j += 1
+    return 0.0 if by_area else total
 
 
 @numba.njit(cache=True, nogil=True)
@@ -423,6 +415,9 @@ def link_samples(t, e, links, k):
         r = max(np.sqrt(dx * dx + dy * dy + dz * dz), 1e-300)
         _pick(t, e, p, dx / r, dy / r, dz / r, k, sp, a)
         _pick(t, e, q, -dx / r, -dy / r, -dz / r, k, sq, a)
+    for a in range(links.shape[0]):
+        for c in range(k):
+            sp[a, c], sq[a, c] = t.order[sp[a, c]], t.order[sq[a, c]]
     return sp, sq
 
 
@@ -430,55 +425,75 @@ FF_SAMPLES = 16  # sample pairs of elements per cluster link for its form factor
 
 
 @numba.njit(cache=True, nogil=True)
-def _kernel(e, i, j):
-    """max(0, cos_i) max(0, cos_j) / (pi r^2) between the centroids of elements i and j."""
-    dx = e.center[j, 0] - e.center[i, 0]
-    dy = e.center[j, 1] - e.center[i, 1]
-    dz = e.center[j, 2] - e.center[i, 2]
+def _kernel(ona, i, j):
+    """max(0, cos_i) max(0, cos_j) / (pi r^2) between the centroids of the elements at tree
+    positions i and j (CElems.ona)."""
+    dx = ona[j, 4] - ona[i, 4]
+    dy = ona[j, 5] - ona[i, 5]
+    dz = ona[j, 6] - ona[i, 6]
     r2 = dx * dx + dy * dy + dz * dz
     if r2 <= 0.0:
         return 0.0
     r = np.sqrt(r2)
-    ci = (e.normal[i, 0] * dx + e.normal[i, 1] * dy + e.normal[i, 2] * dz) / r
-    cj = -(e.normal[j, 0] * dx + e.normal[j, 1] * dy + e.normal[j, 2] * dz) / r
+    ci = (ona[i, 0] * dx + ona[i, 1] * dy + ona[i, 2] * dz) / r
+    cj = -(ona[j, 0] * dx + ona[j, 1] * dy + ona[j, 2] * dz) / r
     if ci <= 0.0 or cj <= 0.0:
         return 0.0
     return ci * cj / (np.pi * r2)
 
 
 @numba.njit(cache=True, nogil=True)
-def _sampled_ff(t, e, links, sp, sq):
-    """(k, 2) F_pq, F_qp of cluster links from sample pairs (sp[a, m], sq[a, m]) drawn in
-    proportion to A_i max(0, n_i . u) at each end (link_samples): the point kernel between the
-    pair's centroids, divided by the sampling weights' cosines toward u, averaged, times
-    S_p(u) S_q(-u): an estimate of sum_ij A_i A_j K_ij without the bias of one distance and one
-    direction between centroids (1 / r^2 is convex: at the centroid distance it is too small)."""
-    out = np.zeros((links.shape[0], 2))
-    k = sp.shape[1]
+def _weights(t, e, links, samples, cols, lref, faint, F, ep, eq, few):
+    """One pass over cluster links (p, q): F[a] = F_pq, F_qp from `samples` pairs of elements
+    drawn in proportion to A_i max(0, n_i . u) at each end (_pick; the second end's picks
+    rotated by half a stride): the point kernel between the pair's centroids divided by the
+    sampling weights' cosines toward u, averaged, times S_p(u) S_q(-u), an estimate of
+    sum_ij A_i A_j K_ij without the bias of one distance and one direction between centroids
+    (1 / r^2 is convex: at the centroid distance it is too small). The ray ends ep[a], eq[a]
+    (k = ep.shape[1]): the pairs at `cols` (one per stratum of samples / k), or where cols is
+    empty k pairs picked anew. few[a]: the link carries at most `faint` in the oracle's
+    weighting, max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref <= faint (lref 0: never)."""
+    k = ep.shape[1]
+    sp = np.empty((1, max(samples, k)), np.int64)
+    sq = np.empty((1, max(samples, k)), np.int64)
+    half = samples // 2
     for a in range(links.shape[0]):
         p, q = links[a, 0], links[a, 1]
         dx = t.center[q, 0] - t.center[p, 0]
         dy = t.center[q, 1] - t.center[p, 1]
         dz = t.center[q, 2] - t.center[p, 2]
         r = np.sqrt(dx * dx + dy * dy + dz * dz)
-        if r <= 0.0:
-            continue
-        ux, uy, uz = dx / r, dy / r, dz / r
-        Sp = _projected(t, e, p, ux, uy, uz)
-        Sq = _projected(t, e, q, -ux, -uy, -uz)
-        if Sp <= 0.0 or Sq <= 0.0:
-            continue
-        acc = 0.0
-        for m in range(k):
-            i, j = sp[a, m], sq[a, m]
-            wi = e.normal[i, 0] * ux + e.normal[i, 1] * uy + e.normal[i, 2] * uz
-            wj = -(e.normal[j, 0] * ux + e.normal[j, 1] * uy + e.normal[j, 2] * uz)
-            if wi > 0.0 and wj > 0.0:
-                acc += _kernel(e, i, j) / (wi * wj)
-        g = Sp * Sq * acc / k
-        out[a, 0] = g / t.area[p]
-        out[a, 1] = g / t.area[q]
-    return out
+        rr = max(r, 1e-300)
+        ux, uy, uz = dx / rr, dy / rr, dz / rr
+        Sp = _pick(t, e, p, ux, uy, uz, samples, sp, 0)
+        Sq = _pick(t, e, q, -ux, -uy, -uz, samples, sq, 0)
+        F[a, 0] = F[a, 1] = 0.0
+        if r > 0.0 and Sp > 0.0 and Sq > 0.0:
+            acc = term = 0.0
+            i0 = j0 = -1
+            for m in range(samples):
+                i, j = sp[0, m], sq[0, (m + half) % samples]
+                if i != i0 or j != j0:  # picks repeat in small nodes: one kernel per pair
+                    i0, j0 = i, j
+                    wi = e.ona[i, 0] * ux + e.ona[i, 1] * uy + e.ona[i, 2] * uz
+                    wj = -(e.ona[j, 0] * ux + e.ona[j, 1] * uy + e.ona[j, 2] * uz)
+                    term = _kernel(e.ona, i, j) / (wi * wj) if wi > 0.0 and wj > 0.0 else 0.0
+                acc += term
+            g = Sp * Sq * acc / samples
+            F[a, 0] = g / t.area[p]
+            F[a, 1] = g / t.area[q]
+        if cols.shape[0] > 0:
+            for c in range(k):
+                ep[a, c] = t.order[sp[0, cols[c]]]
+                eq[a, c] = t.order[sq[0, (cols[c] + half) % samples]]
+        elif k > 0:
+            _pick(t, e, p, ux, uy, uz, k, sp, 0)
+            _pick(t, e, q, -ux, -uy, -uz, k, sq, 0)
+            for c in range(k):
+                ep[a, c] = t.order[sp[0, c]]
+                eq[a, c] = t.order[sq[0, (c + k // 2) % k]]
+        few[a] = lref > 0.0 and max(t.rho[p] * F[a, 0] * t.lhat[q],
+                                    t.rho[q] * F[a, 1] * t.lhat[p]) / lref <= faint
 
 
 #: Cluster links per chunk of the form factors and rays (bounds the sample arrays: 2^16 links
@@ -523,18 +538,39 @@ def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, dedupe: bool = True) -> 
 def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
                  samples: int = FF_SAMPLES, faint: float = 0.0) -> tuple:
     """Form factors (len(links), 2) and visible fractions (len(links),) of cluster links, CHUNK
-    links at a time. The form factors from `samples` element pairs stratified by projected area
-    (link_samples, _sampled_ff); the visible fraction from k rays between the centroids of k
-    such pairs (the second end's samples rotated by half a stride), taken from the same samples
-    (every samples/k-th: one per stratum of the k) where k divides `samples`. A link whose
-    carried light (_carried) is at most `faint` gets one ray, the middle one of the k: wholly
-    wrong, its visibility errs by no more than the oracle lets a link err. caster None or
-    k = 0: every link fully visible. Returns (F, v, rays: the number of rays the links took)."""
+    links at a time (_weights). The visible fraction from k rays between the centroids of k
+    sample pairs, taken from the form factors' samples (every samples/k-th: one per stratum of
+    the k) where k divides `samples`. A link whose carried light (_carried) is at most `faint`
+    gets one ray, the middle one of the k: wholly wrong, its visibility errs by no more than
+    the oracle lets a link err. caster None or k = 0: every link fully visible. Returns
+    (F, v, rays: the number of rays the links took)."""
     F = np.zeros((len(links), 2))
     v = np.ones(len(links))
     rays = 0
     if len(links) == 0:
         return F, v, rays
+    k = k if caster is not None and k > 0 else 0
+    cols = np.zeros(0, np.int64)
+    if 0 < k <= samples and samples % k == 0:
+        cols = np.arange(k) * (samples // k) + samples // k // 2  # each stratum's middle
+    lref = ct.lref if faint > 0 and k > 1 else 0.0
+    for a in range(0, len(links), CHUNK):
+        lk = np.ascontiguousarray(links[a:a + CHUNK])
+        ep = np.empty((len(lk), k), np.int64)
+        eq = np.empty((len(lk), k), np.int64)
+        few = np.empty(len(lk), np.bool_)
+        _weights(ct.tree, ct.elems, lk, samples, cols, lref, faint, F[a:a + len(lk)], ep, eq, few)
+        if k == 0:
+            continue
+        va = v[a:a + len(lk)]
+        many = ~few
+        if many.any():
+            va[many] = _visible(caster, ct.elems, ep[many], eq[many])
+        if few.any():
+            va[few] = _visible(caster, ct.elems, ep[few][:, k // 2:k // 2 + 1],
+                               eq[few][:, k // 2:k // 2 + 1])
+        rays += k * int(many.sum()) + int(few.sum())
+    return F, v, rays
     shift = (np.arange(samples) + samples // 2) % samples
     reuse = caster is not None and 0 < k <= samples and samples % k == 0
     for a in range(0, len(links), CHUNK):

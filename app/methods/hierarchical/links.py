@@ -125,6 +125,7 @@ class LinkInputs:
         else:  # every sub-element no pixel hits (hierarchy.split-hidden)
             self.ext = (leaf >= 0) & ~np.asarray(hit, bool)[np.maximum(leaf, 0)]
         self.root = part.root.astype(np.int64)
+        self.reach = leaves_within_reach(tree, part, self.ext, params.min_size)
         self.wrho, self.lhat, self.lref = oracle_weights(elements, weight)
         self.elo, self.ehi, self.enormal, self.eoffset, self.pad = occluders(elements)
         self.otree = occluder_tree(elements, self.elo, self.ehi)
@@ -187,6 +188,23 @@ def oracle_weights(elements, weight: str):
 
 # ----------------------------------------------------------------------------- the task
 
+#: A pair of originals whose leaves within reach multiply to fewer than this skips the shaft
+#: search and leaves its visibility to rays: the search costs about as much as ten links' rays
+#: and, between small originals, almost never proves a link visible
+#: (docs/src/design/methods-hierarchical-clusters.md).
+SHAFT_MIN_LEAVES = 1024
+
+
+def leaves_within_reach(tree, part, ext: np.ndarray, min_size: float) -> np.ndarray:
+    """(n,) float64 per original: how many leaves its refinement can reach, its sub-elements
+    plus, for each leaf that may be split on demand (ext), area / min_size^2 - 1."""
+    reach = np.diff(part.offsets).astype(np.float64)
+    more = np.maximum(np.asarray(tree.area, np.float64)[ext] / max(min_size, 1e-300) ** 2 - 1.0,
+                      0.0)
+    np.add.at(reach, np.asarray(tree.orig, np.int64)[ext], more)
+    return reach
+
+
 def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | None = None,
                  polygons: bool = False):
     """All links of the original pairs (t, 2) [I, J]: the rounds of `refine` with the rays cast
@@ -205,7 +223,8 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
     tab = new_table(max(64, 4 * len(pairs)))
     pmap = np.full(len(inp.t_orig), -1, np.int64)
     pairs = np.ascontiguousarray(pairs, np.int64).reshape(-1, 2)
-    *ent, pool, cnt = roots(pairs, inp.root, pmap, tree, tab, 0, occ, kprm)
+    rays_only = inp.reach[pairs[:, 0]] * inp.reach[pairs[:, 1]] < SHAFT_MIN_LEAVES
+    *ent, pool, cnt = roots(pairs, rays_only, inp.root, pmap, tree, tab, 0, occ, kprm)
     frac = np.full(len(pairs), -1.0)
     kept = []
     while len(ent[0]):

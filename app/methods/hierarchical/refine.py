@@ -523,11 +523,11 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
 
 
 @numba.njit(cache=True, nogil=True)
-def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
+def roots(pairs, rays_only, root, pmap, tree, tab, cnt, occ, prm):
     """The first entries of a task: the root link of each pair (I, J) with the occluders that
     may cut a segment between the two originals (shafts.tree_candidates), or none searched (left
-    to rays) where both originals are one node that cannot split, as a mesh's small triangles:
-    there the search almost never proves a link visible and costs about ten times its rays
+    to rays) where rays_only[k], as between a mesh's small triangles: there the search almost
+    never proves a link visible and costs about ten links' rays
     (docs/src/design/methods-hierarchical-clusters.md). Returns the entries (p, q, c0, c1), the
     pool, and the count of local nodes."""
     Llo, Lhi = tab.lo, tab.hi
@@ -554,7 +554,7 @@ def roots(pairs, root, pmap, tree, tab, cnt, occ, prm):
         for j in range(3):
             A[0, j], A[1, j] = Llo[ends[0], j], Lhi[ends[0], j]
             B[0, j], B[1, j] = Llo[ends[1], j], Lhi[ends[1], j]
-        if prm.occlusion and not (tab.can[ends[0]] or tab.can[ends[1]]):  # two small: rays
+        if prm.occlusion and rays_only[k]:
             e_c0[k], e_c1[k] = -1, -1
             continue
         if prm.occlusion:

@@ -80,7 +80,12 @@ def differential_to_rectangle(a, b, c, perpendicular=False):
 # ---------------------------------------------------------------- polygons: the contour integral
 
 _NG = 12                                   # Gauss-Legendre nodes per panel
-_GX, _GW = np.polynomial.legendre.leggauss(_NG)
+# the rules as tuples: their length is known at compile time (one specialisation each)
+_GX, _GW = (tuple(float(x) for x in a) for a in np.polynomial.legendre.leggauss(_NG))
+# A coarser rule for callers that need far less than the reference's accuracy: 8 nodes a
+# panel, about 1e-7 relative on touching polygons in half the time (the refinement's near
+# links, methods/hierarchical/formfactors.near_ff).
+FAST_GX, FAST_GW = (tuple(float(x) for x in a) for a in np.polynomial.legendre.leggauss(8))
 _SIGMA = 0.25                              # geometric grading ratio towards a singularity
 _EPS = 1e-9                                # innermost panel, relative to the interval
 _TWO_PI = 2.0 * np.pi
@@ -154,11 +159,11 @@ def _inner(s, w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02):
 
 
 @numba.njit(cache=True, nogil=True)
-def _graded(e, length, sgn, D, seg):
-    """Integral of _inner over [e, e + sgn length] by Gauss-Legendre panels shrinking by _SIGMA
-    towards e down to D (the distance from e to the nearest complex singularity) or _EPS length.
-    seg: _inner's arguments after s, (w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq,
-    lnr02)."""
+def _graded(e, length, sgn, D, seg, gx, gw):
+    """Integral of _inner over [e, e + sgn length] by Gauss-Legendre panels (nodes gx, weights
+    gw) shrinking by _SIGMA towards e down to D (the distance from e to the nearest complex
+    singularity) or _EPS length. seg: _inner's arguments after s, (w0x, w0y, w0z, w1x, w1y,
+    w1z, ux, uy, uz, vx, vy, vz, lq, lnr02)."""
     w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02 = seg
     floor = max(D, _EPS * length)
     acc = 0.0
@@ -168,9 +173,9 @@ def _graded(e, length, sgn, D, seg):
         half = 0.5 * (hi - lo)
         mid = e + sgn * 0.5 * (hi + lo)
         pan = 0.0
-        for k in range(_NG):
-            pan += _GW[k] * _inner(mid + sgn * half * _GX[k], w0x, w0y, w0z, w1x, w1y, w1z,
-                                   ux, uy, uz, vx, vy, vz, lq, lnr02)
+        for k in range(len(gx)):
+            pan += gw[k] * _inner(mid + sgn * half * gx[k], w0x, w0y, w0z, w1x, w1y, w1z,
+                                  ux, uy, uz, vx, vy, vz, lq, lnr02)
         acc += pan * half
         if lo == 0.0:
             break
@@ -179,7 +184,7 @@ def _graded(e, length, sgn, D, seg):
 
 
 @numba.njit(cache=True, nogil=True)
-def _edge_pair(P, i, j, Q, k, l, lnr02):
+def _edge_pair(P, i, j, Q, k, l, lnr02, gx, gw):
     """(e_hat . f_hat) int_e int_f ln(r / R0) ds dt for the segments e = P[i]P[j], f = Q[k]Q[l]
     (less the closed-contour-null terms, see _inner)."""
     ux = P[j, 0] - P[i, 0]
@@ -249,8 +254,8 @@ def _edge_pair(P, i, j, Q, k, l, lnr02):
         half = 0.5 * (cur - prev)
         da = min(math.hypot(s0 - prev, d0), math.hypot(s1 - prev, d1), math.hypot(s2 - prev, d2))
         db = min(math.hypot(s0 - cur, d0), math.hypot(s1 - cur, d1), math.hypot(s2 - cur, d2))
-        acc += _graded(prev, half, 1.0, da, seg)
-        acc += _graded(cur, half, -1.0, db, seg)
+        acc += _graded(prev, half, 1.0, da, seg, gx, gw)
+        acc += _graded(cur, half, -1.0, db, seg, gx, gw)
         prev = cur
     return c * acc
 
@@ -258,6 +263,13 @@ def _edge_pair(P, i, j, Q, k, l, lnr02):
 @numba.njit(cache=True, nogil=True)
 def _polygon_ff(P, nP, Q, nQ, two_sided):
     """F_PQ for convex planar polygons P[:nP], Q[:nQ] ((k, 3) float64), unoccluded."""
+    return polygon_ff_rule(P, nP, Q, nQ, two_sided, _GX, _GW)
+
+
+@numba.njit(cache=True, nogil=True)
+def polygon_ff_rule(P, nP, Q, nQ, two_sided, gx, gw):
+    """_polygon_ff with the Gauss-Legendre rule (gx, gw) of the contour integral's panels
+    (_GX, _GW: the reference; FAST_GX, FAST_GW: about 1e-7)."""
     apx, apy, apz = _area_vector(P, nP)
     aqx, aqy, aqz = _area_vector(Q, nQ)
     AP = math.sqrt(apx * apx + apy * apy + apz * apz)
@@ -309,7 +321,7 @@ def _polygon_ff(P, nP, Q, nQ, two_sided):
     acc = 0.0
     for i in range(mP):
         for j in range(mQ):
-            acc += _edge_pair(Pc, i, (i + 1) % mP, Qc, j, (j + 1) % mQ, lnr02)
+            acc += _edge_pair(Pc, i, (i + 1) % mP, Qc, j, (j + 1) % mQ, lnr02, gx, gw)
     # contours counter-clockwise about their own (chosen) normals: F = sum / (2 pi A_P)
     return sP * sQ * acc / (_TWO_PI * AP)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from radiosity.core.exact import _point_ff, _polygon_ff, point_ff
+from radiosity.core.exact import FAST_GW, FAST_GX, _point_ff, point_ff, polygon_ff_rule
 
 @numba.njit(cache=True, nogil=True)
 def _spread(V, x, nv, nx, ny, nz, C, y, mx, my, mz, As, fc):
@@ -39,8 +39,8 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
     farther from the larger one's box than gap_factor times its size, Lambert's exact
     point-to-polygon form factor (exact.py) integrated over the smaller one by Gauss rules
     (2 x 2 on a quad's bilinear map, 3 points on a triangle: smooth integrand there); otherwise
-    (touching, or about to) the double contour integral (exact.py). gp, gq: +-1, the sides
-    that face."""
+    (touching, or about to) the double contour integral (exact.py) with its coarser rule (about
+    1e-7 relative, half the reference's time). gp, gq: +-1, the sides that face."""
     small_is_p = Ap <= Aq
     S, nS = (P, nP) if small_is_p else (Q, nQ)
     L, nL = (Q, nQ) if small_is_p else (P, nP)
@@ -55,7 +55,7 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
         d = max(llo - shi, slo - lhi, 0.0)
         gap2 += d * d
     if gap_factor >= 0.0 and gap2 <= gap_factor * gap_factor * As:
-        f = _polygon_ff(P, nP, Q, nQ, True)
+        f = polygon_ff_rule(P, nP, Q, nQ, True, FAST_GX, FAST_GW)
         return f, f * Ap / Aq
     n = np.empty(3)
     m = np.empty(3)  # the larger one's facing side: points behind it see none of it

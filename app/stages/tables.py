@@ -217,25 +217,15 @@ def _csv_cell(v) -> str:
 
 def write_csv(path: str, table: dict) -> None:
     """One table as CSV: a header of the column names, numbers with 7 significant digits
-    ("nan" where undefined), names quoted where they need it. Written whole, then renamed."""
+    ("nan" where undefined), names quoted where they need it (stages/csvtext.py writes the
+    rows). Written whole, then renamed."""
+    from radiosity.stages.csvtext import csv_body
+
     cols = list(table)
-    fmts, data = [], []
-    for k in cols:
-        v = table[k]
-        if v.dtype.kind in "iub":
-            fmts.append("%d")
-            data.append(v.astype(np.int64).tolist())
-        elif v.dtype.kind == "f":
-            fmts.append("%.7g")
-            data.append(v.tolist())
-        else:
-            fmts.append("%s")
-            data.append([_csv_cell(x) for x in v.tolist()])
-    fmt = ",".join(fmts) + "\n"
     tmp = temp_path(path)
-    with open(tmp, "w", encoding="utf-8", newline="") as f:
-        f.write(",".join(_csv_cell(c) for c in cols) + "\n")
-        f.writelines(fmt % row for row in zip(*data))
+    with open(tmp, "wb") as f:
+        f.write((",".join(_csv_cell(c) for c in cols) + "\n").encode("utf-8"))
+        f.write(csv_body([table[k] for k in cols], _csv_cell))
     os.replace(tmp, path)
 
 

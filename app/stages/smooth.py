@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from radiosity.core.arrays import unique, unique_rows
 #: Originals whose normals differ by more than this (degrees) are never blended: 30 degrees is
 #: the usual auto-smooth angle; walls meeting at a corner (90) stay apart, the facets of a
 #: finely tessellated curved surface (a few degrees) are blended.
@@ -88,18 +89,6 @@ def _quantise(p: np.ndarray, lo: np.ndarray, tol: float) -> np.ndarray:
     return np.round((p - lo) / tol).astype(np.int64)
 
 
-def _unique_rows(keys: np.ndarray):
-    """np.unique(keys, axis=0, return_index=True, return_inverse=True) of an (N, k) integer
-    array by one lexsort (numpy's row unique sorts structured records, several times slower)."""
-    order = np.lexsort(keys.T[::-1])
-    k = keys[order]
-    new = np.r_[True, np.any(k[1:] != k[:-1], axis=1)] if len(k) else np.zeros(0, bool)
-    group = np.cumsum(new) - 1
-    inv = np.empty(len(keys), np.int64)
-    inv[order] = group
-    return k[new], order[new], inv
-
-
 def _pairs_within(keys: np.ndarray, members: np.ndarray, cap: int = 64):
     """All ordered pairs (a, b), a != b, of `members` with equal `keys` (groups larger than
     `cap` pair each member with its neighbours in key order only)."""
@@ -143,7 +132,7 @@ def smoothing_surfaces(elements, crease_deg: float = CREASE_DEG,
     has = np.arange(4)[None, :] < nv[:, None]
     orig = np.broadcast_to(np.arange(n)[:, None], (n, 4))[has]
     q = _quantise(V[has], lo, tol)
-    _, vid = np.unique(q, axis=0, return_inverse=True)
+    _, _, vid = unique_rows(q)
     a, b = _pairs_within(vid.ravel(), orig)
     N = np.asarray(elements.normal, np.float64)
     mat, two = np.asarray(elements.material), np.asarray(elements.two_sided, bool)
@@ -311,7 +300,7 @@ def _resolve_hanging(val, v, a, b, t, weight: float = 1e-6):
 
     if len(v) == 0:
         return val
-    h = np.unique(v)
+    h = unique(v)
     col = np.full(len(val), -1, np.int64)
     col[h] = np.arange(len(h))
     rows, cols, coef = [np.arange(len(v))], [col[v]], [np.ones(len(v))]
@@ -356,7 +345,7 @@ def smooth_mesh(part, elements, radiance: np.ndarray, crease_deg: float = CREASE
     # geometry vertices: (surface, quantised position)
     has = np.arange(4)[None, :] < nv[:, None]
     keys = np.column_stack([np.repeat(surface[orig], nv), _quantise(Vs[has], lo, tol)])
-    ukeys, first, inv = _unique_rows(keys)
+    ukeys, first, inv = unique_rows(keys)
     P = Vs[has][first]
     gv = np.full((m, 4), -1, np.int64)
     gv[has] = inv.ravel()
@@ -385,7 +374,7 @@ def smooth_mesh(part, elements, radiance: np.ndarray, crease_deg: float = CREASE
         sel = hc >= 0
         ci, cj = _pairs_within(np.r_[inc_v, hv[sel]], np.r_[inc_cell, hc[sel]])
         if len(ci):
-            u = np.unique(ci * len(cells) + cj)
+            u = unique(ci * len(cells) + cj)
             ci, cj = u // len(cells), u % len(cells)
         c = np.asarray(part.center, np.float64)[cells]
         grad, clo, chi = _cell_models(c, normals[cells], L, ci, cj)
@@ -397,7 +386,7 @@ def smooth_mesh(part, elements, radiance: np.ndarray, crease_deg: float = CREASE
         span = (chi - clo)[inc_cell] * border[inc_v][:, None]
         est = np.clip(est, np.maximum(clo[inc_cell] - span, 0.0), chi[inc_cell] + span)
         wa = np.asarray(part.area, np.float64)[cells][inc_cell]
-        used = np.unique(inc_v)
+        used = unique(inc_v)
         vmap = np.full(G, -1, np.int64)
         vmap[used] = np.arange(len(used))
         val = np.zeros((len(used), 3))
@@ -430,4 +419,4 @@ def smooth_mesh(part, elements, radiance: np.ndarray, crease_deg: float = CREASE
     # triangles in sub-element order within each side (fronts first), like the flat export
     o = np.lexsort((face_j, face_sub, face_side))
     return SmoothMesh(np.concatenate(verts_out), np.concatenate(rad_out), faces[o], face_sub[o],
-                      face_side[o], corner, surface, int(len(np.unique(hv))))
+                      face_side[o], corner, surface, int(len(unique(hv))))

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from radiosity.core.arrays import unique_rows
 from radiosity.runtime.store import StageFigures
 from radiosity.stages.pixels import LUMA, temp_path
 
@@ -190,7 +191,7 @@ def light_tables(part, elements, radiance: np.ndarray, efficacy: float = EFFICAC
 
     key = mat * 2 + side
     u, first, s = _group(key, area, q, efficacy)
-    pairs = np.unique(np.column_stack([key, o]), axis=0)       # (material-side, original)
+    pairs = unique_rows(np.column_stack([key, o]))[0]       # (material-side, original)
     mats = {"material": el["material"][first], "side": sides[u % 2],
             "surfaces": np.unique(pairs[:, 0], return_counts=True)[1].astype(np.int64)}
     mats.update(s)

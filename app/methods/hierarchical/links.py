@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from radiosity.core.arrays import unique
 from radiosity.core.geometry import COS_TOL
 from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
@@ -251,7 +252,7 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
     links["sp"], links["sq"] = ks[:, 0], ks[:, 1]
     counts[C_LINKS] = len(links)
     # split-off nodes the links use (the node table adds their ancestors and siblings)
-    used = np.unique(np.concatenate([kp, kq]))
+    used = unique(np.concatenate([kp, kq]))
     used = used[tab.pnode[used] < 0]
     nodes = np.zeros(len(used), NODE_DTYPE)
     nodes["o"], nodes["c"] = tab.orig[used], heap_code(tab.path[used], tab.depth[used])

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 
+from radiosity.core.arrays import unique
 from radiosity.core.exact import pair_form_factors_exact
 from radiosity.core.geometry import COS_TOL  # facing means what it means to the visibility stage
 from radiosity.core.kernels import pair_form_factors
@@ -29,7 +30,7 @@ def near_pairs(center: np.ndarray, area: np.ndarray, orig: np.ndarray, factor: f
     ib = np.concatenate([np.asarray(x, np.int64) for x in lists]) if len(lists) else np.zeros(0, np.int64)
     a, b = np.minimum(ia, ib), np.maximum(ia, ib)
     keep = (a != b) & (orig[a] != orig[b])
-    key = np.unique(a[keep] * len(center) + b[keep])
+    key = unique(a[keep] * len(center) + b[keep])
     return key // len(center), key % len(center)
 
 

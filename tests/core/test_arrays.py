@@ -1,0 +1,19 @@
+"""core/arrays.py against numpy's own unique."""
+
+import numpy as np
+
+from radiosity.core.arrays import unique, unique_rows
+
+
+def test_unique_and_unique_rows_equal_numpy():
+    rng = np.random.default_rng(5)
+    for n in (0, 1, 2, 1000):
+        a = rng.integers(-50, 50, n)
+        np.testing.assert_array_equal(unique(a), np.unique(a))
+        rows = rng.integers(0, 4, (n, 3))
+        got = unique_rows(rows)
+        want = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, np.asarray(w).reshape(g.shape))
+        assert np.array_equal(got[0][got[2]], rows)
+    np.testing.assert_array_equal(unique(np.array([[3, 1], [1, 2]])), [1, 2, 3])

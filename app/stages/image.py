@@ -145,8 +145,15 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     if r.sampling == "area":
         # about area-samples^2 rays per pixel whatever the sub-pixel factor
         per_side = max(1, -(-int(r.area_samples) // k))
+        from dask.base import tokenize
+
+        from radiosity.tracing.rays import caster_for
+
+        # the link stage's caster where this process built it (in-process workers)
+        caster = caster_for(tokenize(elements.verts, elements.nverts), elements.verts,
+                            elements.nverts, float(st.rays.epsilon))
         raster_or_samples = sample_raster(part, elements, camera, k, per_side,
-                                          float(st.rays.epsilon))
+                                          float(st.rays.epsilon), caster=caster)
     else:
         raster_or_samples = raster
     fine = pixel_radiance(part, elements, camera, raster_or_samples, radiance)

@@ -274,14 +274,14 @@ def _cell_models(cells_c, cells_n, L, ci, cj):
     x, y = np.einsum("ij,ij->i", d, t1[ci]), np.einsum("ij,ij->i", d, t2[ci])
     w = 1.0 / np.maximum(x * x + y * y, 1e-300)
     M = np.zeros((k, 2, 2))
-    np.add.at(M, (ci, 0, 0), w * x * x)
-    np.add.at(M, (ci, 0, 1), w * x * y)
-    np.add.at(M, (ci, 1, 1), w * y * y)
-    M[:, 1, 0] = M[:, 0, 1]
+    M[:, 0, 0] = np.bincount(ci, w * x * x, k)
+    M[:, 0, 1] = M[:, 1, 0] = np.bincount(ci, w * x * y, k)
+    M[:, 1, 1] = np.bincount(ci, w * y * y, k)
     dL = (L[cj] - L[ci]) * w[:, None]
     rhs = np.zeros((k, 2, 3))
-    np.add.at(rhs, (ci, 0), dL * x[:, None])
-    np.add.at(rhs, (ci, 1), dL * y[:, None])
+    for c in range(3):
+        rhs[:, 0, c] = np.bincount(ci, dL[:, c] * x, k)
+        rhs[:, 1, c] = np.bincount(ci, dL[:, c] * y, k)
     # neighbours along one line only (a strip one cell wide): the minimum-norm gradient
     g2 = np.linalg.pinv(M, rcond=1e-8, hermitian=True) @ rhs          # (k, 2, 3)
     grad = g2[:, 0, :, None] * t1[:, None, :] + g2[:, 1, :, None] * t2[:, None, :]
@@ -391,8 +391,9 @@ def smooth_mesh(part, elements, radiance: np.ndarray, crease_deg: float = CREASE
         vmap[used] = np.arange(len(used))
         val = np.zeros((len(used), 3))
         wsum = np.zeros(len(used))
-        np.add.at(val, vmap[inc_v], est * wa[:, None])
-        np.add.at(wsum, vmap[inc_v], wa)
+        for c in range(3):
+            val[:, c] = np.bincount(vmap[inc_v], est[:, c] * wa, len(used))
+        wsum = np.bincount(vmap[inc_v], wa, len(used))
         val /= np.where(wsum > 0, wsum, 1.0)[:, None]
         hsel = (vmap[hv] >= 0) & (vmap[ha] >= 0) & (vmap[hb] >= 0)
         val = _resolve_hanging(val, vmap[hv[hsel]], vmap[ha[hsel]], vmap[hb[hsel]], ht[hsel])

@@ -1,10 +1,10 @@
 """CSV text of numeric tables in compiled code: a table of 10^6 rows is about 15 million
-numbers, which Python's `%` formatting writes at about 1.4 us each (docs/src/measurements/
-exports.md). Numbers are written as C's printf writes them: integers as %d, floats as %.7g
-(7 significant digits, trailing zeros removed, exponent form below 1e-4 and from 1e7 on,
-"nan", "inf", "-inf"); the 7 digits are the value rounded once from its product with an exact
-power of ten, which can differ from printf's exact decimal rounding only on ties closer than
-1e-16 relative.
+numbers, which Python's `%` formatting wrote at 0.3-1.4 us each
+(docs/src/measurements/hierarchical.md#clusters). Numbers are written as C's printf writes
+them: integers as %d, floats as %.7g (7 significant digits, trailing zeros removed, exponent
+form below 1e-4 and from 1e7 on, "nan", "inf", "-inf"); the 7 digits are the value rounded
+once from its product with an exact power of ten, which can differ from printf's exact
+decimal rounding only on ties closer than 1e-16 relative.
 
 Columns (one kernel call for the whole table): kinds[c] 0 float (floats[idx[c]]), 1 integer
 (ints[idx[c]]), 2 text (codes[idx[c]] into the pre-quoted byte strings `text` at offsets

@@ -21,7 +21,7 @@ from radiosity.methods.hierarchical.clusters import (ClusterTree, cluster_tree, 
 # (cluster and element level) per original, and links made per second per worker thread in the
 # link stage; `radiosity plan` estimates from them.
 LINKS_PER_ORIGINAL = (245.0, 331.0)
-LINKS_PER_THREAD_S = (137e3, 230e3)
+LINKS_PER_THREAD_S = (167e3, 281e3)
 
 
 def refine_all(ct: ClusterTree, eps: float, cap: int = 1024):

@@ -33,38 +33,82 @@ class ClusterLinks:
         return len(self.p)
 
 
-@numba.njit(cache=True, nogil=True)
-def cluster_gather(Lroot, parent, leaf_orig, area, p, q, g, G):
+#: The cluster links are gathered in this many parts, each into its own buffer, summed in a
+#: fixed order (threads share the parts; the same bits on any number of cores).
+GATHER_PARTS = 2
+
+
+def cluster_gather(Lroot, parent, leaf_orig, area, p, q, g, G, threads=None) -> int:
     """G (C, n) += the cluster links' transfer into the originals' roots (front side), from
-    Lroot (C, n) the originals' area-weighted mean radiance: pull up the cluster tree (S: the
-    nodes' A L sums), gather over the links (node a receives g S_b / (A_a A_b)), push down to
-    the leaves' originals. Returns the link terms."""
+    Lroot (C, n) the originals' area-weighted mean radiance: pull up the cluster tree (the
+    nodes' mean radiance), gather over the links (node a receives g Lbar_b / A_a), push down to
+    the leaves' originals. The links go in GATHER_PARTS parts, mapped by `threads` (a function
+    (fn, items) -> [fn(x) for x in items], in threads; None: one after another). Returns the
+    link terms."""
+    S, inv = _pull_means(Lroot, parent, leaf_orig, area)
+    cut = np.linspace(0, len(p), GATHER_PARTS + 1).astype(np.int64)
+
+    def part(k):
+        H = np.zeros_like(S)
+        _link_sums(S, p[cut[k]:cut[k + 1]], q[cut[k]:cut[k + 1]], g[cut[k]:cut[k + 1]], H)
+        return H
+
+    parts = (threads or (lambda fn, items: [fn(x) for x in items]))(part, list(range(GATHER_PARTS)))
+    H = parts[0]
+    for h in parts[1:]:
+        H += h
+    _push_down(H, inv, parent, leaf_orig, G)
+    return 2 * len(p)
+
+
+@numba.njit(cache=True, nogil=True)
+def _pull_means(Lroot, parent, leaf_orig, area):
+    """(K, C) the nodes' area-weighted mean radiance from the originals' (Lroot (C, n)), and
+    (K,) 1 / area (0 for no area). One row a node: a link reads and writes whole rows."""
     K = parent.shape[0]
     C = Lroot.shape[0]
-    S = np.zeros((C, K))
-    H = np.zeros((C, K))
+    S = np.zeros((K, C))
     inv = np.zeros(K)
     for x in range(K):
         inv[x] = 1.0 / area[x] if area[x] > 0 else 0.0
         o = leaf_orig[x]
         if o >= 0:
             for c in range(C):
-                S[c, x] = area[x] * Lroot[c, o]
+                S[x, c] = area[x] * Lroot[c, o]
     for x in range(K - 1, 0, -1):
         for c in range(C):
-            S[c, parent[x]] += S[c, x]
+            S[parent[x], c] += S[x, c]
+    for x in range(K):
+        for c in range(C):
+            S[x, c] *= inv[x]
+    return S, inv
+
+
+@numba.njit(cache=True, nogil=True)
+def _link_sums(S, p, q, g, H):
+    """H[a] += g Lbar_b and H[b] += g Lbar_a over the links (a, b) (power received, A_a E_a)."""
+    C = S.shape[1]
     for k in range(p.shape[0]):
         a, b = p[k], q[k]
-        w = g[k] * inv[a] * inv[b]
+        w = np.float64(g[k])
         for c in range(C):
-            H[c, a] += w * S[c, b]
-            H[c, b] += w * S[c, a]
+            H[a, c] += w * S[b, c]
+            H[b, c] += w * S[a, c]
+
+
+@numba.njit(cache=True, nogil=True)
+def _push_down(H, inv, parent, leaf_orig, G):
+    """G[:, o] += the irradiance each leaf's original receives: H / A at every node, summed
+    down the tree (parents before children)."""
+    K, C = H.shape
+    for x in range(K):
+        for c in range(C):
+            H[x, c] *= inv[x]
     for x in range(1, K):
         for c in range(C):
-            H[c, x] += H[c, parent[x]]
+            H[x, c] += H[parent[x], c]
     for x in range(K):
         o = leaf_orig[x]
         if o >= 0:
             for c in range(C):
-                G[c, o] += H[c, x]
-    return 2 * p.shape[0]
+                G[c, o] += H[x, c]

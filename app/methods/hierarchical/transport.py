@@ -207,9 +207,10 @@ def _gather_tasks(inp: LinkSolveInputs, cap, task_ids, Lbar, G) -> int:
     return terms
 
 
-def _cluster_gather(inp: LinkSolveInputs, cap, Lbar, G) -> int:
+def _cluster_gather(inp: LinkSolveInputs, cap, Lbar, G, threads=None) -> int:
     """G += the cluster links' transfer (front sides) into the originals' roots, from the node
-    means Lbar (clusters.cluster_gather; cap: inp.cap_args()). Returns the link terms."""
+    means Lbar (clusterlinks.cluster_gather, its parts mapped by `threads`; cap:
+    inp.cap_args()). Returns the link terms."""
     cl = inp.clusters
     if cl is None or not cl.links:
         return 0
@@ -221,7 +222,7 @@ def _cluster_gather(inp: LinkSolveInputs, cap, Lbar, G) -> int:
     # darken all of its light (the tessellated Cornell box: 3 %)
     Gc = np.zeros((Lbar.shape[1], len(roots)))
     terms = cluster_gather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent, cl.leaf_orig,
-                           cl.area, cl.p, cl.q, cl.g, Gc)
+                           cl.area, cl.p, cl.q, cl.g, Gc, threads)
     G[0][:, roots] += Gc
     return terms
 
@@ -377,7 +378,7 @@ class LocalLinkOperator(_Base):
         G = bufs[0] if bufs else np.zeros(shape)
         for extra in bufs[1:]:
             G += extra
-        self.terms += _cluster_gather(inp, cap, Lbar, G)
+        self.terms += _cluster_gather(inp, cap, Lbar, G, self._threads)
         self.passes += 1
         return _push(inp, cap, G, L, use_need)
 

@@ -160,9 +160,15 @@ def _rows(kinds, idx, floats, ints, codes, text, toff, buf):
     return pos
 
 
-def csv_body(columns: list, quote) -> bytes:
-    """The rows of a table as CSV bytes (no header): columns, a list of (rows,) arrays (numbers
-    as above; anything else is text, each distinct value passed once through `quote`)."""
+#: Rows formatted per kernel call: the text buffer stays a few tens of MiB for any table.
+ROWS_PER_CALL = 1 << 16
+
+
+def csv_chunks(columns: list, quote):
+    """The rows of a table as CSV bytes (no header), ROWS_PER_CALL rows at a time (memoryviews
+    of one reused buffer: write each before taking the next): columns, a list of (rows,)
+    arrays (numbers as above; anything else is text, each distinct value passed once through
+    `quote`)."""
     kinds, idx, fl, it, cd, parts = [], [], [], [], [], []
     strings: dict = {}
     width = 1
@@ -183,12 +189,21 @@ def csv_body(columns: list, quote) -> bytes:
                     parts.append(quote(u).encode("utf-8"))
                 code.append(strings[u])
             kinds.append(TEXT), idx.append(len(cd)), cd.append(np.asarray(code, np.int64)[inv])
-            width += 1 + max(len(parts[c]) for c in code)
+            width += 1 + max((len(parts[c]) for c in code), default=0)
     n = len(columns[0]) if columns else 0
     toff = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int64)
     text = np.frombuffer(b"".join(parts), np.uint8) if parts else np.zeros(0, np.uint8)
-    buf = np.empty(n * width, np.uint8)
-    arr = lambda a, dt: np.stack(a) if a else np.zeros((0, n), dt)  # noqa: E731
-    end = _rows(np.asarray(kinds, np.int64), np.asarray(idx, np.int64), arr(fl, np.float64),
-                arr(it, np.int64), arr(cd, np.int64), text, toff, buf)
-    return buf[:end].tobytes()
+    kinds, idx = np.asarray(kinds, np.int64), np.asarray(idx, np.int64)
+    buf = np.empty(min(n, ROWS_PER_CALL) * width, np.uint8)
+    for a in range(0, n, ROWS_PER_CALL):
+        b = min(n, a + ROWS_PER_CALL)
+        rows = lambda arrs, dt: (np.stack([x[a:b] for x in arrs]) if arrs  # noqa: E731
+                                 else np.zeros((0, b - a), dt))
+        end = _rows(kinds, idx, rows(fl, np.float64), rows(it, np.int64), rows(cd, np.int64),
+                    text, toff, buf)
+        yield memoryview(buf)[:end]
+
+
+def csv_body(columns: list, quote) -> bytes:
+    """csv_chunks joined: the whole CSV text of the rows."""
+    return b"".join(bytes(c) for c in csv_chunks(columns, quote))

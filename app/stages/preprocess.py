@@ -141,6 +141,21 @@ def subscene_args(el, ranges, points, point_elem, max_depth, group=None):
             for i, (a, b) in enumerate(ranges)]
 
 
+def _scattered(client, args: list):
+    """args_of for run_tasks: task i's arguments with its arrays scattered when it is submitted
+    (again on a retry), not sent inside the task graph (10^6 triangles made a 38 MiB graph)."""
+    from radiosity.runtime.cluster import scatter
+
+    def args_of(i):
+        a = list(args[i])
+        big = [k for k, x in enumerate(a) if isinstance(x, np.ndarray)]
+        for k, f in zip(big, scatter(client, [a[k] for k in big])):
+            a[k] = f
+        return a
+
+    return args_of
+
+
 def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
                variant: str | None = None, subscenes: int | None = None,
                progress: bool = True, settings=None) -> PreprocessFigures:
@@ -236,7 +251,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         ranges = [(0, len(el))]
         args = [(el.verts, el.nverts, el.normal, np.zeros((0, 3)), np.zeros(0, np.int64),
                  max_depth, np.arange(len(el)))]
-        fn, args_of = task_subdivide, args.__getitem__
+        fn, args_of = task_subdivide, _scattered(client, args)
     elif variant == "exact":
         # the unseen rule's points join the run's own camera's (group 0), where its hidden
         # rule's points go too: the rules make leaves of one point per group (hidden.py)
@@ -245,7 +260,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         g_all = np.concatenate([seen_g, np.zeros(len(ue), np.int64)]) if len(cams) > 1 else None
         ranges = subscene_ranges(np.bincount(e_all, minlength=len(el)) + 1.0, ntasks)
         args = subscene_args(el, ranges, p_all, e_all, max_depth, g_all)
-        fn, args_of = task_subdivide, args.__getitem__
+        fn, args_of = task_subdivide, _scattered(client, args)
     else:
         ranges = subscene_ranges(np.ones(len(el)), ntasks)
         fn = task_seed_subscene
@@ -285,7 +300,8 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
                                  np.concatenate([e_all, he]), max_depth,
                                  None if g_all is None else np.concatenate([g_all, *hgs]))
             again = [i for i, (a, b) in enumerate(ranges) if np.any((he >= a) & (he < b))]
-            run_tasks(client, task_subdivide, again, args.__getitem__, name="subdivide-hidden",
+            run_tasks(client, task_subdivide, again, _scattered(client, args),
+                      name="subdivide-hidden",
                       token=token, window=window, retries=retries,
                       on_result=pieces.__setitem__, progress=progress, repair=repair)
             part = merge_partitions([p for p, _ in pieces], ranges, len(el))

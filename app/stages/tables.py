@@ -220,13 +220,14 @@ def write_csv(path: str, table: dict) -> None:
     """One table as CSV: a header of the column names, numbers with 7 significant digits
     ("nan" where undefined), names quoted where they need it (stages/csvtext.py writes the
     rows). Written whole, then renamed."""
-    from radiosity.stages.csvtext import csv_body
+    from radiosity.stages.csvtext import csv_chunks
 
     cols = list(table)
     tmp = temp_path(path)
     with open(tmp, "wb") as f:
         f.write((",".join(_csv_cell(c) for c in cols) + "\n").encode("utf-8"))
-        f.write(csv_body([table[k] for k in cols], _csv_cell))
+        for chunk in csv_chunks([table[k] for k in cols], _csv_cell):
+            f.write(chunk)
     os.replace(tmp, path)
 
 

@@ -48,3 +48,14 @@ def test_rows_mix_numbers_and_quoted_names():
     np.testing.assert_allclose([float(r[2]) for r in rows], np.linspace(0.0, 1.0, 9), rtol=1e-6)
     assert [r[3] for r in rows] == ["1", "0"] * 4 + ["1"]
     assert csv_body([np.zeros(0), np.zeros(0, int)], _csv_cell) == b""
+
+
+def test_chunks_join_to_the_same_text(monkeypatch):
+    import radiosity.stages.csvtext as ct
+
+    rng = np.random.default_rng(2)
+    cols = [rng.uniform(0, 1, 1000), rng.integers(0, 9, 1000), np.array(["a", "b,c"] * 500)]
+    whole = ct.csv_body(cols, _csv_cell)
+    monkeypatch.setattr(ct, "ROWS_PER_CALL", 7)
+    assert ct.csv_body(cols, _csv_cell) == whole
+    assert len(list(ct.csv_chunks(cols, _csv_cell))) == -(-1000 // 7)

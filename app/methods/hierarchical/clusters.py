@@ -571,29 +571,3 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
                                eq[few][:, k // 2:k // 2 + 1])
         rays += k * int(many.sum()) + int(few.sum())
     return F, v, rays
-    shift = (np.arange(samples) + samples // 2) % samples
-    reuse = caster is not None and 0 < k <= samples and samples % k == 0
-    for a in range(0, len(links), CHUNK):
-        lk = np.ascontiguousarray(links[a:a + CHUNK])
-        sp, sq = link_samples(ct.tree, ct.elems, lk, samples)
-        sq = np.ascontiguousarray(sq[:, shift])
-        Fa = F[a:a + len(lk)] = _sampled_ff(ct.tree, ct.elems, lk, sp, sq)
-        if caster is None or k <= 0:
-            continue
-        if reuse:
-            mid = samples // k // 2  # the middle of each stratum of samples / k samples
-            cols = np.arange(k) * (samples // k) + mid
-            ep, eq = sp[:, cols], sq[:, cols]
-        else:
-            ep, eq = link_samples(ct.tree, ct.elems, lk, k)
-            eq = eq[:, (np.arange(k) + k // 2) % k]
-        few = _carried(ct, lk, Fa) <= faint if faint > 0 and k > 1 else np.zeros(len(lk), bool)
-        va = v[a:a + len(lk)]
-        many = ~few
-        if many.any():
-            va[many] = _visible(caster, ct.elems, ep[many], eq[many])
-        if few.any():
-            va[few] = _visible(caster, ct.elems, ep[few][:, k // 2:k // 2 + 1],
-                               eq[few][:, k // 2:k // 2 + 1])
-        rays += k * int(many.sum()) + int(few.sum())
-    return F, v, rays

@@ -89,7 +89,7 @@ def _caster(inp: ClusterInputs, links: np.ndarray):
 
 #: Buckets of p in which the driver sorts the cluster links, one bucket at a time: the sort's
 #: temporaries are one bucket's, not all links' (docs/src/design/methods-hierarchical-clusters.md).
-SORT_BUCKETS = 16
+SORT_BUCKETS = 32
 
 
 class _Runs:
@@ -191,6 +191,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     # of the tasks' sorted runs, bucket by bucket)
     order = np.argsort(pairs[:, 0] * np.int64(n) + pairs[:, 1], kind="stable")
     pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
+    del order  # the merge below is the stage's peak of memory
     cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), *runs.merged())
     del runs
     figures = {"nodes": ct.nodes, "links": cl.links, "pairs_to_elements": int(len(pairs)),

@@ -83,8 +83,8 @@ _NG = 12                                   # Gauss-Legendre nodes per panel
 # the rules as tuples: their length is known at compile time (one specialisation each)
 _GX, _GW = (tuple(float(x) for x in a) for a in np.polynomial.legendre.leggauss(_NG))
 # A coarser rule for callers that need far less than the reference's accuracy: 8 nodes a
-# panel, about 1e-7 relative on touching polygons in half the time (the refinement's near
-# links, methods/hierarchical/formfactors.near_ff).
+# panel, about 1e-7 relative on touching polygons in about two thirds of the time (the
+# refinement's near links, methods/hierarchical/formfactors.near_ff; docs/src/design/core-exact.md).
 FAST_GX, FAST_GW = (tuple(float(x) for x in a) for a in np.polynomial.legendre.leggauss(8))
 _SIGMA = 0.25                              # geometric grading ratio towards a singularity
 _EPS = 1e-9                                # innermost panel, relative to the interval

@@ -89,7 +89,7 @@ def _caster(inp: ClusterInputs, links: np.ndarray):
 
 #: Buckets of p in which the driver sorts the cluster links, one bucket at a time: the sort's
 #: temporaries are one bucket's, not all links' (docs/src/design/methods-hierarchical-clusters.md).
-SORT_BUCKETS = 32
+SORT_BUCKETS = 16
 
 
 class _Runs:

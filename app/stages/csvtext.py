@@ -6,7 +6,7 @@ form below 1e-4 and from 1e7 on, "nan", "inf", "-inf"); the 7 digits are the val
 once from its product with an exact power of ten, which can differ from printf's exact
 decimal rounding only on ties closer than 1e-16 relative.
 
-Columns (one kernel call for the whole table): kinds[c] 0 float (floats[idx[c]]), 1 integer
+Columns (one kernel call per ROWS_PER_CALL rows): kinds[c] 0 float (floats[idx[c]]), 1 integer
 (ints[idx[c]]), 2 text (codes[idx[c]] into the pre-quoted byte strings `text` at offsets
 `toff`).
 """
@@ -202,8 +202,3 @@ def csv_chunks(columns: list, quote):
         end = _rows(kinds, idx, rows(fl, np.float64), rows(it, np.int64), rows(cd, np.int64),
                     text, toff, buf)
         yield memoryview(buf)[:end]
-
-
-def csv_body(columns: list, quote) -> bytes:
-    """csv_chunks joined: the whole CSV text of the rows."""
-    return b"".join(bytes(c) for c in csv_chunks(columns, quote))

@@ -400,27 +400,6 @@ def _pick(t, e, x, ux, uy, uz, k, out, a):
     return 0.0 if by_area else total
 
 
-@numba.njit(cache=True, nogil=True)
-def link_samples(t, e, links, k):
-    """The sample elements of cluster links (p, q): k of each end, stratified by their projected
-    area toward the other end's centroid (the elements that carry the link's transfer),
-    (len(links), k) int64 twice."""
-    sp = np.empty((links.shape[0], k), np.int64)
-    sq = np.empty((links.shape[0], k), np.int64)
-    for a in range(links.shape[0]):
-        p, q = links[a, 0], links[a, 1]
-        dx = t.center[q, 0] - t.center[p, 0]
-        dy = t.center[q, 1] - t.center[p, 1]
-        dz = t.center[q, 2] - t.center[p, 2]
-        r = max(np.sqrt(dx * dx + dy * dy + dz * dz), 1e-300)
-        _pick(t, e, p, dx / r, dy / r, dz / r, k, sp, a)
-        _pick(t, e, q, -dx / r, -dy / r, -dz / r, k, sq, a)
-    for a in range(links.shape[0]):
-        for c in range(k):
-            sp[a, c], sq[a, c] = t.order[sp[a, c]], t.order[sq[a, c]]
-    return sp, sq
-
-
 FF_SAMPLES = 16  # sample pairs of elements per cluster link for its form factors
 
 
@@ -503,16 +482,8 @@ CHUNK = 1 << 16
 
 def link_form_factors(ct: ClusterTree, links: np.ndarray, samples: int = FF_SAMPLES) -> np.ndarray:
     """F_pq, F_qp (len(links), 2) of cluster links (p, q): sum_ij A_i A_j K_ij / A_p and / A_q
-    estimated from `samples` stratified pairs of elements (_sampled_ff); A_p F_pq = A_q F_qp."""
+    estimated from `samples` stratified pairs of elements (_weights); A_p F_pq = A_q F_qp."""
     return link_weights(ct, links, None, 0, samples)[0]
-
-
-def _carried(ct: ClusterTree, links: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """The light links (p, q) with form factors F (k, 2) carry, weighted as the oracle weighs
-    it: max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref."""
-    t = ct.tree
-    p, q = links[:, 0], links[:, 1]
-    return np.maximum(t.rho[p] * F[:, 0] * t.lhat[q], t.rho[q] * F[:, 1] * t.lhat[p]) / ct.lref
 
 
 def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, dedupe: bool = True) -> np.ndarray:
@@ -540,10 +511,11 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
     """Form factors (len(links), 2) and visible fractions (len(links),) of cluster links, CHUNK
     links at a time (_weights). The visible fraction from k rays between the centroids of k
     sample pairs, taken from the form factors' samples (every samples/k-th: one per stratum of
-    the k) where k divides `samples`. A link whose carried light (_carried) is at most `faint`
-    gets one ray, the middle one of the k: wholly wrong, its visibility errs by no more than
-    the oracle lets a link err. caster None or k = 0: every link fully visible. Returns
-    (F, v, rays: the number of rays the links took)."""
+    the k) where k divides `samples`. A link whose carried light in the oracle's weighting,
+    max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref, is at most `faint` gets one ray, the
+    middle one of the k: wholly wrong, its visibility errs by no more than the oracle lets a
+    link err. caster None or k = 0: every link fully visible. Returns (F, v, rays: the number
+    of rays the links took)."""
     F = np.zeros((len(links), 2))
     v = np.ones(len(links))
     rays = 0

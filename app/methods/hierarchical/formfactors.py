@@ -40,7 +40,7 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
     point-to-polygon form factor (exact.py) integrated over the smaller one by Gauss rules
     (2 x 2 on a quad's bilinear map, 3 points on a triangle: smooth integrand there); otherwise
     (touching, or about to) the double contour integral (exact.py) with its coarser rule (about
-    1e-7 relative, half the reference's time). gp, gq: +-1, the sides that face."""
+    1e-7 relative, 0.6-0.7 of the reference's time). gp, gq: +-1, the sides that face."""
     small_is_p = Ap <= Aq
     S, nS = (P, nP) if small_is_p else (Q, nQ)
     L, nL = (Q, nQ) if small_is_p else (P, nP)

@@ -165,7 +165,7 @@ def test_a_repeated_ray_is_cast_once_and_the_fractions_stay_the_same():
     """A closed sphere with a small sphere inside it (so that rays are blocked): the visible
     fractions of its cluster links, with each ray repeated on a link's row cast once, equal
     those with every ray cast; and repeats do occur (ends of one or two elements)."""
-    from radiosity.methods.hierarchical.clusters import _visible, link_samples
+    from radiosity.methods.hierarchical.clusters import FF_SAMPLES, _visible, _weights
     from radiosity.tracing.rays import RayCaster
 
     v1, n1 = _sphere(16, 32)
@@ -173,8 +173,10 @@ def test_a_repeated_ray_is_cast_once_and_the_fractions_stay_the_same():
     el = _elements(np.concatenate([v1, v2 * 0.3]), np.concatenate([n1, n2]))
     ct = _tree(el)
     links, _, _ = refine_all(ct, 1e-3, 64)
-    sp, sq = link_samples(ct.tree, ct.elems, links, 4)
-    sq = sq[:, [2, 3, 0, 1]]
+    # 4 pairs picked anew (no column of the form factors' samples), the second end rotated
+    sp, sq = np.empty((len(links), 4), np.int64), np.empty((len(links), 4), np.int64)
+    _weights(ct.tree, ct.elems, links, FF_SAMPLES, np.zeros(0, np.int64), 0.0, 0.0,
+             np.empty((len(links), 2)), sp, sq, np.empty(len(links), np.bool_))
     caster = RayCaster(el.verts, el.nverts)
     once = _visible(caster, ct.elems, sp, sq)
     every = _visible(caster, ct.elems, sp, sq, dedupe=False)
@@ -188,7 +190,7 @@ def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
     """link_weights' `faint`: a link that carries at most that much light (the oracle's weights)
     casts one ray, the middle of its k, and every other link its k; the form factors do not
     change, and the one-ray links' fractions are what that middle ray alone gives."""
-    from radiosity.methods.hierarchical.clusters import _carried, link_weights
+    from radiosity.methods.hierarchical.clusters import link_weights
     from radiosity.tracing.rays import RayCaster
 
     v1, n1 = _sphere(16, 32)
@@ -202,7 +204,8 @@ def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
     caster = RayCaster(el.verts, el.nverts)
     F4, v4, r4 = link_weights(ct, links, caster, 4)
     assert r4 == 4 * len(links)
-    c = _carried(ct, links, F4)
+    t, p, q = ct.tree, links[:, 0], links[:, 1]  # the carried light, as the oracle weighs it
+    c = np.maximum(t.rho[p] * F4[:, 0] * t.lhat[q], t.rho[q] * F4[:, 1] * t.lhat[p]) / ct.lref
     faint = float(np.median(c))
     F, v, r = link_weights(ct, links, caster, 4, faint=faint)
     few = c <= faint

@@ -164,6 +164,22 @@ def tune_malloc() -> dict:
     return done
 
 
+def trim_malloc() -> bool:
+    """Hand the heap's free pages back to the system (glibc's malloc_trim(0), all arenas):
+    tune_malloc keeps arrays up to 64 MiB on the heap, and a heap freed in its middle keeps its
+    pages, so a stage that frees many such arrays calls this once they are gone. False without
+    glibc."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return False
+    trim(ctypes.c_size_t(0))
+    return True
+
+
 def scatterable(cls):
     """Class decorator: distributed serializes an instance by its attributes, each array as a
     buffer of its own, instead of pickling the whole object into one message (its fallback for

@@ -84,6 +84,33 @@ def test_the_driver_gets_the_workers_malloc_thresholds_unless_its_environment_se
         assert rc.tune_malloc() == {}
 
 
+def test_trim_malloc_hands_back_the_pages_of_arrays_freed_in_the_middle_of_the_heap():
+    """The cluster merge frees many heap arrays under a kept one (tune_malloc keeps arrays up to
+    64 MiB on the heap): without the trim their pages stay with the process."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import os, numpy as np
+        import radiosity.runtime.cluster as rc
+        rc.tune_malloc()
+        def rss():
+            return int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+        held = [np.ones(1 << 17) for _ in range(400)]   # 400 x 1 MiB on the heap
+        top = np.ones(1 << 17)                         # keeps the heap's top in use
+        before = rss()
+        del held
+        freed = rss()
+        assert rc.trim_malloc()
+        print(before - freed, before - rss())
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    kept_freed, trimmed = (int(x) for x in out.stdout.split())
+    assert kept_freed < 100 << 20  # free() alone keeps them
+    assert trimmed > 350 << 20
+
+
 def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene, tmp_path, client):
     from radiosity.stages.preprocess import preprocess
     from radiosity.scene.load import load_scene

@@ -111,7 +111,10 @@ class _Runs:
 
     def merged(self, chunk: int = 1 << 22) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(p, q) int32 and g float32 sorted by (p, q); each bucket's runs are freed as it is
-        merged (the keys are unique, so the order does not depend on the runs' arrival)."""
+        merged, and their heap pages handed back (the keys are unique, so the order does not
+        depend on the runs' arrival)."""
+        from radiosity.runtime.cluster import trim_malloc
+
         p = np.empty(self.n, np.int32)
         q = np.empty(self.n, np.int32)
         g = np.empty(self.n, np.float32)
@@ -130,6 +133,8 @@ class _Runs:
                 pa, qa = np.divmod(key[order[a:a + chunk]], self.K)
                 p[at + a:at + a + len(pa)], q[at + a:at + a + len(pa)] = pa, qa
             at += len(key)
+            del key, order
+            trim_malloc()
         return p, q, g
 
 
@@ -146,6 +151,8 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     import time
 
     from dask.base import tokenize
+
+    from radiosity.runtime.cluster import trim_malloc
 
     t0 = time.perf_counter()
     ct = cluster_tree(elements, *weights)
@@ -165,6 +172,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
         key, g, *other = res
         runs.add(key, g)
         rest.append(other)
+        trim_malloc()  # the tasks' arrays freed so far (runs.add keeps copies)
 
     keep(_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon))
     del links, pairs

@@ -227,6 +227,24 @@ def _cos_bound(t, p, q, d, sign):
 
 
 @numba.njit(cache=True, nogil=True)
+def _all_face(t, p, q):
+    """Does every element of node p face every point of node q's box (n . v > 0 for every normal
+    in p's cone and every direction v from p's box to q's box)? n . v / |v| >= min_v a . v /
+    max |v| - spread. Then the centroid direction's cosines are an estimate of every pair's."""
+    a_, b_ = t.rec[p], t.rec[q]
+    low = 0.0
+    vmax2 = 0.0
+    for k in range(3):
+        a = a_[AXIS + k]
+        lo = b_[LO + k] - a_[HI + k]
+        hi = b_[HI + k] - a_[LO + k]
+        low += a * lo if a > 0 else a * hi
+        m = max(abs(lo), abs(hi))
+        vmax2 += m * m
+    return low > 0.0 and low / np.sqrt(vmax2) > a_[SPREAD]
+
+
+@numba.njit(cache=True, nogil=True)
 def _error_bound(t, p, q, d2, lref):
     """The oracle of a link between nodes p, q whose boxes are d = sqrt(d2) apart: the bound on
     the light it carries, max(rho_p A_q Lhat_q, rho_q A_p Lhat_p) c_p c_q / (pi d^2 lref) (the
@@ -259,11 +277,45 @@ def _exposure(t, e, x, ux, uy, uz):
 
 
 @numba.njit(cache=True, nogil=True)
+def _exposure_toward(t, e, x, y, d):
+    """(sum over node x's elements of A_i c_i, the largest c_i): c_i = min(1, max_w n_i . (w - c_i)
+    / max(d, |c_i - box y|)), the cosine between element i's normal and the direction from its
+    centre c_i toward the point w of y's box it faces most (the numerator holds for every point
+    of the element: n_i . x = n_i . c_i on its plane; d is the boxes' distance). Where some of
+    x's elements face away from the centroid direction but toward part of y, _exposure's
+    cosines miss the light they exchange; these do not."""
+    b_ = t.rec[y]
+    s = 0.0
+    cmax = 0.0
+    d2 = d * d
+    for k in range(t.start[x], t.end[x]):
+        up = 0.0
+        for c in range(3):
+            n = e.ona[k, c]
+            up += n * ((b_[HI + c] if n > 0 else b_[LO + c]) - e.ona[k, 4 + c])
+        if up <= 0.0:
+            continue
+        g2 = 0.0
+        for c in range(3):
+            w = e.ona[k, 4 + c]
+            g = max(b_[LO + c] - w, w - b_[HI + c], 0.0)
+            g2 += g * g
+        cb = min(1.0, up / np.sqrt(max(g2, d2)))
+        s += e.ona[k, 3] * cb
+        cmax = max(cmax, cb)
+    return s, cmax
+
+
+@numba.njit(cache=True, nogil=True)
 def _error_estimate(t, e, p, q, d2, lref):
     """The oracle's estimate where the bound (_error_bound) says split: the light the link
     carries to the most exposed element of either end, from the other end's projected area
-    toward it (exact sums over the elements, between the area centroids), weighted as the
-    bound is and times the same relative error. Costs the two nodes' element counts."""
+    toward it (exact sums over the elements, at the centroids' distance), weighted as the bound
+    is and times the same relative error. The cosines are taken along the centroid direction
+    where every element of each end faces the other's box (_all_face), else each element's
+    toward the other's box (_exposure_toward): a cluster mixing faces (a block's corner, a block
+    and the floor) may face the other end only away from the centroid direction
+    (docs/src/design/methods-hierarchical-clusters.md). Costs the two nodes' element counts."""
     dx = t.center[q, 0] - t.center[p, 0]
     dy = t.center[q, 1] - t.center[p, 1]
     dz = t.center[q, 2] - t.center[p, 2]
@@ -275,8 +327,13 @@ def _error_estimate(t, e, p, q, d2, lref):
     rel = _relative_error(t, p, q, np.sqrt(d2))
     r = np.sqrt(r2)
     ux, uy, uz = dx / r, dy / r, dz / r
-    sp, cp = _exposure(t, e, p, ux, uy, uz)
-    sq, cq = _exposure(t, e, q, -ux, -uy, -uz)
+    if _all_face(t, p, q) and _all_face(t, q, p):
+        sp, cp = _exposure(t, e, p, ux, uy, uz)
+        sq, cq = _exposure(t, e, q, -ux, -uy, -uz)
+    else:
+        d = np.sqrt(d2)
+        sp, cp = _exposure_toward(t, e, p, q, d)
+        sq, cq = _exposure_toward(t, e, q, p, d)
     a, b = t.rec[p], t.rec[q]
     carried = max(a[RHO] * sq * cp * b[LHAT], b[RHO] * sp * cq * a[LHAT]) / (np.pi * r2 * lref)
     return carried * rel

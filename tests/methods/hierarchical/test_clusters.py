@@ -281,6 +281,33 @@ def test_epsilon_zero_with_clusters_equals_the_method_without(client, tmp_path, 
     np.testing.assert_allclose(L_on, L_off, rtol=1e-9, atol=1e-12)
 
 
+def test_clusters_mixing_faces_do_not_darken_the_elements_that_face_the_light(client, tmp_path):
+    """The Cornell box with each face cut into 16 triangles (no two forming a parallelogram), the
+    default epsilon: with clusters every lit sub-element within 2 % of the method without them.
+    A cluster holding elements of two faces of a block (or of a block and the floor) sees another
+    cluster along the centroid direction at a grazing or back-facing angle even where its
+    elements face parts of the other: an estimate from the centroid direction alone called such
+    links faint, kept them and carried almost nothing (up to 39 % too dark here, -36 % on the
+    tall block at 128^2); they are now judged by each element's cosine toward the other's box."""
+    import sys
+
+    from helpers import ROOT
+
+    sys.path.insert(0, f"{ROOT}/benchmarks")
+    import scenes_generated
+
+    scene = scenes_generated.tessellated_cornell(str(tmp_path / "box"), 16, 16)
+    _, f_off, _, L_off = _links_and_solve(client, tmp_path, scene, 16, "off",
+                                          **{"hierarchy.clusters": "off"})
+    _, f_on, _, L_on = _links_and_solve(client, tmp_path, scene, 16, "on",
+                                        **{"hierarchy.clusters": "on"})
+    assert f_on["cluster_links"] > 500 and f_off["cluster_links"] == 0
+    on, off = L_on[:, 0].sum(axis=-1), L_off[:, 0].sum(axis=-1)
+    lit = off > 0.05 * off.mean()
+    err = np.abs(on[lit] / off[lit] - 1.0)
+    assert err.max() < 0.02 and err.mean() < 2e-3
+
+
 def test_energy_is_conserved_with_cluster_links(client, tmp_path):
     """An open scene with cluster links: emitted = absorbed + escaped to 1e-9, with the
     operator's own row sums (diag(A) K symmetric, the solution exact to the tolerance)."""

@@ -148,12 +148,10 @@ def tune_malloc() -> dict:
     solve in the driver, 8.7 M links): 24.3 -> 20.9 s cold, 9.7 -> 6.2 s warm. Returns
     {variable: value} of what was set (empty without glibc's mallopt)."""
     import ctypes
-    import ctypes.util
 
     params = {"MALLOC_TRIM_THRESHOLD_": -1, "MALLOC_MMAP_THRESHOLD_": -3}  # M_TRIM_, M_MMAP_
-    try:
-        mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
-    except (OSError, AttributeError):
+    mallopt = getattr(_libc(), "mallopt", None)
+    if mallopt is None:
         return {}
     done = {}
     for key, var in _MALLOC:
@@ -170,14 +168,24 @@ def trim_malloc() -> bool:
     pages, so a stage that frees many such arrays calls this once they are gone. False without
     glibc."""
     import ctypes
-    import ctypes.util
 
-    try:
-        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-    except (OSError, AttributeError):
+    trim = getattr(_libc(), "malloc_trim", None)
+    if trim is None:
         return False
     trim(ctypes.c_size_t(0))
     return True
+
+
+@functools.lru_cache(maxsize=1)
+def _libc():
+    """The C library (find_library runs ldconfig: once a process), None where it cannot load."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+    except OSError:
+        return None
 
 
 def scatterable(cls):

@@ -69,7 +69,8 @@ def test_worker_killed_during_solve_gives_the_same_answer(killable, tmp_path, so
     from radiosity.methods.base import get_method
 
     c = killable
-    c.wait_for_workers(2, timeout=60)
+    c.cluster.scale(2)  # the last run's victim: its nanny restarts it (or, if it gave up, this)
+    c.wait_for_workers(2, timeout=180)  # a worker's start takes long on a loaded machine
     out = prepared(c, tmp_path, scene_path("cornell-box"), 12, visibility=False)
     get_method(method).build(out, c, None, progress=False)
     ref = run_solve(out, c, solver=solver, tol=1e-10, progress=False, where="cluster")

@@ -1,6 +1,6 @@
 """The cluster layer of a link stage as tasks (SPEC §9): the cluster refinement
 (clusters.refine_clusters) cut breadth first into subtrees of links, each a task that refines
-its links to the end and computes their form factors and rays (clusters.link_weights), and the
+its links to the end and computes their form factors and rays (clusterweights.link_weights), and the
 figures `radiosity plan` estimates a clustered scene's cost from.
 
 Design notes and measurements: docs/src/design/methods-hierarchical-clusters.md.
@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from radiosity.methods.hierarchical.clusterlinks import ClusterLinks
-from radiosity.methods.hierarchical.clusters import (ClusterTree, cluster_tree, link_weights,
-                                                     refine_clusters)
+from radiosity.methods.hierarchical.clusters import ClusterTree, cluster_tree, refine_clusters
+from radiosity.methods.hierarchical.clusterweights import link_weights
 
 # What a clustered scene costs, as measured (benchmarks/bench_clusters.py, results/clusters.json:
 # a terrain and the Cornell box cut into triangles, 128^2, default epsilon): links in all

@@ -9,7 +9,8 @@ import pytest
 
 from radiosity.core.bundles import Elements
 from radiosity.core.geometry import polygon_properties
-from radiosity.methods.hierarchical.clusters import cluster_tree, link_form_factors
+from radiosity.methods.hierarchical.clusters import cluster_tree
+from radiosity.methods.hierarchical.clusterweights import link_form_factors
 from radiosity.methods.hierarchical.clustertasks import refine_all
 from radiosity.scene.originals import facing_pairs, tree_of
 
@@ -165,7 +166,7 @@ def test_a_repeated_ray_is_cast_once_and_the_fractions_stay_the_same():
     """A closed sphere with a small sphere inside it (so that rays are blocked): the visible
     fractions of its cluster links, with each ray repeated on a link's row cast once, equal
     those with every ray cast; and repeats do occur (ends of one or two elements)."""
-    from radiosity.methods.hierarchical.clusters import FF_SAMPLES, _visible, _weights
+    from radiosity.methods.hierarchical.clusterweights import FF_SAMPLES, _visible, _weights
     from radiosity.tracing.rays import RayCaster
 
     v1, n1 = _sphere(16, 32)
@@ -190,7 +191,7 @@ def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
     """link_weights' `faint`: a link that carries at most that much light (the oracle's weights)
     casts one ray, the middle of its k, and every other link its k; the form factors do not
     change, and the one-ray links' fractions are what that middle ray alone gives."""
-    from radiosity.methods.hierarchical.clusters import link_weights
+    from radiosity.methods.hierarchical.clusterweights import link_weights
     from radiosity.tracing.rays import RayCaster
 
     v1, n1 = _sphere(16, 32)

@@ -1,0 +1,186 @@
+"""Form factors and visible fractions of cluster links (SPEC §9; the links themselves:
+clusters.refine_clusters). F_pq = S_p(u) S_q(-u) / (pi r^2 A_p) times a sampled correction,
+from pairs of elements drawn by their projected area toward the other end (_weights); the
+visible fraction from k rays between the centroids of k of those pairs (link_weights).
+
+Design notes and measurements: docs/src/design/methods-hierarchical-clusters.md.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from radiosity.methods.hierarchical.clusters import ClusterTree
+
+
+@numba.njit(cache=True, nogil=True)
+def _pick(t, e, x, ux, uy, uz, k, out, a):
+    """k elements of node x stratified by their projected area toward u (A_i max(0, n_i . u)),
+    into out[a, :] as positions in the tree's order (ascending); by area where no element faces
+    u. Returns S_x(u) = sum over the elements of A_i max(0, n_i . u) (0 where none faces u)."""
+    total = 0.0
+    for m in range(t.start[x], t.end[x]):
+        total += e.ona[m, 3] * max(0.0, e.ona[m, 0] * ux + e.ona[m, 1] * uy + e.ona[m, 2] * uz)
+    by_area = total <= 0.0
+    if by_area:
+        total = t.area[x]
+    acc = 0.0
+    j = 0
+    for m in range(t.start[x], t.end[x]):
+        if by_area:
+            acc += e.ona[m, 3]
+        else:
+            acc += e.ona[m, 3] * max(0.0, e.ona[m, 0] * ux + e.ona[m, 1] * uy + e.ona[m, 2] * uz)
+        while j < k and (j + 0.5) * total / k <= acc:
+            out[a, j] = m
+            j += 1
+    while j < k:  # rounding at the end
+        out[a, j] = t.end[x] - 1
+        j += 1
+    return 0.0 if by_area else total
+
+
+FF_SAMPLES = 16  # sample pairs of elements per cluster link for its form factors
+
+
+@numba.njit(cache=True, nogil=True)
+def _kernel(ona, i, j):
+    """max(0, cos_i) max(0, cos_j) / (pi r^2) between the centroids of the elements at tree
+    positions i and j (CElems.ona)."""
+    dx = ona[j, 4] - ona[i, 4]
+    dy = ona[j, 5] - ona[i, 5]
+    dz = ona[j, 6] - ona[i, 6]
+    r2 = dx * dx + dy * dy + dz * dz
+    if r2 <= 0.0:
+        return 0.0
+    r = np.sqrt(r2)
+    ci = (ona[i, 0] * dx + ona[i, 1] * dy + ona[i, 2] * dz) / r
+    cj = -(ona[j, 0] * dx + ona[j, 1] * dy + ona[j, 2] * dz) / r
+    if ci <= 0.0 or cj <= 0.0:
+        return 0.0
+    return ci * cj / (np.pi * r2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _weights(t, e, links, samples, cols, lref, faint, F, ep, eq, few):
+    """One pass over cluster links (p, q): F[a] = F_pq, F_qp from `samples` pairs of elements
+    drawn in proportion to A_i max(0, n_i . u) at each end (_pick; the second end's picks
+    rotated by half a stride): the point kernel between the pair's centroids divided by the
+    sampling weights' cosines toward u, averaged, times S_p(u) S_q(-u), an estimate of
+    sum_ij A_i A_j K_ij without the bias of one distance and one direction between centroids
+    (1 / r^2 is convex: at the centroid distance it is too small). The ray ends ep[a], eq[a]
+    (k = ep.shape[1]): the pairs at `cols` (one per stratum of samples / k), or where cols is
+    empty k pairs picked anew. few[a]: the link carries at most `faint` in the oracle's
+    weighting, max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref <= faint (lref 0: never)."""
+    k = ep.shape[1]
+    sp = np.empty((1, max(samples, k)), np.int64)
+    sq = np.empty((1, max(samples, k)), np.int64)
+    half = samples // 2
+    for a in range(links.shape[0]):
+        p, q = links[a, 0], links[a, 1]
+        dx = t.center[q, 0] - t.center[p, 0]
+        dy = t.center[q, 1] - t.center[p, 1]
+        dz = t.center[q, 2] - t.center[p, 2]
+        r = np.sqrt(dx * dx + dy * dy + dz * dz)
+        rr = max(r, 1e-300)
+        ux, uy, uz = dx / rr, dy / rr, dz / rr
+        Sp = _pick(t, e, p, ux, uy, uz, samples, sp, 0)
+        Sq = _pick(t, e, q, -ux, -uy, -uz, samples, sq, 0)
+        F[a, 0] = F[a, 1] = 0.0
+        if r > 0.0 and Sp > 0.0 and Sq > 0.0:
+            acc = term = 0.0
+            i0 = j0 = -1
+            for m in range(samples):
+                i, j = sp[0, m], sq[0, (m + half) % samples]
+                if i != i0 or j != j0:  # picks repeat in small nodes: one kernel per pair
+                    i0, j0 = i, j
+                    wi = e.ona[i, 0] * ux + e.ona[i, 1] * uy + e.ona[i, 2] * uz
+                    wj = -(e.ona[j, 0] * ux + e.ona[j, 1] * uy + e.ona[j, 2] * uz)
+                    term = _kernel(e.ona, i, j) / (wi * wj) if wi > 0.0 and wj > 0.0 else 0.0
+                acc += term
+            g = Sp * Sq * acc / samples
+            F[a, 0] = g / t.area[p]
+            F[a, 1] = g / t.area[q]
+        if cols.shape[0] > 0:
+            for c in range(k):
+                ep[a, c] = t.order[sp[0, cols[c]]]
+                eq[a, c] = t.order[sq[0, (cols[c] + half) % samples]]
+        elif k > 0:
+            _pick(t, e, p, ux, uy, uz, k, sp, 0)
+            _pick(t, e, q, -ux, -uy, -uz, k, sq, 0)
+            for c in range(k):
+                ep[a, c] = t.order[sp[0, c]]
+                eq[a, c] = t.order[sq[0, (c + k // 2) % k]]
+        few[a] = lref > 0.0 and max(t.rho[p] * F[a, 0] * t.lhat[q],
+                                    t.rho[q] * F[a, 1] * t.lhat[p]) / lref <= faint
+
+
+#: Cluster links per chunk of the form factors and rays (bounds the sample arrays: 2^16 links
+#: x 16 samples x 2 ends x 8 bytes = 16 MiB).
+CHUNK = 1 << 16
+
+
+def link_form_factors(ct: ClusterTree, links: np.ndarray, samples: int = FF_SAMPLES) -> np.ndarray:
+    """F_pq, F_qp (len(links), 2) of cluster links (p, q): sum_ij A_i A_j K_ij / A_p and / A_q
+    estimated from `samples` stratified pairs of elements (_weights); A_p F_pq = A_q F_qp."""
+    return link_weights(ct, links, None, 0, samples)[0]
+
+
+def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, dedupe: bool = True) -> np.ndarray:
+    """1 - the blocked fraction of the rays between the centroids of elements ep[a, m] and
+    eq[a, m] (a link's k rays on one row), (len(ep),) float64. With `dedupe`, a ray that repeats
+    on its row (ends of one or a few elements: the stratified picks repeat) is cast once and
+    counted as often as it appears, so the fraction is the same as with every ray cast."""
+    L, k = ep.shape
+    n_el = len(e.area)
+    if dedupe and k > 1 and float(L) * n_el * n_el < 2.0 ** 62:  # the key (row, i, j) fits in int64
+        key = (np.arange(L, dtype=np.int64)[:, None] * n_el + ep) * n_el + eq
+        uniq, inverse = np.unique(key.ravel(), return_inverse=True)
+        ui, uj = (uniq // n_el) % n_el, uniq % n_el
+    else:
+        ui, uj, inverse = ep.ravel(), eq.ravel(), np.arange(ep.size)
+    n = len(ui)
+    pts = np.concatenate([e.center[ui], e.center[uj]])
+    idx = np.arange(n)
+    occ = caster.occluded_pairs(pts, idx, idx + n, np.concatenate([ui, uj]))
+    return 1.0 - occ[inverse.ravel()].reshape(L, k).mean(axis=1)
+
+
+def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
+                 samples: int = FF_SAMPLES, faint: float = 0.0) -> tuple:
+    """Form factors (len(links), 2) and visible fractions (len(links),) of cluster links, CHUNK
+    links at a time (_weights). The visible fraction from k rays between the centroids of k
+    sample pairs, taken from the form factors' samples (every samples/k-th: one per stratum of
+    the k) where k divides `samples`. A link whose carried light in the oracle's weighting,
+    max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref, is at most `faint` gets one ray, the
+    middle one of the k: wholly wrong, its visibility errs by no more than the oracle lets a
+    link err. caster None or k = 0: every link fully visible. Returns (F, v, rays: the number
+    of rays the links took)."""
+    F = np.zeros((len(links), 2))
+    v = np.ones(len(links))
+    rays = 0
+    if len(links) == 0:
+        return F, v, rays
+    k = k if caster is not None and k > 0 else 0
+    cols = np.zeros(0, np.int64)
+    if 0 < k <= samples and samples % k == 0:
+        cols = np.arange(k) * (samples // k) + samples // k // 2  # each stratum's middle
+    lref = ct.lref if faint > 0 and k > 1 else 0.0
+    for a in range(0, len(links), CHUNK):
+        lk = np.ascontiguousarray(links[a:a + CHUNK])
+        ep = np.empty((len(lk), k), np.int64)
+        eq = np.empty((len(lk), k), np.int64)
+        few = np.empty(len(lk), np.bool_)
+        _weights(ct.tree, ct.elems, lk, samples, cols, lref, faint, F[a:a + len(lk)], ep, eq, few)
+        if k == 0:
+            continue
+        va = v[a:a + len(lk)]
+        many = ~few
+        if many.any():
+            va[many] = _visible(caster, ct.elems, ep[many], eq[many])
+        if few.any():
+            va[few] = _visible(caster, ct.elems, ep[few][:, k // 2:k // 2 + 1],
+                               eq[few][:, k // 2:k // 2 + 1])
+        rays += k * int(many.sum()) + int(few.sum())
+    return F, v, rays

@@ -141,19 +141,22 @@ def _range_max(values, start, end, left, right):
 
 
 # ----------------------------------------------------------------------------- refinement
+# The kernels below take plain arrays (rec, start, end, ona, ...), never the CTree / CElems
+# namedtuples: numba counts a reference to every member of a namedtuple each time one is passed
+# or read, and on the 200 000-triangle terrain that cost twice the arithmetic
+# (docs/src/design/methods-hierarchical-clusters.md).
 
-@numba.njit(cache=True, nogil=True)
-def _may_face(t, A, B, eps):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _may_face(rec, A, B, eps):
     """Can some element of node B lie in front of (or, two-sided, behind) the plane of some
     element of node A? False only where certainly not (originals._may_face's bound)."""
-    a_, b_ = t.rec[A], t.rec[B]
     up = 0.0
     low = 0.0
     vmax2 = 0.0
     for k in range(3):
-        dlo = b_[LO + k] - a_[CHI + k]
-        dhi = b_[HI + k] - a_[CLO + k]
-        a = a_[AXIS + k]
+        dlo = rec[B, LO + k] - rec[A, CHI + k]
+        dhi = rec[B, HI + k] - rec[A, CLO + k]
+        a = rec[A, AXIS + k]
         if a > 0:
             up += a * dhi
             low += a * dlo
@@ -162,152 +165,146 @@ def _may_face(t, A, B, eps):
             low += a * dhi
         m = max(abs(dlo), abs(dhi))
         vmax2 += m * m
-    s = a_[SPREAD] * np.sqrt(vmax2)
+    s = rec[A, SPREAD] * np.sqrt(vmax2)
     half = 0.5 * eps
-    return (up + s > half) or (a_[TWO] > 0 and low - s < -half)
+    return (up + s > half) or (rec[A, TWO] > 0 and low - s < -half)
 
 
-@numba.njit(cache=True, nogil=True)
-def _faces(e, i, j):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _faces(normal, verts, offset, two_sided, eps, i, j):
     """Does original j have a vertex strictly in front of i's plane (behind it, two-sided i)?
-    The arithmetic of plan.facing_blocks / originals._facing."""
+    The arithmetic of plan.facing_blocks / originals._facing (CElems' arrays)."""
     front = False
     back = False
     for v in range(4):
-        d = (e.normal[i, 0] * e.verts[j, v, 0] + e.normal[i, 1] * e.verts[j, v, 1]
-             + e.normal[i, 2] * e.verts[j, v, 2]) - e.offset[i]
-        if d > e.eps:
+        d = (normal[i, 0] * verts[j, v, 0] + normal[i, 1] * verts[j, v, 1]
+             + normal[i, 2] * verts[j, v, 2]) - offset[i]
+        if d > eps:
             front = True
-        if d < -e.eps:
+        if d < -eps:
             back = True
-    return front or (e.two_sided[i] and back)
+    return front or (two_sided[i] and back)
 
 
-@numba.njit(cache=True, nogil=True)
-def _box_distance2(t, p, q):
-    a, b = t.rec[p], t.rec[q]
+@numba.njit(cache=True, nogil=True, inline="always")
+def _box_distance2(rec, p, q):
     d2 = 0.0
     for k in range(3):
-        g = max(b[LO + k] - a[HI + k], a[LO + k] - b[HI + k], 0.0)
+        g = max(rec[q, LO + k] - rec[p, HI + k], rec[p, LO + k] - rec[q, HI + k], 0.0)
         d2 += g * g
     return d2
 
 
-@numba.njit(cache=True, nogil=True)
-def _near(t, p, q, d2):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _near(rec, p, q, d2):
     """Is the link between nodes p, q (boxes sqrt(d2) apart) near: its ends' box diagonals
     summed above ADMISSIBLE times the distance (touching boxes included)? Never kept between
     clusters: the point kernel between samples is no estimate there."""
-    s = t.rec[p, DIAG] + t.rec[q, DIAG]
+    s = rec[p, DIAG] + rec[q, DIAG]
     return s * s > ADMISSIBLE * ADMISSIBLE * d2
 
 
-@numba.njit(cache=True, nogil=True)
-def _relative_error(t, p, q, d):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _relative_error(rec, p, q, d):
     """The relative error of carrying a link between nodes p, q (boxes d apart, not _near)
     through the clusters: (diam_p + diam_q) / d for the distances and directions taken between
     centroids, plus both normal cones' spread for the receivers' uniform share, at most 1."""
-    a, b = t.rec[p], t.rec[q]
-    return min((a[DIAG] + b[DIAG]) / d + a[SPREAD] + b[SPREAD], 1.0)
+    return min((rec[p, DIAG] + rec[q, DIAG]) / d + rec[p, SPREAD] + rec[q, SPREAD], 1.0)
 
 
-@numba.njit(cache=True, nogil=True)
-def _cos_bound(t, p, q, d, sign):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cos_bound(rec, p, q, d):
     """The largest cosine between a normal of node p (in its cone: axis a, spread s >= |n - a|)
     and a direction from a point of p's box to a point of q's box (all at least d apart):
     a . v / |v| + s <= max(0, max_v a . v) / d + s, at most 1."""
-    a_, b_ = t.rec[p], t.rec[q]
     up = 0.0
     for k in range(3):
-        a = a_[AXIS + k]
-        lo = b_[LO + k] - a_[HI + k]
-        hi = b_[HI + k] - a_[LO + k]
+        a = rec[p, AXIS + k]
+        lo = rec[q, LO + k] - rec[p, HI + k]
+        hi = rec[q, HI + k] - rec[p, LO + k]
         up += a * hi if a > 0 else a * lo
-    return min(1.0, max(0.0, up) / d + a_[SPREAD])
+    return min(1.0, max(0.0, up) / d + rec[p, SPREAD])
 
 
-@numba.njit(cache=True, nogil=True)
-def _all_face(t, p, q):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _all_face(rec, p, q):
     """Does every element of node p face every point of node q's box (n . v > 0 for every normal
     in p's cone and every direction v from p's box to q's box)? n . v / |v| >= min_v a . v /
     max |v| - spread. Then the centroid direction's cosines are an estimate of every pair's."""
-    a_, b_ = t.rec[p], t.rec[q]
     low = 0.0
     vmax2 = 0.0
     for k in range(3):
-        a = a_[AXIS + k]
-        lo = b_[LO + k] - a_[HI + k]
-        hi = b_[HI + k] - a_[LO + k]
+        a = rec[p, AXIS + k]
+        lo = rec[q, LO + k] - rec[p, HI + k]
+        hi = rec[q, HI + k] - rec[p, LO + k]
         low += a * lo if a > 0 else a * hi
         m = max(abs(lo), abs(hi))
         vmax2 += m * m
-    return low > 0.0 and low / np.sqrt(vmax2) > a_[SPREAD]
+    return low > 0.0 and low / np.sqrt(vmax2) > rec[p, SPREAD]
 
 
-@numba.njit(cache=True, nogil=True)
-def _error_bound(t, p, q, d2, lref):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _error_bound(rec, p, q, d2, lref):
     """The oracle of a link between nodes p, q whose boxes are d = sqrt(d2) apart: the bound on
     the light it carries, max(rho_p A_q Lhat_q, rho_q A_p Lhat_p) c_p c_q / (pi d^2 lref) (the
     cosines at most what the normal cones allow, _cos_bound; every distance at least d), times
     the relative error of carrying it through the
     clusters: (diam_p + diam_q) / d for the distances and directions taken between centroids,
     plus both normal cones' spread for the cosines taken as the cluster's mean (isotropic)."""
-    if _near(t, p, q, d2):  # never kept
+    if _near(rec, p, q, d2):  # never kept
         return np.inf
     d = np.sqrt(d2)
-    cp = _cos_bound(t, p, q, d, 1.0)
-    cq = _cos_bound(t, q, p, d, 1.0)
-    a, b = t.rec[p], t.rec[q]
-    carried = max(a[RHO] * b[AREA] * b[LHAT], b[RHO] * a[AREA] * a[LHAT]) * cp * cq / (
-        np.pi * d2 * lref)
-    return carried * _relative_error(t, p, q, d)
+    cp = _cos_bound(rec, p, q, d)
+    cq = _cos_bound(rec, q, p, d)
+    carried = max(rec[p, RHO] * rec[q, AREA] * rec[q, LHAT],
+                  rec[q, RHO] * rec[p, AREA] * rec[p, LHAT]) * cp * cq / (np.pi * d2 * lref)
+    return carried * _relative_error(rec, p, q, d)
 
 
 @numba.njit(cache=True, nogil=True)
-def _exposure(t, e, x, ux, uy, uz):
+def _exposure(start, end, ona, x, ux, uy, uz):
     """(S_x(u), the largest max(0, n_i . u)) over node x's elements."""
     s = 0.0
     cmax = 0.0
-    for k in range(t.start[x], t.end[x]):
-        c = e.ona[k, 0] * ux + e.ona[k, 1] * uy + e.ona[k, 2] * uz
+    for k in range(start[x], end[x]):
+        c = ona[k, 0] * ux + ona[k, 1] * uy + ona[k, 2] * uz
         if c > 0.0:
-            s += e.ona[k, 3] * c
+            s += ona[k, 3] * c
             cmax = max(cmax, c)
     return s, cmax
 
 
 @numba.njit(cache=True, nogil=True)
-def _exposure_toward(t, e, x, y, d):
+def _exposure_toward(rec, start, end, ona, x, y, d):
     """(sum over node x's elements of A_i c_i, the largest c_i): c_i = min(1, max_w n_i . (w - c_i)
     / max(d, |c_i - box y|)), the cosine between element i's normal and the direction from its
     centre c_i toward the point w of y's box it faces most (the numerator holds for every point
     of the element: n_i . x = n_i . c_i on its plane; d is the boxes' distance). Where some of
     x's elements face away from the centroid direction but toward part of y, _exposure's
     cosines miss the light they exchange; these do not."""
-    b_ = t.rec[y]
     s = 0.0
     cmax = 0.0
     d2 = d * d
-    for k in range(t.start[x], t.end[x]):
+    for k in range(start[x], end[x]):
         up = 0.0
         for c in range(3):
-            n = e.ona[k, c]
-            up += n * ((b_[HI + c] if n > 0 else b_[LO + c]) - e.ona[k, 4 + c])
+            n = ona[k, c]
+            up += n * ((rec[y, HI + c] if n > 0 else rec[y, LO + c]) - ona[k, 4 + c])
         if up <= 0.0:
             continue
         g2 = 0.0
         for c in range(3):
-            w = e.ona[k, 4 + c]
-            g = max(b_[LO + c] - w, w - b_[HI + c], 0.0)
+            w = ona[k, 4 + c]
+            g = max(rec[y, LO + c] - w, w - rec[y, HI + c], 0.0)
             g2 += g * g
         cb = min(1.0, up / np.sqrt(max(g2, d2)))
-        s += e.ona[k, 3] * cb
+        s += ona[k, 3] * cb
         cmax = max(cmax, cb)
     return s, cmax
 
 
 @numba.njit(cache=True, nogil=True)
-def _error_estimate(t, e, p, q, d2, lref):
+def _error_estimate(rec, center, start, end, ona, p, q, d2, lref):
     """The oracle's estimate where the bound (_error_bound) says split: the light the link
     carries to the most exposed element of either end, from the other end's projected area
     toward it (exact sums over the elements, at the centroids' distance), weighted as the bound
@@ -316,26 +313,26 @@ def _error_estimate(t, e, p, q, d2, lref):
     toward the other's box (_exposure_toward): a cluster mixing faces (a block's corner, a block
     and the floor) may face the other end only away from the centroid direction
     (docs/src/design/methods-hierarchical-clusters.md). Costs the two nodes' element counts."""
-    dx = t.center[q, 0] - t.center[p, 0]
-    dy = t.center[q, 1] - t.center[p, 1]
-    dz = t.center[q, 2] - t.center[p, 2]
+    dx = center[q, 0] - center[p, 0]
+    dy = center[q, 1] - center[p, 1]
+    dz = center[q, 2] - center[p, 2]
     r2 = dx * dx + dy * dy + dz * dz
     if r2 <= d2 or r2 <= 0.0:
         return np.inf
-    if _near(t, p, q, d2):  # never kept (and the element sums below not spent on it)
+    if _near(rec, p, q, d2):  # never kept (and the element sums below not spent on it)
         return np.inf
-    rel = _relative_error(t, p, q, np.sqrt(d2))
+    rel = _relative_error(rec, p, q, np.sqrt(d2))
     r = np.sqrt(r2)
     ux, uy, uz = dx / r, dy / r, dz / r
-    if _all_face(t, p, q) and _all_face(t, q, p):
-        sp, cp = _exposure(t, e, p, ux, uy, uz)
-        sq, cq = _exposure(t, e, q, -ux, -uy, -uz)
+    if _all_face(rec, p, q) and _all_face(rec, q, p):
+        sp, cp = _exposure(start, end, ona, p, ux, uy, uz)
+        sq, cq = _exposure(start, end, ona, q, -ux, -uy, -uz)
     else:
         d = np.sqrt(d2)
-        sp, cp = _exposure_toward(t, e, p, q, d)
-        sq, cq = _exposure_toward(t, e, q, p, d)
-    a, b = t.rec[p], t.rec[q]
-    carried = max(a[RHO] * sq * cp * b[LHAT], b[RHO] * sp * cq * a[LHAT]) / (np.pi * r2 * lref)
+        sp, cp = _exposure_toward(rec, start, end, ona, p, q, d)
+        sq, cq = _exposure_toward(rec, start, end, ona, q, p, d)
+    carried = max(rec[p, RHO] * sq * cp * rec[q, LHAT],
+                  rec[q, RHO] * sp * cq * rec[p, LHAT]) / (np.pi * r2 * lref)
     return carried * rel
 
 
@@ -352,6 +349,10 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
     many links wait to be refined and return them as `pending` (the cut into tasks: refining
     each of them on its own gives the same links and pairs); 0: depth first to the end (pending
     empty)."""
+    left, right, start, end, order, rec, center = t.left, t.right, t.start, t.end, t.order, \
+        t.rec, t.center
+    normal, verts, offset, two_sided, ona, feps = e.normal, e.verts, e.offset, e.two_sided, \
+        e.ona, e.eps
     links = np.empty((max(cap, 16), 2), np.int64)
     pairs = np.empty((max(cap, 16), 2), np.int64)
     nl = 0
@@ -375,40 +376,39 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
             grown[:stack.shape[0]] = stack
             stack = grown
         counts[0] += 1
-        lp, lq = t.left[p] < 0, t.left[q] < 0
+        lp, lq = left[p] < 0, left[q] < 0
         if p == q:
             if lp:
                 continue
-            a, b = t.left[p], t.right[p]
+            a, b = left[p], right[p]
             stack[ns, 0], stack[ns, 1] = a, a
             stack[ns + 1, 0], stack[ns + 1, 1] = b, b
             stack[ns + 2, 0], stack[ns + 2, 1] = a, b
             ns += 3
             continue
-        if not (_may_face(t, p, q, e.eps) and _may_face(t, q, p, e.eps)):
+        if not (_may_face(rec, p, q, feps) and _may_face(rec, q, p, feps)):
             counts[1] += 1
             continue
-        d2 = _box_distance2(t, p, q)
-        keep = d2 > 0.0 and t.rec[p, TWO] == 0 and t.rec[q, TWO] == 0 and \
-            not _near(t, p, q, d2) and (_error_bound(t, p, q, d2, lref) <= eps
-                                        or _error_estimate(t, e, p, q, d2, lref) < eps)
-        if lp and lq and not keep:
-            i, j = t.order[t.start[p]], t.order[t.start[q]]
-            if _faces(e, i, j) and _faces(e, j, i):
+        d2 = _box_distance2(rec, p, q)
+        keep = d2 > 0.0 and rec[p, TWO] == 0 and rec[q, TWO] == 0 and \
+            not _near(rec, p, q, d2) and (
+                _error_bound(rec, p, q, d2, lref) <= eps
+                or _error_estimate(rec, center, start, end, ona, p, q, d2, lref) < eps)
+        if lp and lq:  # two originals: a link over both, or a pair for the element level
+            i, j = order[start[p]], order[start[q]]
+            if not (_faces(normal, verts, offset, two_sided, feps, i, j)
+                    and _faces(normal, verts, offset, two_sided, feps, j, i)):
+                counts[1] += 1
+                continue
+            if not keep:
                 if npr == pairs.shape[0]:
                     grown = np.empty((2 * npr, 2), np.int64)
                     grown[:npr] = pairs
                     pairs = grown
                 pairs[npr, 0], pairs[npr, 1] = min(i, j), max(i, j)
                 npr += 1
-            else:
-                counts[1] += 1
-            continue
-        if keep:
-            if lp and lq and not (_faces(e, t.order[t.start[p]], t.order[t.start[q]])
-                                  and _faces(e, t.order[t.start[q]], t.order[t.start[p]])):
-                counts[1] += 1
                 continue
+        if keep:
             if nl == links.shape[0]:
                 grown = np.empty((2 * nl, 2), np.int64)
                 grown[:nl] = links
@@ -417,13 +417,13 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
             nl += 1
             continue
         # split the end with more area (the larger solid angle seen from the other)
-        split_p = (not lp) and (lq or t.rec[p, AREA] >= t.rec[q, AREA])
+        split_p = (not lp) and (lq or rec[p, AREA] >= rec[q, AREA])
         if split_p:
-            stack[ns, 0], stack[ns, 1] = t.left[p], q
-            stack[ns + 1, 0], stack[ns + 1, 1] = t.right[p], q
+            stack[ns, 0], stack[ns, 1] = left[p], q
+            stack[ns + 1, 0], stack[ns + 1, 1] = right[p], q
         else:
-            stack[ns, 0], stack[ns, 1] = p, t.left[q]
-            stack[ns + 1, 0], stack[ns + 1, 1] = p, t.right[q]
+            stack[ns, 0], stack[ns, 1] = p, left[q]
+            stack[ns + 1, 0], stack[ns + 1, 1] = p, right[q]
         ns += 2
     counts[2] = nl
     counts[3] = npr

@@ -14,29 +14,31 @@ import numpy as np
 from radiosity.methods.hierarchical.clusters import ClusterTree
 
 
-@numba.njit(cache=True, nogil=True)
-def _pick(t, e, x, ux, uy, uz, k, out, a):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _pick(start, end, area, ona, x, ux, uy, uz, k, out):
     """k elements of node x stratified by their projected area toward u (A_i max(0, n_i . u)),
-    into out[a, :] as positions in the tree's order (ascending); by area where no element faces
-    u. Returns S_x(u) = sum over the elements of A_i max(0, n_i . u) (0 where none faces u)."""
+    into out[:k] as positions in the tree's order (ascending); by area where no element faces
+    u. Returns S_x(u) = sum over the elements of A_i max(0, n_i . u) (0 where none faces u).
+    Plain arrays, not the tree's namedtuple: numba counts a reference to every member of a
+    namedtuple each time one is passed or read, which cost twice this kernel's arithmetic."""
     total = 0.0
-    for m in range(t.start[x], t.end[x]):
-        total += e.ona[m, 3] * max(0.0, e.ona[m, 0] * ux + e.ona[m, 1] * uy + e.ona[m, 2] * uz)
+    for m in range(start[x], end[x]):
+        total += ona[m, 3] * max(0.0, ona[m, 0] * ux + ona[m, 1] * uy + ona[m, 2] * uz)
     by_area = total <= 0.0
     if by_area:
-        total = t.area[x]
+        total = area[x]
     acc = 0.0
     j = 0
-    for m in range(t.start[x], t.end[x]):
+    for m in range(start[x], end[x]):
         if by_area:
-            acc += e.ona[m, 3]
+            acc += ona[m, 3]
         else:
-            acc += e.ona[m, 3] * max(0.0, e.ona[m, 0] * ux + e.ona[m, 1] * uy + e.ona[m, 2] * uz)
+            acc += ona[m, 3] * max(0.0, ona[m, 0] * ux + ona[m, 1] * uy + ona[m, 2] * uz)
         while j < k and (j + 0.5) * total / k <= acc:
-            out[a, j] = m
+            out[j] = m
             j += 1
     while j < k:  # rounding at the end
-        out[a, j] = t.end[x] - 1
+        out[j] = end[x] - 1
         j += 1
     return 0.0 if by_area else total
 
@@ -44,7 +46,7 @@ def _pick(t, e, x, ux, uy, uz, k, out, a):
 FF_SAMPLES = 16  # sample pairs of elements per cluster link for its form factors
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _kernel(ona, i, j):
     """max(0, cos_i) max(0, cos_j) / (pi r^2) between the centroids of the elements at tree
     positions i and j (CElems.ona)."""
@@ -74,46 +76,49 @@ def _weights(t, e, links, samples, cols, lref, faint, F, ep, eq, few):
     empty k pairs picked anew. few[a]: the link carries at most `faint` in the oracle's
     weighting, max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref <= faint (lref 0: never)."""
     k = ep.shape[1]
-    sp = np.empty((1, max(samples, k)), np.int64)
-    sq = np.empty((1, max(samples, k)), np.int64)
+    start, end, area, order, center, rho, lhat = t.start, t.end, t.area, t.order, t.center, \
+        t.rho, t.lhat
+    ona = e.ona
+    sp = np.empty(max(samples, k), np.int64)
+    sq = np.empty(max(samples, k), np.int64)
     half = samples // 2
     for a in range(links.shape[0]):
         p, q = links[a, 0], links[a, 1]
-        dx = t.center[q, 0] - t.center[p, 0]
-        dy = t.center[q, 1] - t.center[p, 1]
-        dz = t.center[q, 2] - t.center[p, 2]
+        dx = center[q, 0] - center[p, 0]
+        dy = center[q, 1] - center[p, 1]
+        dz = center[q, 2] - center[p, 2]
         r = np.sqrt(dx * dx + dy * dy + dz * dz)
         rr = max(r, 1e-300)
         ux, uy, uz = dx / rr, dy / rr, dz / rr
-        Sp = _pick(t, e, p, ux, uy, uz, samples, sp, 0)
-        Sq = _pick(t, e, q, -ux, -uy, -uz, samples, sq, 0)
+        Sp = _pick(start, end, area, ona, p, ux, uy, uz, samples, sp)
+        Sq = _pick(start, end, area, ona, q, -ux, -uy, -uz, samples, sq)
         F[a, 0] = F[a, 1] = 0.0
         if r > 0.0 and Sp > 0.0 and Sq > 0.0:
             acc = term = 0.0
             i0 = j0 = -1
             for m in range(samples):
-                i, j = sp[0, m], sq[0, (m + half) % samples]
+                i, j = sp[m], sq[(m + half) % samples]
                 if i != i0 or j != j0:  # picks repeat in small nodes: one kernel per pair
                     i0, j0 = i, j
-                    wi = e.ona[i, 0] * ux + e.ona[i, 1] * uy + e.ona[i, 2] * uz
-                    wj = -(e.ona[j, 0] * ux + e.ona[j, 1] * uy + e.ona[j, 2] * uz)
-                    term = _kernel(e.ona, i, j) / (wi * wj) if wi > 0.0 and wj > 0.0 else 0.0
+                    wi = ona[i, 0] * ux + ona[i, 1] * uy + ona[i, 2] * uz
+                    wj = -(ona[j, 0] * ux + ona[j, 1] * uy + ona[j, 2] * uz)
+                    term = _kernel(ona, i, j) / (wi * wj) if wi > 0.0 and wj > 0.0 else 0.0
                 acc += term
             g = Sp * Sq * acc / samples
-            F[a, 0] = g / t.area[p]
-            F[a, 1] = g / t.area[q]
+            F[a, 0] = g / area[p]
+            F[a, 1] = g / area[q]
         if cols.shape[0] > 0:
             for c in range(k):
-                ep[a, c] = t.order[sp[0, cols[c]]]
-                eq[a, c] = t.order[sq[0, (cols[c] + half) % samples]]
+                ep[a, c] = order[sp[cols[c]]]
+                eq[a, c] = order[sq[(cols[c] + half) % samples]]
         elif k > 0:
-            _pick(t, e, p, ux, uy, uz, k, sp, 0)
-            _pick(t, e, q, -ux, -uy, -uz, k, sq, 0)
+            _pick(start, end, area, ona, p, ux, uy, uz, k, sp)
+            _pick(start, end, area, ona, q, -ux, -uy, -uz, k, sq)
             for c in range(k):
-                ep[a, c] = t.order[sp[0, c]]
-                eq[a, c] = t.order[sq[0, (c + k // 2) % k]]
-        few[a] = lref > 0.0 and max(t.rho[p] * F[a, 0] * t.lhat[q],
-                                    t.rho[q] * F[a, 1] * t.lhat[p]) / lref <= faint
+                ep[a, c] = order[sp[c]]
+                eq[a, c] = order[sq[(c + k // 2) % k]]
+        few[a] = lref > 0.0 and max(rho[p] * F[a, 0] * lhat[q], rho[q] * F[a, 1] * lhat[p]) \
+            / lref <= faint
 
 
 #: Cluster links per chunk of the form factors and rays (bounds the sample arrays: 2^16 links

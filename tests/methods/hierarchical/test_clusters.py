@@ -153,13 +153,14 @@ def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
     F = link_form_factors(ct, links)
     t = ct.tree
     for k, (p, q) in enumerate(links):
-        d2 = _box_distance2(t, p, q)
+        d2 = _box_distance2(t.rec, p, q)
         d = np.sqrt(d2)
-        cc = _cos_bound(t, p, q, d, 1.0) * _cos_bound(t, q, p, d, 1.0)
+        cc = _cos_bound(t.rec, p, q, d) * _cos_bound(t.rec, q, p, d)
         assert F[k, 0] <= t.area[q] * cc / (np.pi * d2) * (1 + 1e-12)
         assert F[k, 1] <= t.area[p] * cc / (np.pi * d2) * (1 + 1e-12)
-        assert _error_bound(t, p, q, d2, ct.lref) <= eps or \
-            _error_estimate(t, ct.elems, p, q, d2, ct.lref) < eps
+        assert _error_bound(t.rec, p, q, d2, ct.lref) <= eps or \
+            _error_estimate(t.rec, t.center, t.start, t.end, ct.elems.ona, p, q, d2,
+                            ct.lref) < eps
 
 
 def test_a_repeated_ray_is_cast_once_and_the_fractions_stay_the_same():

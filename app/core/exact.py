@@ -86,6 +86,10 @@ _GX, _GW = (tuple(float(x) for x in a) for a in np.polynomial.legendre.leggauss(
 # panel, about 1e-7 relative on touching polygons in about two thirds of the time (the
 # refinement's near links, methods/hierarchical/formfactors.near_ff; docs/src/design/core-exact.md).
 FAST_GX, FAST_GW = (tuple(float(x) for x in a) for a in np.polynomial.legendre.leggauss(8))
+# The fast rule's innermost panel toward a singularity, relative to the interval: below 1e-4 the
+# panels change nothing at its accuracy (random touching triangles: the same 1e-5 worst and
+# 4e-8 mean relative error as at _EPS) and cost a third of its time.
+FAST_FLOOR = 1e-4
 _SIGMA = 0.25                              # geometric grading ratio towards a singularity
 _EPS = 1e-9                                # innermost panel, relative to the interval
 _TWO_PI = 2.0 * np.pi
@@ -159,13 +163,13 @@ def _inner(s, w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02):
 
 
 @numba.njit(cache=True, nogil=True)
-def _graded(e, length, sgn, D, seg, gx, gw):
+def _graded(e, length, sgn, D, seg, gx, gw, floor):
     """Integral of _inner over [e, e + sgn length] by Gauss-Legendre panels (nodes gx, weights
     gw) shrinking by _SIGMA towards e down to D (the distance from e to the nearest complex
-    singularity) or _EPS length. seg: _inner's arguments after s, (w0x, w0y, w0z, w1x, w1y,
+    singularity) or `floor` times the length. seg: _inner's arguments after s, (w0x, w0y, w0z, w1x, w1y,
     w1z, ux, uy, uz, vx, vy, vz, lq, lnr02)."""
     w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02 = seg
-    floor = max(D, _EPS * length)
+    floor = max(D, floor * length)
     acc = 0.0
     hi = length
     while True:
@@ -184,7 +188,7 @@ def _graded(e, length, sgn, D, seg, gx, gw):
 
 
 @numba.njit(cache=True, nogil=True)
-def _edge_pair(P, i, j, Q, k, l, lnr02, gx, gw):
+def _edge_pair(P, i, j, Q, k, l, lnr02, gx, gw, floor):
     """(e_hat . f_hat) int_e int_f ln(r / R0) ds dt for the segments e = P[i]P[j], f = Q[k]Q[l]
     (less the closed-contour-null terms, see _inner)."""
     ux = P[j, 0] - P[i, 0]
@@ -254,8 +258,8 @@ def _edge_pair(P, i, j, Q, k, l, lnr02, gx, gw):
         half = 0.5 * (cur - prev)
         da = min(math.hypot(s0 - prev, d0), math.hypot(s1 - prev, d1), math.hypot(s2 - prev, d2))
         db = min(math.hypot(s0 - cur, d0), math.hypot(s1 - cur, d1), math.hypot(s2 - cur, d2))
-        acc += _graded(prev, half, 1.0, da, seg, gx, gw)
-        acc += _graded(cur, half, -1.0, db, seg, gx, gw)
+        acc += _graded(prev, half, 1.0, da, seg, gx, gw, floor)
+        acc += _graded(cur, half, -1.0, db, seg, gx, gw, floor)
         prev = cur
     return c * acc
 
@@ -263,13 +267,14 @@ def _edge_pair(P, i, j, Q, k, l, lnr02, gx, gw):
 @numba.njit(cache=True, nogil=True)
 def _polygon_ff(P, nP, Q, nQ, two_sided):
     """F_PQ for convex planar polygons P[:nP], Q[:nQ] ((k, 3) float64), unoccluded."""
-    return polygon_ff_rule(P, nP, Q, nQ, two_sided, _GX, _GW)
+    return polygon_ff_rule(P, nP, Q, nQ, two_sided, _GX, _GW, _EPS)
 
 
 @numba.njit(cache=True, nogil=True)
-def polygon_ff_rule(P, nP, Q, nQ, two_sided, gx, gw):
-    """_polygon_ff with the Gauss-Legendre rule (gx, gw) of the contour integral's panels
-    (_GX, _GW: the reference; FAST_GX, FAST_GW: about 1e-7)."""
+def polygon_ff_rule(P, nP, Q, nQ, two_sided, gx, gw, floor):
+    """_polygon_ff with the Gauss-Legendre rule (gx, gw) of the contour integral's panels, graded
+    toward each singularity down to `floor` times the interval (_GX, _GW, _EPS: the reference;
+    FAST_GX, FAST_GW, FAST_FLOOR: about 1e-7)."""
     apx, apy, apz = _area_vector(P, nP)
     aqx, aqy, aqz = _area_vector(Q, nQ)
     AP = math.sqrt(apx * apx + apy * apy + apz * apz)
@@ -321,7 +326,7 @@ def polygon_ff_rule(P, nP, Q, nQ, two_sided, gx, gw):
     acc = 0.0
     for i in range(mP):
         for j in range(mQ):
-            acc += _edge_pair(Pc, i, (i + 1) % mP, Qc, j, (j + 1) % mQ, lnr02, gx, gw)
+            acc += _edge_pair(Pc, i, (i + 1) % mP, Qc, j, (j + 1) % mQ, lnr02, gx, gw, floor)
     # contours counter-clockwise about their own (chosen) normals: F = sum / (2 pi A_P)
     return sP * sQ * acc / (_TWO_PI * AP)
 

@@ -136,6 +136,31 @@ def test_reciprocity_random_pairs(rng):
     assert n_checked > 30
 
 
+def test_the_fast_rule_matches_the_reference_on_touching_triangles(rng):
+    """The near links' rule (8 Gauss nodes a panel, panels graded down to FAST_FLOOR) against the
+    reference (12 nodes, down to 1e-9) on triangles of random height fields that share an edge
+    or a vertex, or nearly touch: the contour integral's hardest cases."""
+    from radiosity.core.exact import (_GW, _GX, _EPS, FAST_FLOOR, FAST_GW, FAST_GX,
+                                      polygon_ff_rule)
+
+    fast, ref = [], []
+    for k in range(200):
+        h = rng.normal(scale=0.5, size=(3, 3))
+
+        def P(i, j):
+            return [i, j, h[i, j]]
+
+        A = np.array([P(0, 0), P(1, 0), P(1, 1)], float)
+        B = np.array([[P(0, 0), P(1, 1), P(0, 1)], [P(1, 1), P(2, 1), P(2, 2)],
+                      [P(1, 0), P(2, 1), P(1, 1)]][k % 3], float) + [0.02 * (k % 4 == 3), 0, 0]
+        fast.append(polygon_ff_rule(A, 3, B, 3, True, FAST_GX, FAST_GW, FAST_FLOOR))
+        ref.append(polygon_ff_rule(A, 3, B, 3, True, _GX, _GW, _EPS))
+    fast, ref = np.array(fast), np.array(ref)
+    assert (ref > 1e-3).sum() > 100
+    err = np.abs(fast - ref) / np.maximum(ref, 1e-3)
+    assert err.max() < 1e-7 and err.mean() < 1e-8, (err.max(), err.mean())  # 0.01: 2e-7, 2e-8
+
+
 def test_point_kernel_limit():
     """Small far polygons: F -> A_Q cos cos / (pi r^2), the point kernel of app/kernels.py."""
     Q0 = rect([-0.5, -0.5, 0], [0, 1, 0], [1, 0, 0])  # faces -z

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from radiosity.core.exact import FAST_GW, FAST_GX, _point_ff, point_ff, polygon_ff_rule
+from radiosity.core.exact import FAST_FLOOR, FAST_GW, FAST_GX, _point_ff, point_ff, polygon_ff_rule
 
 @numba.njit(cache=True, nogil=True)
 def _spread(V, x, nv, nx, ny, nz, C, y, mx, my, mz, As, fc):
@@ -55,7 +55,7 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
         d = max(llo - shi, slo - lhi, 0.0)
         gap2 += d * d
     if gap_factor >= 0.0 and gap2 <= gap_factor * gap_factor * As:
-        f = polygon_ff_rule(P, nP, Q, nQ, True, FAST_GX, FAST_GW)
+        f = polygon_ff_rule(P, nP, Q, nQ, True, FAST_GX, FAST_GW, FAST_FLOOR)
         return f, f * Ap / Aq
     n = np.empty(3)
     m = np.empty(3)  # the larger one's facing side: points behind it see none of it

@@ -20,8 +20,8 @@ from radiosity.methods.hierarchical.clusterweights import link_weights
 # a terrain and the Cornell box cut into triangles, 128^2, default epsilon): links in all
 # (cluster and element level) per original, and links made per second per worker thread in the
 # link stage; `radiosity plan` estimates from them.
-LINKS_PER_ORIGINAL = (245.0, 331.0)
-LINKS_PER_THREAD_S = (167e3, 281e3)
+LINKS_PER_ORIGINAL = (248.0, 344.0)
+LINKS_PER_THREAD_S = (238e3, 442e3)
 
 
 def refine_all(ct: ClusterTree, eps: float, cap: int = 1024):

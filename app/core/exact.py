@@ -166,14 +166,14 @@ def _inner(s, w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02):
 def _graded(e, length, sgn, D, seg, gx, gw, floor):
     """Integral of _inner over [e, e + sgn length] by Gauss-Legendre panels (nodes gx, weights
     gw) shrinking by _SIGMA towards e down to D (the distance from e to the nearest complex
-    singularity) or `floor` times the length. seg: _inner's arguments after s, (w0x, w0y, w0z, w1x, w1y,
-    w1z, ux, uy, uz, vx, vy, vz, lq, lnr02)."""
+    singularity) or `floor` times the length. seg: _inner's arguments after s, (w0x, w0y,
+    w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02)."""
     w0x, w0y, w0z, w1x, w1y, w1z, ux, uy, uz, vx, vy, vz, lq, lnr02 = seg
-    floor = max(D, floor * length)
+    lowest = max(D, floor * length)
     acc = 0.0
     hi = length
     while True:
-        lo = hi * _SIGMA if hi > floor else 0.0
+        lo = hi * _SIGMA if hi > lowest else 0.0
         half = 0.5 * (hi - lo)
         mid = e + sgn * 0.5 * (hi + lo)
         pan = 0.0

@@ -143,7 +143,7 @@ def _range_max(values, start, end, left, right):
 # ----------------------------------------------------------------------------- refinement
 # The kernels below take plain arrays (rec, start, end, ona, ...), never the CTree / CElems
 # namedtuples: numba counts a reference to every member of a namedtuple each time one is passed
-# or read, and on the 200 000-triangle terrain that cost twice the arithmetic
+# or read, and on the 200 000-triangle terrain that cost more than the arithmetic
 # (docs/src/design/methods-hierarchical-clusters.md).
 
 @numba.njit(cache=True, nogil=True, inline="always")

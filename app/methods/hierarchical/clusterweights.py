@@ -19,8 +19,7 @@ def _pick(start, end, area, ona, x, ux, uy, uz, k, out):
     """k elements of node x stratified by their projected area toward u (A_i max(0, n_i . u)),
     into out[:k] as positions in the tree's order (ascending); by area where no element faces
     u. Returns S_x(u) = sum over the elements of A_i max(0, n_i . u) (0 where none faces u).
-    Plain arrays, not the tree's namedtuple: numba counts a reference to every member of a
-    namedtuple each time one is passed or read, which cost twice this kernel's arithmetic."""
+    Plain arrays, not the tree's named tuple (clusters.py's note on the kernels' arguments)."""
     total = 0.0
     for m in range(start[x], end[x]):
         total += ona[m, 3] * max(0.0, ona[m, 0] * ux + ona[m, 1] * uy + ona[m, 2] * uz)

@@ -102,8 +102,9 @@ def room_with_sphere(folder: str, triangles: int, resolution: int = 128) -> str:
 
 
 def tessellated_cornell(folder: str, per_quad: int = 2000, resolution: int = 128) -> str:
-    """The built-in Cornell box with every face cut into about `per_quad` triangles (a k x k grid
-    of cells, four triangles each around a point near the cell's centre: no two of them form a
+    """The built-in Cornell box with every face cut into about `per_quad` triangles (a quad: a
+    k x k grid of cells, four triangles each around a point near the cell's centre; a triangle,
+    as the red wall's two: a barycentric grid, three triangles a cell; no two of them form a
     parallelogram, so the loader keeps them as triangles), same materials and camera."""
     import shutil
 
@@ -130,8 +131,21 @@ def tessellated_cornell(folder: str, per_quad: int = 2000, resolution: int = 128
                     c = at(u[i] + 0.43 * (u[i + 1] - u[i]), u[j] + 0.47 * (u[j + 1] - u[j]))
                     q = [at(u[i], u[j]), at(u[i + 1], u[j]), at(u[i + 1], u[j + 1]), at(u[i], u[j + 1])]
                     tris += [(c, q[s], q[(s + 1) % 4]) for s in range(4)]
-        else:
-            tris.append(tuple(v[:3]))
+        else:  # a triangle (the red wall is two): about per_quad / 2 triangles, a k x k
+            # barycentric grid of cells, each cut into three around a point off its centre
+            p0, p1, p2 = v[:3]
+            kt = max(1, int(round(np.sqrt(per_quad / 6))))
+
+            def bary(a, b):
+                return p0 + (a / kt) * (p1 - p0) + (b / kt) * (p2 - p0)
+            for i in range(kt):
+                for j in range(kt - i):
+                    cells = [(bary(i, j), bary(i + 1, j), bary(i, j + 1))]
+                    if i + j + 1 < kt:
+                        cells.append((bary(i + 1, j), bary(i + 1, j + 1), bary(i, j + 1)))
+                    for a, b, c in cells:
+                        m = 0.30 * a + 0.33 * b + 0.37 * c
+                        tris += [(m, a, b), (m, b, c), (m, c, a)]
         by_mat.setdefault(name, []).extend(tris)
     os.makedirs(folder, exist_ok=True)
     toml = open(src).read()

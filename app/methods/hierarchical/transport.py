@@ -263,11 +263,14 @@ def _directed(inp: LinkSolveInputs):
                      lambda a: sum(x.nbytes for x in a), inp.cache_bytes)
 
 
-def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
+def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray,
+                      part: tuple = (0, 1)):
     """The final gather into the leaves of originals `origs`, from the solved L (2, C, M):
-    (y (2, C, M) nonzero on those leaves only, evaluations). linear (linear_gather): link by
-    link from the link tasks as the passes hold them; exact (final_gather): over the link ends
-    grouped by target original (_directed)."""
+    (y (2, C, M), evaluations). linear (linear_gather): link by link from the link tasks as the
+    passes hold them; exact (final_gather): over the link ends grouped by target original
+    (_directed). The cluster links' part `part` (i of k, split by links: the k groups' y add
+    up to every cluster link once) goes to the leaves of every original
+    (clusterlinks.cluster_final_gather)."""
     mode, ncap, d = inp.cap_args()
     origs = np.asarray(origs, np.int64)
     S, G = scratch((L.shape[0], L.shape[1], len(inp.parent)))
@@ -287,14 +290,18 @@ def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray):
     else:
         evals = final_gather(Lbar, _directed(inp), origs, inp.nodes(), inp.geometry(),
                              inp.fg_levels, ncap, mode, d, y)
-    if inp.clusters is not None and inp.clusters.links:  # uniform, as in the passes
-        G[...] = 0.0
-        _cluster_gather(inp, (mode, ncap, d), Lbar, G)
-        yc = np.zeros_like(L)
-        push(G, inp.parent, inp.leaf_node, d, yc)
-        mine = np.zeros(len(inp.noff) - 1, np.bool_)
-        mine[origs] = True
-        y[:, :, mine[inp.leaf_orig]] += yc[:, :, mine[inp.leaf_orig]]
+    if inp.clusters is not None and inp.clusters.links:
+        from radiosity.methods.hierarchical.clusterlinks import (cluster_final_gather,
+                                                                 push_to_leaves)
+        cl = inp.clusters
+        roots = inp.noff[:-1]
+        oc = np.ascontiguousarray(inp.node_center[roots])
+        value, grad, _ = cluster_final_gather(
+            np.ascontiguousarray(Lbar[0][:, roots]), cl.parent, cl.leaf_orig, cl.area, cl.p,
+            cl.q, cl.g, oc, inp.normal, np.ascontiguousarray(inp.node_area[roots]),
+            np.ascontiguousarray(inp.verts[roots]), np.ascontiguousarray(inp.nverts[roots]),
+            part)
+        push_to_leaves(value, grad, oc, inp.leaf_orig, inp.leaf_center, d, y)
     if len(inp.need):
         y[:, :, ~inp.need[inp.leaf_orig]] = 0.0
     return y, evals
@@ -394,8 +401,9 @@ class LocalLinkOperator(_Base):
             _directed(self.inp)  # built once, before the threads share it
         # every group's links read (in its thread) before the threads share them
         self._threads(lambda g: [task_link_arrays(self.inp, int(t)) for t in g], self.groups)
-        parts = self._threads(lambda g: task_final_gather(self.inp, g, L),
-                              self.orig_groups(default_workers()))
+        groups = self.orig_groups(default_workers())
+        parts = self._threads(lambda ig: task_final_gather(self.inp, ig[1], L, (ig[0], len(groups))),
+                              list(enumerate(groups)))
         self.evals = sum(e for _, e in parts)
         return sum(y for y, _ in parts)
 
@@ -438,7 +446,8 @@ class LinkOperator(_Base):
         groups = self.orig_groups(len(self.groups))
         y = np.zeros_like(L)
         self.evals = 0
-        for yp, e in self.executor.run(task_final_gather, lambda i, Lf: (groups[i], Lf), (L,),
+        for yp, e in self.executor.run(task_final_gather,
+                                       lambda i, Lf: (groups[i], Lf, (i, len(groups))), (L,),
                                        name="final gather", count=len(groups)):
             y += yp
             self.evals += e

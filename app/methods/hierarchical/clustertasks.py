@@ -52,6 +52,7 @@ class ClusterInputs:
     verts: np.ndarray
     nverts: np.ndarray
     ray_offset: float
+    shadow: float = np.inf
 
 
 def task_clusters(inp: ClusterInputs, init: np.ndarray) -> tuple:
@@ -60,22 +61,84 @@ def task_clusters(inp: ClusterInputs, init: np.ndarray) -> tuple:
     ct = inp.ct
     links, pairs, counts, _ = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
                                               max(1024, 8 * len(init)), init, 0)
-    return _compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon)
+    return _compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon,
+                    inp.shadow)
 
 
-def _compact(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: float) -> tuple:
+def _compact(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: float,
+             shadow: float = np.inf) -> tuple:
     """Links and pairs as the driver keeps them, each sorted here (so that the driver merges
     sorted runs): the keys p K + q (int64) with g = A_p F_pq v (float32, the one weight a link
     keeps: clusters.ClusterLinks), the pairs of originals sorted by (I, J), the counts, the
     visible fractions' sum and the rays cast (link_weights; one ray for links that carry at
-    most eps)."""
-    F, v, nrays = link_weights(ct, links, caster, rays, faint=eps)
+    most eps; partly visible links that carry more than `shadow` refined: _shadows)."""
+    links, pairs, counts, F, v, nrays = _shadows(ct, links, pairs, counts, caster, rays, eps,
+                                                 shadow)
     g = (F[:, 0] * np.asarray(ct.tree.area)[links[:, 0]] * v).astype(np.float32)
     key = links[:, 0] * np.int64(ct.nodes) + links[:, 1]
     order = np.argsort(key, kind="stable")
     n = np.int64(len(ct.elems.area))
     pairs = pairs[np.argsort(pairs[:, 0] * n + pairs[:, 1], kind="stable")]
     return key[order], g[order], pairs, counts, float(v.sum()), nrays
+
+
+def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: float,
+             shadow: float) -> tuple:
+    """The kept links' form factors and visible fractions (link_weights), with the partly
+    visible ones (0 < v < 1) that carry more than `shadow` (the oracle's weighting, as `faint`)
+    split and refined again, as the element level splits its partly visible links (SPEC §8):
+    one visible fraction over a link that a shadow crosses gives every pair of its elements the
+    mean (the tessellated Cornell box's blocks). A split link's larger end is split (the other
+    where that one is an original); a link between two originals goes to the element level
+    (refine_clusters at epsilon 0: a pair of originals if they face each other). Repeats on the
+    new links until none is partly visible or all reached the originals. Returns (links, pairs,
+    counts, F, v, rays)."""
+    F, v, nrays = link_weights(ct, links, caster, rays, faint=eps)
+    if caster is None or rays <= 1 or not np.isfinite(shadow) or not len(links):
+        return links, pairs, counts, F, v, nrays
+    t = ct.tree
+    out_l, out_F, out_v, out_pairs = [], [], [], [pairs]
+    counts = np.array(counts, np.int64)
+    while len(links):
+        p, q = links[:, 0], links[:, 1]
+        carried = np.maximum(t.rho[p] * F[:, 0] * t.lhat[q], t.rho[q] * F[:, 1] * t.lhat[p]) \
+            / ct.lref if ct.lref > 0 else np.full(len(links), np.inf)
+        part = (v > 0.0) & (v < 1.0) & (carried > shadow)
+        out_l.append(links[~part])
+        out_F.append(F[~part])
+        out_v.append(v[~part])
+        if not part.any():
+            break
+        counts[2] -= int(part.sum())
+        kids, both = _split_links(t, links[part])
+        for init, e in ((kids, eps), (both, 0.0)):
+            if len(init):
+                new, npairs, c, _ = refine_clusters(t, ct.elems, e, ct.lref, max(1024, 8 * len(init)),
+                                                    init, 0)
+                counts += c
+                out_pairs.append(npairs)
+                if e > 0.0:
+                    links = new
+        if not len(kids):
+            break
+        F, v, r = link_weights(ct, links, caster, rays, faint=eps)
+        nrays += r
+    return (np.concatenate(out_l).reshape(-1, 2), np.concatenate(out_pairs).reshape(-1, 2),
+            counts, np.concatenate(out_F).reshape(-1, 2), np.concatenate(out_v), nrays)
+
+
+def _split_links(t, links: np.ndarray) -> tuple:
+    """The links one level below each of `links` (s, 2): its end with more area split into
+    its two children (the other end where that one is a leaf); and the links whose two ends are
+    leaves, as they are."""
+    p, q = links[:, 0], links[:, 1]
+    inner_p, inner_q = t.left[p] >= 0, t.left[q] >= 0
+    sp = inner_p & (~inner_q | (t.area[p] >= t.area[q]))
+    sq = inner_q & ~sp
+    kids = [np.stack([t.left[p[sp]], q[sp]], 1), np.stack([t.right[p[sp]], q[sp]], 1),
+            np.stack([p[sq], t.left[q[sq]]], 1), np.stack([p[sq], t.right[q[sq]]], 1)]
+    return (np.ascontiguousarray(np.concatenate(kids).astype(np.int64)),
+            np.ascontiguousarray(links[~inner_p & ~inner_q].astype(np.int64)))
 
 
 def _caster(inp: ClusterInputs, links: np.ndarray):
@@ -139,10 +202,12 @@ class _Runs:
 
 
 def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
-                  ray_offset: float, client=None, progress: bool = False):
+                  ray_offset: float, client=None, progress: bool = False,
+                  shadow: float = np.inf):
     """The cluster layer of a link stage: the tree, its refinement at `epsilon` with the oracle's
     weights (wrho, lhat, lref: links.oracle_weights), the kept links' form factors and visible
-    fractions (`rays` rays each; 1 when nothing can block). With a `client`, the refinement is
+    fractions (`rays` rays each; 1 when nothing can block; partly visible links that carry
+    more than `shadow` refined further: _shadows). With a `client`, the refinement is
     cut where CUT_PER_TASK x TASKS_PER_THREAD links per worker thread wait, and every waiting
     link's subtree is a task (refinement, form factors, rays) on the cluster; the links come
     out sorted, so the result does not depend on the cut or the workers. Returns (ClusterLinks,
@@ -161,7 +226,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     threads = sum(client.nthreads().values()) if client is not None else 0
     inp = ClusterInputs(ct, float(epsilon), int(rays) if occlusion else 0,
                         tokenize(elements.verts, elements.nverts), elements.verts,
-                        elements.nverts, float(ray_offset))
+                        elements.nverts, float(ray_offset), float(shadow))
     frontier = CUT_PER_TASK * TASKS_PER_THREAD * threads if threads > 1 else 0
     links, pairs, counts, pending = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
                                                     max(1024, 8 * n), root, frontier)
@@ -174,7 +239,8 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
         rest.append(other)
         trim_malloc()  # the tasks' arrays freed so far (runs.add keeps copies)
 
-    keep(_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon))
+    keep(_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon,
+                  inp.shadow))
     del links, pairs
     ntasks = 0
     if len(pending):
@@ -186,7 +252,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
         shared = Scattered(client, inp)
         run_tasks(client, task_clusters, range(ntasks), lambda i: (shared.future(), cuts[i]),
                   name="clusters", token=tokenize(inp.key, inp.epsilon, inp.rays, ct.lref,
-                                                  pending), window=2 * threads,
+                                                  inp.shadow, pending), window=2 * threads,
                   on_result=lambda i, res: keep(res), progress=progress,
                   repair="run the render again")
     counts = np.sum([x[1] for x in rest], axis=0)

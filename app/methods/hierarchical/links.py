@@ -460,7 +460,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
                                       f"originals > plan.max-facing-pairs")
     if on:  # links start at the root of the tree over the originals (SPEC §9)
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon, oracle_weights(el, weight), prm.rays,
-                                         occlusion, s.rays.epsilon, client, progress)
+                                         occlusion, s.rays.epsilon, client, progress, prm.shadow)
         cfig["why"] = why_clusters
         bi, bj = cpairs[:, 0], cpairs[:, 1]
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit, int(s.hierarchy.max_task_cost))

@@ -190,8 +190,8 @@ def test_a_repeated_ray_is_cast_once_and_the_fractions_stay_the_same():
 
 def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
     """link_weights' `faint`: a link that carries at most that much light (the oracle's weights)
-    casts one ray, the middle of its k, and every other link its k; the form factors do not
-    change, and the one-ray links' fractions are what that middle ray alone gives."""
+    casts one ray, one of its k, and every other link its k; the form factors do not change,
+    and the one-ray links' fractions are what that ray alone gives."""
     from radiosity.methods.hierarchical.clusterweights import link_weights
     from radiosity.tracing.rays import RayCaster
 
@@ -216,6 +216,100 @@ def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
     F1, v1_, _ = link_weights(ct, links, caster, 4, faint=np.inf)
     assert np.array_equal(v[few], v1_[few]) and set(np.unique(v1_)) <= {0.0, 1.0}
     assert (v1_ != v4).any()  # one ray is not four
+
+
+def _plane(n, axis, at, sign, lo=(0.0, 0.0), size=(1.0, 1.0)):
+    """n x n squares cut in two on the plane x[axis] = at, facing sign * e_axis, spanning lo to
+    lo + size on the other two axes (in cyclic order)."""
+    a1, a2 = (axis + 1) % 3, (axis + 2) % 3
+    tris = []
+    for i in range(n):
+        for j in range(n):
+            def at_(u, v):
+                p = [0.0, 0.0, 0.0]
+                p[axis], p[a1], p[a2] = at, lo[0] + size[0] * u / n, lo[1] + size[1] * v / n
+                return p
+            a, b, c, d = at_(i, j), at_(i + 1, j), at_(i + 1, j + 1), at_(i, j + 1)
+            for t in ((a, b, c), (a, c, d)):
+                tris.append(t if sign > 0 else (t[0], t[2], t[1]))
+    v = np.zeros((len(tris), 4, 3))
+    v[:, :3] = np.array(tris)
+    v[:, 3] = v[:, 2]
+    return v
+
+
+def test_one_ray_links_are_not_biased_toward_any_part_of_their_nodes():
+    """A closed unit room of 3 072 triangles with a block standing on its floor: the cluster
+    links' transfer sum g v with one ray each (faint: every link) is that with 16 rays each,
+    within 0.4 % in all and 3 % over the partly visible links. One fixed column of the k for
+    every link put all those rays' ends at the same place of each node (in the tree's order,
+    low on the walls, near the block): 0.991 and 0.86."""
+    from radiosity.methods.hierarchical.clusterweights import link_weights
+    from radiosity.methods.hierarchical.links import oracle_weights
+    from radiosity.tracing.rays import RayCaster
+
+    el = _room_with_block(16)
+    ct = cluster_tree(el, *oracle_weights(el, "bf"))
+    links, _, _ = refine_all(ct, 2e-3, 64)
+    caster = RayCaster(el.verts, el.nverts)
+    F, v16, _ = link_weights(ct, links, caster, 16)
+    _, v1, rays = link_weights(ct, links, caster, 4, faint=np.inf)
+    assert rays == len(links) > 50_000
+    g = ct.tree.area[links[:, 0]] * F[:, 0]
+    part = (v16 > 0) & (v16 < 1)
+    assert part.sum() > 1000
+    assert (g * v1).sum() / (g * v16).sum() == pytest.approx(1.0, abs=0.004)
+    assert (g * v1)[part].sum() / (g * v16)[part].sum() == pytest.approx(1.0, abs=0.03)
+
+
+def _room_with_block(n: int = 16):
+    parts = [_plane(n, 2, 0.0, 1), _plane(n, 2, 1.0, -1), _plane(n, 0, 0.0, 1),
+             _plane(n, 0, 1.0, -1), _plane(n, 1, 0.0, 1), _plane(n, 1, 1.0, -1)]
+    m = max(2, n // 4)
+    parts += [_plane(m, 2, 0.4, 1, (0.3, 0.3), (0.3, 0.3)),
+              _plane(m, 0, 0.3, -1, (0.3, 0.0), (0.3, 0.4)), _plane(m, 0, 0.6, 1, (0.3, 0.0), (0.3, 0.4)),
+              _plane(m, 1, 0.3, -1, (0.0, 0.3), (0.4, 0.3)), _plane(m, 1, 0.6, 1, (0.0, 0.3), (0.4, 0.3))]
+    v = np.concatenate(parts)
+    return _elements(v, np.full(len(v), 3), emit=np.full((len(v), 2, 3), 1.0))
+
+
+def test_partly_visible_cluster_links_are_split_and_cover_the_same_pairs():
+    """clustertasks._shadows on a closed room with a block on its floor: afterwards no kept
+    link that carries more than the shadow threshold is partly visible, some were split, and
+    the kept links and the pairs handed down cover every pair of facing triangles that the
+    links before covered, each once."""
+    from radiosity.methods.hierarchical.clustertasks import _shadows
+    from radiosity.methods.hierarchical.links import oracle_weights
+    from radiosity.tracing.rays import RayCaster
+
+    el = _room_with_block(8)
+    ct = cluster_tree(el, *oracle_weights(el, "bf"))
+    eps = 2e-3
+    links, pairs, counts = refine_all(ct, eps, 64)
+    caster = RayCaster(el.verts, el.nverts)
+    L2, P2, _, F, v, _ = _shadows(ct, links, pairs, counts, caster, 4, eps, eps)
+    t = ct.tree
+    carried = np.maximum(t.rho[L2[:, 0]] * F[:, 0] * t.lhat[L2[:, 1]],
+                         t.rho[L2[:, 1]] * F[:, 1] * t.lhat[L2[:, 0]]) / ct.lref
+    assert not ((v > 0) & (v < 1) & (carried > eps)).any()
+    assert len(L2) > len(links) and len(P2) >= len(pairs)
+
+    def covered(lk, pr):
+        out = []
+        for p, q in lk:
+            ep = t.order[t.start[p]:t.end[p]]
+            eq = t.order[t.start[q]:t.end[q]]
+            out += [(min(i, j), max(i, j)) for i in ep for j in eq]
+        out += [tuple(x) for x in pr.tolist()]
+        return out
+
+    def facing(i, j):
+        d = el.center[j] - el.center[i]
+        return el.normal[i] @ d > 0 and el.normal[j] @ d < 0
+
+    before = [x for x in covered(links, pairs) if facing(*x)]
+    after = [x for x in covered(L2, P2) if facing(*x)]
+    assert len(after) == len(set(after)) and set(after) == set(before)
 
 
 # ----------------------------------------------------------------------------- through the solve

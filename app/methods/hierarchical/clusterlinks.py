@@ -1,6 +1,8 @@
 """The cluster layer's links as a solve holds them and their transport (SPEC §9; design:
-docs/src/design/methods-hierarchical-clusters.md): q sends its elements' area-weighted mean
-radiance, p receives it uniformly (Sillion's isotropic cluster), one symmetric weight a link."""
+docs/src/design/methods-hierarchical-clusters.md): in the solve's passes q sends its elements'
+area-weighted mean radiance and p receives it uniformly (Sillion's isotropic cluster), one
+symmetric weight a link; the final gather shares each link's light out over p by the point
+kernel from q and its gradient (cluster_final_gather)."""
 
 from __future__ import annotations
 
@@ -122,39 +124,65 @@ def _push_down(H, inv, parent, leaf_orig, G):
 FLAT = 0.99
 
 
-def cluster_final_gather(Lroot, parent, leaf_orig, area, p, q, g, ocenter, onormal, oarea, overts,
-                         onv, part: tuple = (0, 1)):
+@dataclass(frozen=True)
+class FinalLayout:
+    """What the cluster links' final gather reads of the tree, built once per gather
+    (final_layout): cnt (K,) originals under each node, off (K,) where they start in the
+    depth-first list, cen (K, 3) the nodes' area centroids, nrm (K, 3) their area-weighted
+    normal sums, reach (K,) a bound on the distance from a node's centroid to its vertices, geo
+    (n, 8) the originals in depth-first order (centroid, normal, area, reach), row_node (n,)
+    the leaf node of each row, orig_node (n,) the leaf node of each original."""
+
+    cnt: np.ndarray
+    off: np.ndarray
+    cen: np.ndarray
+    nrm: np.ndarray
+    reach: np.ndarray
+    geo: np.ndarray
+    row_node: np.ndarray
+    orig_node: np.ndarray
+
+
+def final_layout(parent, leaf_orig, area, ocenter, onormal, oarea, overts, onv) -> FinalLayout:
+    """The FinalLayout of a cluster tree over originals with centroids, normals, areas and
+    polygons (overts (n, 4, 3), onv (n,))."""
+    cnt, off, lst, cen, nrm = _leaf_layout(parent, leaf_orig, area, ocenter, onormal, oarea)
+    oreach = _reach(overts, onv, ocenter)
+    geo = np.empty((len(lst), 8))
+    geo[:, 0:3] = ocenter[lst]
+    geo[:, 3:6] = onormal[lst]
+    geo[:, 6] = oarea[lst]
+    geo[:, 7] = oreach[lst]
+    leaves = np.nonzero(leaf_orig >= 0)[0]
+    row_node = np.empty(len(lst), np.int64)
+    row_node[off[leaves]] = leaves
+    orig_node = np.empty(len(oarea), np.int64)
+    orig_node[leaf_orig[leaves]] = leaves
+    return FinalLayout(cnt, off, cen, nrm, _node_reach(parent, leaf_orig, cen, oreach), geo,
+                       row_node, orig_node)
+
+
+def cluster_final_gather(Lroot, parent, leaf_orig, area, p, q, g, layout: FinalLayout,
+                         part: tuple = (0, 1)):
     """The final gather of the cluster links (SPEC §9): each link's power g Lbar_q, which the
     solve spreads uniformly over p's originals, shared out by the point kernel from q's
     centroid, A max(0, n . d) max(0, -m_q . d) / r^4 (m_q: q's mean normal), with the kernel's
     gradient for the leaves below each original. A flat receiver (FLAT) takes it as one linear
     field (the uniform irradiance at its centroid, the kernel's relative gradient there), any
     other per original (normalised: the same power). Energy is conserved either way. Links
-    part[0] of part[1] equal parts (the parts' sums add up to the whole). Returns (value (C, n):
-    irradiance at each original's centroid, gradient (C, 3, n) in its plane, terms: the
-    originals and flat nodes visited)."""
+    part[0] of part[1] equal parts (the parts' sums add up to the whole). Returns (fields (K,
+    4C): at each leaf node, its original's irradiance at the centroid (C) and gradient in its
+    plane (C x 3), push_to_leaves' input; terms: the originals and flat nodes visited)."""
     S, _ = _pull_means(Lroot, parent, leaf_orig, area)
-    cnt, off, lst, cen, nrm = _leaf_layout(parent, leaf_orig, area, ocenter, onormal, oarea)
-    # the originals' data in the tree's depth-first order: a receiver's originals are one run
-    geo = np.empty((len(lst), 8))
-    geo[:, 0:3] = ocenter[lst]
-    geo[:, 3:6] = onormal[lst]
-    geo[:, 6] = oarea[lst]
-    geo[:, 7] = _reach(overts, onv, ocenter)[lst]
-    reach = _node_reach(parent, leaf_orig, cen, geo[:, 7][np.argsort(lst)])
     cut = np.linspace(0, len(p), part[1] + 1).astype(np.int64)
     a, b = cut[part[0]], cut[part[0] + 1]
-    C = S.shape[1]
-    acc = np.zeros((len(lst), 4 * C))
-    nodes = np.zeros((len(parent), 4 * C))
-    terms = _final_links(S, area, p[a:b], q[a:b], g[a:b], cnt, off, cen, nrm, reach, geo, acc,
-                         nodes, FLAT)
-    _push_fields(nodes, parent, leaf_orig, off, cen, geo, acc)
-    value = np.zeros((C, len(oarea)))
-    grad = np.zeros((C, 3, len(oarea)))
-    value[:, lst] = acc[:, :C].T
-    grad[:, :, lst] = acc[:, C:].reshape(len(lst), C, 3).transpose(1, 2, 0)
-    return value, grad, terms
+    lay = layout
+    nodes = np.zeros((len(parent), 4 * S.shape[1]))
+    terms = _final_links(S, area, p[a:b], q[a:b], g[a:b], lay.cnt, lay.off, lay.cen, lay.nrm,
+                         lay.reach, lay.geo, lay.row_node, nodes, FLAT)
+    del S
+    _push_fields(nodes, parent, leaf_orig, lay.off, lay.cen, lay.geo)
+    return nodes, terms
 
 
 @numba.njit(cache=True, nogil=True)
@@ -242,11 +270,11 @@ def _leaf_layout(parent, leaf_orig, area, ocenter, onormal, oarea):
 
 
 @numba.njit(cache=True, nogil=True)
-def _final_links(S, area, p, q, g, cnt, off, cen, nrm, reach, geo, acc, nodes, flat):
-    """Both directions of links (p, q): into flat receivers, nodes (K, 4C) += the irradiance at
-    the node's centroid (C) and its gradient (C x 3); into others, acc (n, 4C) += the same per
-    original (rows in the depth-first order of geo: centroid, normal, area, reach)
-    (cluster_final_gather). Returns the terms."""
+def _final_links(S, area, p, q, g, cnt, off, cen, nrm, reach, geo, row_node, nodes, flat):
+    """Both directions of links (p, q), into nodes (K, 4C): a flat receiver's row += the
+    irradiance at its centroid (C) and its gradient (C x 3); any other receiver's originals'
+    leaf rows (row_node of geo's depth-first rows: centroid, normal, area, reach) += the same
+    per original (cluster_final_gather). Returns the terms."""
     C = S.shape[1]
     w = np.zeros(geo.shape[0])
     terms = 0
@@ -294,20 +322,21 @@ def _final_links(S, area, p, q, g, cnt, off, cen, nrm, reach, geo, acc, nodes, f
                     gx, gy, gz = _kernel_gradient(sx - geo[i, 0], sy - geo[i, 1], sz - geo[i, 2],
                                                   geo[i, 3], geo[i, 4], geo[i, 5], mx, my, mz,
                                                   geo[i, 7])
+                x = row_node[i]
                 for c in range(C):
                     val = f * fac * S[s, c]
-                    acc[i, c] += val
-                    acc[i, C + 3 * c] += val * gx
-                    acc[i, C + 3 * c + 1] += val * gy
-                    acc[i, C + 3 * c + 2] += val * gz
+                    nodes[x, c] += val
+                    nodes[x, C + 3 * c] += val * gx
+                    nodes[x, C + 3 * c + 1] += val * gy
+                    nodes[x, C + 3 * c + 2] += val * gz
     return terms
 
 
 @numba.njit(cache=True, nogil=True)
-def _push_fields(nodes, parent, leaf_orig, off, cen, geo, acc):
-    """The nodes' linear fields (value at the centroid, gradient) summed down the tree (a
-    child's value is the parent's at the child's centroid) into acc's originals, the gradient
-    taken into each original's plane."""
+def _push_fields(nodes, parent, leaf_orig, off, cen, geo):
+    """The nodes' linear fields (value at the centroid, gradient) summed down the tree in place
+    (a child's value is the parent's field at the child's centroid), the gradient at each leaf
+    taken into its original's plane (geo's row off[x])."""
     K = parent.shape[0]
     C = nodes.shape[1] // 4
     for x in range(1, K):
@@ -323,29 +352,28 @@ def _push_fields(nodes, parent, leaf_orig, off, cen, geo, acc):
             continue
         i = off[x]
         nx, ny, nz = geo[i, 3], geo[i, 4], geo[i, 5]
-        # the original's centroid is the leaf node's (cen from the same areas and centroids)
         for c in range(C):
-            acc[i, c] += nodes[x, c]
             gx, gy, gz = nodes[x, C + 3 * c], nodes[x, C + 3 * c + 1], nodes[x, C + 3 * c + 2]
             gn = gx * nx + gy * ny + gz * nz
-            acc[i, C + 3 * c] += gx - gn * nx
-            acc[i, C + 3 * c + 1] += gy - gn * ny
-            acc[i, C + 3 * c + 2] += gz - gn * nz
+            nodes[x, C + 3 * c] = gx - gn * nx
+            nodes[x, C + 3 * c + 1] = gy - gn * ny
+            nodes[x, C + 3 * c + 2] = gz - gn * nz
 
 
 @numba.njit(cache=True, nogil=True)
-def push_to_leaves(value, grad, ocenter, leaf_orig, leaf_center, d, y):
-    """y (2, C, M) front sides += at every leaf l of original o: value[:, o] + grad[:, :, o] .
-    (c_l - c_o) (cluster_final_gather's linear field over o), times d[l] (closed balancing;
-    empty: none)."""
+def push_to_leaves(fields, orig_node, ocenter, leaf_orig, leaf_center, d, y):
+    """y (2, C, M) front sides += at every leaf l of original o: its field's value plus its
+    gradient . (c_l - c_o) (cluster_final_gather's fields at o's leaf node orig_node[o]),
+    times d[l] (closed balancing; empty: none)."""
     use_d = d.shape[0] > 0
-    C = value.shape[0]
+    C = fields.shape[1] // 4
     for l in range(leaf_orig.shape[0]):
         o = leaf_orig[l]
+        x = orig_node[o]
         f = d[l] if use_d else 1.0
         ex = leaf_center[l, 0] - ocenter[o, 0]
         ey = leaf_center[l, 1] - ocenter[o, 1]
         ez = leaf_center[l, 2] - ocenter[o, 2]
         for c in range(C):
-            y[0, c, l] += f * (value[c, o] + grad[c, 0, o] * ex + grad[c, 1, o] * ey
-                               + grad[c, 2, o] * ez)
+            y[0, c, l] += f * (fields[x, c] + fields[x, C + 3 * c] * ex
+                               + fields[x, C + 3 * c + 1] * ey + fields[x, C + 3 * c + 2] * ez)

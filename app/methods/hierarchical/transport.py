@@ -263,6 +263,42 @@ def _directed(inp: LinkSolveInputs):
                      lambda a: sum(x.nbytes for x in a), inp.cache_bytes)
 
 
+def cluster_final(inp: LinkSolveInputs, Lbar: np.ndarray, d: np.ndarray, y: np.ndarray,
+                  part: tuple = (0, 1)) -> None:
+    """y (2, C, M) += the final gather of the cluster links part[0] of part[1] into every leaf
+    (front sides; clusterlinks.cluster_final_gather), from the node means Lbar (2, C, N); d
+    (M,) leaf scaling (closed balancing), empty for none. Nothing without cluster links."""
+    if inp.clusters is None or not inp.clusters.links:
+        return
+    from radiosity.methods.hierarchical.clusterlinks import cluster_final_gather, push_to_leaves
+
+    cl = inp.clusters
+    roots = inp.noff[:-1]
+    lay = final_layout_of(inp)
+    fields, _ = cluster_final_gather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent,
+                                     cl.leaf_orig, cl.area, cl.p, cl.q, cl.g, lay, part)
+    push_to_leaves(fields, lay.orig_node, np.ascontiguousarray(inp.node_center[roots]),
+                   inp.leaf_orig, inp.leaf_center, d, y)
+
+
+def final_layout_of(inp: LinkSolveInputs):
+    """The cluster tree's clusterlinks.FinalLayout, built once per inputs (the final gather's
+    parts share it)."""
+    lay = getattr(inp, "_final_layout", None)
+    if lay is None:
+        from radiosity.methods.hierarchical.clusterlinks import final_layout
+
+        cl = inp.clusters
+        roots = inp.noff[:-1]
+        lay = final_layout(cl.parent, cl.leaf_orig, cl.area,
+                           np.ascontiguousarray(inp.node_center[roots]), inp.normal,
+                           np.ascontiguousarray(inp.node_area[roots]),
+                           np.ascontiguousarray(inp.verts[roots]),
+                           np.ascontiguousarray(inp.nverts[roots]))
+        inp._final_layout = lay
+    return lay
+
+
 def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray,
                       part: tuple = (0, 1)):
     """The final gather into the leaves of originals `origs`, from the solved L (2, C, M):
@@ -287,21 +323,11 @@ def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray,
             evals += linear_gather(Lbar, task_link_arrays(inp, t), sel, nodes, geo, ncap, mode,
                                    G, S1, FG_FAR)
         linear_push(G, S1, origs, inp.noff, inp.parent, inp.node_leaf, inp.leaf_center, d, y)
+        del S1
     else:
         evals = final_gather(Lbar, _directed(inp), origs, inp.nodes(), inp.geometry(),
                              inp.fg_levels, ncap, mode, d, y)
-    if inp.clusters is not None and inp.clusters.links:
-        from radiosity.methods.hierarchical.clusterlinks import (cluster_final_gather,
-                                                                 push_to_leaves)
-        cl = inp.clusters
-        roots = inp.noff[:-1]
-        oc = np.ascontiguousarray(inp.node_center[roots])
-        value, grad, _ = cluster_final_gather(
-            np.ascontiguousarray(Lbar[0][:, roots]), cl.parent, cl.leaf_orig, cl.area, cl.p,
-            cl.q, cl.g, oc, inp.normal, np.ascontiguousarray(inp.node_area[roots]),
-            np.ascontiguousarray(inp.verts[roots]), np.ascontiguousarray(inp.nverts[roots]),
-            part)
-        push_to_leaves(value, grad, oc, inp.leaf_orig, inp.leaf_center, d, y)
+    cluster_final(inp, Lbar, d, y, part)
     if len(inp.need):
         y[:, :, ~inp.need[inp.leaf_orig]] = 0.0
     return y, evals
@@ -399,6 +425,8 @@ class LocalLinkOperator(_Base):
         GIL; the workers sit idle meanwhile)."""
         if self.inp.fg_mode != "linear":
             _directed(self.inp)  # built once, before the threads share it
+        if self.inp.clusters is not None and self.inp.clusters.links:
+            final_layout_of(self.inp)  # the same
         # every group's links read (in its thread) before the threads share them
         self._threads(lambda g: [task_link_arrays(self.inp, int(t)) for t in g], self.groups)
         groups = self.orig_groups(default_workers())

@@ -3,7 +3,8 @@ each point is located in the leaves of the union tree and gathers over the links
 and the leaf's ancestors, with the exact point-to-polygon form factor from the point itself (the
 exact final gather of passes.final_gather, at points instead of leaf centroids). A region the
 first camera left coarse thus gets the light that reaches each of its points, not its leaf's
-mean: no re-solve, no new links; cluster links add their leaves' uniform share as in the solve.
+mean: no re-solve, no new links; cluster links add their final gather at each leaf's centroid
+(as the render's image).
 The points gathered at are the nodes of a lattice on each original's plane (about
 LATTICE_PIXELS pixels apart, dyadic levels that nest), interpolated bilinearly at the view's
 points: a PointGather keeps them, so the frames of a walkthrough gather each node once.
@@ -199,8 +200,8 @@ class PointGather:
                  ray_far: float = RAY_FAR):
         import time
 
-        from radiosity.methods.hierarchical.passes import pull, push
-        from radiosity.methods.hierarchical.transport import (_cluster_gather, _directed,
+        from radiosity.methods.hierarchical.passes import pull
+        from radiosity.methods.hierarchical.transport import (_directed, cluster_final,
                                                              open_link_operator, scratch)
         from radiosity.tracing.rays import RayCaster
 
@@ -219,24 +220,21 @@ class PointGather:
         self.closed = (rs.group_attrs("solution").get("row_sums") or {}).get("mode") == "closed"
         L = np.ascontiguousarray(np.transpose(sol["leaf_radiance"], (1, 2, 0)))  # (2, C, M)
         self.C = L.shape[1]
-        Sbuf, Gn = scratch((L.shape[0], L.shape[1], len(inp.parent)))
+        Sbuf, _ = scratch((L.shape[0], L.shape[1], len(inp.parent)))
         self.Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area,
                          np.zeros(0), Sbuf).copy()
         self.ends = _directed(inp)
         self.nodes, self.geo = inp.nodes(), inp.geometry()
         self.caster = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
-        # cluster links add their leaves' uniform share, as in the solve: the same at every
-        # point of a leaf, so once per leaf here (and their share of the rows, for balancing)
+        # cluster links add their final gather at each leaf's centroid, as the render's image
+        # (transport.cluster_final), once per leaf here (and their share of the rows, for
+        # balancing)
         self.yc = self.rc = None
         if inp.clusters is not None and inp.clusters.links:
-            Gn[...] = 0.0
-            _cluster_gather(inp, inp.cap_args(), self.Lbar, Gn)
             self.yc = np.zeros_like(L)
-            push(Gn, inp.parent, inp.leaf_node, np.zeros(0), self.yc)
-            Gn[...] = 0.0
-            _cluster_gather(inp, inp.cap_args(), np.ones_like(self.Lbar[:, :1]), Gn[:, :1])
+            cluster_final(inp, self.Lbar, np.zeros(0), self.yc)
             rc = np.zeros_like(L[:, :1])
-            push(np.ascontiguousarray(Gn[:, :1]), inp.parent, inp.leaf_node, np.zeros(0), rc)
+            cluster_final(inp, np.ones_like(self.Lbar[:, :1]), np.zeros(0), rc)
             self.rc = rc[:, 0, :]
         self.lattice_pixels = float(lattice_pixels)
         self.ray_far = float(ray_far)
@@ -354,7 +352,7 @@ class PointGather:
         r = sum(p[1] for p in parts)
         evals = int(sum(p[2] for p in parts))
         rays = int(sum(p[3] for p in parts))
-        if self.yc is not None:  # the cluster links' uniform share, as in the solve
+        if self.yc is not None:  # the cluster links' final gather, as in the render's image
             y = y + self.yc[So, :, lo_]
             r = r + self.rc[So, lo_]
         if self.closed:  # rows balanced to 1, as in the solve's final gather

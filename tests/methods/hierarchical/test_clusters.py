@@ -563,20 +563,27 @@ def test_the_cluster_final_gather_follows_the_light_over_each_receiver_and_conse
     is shared out per triangle."""
     from radiosity.core.exact import _point_ff
     from radiosity.methods.hierarchical import clusterlinks
-    from radiosity.methods.hierarchical.clusterlinks import cluster_final_gather, cluster_gather
+    from radiosity.methods.hierarchical.clusterlinks import (cluster_final_gather, cluster_gather,
+                                                             final_layout)
 
     if flat is not None:
         monkeypatch.setattr(clusterlinks, "FLAT", flat)
     el, ct, links, pairs, g, L, n1 = _final_gather_case()
     assert len(pairs) == 0 and len(links) >= 1
     args = (L, ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), links[:, 0].astype(np.int32),
-            links[:, 1].astype(np.int32), g, el.center, el.normal, el.area,
-            np.ascontiguousarray(el.verts), el.nverts.astype(np.int64))
-    value, grad, _ = cluster_final_gather(*args)
+            links[:, 1].astype(np.int32), g)
+    lay = final_layout(*args[1:4], el.center, el.normal, el.area, np.ascontiguousarray(el.verts),
+                       el.nverts.astype(np.int64))
+
+    def gathered(part=(0, 1)):  # per original: value (C, n), gradient (C, 3, n)
+        f = cluster_final_gather(*args, lay, part)[0][lay.orig_node]
+        return f[:, :1].T, f[:, 1:].reshape(-1, 1, 3).transpose(1, 2, 0)
+
+    value, grad = gathered()
     uniform = np.zeros((1, len(el)))
-    cluster_gather(L, *args[1:7], uniform)
+    cluster_gather(*args, uniform)
     assert (el.area * value[0]).sum() == pytest.approx((el.area * uniform[0]).sum(), rel=1e-12)
-    halves = [cluster_final_gather(*args, part=(i, 2)) for i in range(2)]
+    halves = [gathered((i, 2)) for i in range(2)]
     assert np.allclose(halves[0][0] + halves[1][0], value, rtol=1e-12, atol=0)
     assert np.allclose(halves[0][1] + halves[1][1], grad, rtol=1e-12, atol=1e-12)
 

@@ -113,8 +113,8 @@ def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
         kids, both = _split_links(t, links[part])
         for init, e in ((kids, eps), (both, 0.0)):
             if len(init):
-                new, npairs, c, _ = refine_clusters(t, ct.elems, e, ct.lref, max(1024, 8 * len(init)),
-                                                    init, 0)
+                new, npairs, c, _ = refine_clusters(t, ct.elems, e, ct.lref,
+                                                    max(1024, 8 * len(init)), init, 0)
                 counts += c
                 out_pairs.append(npairs)
                 if e > 0.0:

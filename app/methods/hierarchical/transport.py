@@ -430,8 +430,9 @@ class LocalLinkOperator(_Base):
         # every group's links read (in its thread) before the threads share them
         self._threads(lambda g: [task_link_arrays(self.inp, int(t)) for t in g], self.groups)
         groups = self.orig_groups(default_workers())
-        parts = self._threads(lambda ig: task_final_gather(self.inp, ig[1], L, (ig[0], len(groups))),
-                              list(enumerate(groups)))
+        parts = self._threads(
+            lambda ig: task_final_gather(self.inp, ig[1], L, (ig[0], len(groups))),
+            list(enumerate(groups)))
         self.evals = sum(e for _, e in parts)
         return sum(y for y, _ in parts)
 

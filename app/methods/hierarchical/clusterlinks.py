@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from radiosity.methods.hierarchical.passes import kernel_gradient
+
 
 @dataclass(frozen=True)
 class ClusterLinks:
@@ -170,19 +172,19 @@ def cluster_final_gather(Lroot, parent, leaf_orig, area, p, q, g, layout: FinalL
     gradient for the leaves below each original. A flat receiver (FLAT) takes it as one linear
     field (the uniform irradiance at its centroid, the kernel's relative gradient there), any
     other per original (normalised: the same power). Energy is conserved either way. Links
-    part[0] of part[1] equal parts (the parts' sums add up to the whole). Returns (fields (K,
+    part[0] of part[1] equal parts (the parts' sums add up to the whole). Returns fields (K,
     4C): at each leaf node, its original's irradiance at the centroid (C) and gradient in its
-    plane (C x 3), push_to_leaves' input; terms: the originals and flat nodes visited)."""
+    plane (C x 3), push_to_leaves' input."""
     S, _ = _pull_means(Lroot, parent, leaf_orig, area)
     cut = np.linspace(0, len(p), part[1] + 1).astype(np.int64)
     a, b = cut[part[0]], cut[part[0] + 1]
     lay = layout
     nodes = np.zeros((len(parent), 4 * S.shape[1]))
-    terms = _final_links(S, area, p[a:b], q[a:b], g[a:b], lay.cnt, lay.off, lay.cen, lay.nrm,
-                         lay.reach, lay.geo, lay.row_node, nodes, FLAT)
+    _final_links(S, area, p[a:b], q[a:b], g[a:b], lay.cnt, lay.off, lay.cen, lay.nrm, lay.reach,
+                 lay.geo, lay.row_node, nodes, FLAT)
     del S
     _push_fields(nodes, parent, leaf_orig, lay.off, lay.cen, lay.geo)
-    return nodes, terms
+    return nodes
 
 
 @numba.njit(cache=True, nogil=True)
@@ -203,16 +205,9 @@ def _node_reach(parent, leaf_orig, cen, oreach):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _kernel_gradient(dx, dy, dz, nx, ny, nz, mx, my, mz, reach):
-    """grad log K of K = (n . d)(-m . d) / r^4 with d = source - x, in the plane of normal n,
-    limited so that 1 + g . (y - x) >= 0 within `reach` of x (no negative light)."""
-    r2 = dx * dx + dy * dy + dz * dz
-    ca = nx * dx + ny * dy + nz * dz
-    cb = -(mx * dx + my * dy + mz * dz)
-    hx = -nx / ca + mx / cb + 4.0 * dx / r2
-    hy = -ny / ca + my / cb + 4.0 * dy / r2
-    hz = -nz / ca + mz / cb + 4.0 * dz / r2
-    hn = hx * nx + hy * ny + hz * nz
-    gx, gy, gz = hx - hn * nx, hy - hn * ny, hz - hn * nz
+    """passes.kernel_gradient limited so that 1 + g . (y - x) >= 0 within `reach` of x (no
+    negative light)."""
+    gx, gy, gz = kernel_gradient(dx, dy, dz, nx, ny, nz, mx, my, mz)
     lim = np.sqrt(gx * gx + gy * gy + gz * gz) * reach
     if lim > 1.0:
         gx, gy, gz = gx / lim, gy / lim, gz / lim
@@ -274,10 +269,9 @@ def _final_links(S, area, p, q, g, cnt, off, cen, nrm, reach, geo, row_node, nod
     """Both directions of links (p, q), into nodes (K, 4C): a flat receiver's row += the
     irradiance at its centroid (C) and its gradient (C x 3); any other receiver's originals'
     leaf rows (row_node of geo's depth-first rows: centroid, normal, area, reach) += the same
-    per original (cluster_final_gather). Returns the terms."""
+    per original (cluster_final_gather)."""
     C = S.shape[1]
     w = np.zeros(geo.shape[0])
-    terms = 0
     for k in range(p.shape[0]):
         for h in range(2):
             t, s = (p[k], q[k]) if h == 0 else (q[k], p[k])
@@ -290,7 +284,6 @@ def _final_links(S, area, p, q, g, cnt, off, cen, nrm, reach, geo, row_node, nod
             f = np.float64(g[k])
             mt = np.sqrt(nrm[t, 0] ** 2 + nrm[t, 1] ** 2 + nrm[t, 2] ** 2)
             if mt >= flat * area[t]:  # one linear field over the node
-                terms += 1
                 nx, ny, nz = nrm[t, 0] / mt, nrm[t, 1] / mt, nrm[t, 2] / mt
                 dx, dy, dz = sx - cen[t, 0], sy - cen[t, 1], sz - cen[t, 2]
                 gx = gy = gz = 0.0
@@ -304,7 +297,6 @@ def _final_links(S, area, p, q, g, cnt, off, cen, nrm, reach, geo, row_node, nod
                     nodes[t, C + 3 * c + 2] += val * gz
                 continue
             lo, n = off[t], cnt[t]
-            terms += n
             tot = 0.0
             for i in range(lo, lo + n):
                 dx, dy, dz = sx - geo[i, 0], sy - geo[i, 1], sz - geo[i, 2]
@@ -329,7 +321,6 @@ def _final_links(S, area, p, q, g, cnt, off, cen, nrm, reach, geo, row_node, nod
                     nodes[x, C + 3 * c] += val * gx
                     nodes[x, C + 3 * c + 1] += val * gy
                     nodes[x, C + 3 * c + 2] += val * gz
-    return terms
 
 
 @numba.njit(cache=True, nogil=True)

@@ -237,6 +237,21 @@ def final_gather(Lbar, ends, origs, nodes, geo, levels, ncap, mode, d, y):
     return evals
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def kernel_gradient(dx, dy, dz, nx, ny, nz, mx, my, mz):
+    """grad log K of the point kernel K = (n . d)(-m . d) / r^4 with respect to the receiving
+    point x (d = source - x, r = |d|; n, m unit normals of receiver and source, both cosines
+    positive): -n / ca + m / cb + 4 d / r^2, taken into the plane of n."""
+    r2 = dx * dx + dy * dy + dz * dz
+    ca = nx * dx + ny * dy + nz * dz
+    cb = -(mx * dx + my * dy + mz * dz)
+    hx = -nx / ca + mx / cb + 4.0 * dx / r2
+    hy = -ny / ca + my / cb + 4.0 * dy / r2
+    hz = -nz / ca + mz / cb + 4.0 * dz / r2
+    hn = hx * nx + hy * ny + hz * nz
+    return hx - hn * nx, hy - hn * ny, hz - hn * nz
+
+
 @numba.njit(cache=True, nogil=True)
 def linear_gather(Lbar, links, sel, nodes, geo, ncap, mode, S0, S1, far):
     """The final gather to first order, link by link: for both directions of links (p, q) into
@@ -284,13 +299,8 @@ def linear_gather(Lbar, links, sel, nodes, geo, ncap, mode, S0, S1, far):
             if far > 0.0 and r2 > far * far * max(node_area[s], node_area[t]) \
                     and ca * ca > FG_FAR_COS2 * r2 and cb * cb > FG_FAR_COS2 * r2 \
                     and ca > 0.0 and cb > 0.0:
-                # far: the point kernel's gradient, exactly (no evaluation): F ~ ca cb / r^4,
-                # grad log F = -n / ca + m / cb + 4 d / r^2, in t's plane
-                hx = -nx / ca + mx / cb + 4.0 * dx / r2
-                hy = -ny / ca + my / cb + 4.0 * dy / r2
-                hz = -nz / ca + mz / cb + 4.0 * dz / r2
-                hn = hx * normal[ot, 0] + hy * normal[ot, 1] + hz * normal[ot, 2]
-                gx, gy, gz = hx - hn * normal[ot, 0], hy - hn * normal[ot, 1], hz - hn * normal[ot, 2]
+                # far: the point kernel's gradient, exactly (no evaluation)
+                gx, gy, gz = kernel_gradient(dx, dy, dz, nx, ny, nz, mx, my, mz)
             else:
                 ns_ = nverts[s]
                 for i in range(ns_):

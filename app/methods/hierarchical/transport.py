@@ -275,8 +275,8 @@ def cluster_final(inp: LinkSolveInputs, Lbar: np.ndarray, d: np.ndarray, y: np.n
     cl = inp.clusters
     roots = inp.noff[:-1]
     lay = final_layout_of(inp)
-    fields, _ = cluster_final_gather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent,
-                                     cl.leaf_orig, cl.area, cl.p, cl.q, cl.g, lay, part)
+    fields = cluster_final_gather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent,
+                                  cl.leaf_orig, cl.area, cl.p, cl.q, cl.g, lay, part)
     push_to_leaves(fields, lay.orig_node, np.ascontiguousarray(inp.node_center[roots]),
                    inp.leaf_orig, inp.leaf_center, d, y)
 

@@ -292,7 +292,7 @@ def test_partly_visible_cluster_links_are_split_and_cover_the_same_pairs():
     carried = np.maximum(t.rho[L2[:, 0]] * F[:, 0] * t.lhat[L2[:, 1]],
                          t.rho[L2[:, 1]] * F[:, 1] * t.lhat[L2[:, 0]]) / ct.lref
     assert not ((v > 0) & (v < 1) & (carried > eps)).any()
-    assert len(L2) > len(links) and len(P2) >= len(pairs)
+    assert len(L2) > len(links)
 
     def covered(lk, pr):
         out = []
@@ -576,7 +576,7 @@ def test_the_cluster_final_gather_follows_the_light_over_each_receiver_and_conse
                        el.nverts.astype(np.int64))
 
     def gathered(part=(0, 1)):  # per original: value (C, n), gradient (C, 3, n)
-        f = cluster_final_gather(*args, lay, part)[0][lay.orig_node]
+        f = cluster_final_gather(*args, lay, part)[lay.orig_node]
         return f[:, :1].T, f[:, 1:].reshape(-1, 1, 3).transpose(1, 2, 0)
 
     value, grad = gathered()

@@ -1,7 +1,7 @@
 """Form factors and visible fractions of cluster links (SPEC §9; the links themselves:
 clusters.refine_clusters). F_pq = S_p(u) S_q(-u) / (pi r^2 A_p) times a sampled correction,
 from pairs of elements drawn by their projected area toward the other end (_weights); the
-visible fraction from k rays between the centroids of k of those pairs (link_weights).
+visible fraction from k rays between points of k of those pairs (link_weights, _visible).
 
 Design notes and measurements: docs/src/design/methods-hierarchical-clusters.md.
 """
@@ -131,24 +131,46 @@ def link_form_factors(ct: ClusterTree, links: np.ndarray, samples: int = FF_SAMP
     return link_weights(ct, links, None, 0, samples)[0]
 
 
-def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, dedupe: bool = True) -> np.ndarray:
-    """1 - the blocked fraction of the rays between the centroids of elements ep[a, m] and
-    eq[a, m] (a link's k rays on one row), (len(ep),) float64. With `dedupe`, a ray that repeats
-    on its row (ends of one or a few elements: the stratified picks repeat) is cast once and
-    counted as often as it appears, so the fraction is the same as with every ray cast."""
+@numba.njit(cache=True, nogil=True)
+def _ends(verts, ids, cols, out):
+    """out[r] = point cols[r] % 4 of element ids[r]'s four: the centroids of a triangle's four
+    midpoint sub-triangles (verts repeat vertex 2), the centres of a quad's four sub-quads
+    (bilinear at 1/4 and 3/4). Each stands for a quarter of the element's area (a triangle's
+    exactly, a quad's where it is a parallelogram)."""
+    for r in range(ids.shape[0]):
+        i = ids[r]
+        s = cols[r] % 4
+        tri = verts[i, 3, 0] == verts[i, 2, 0] and verts[i, 3, 1] == verts[i, 2, 1] \
+            and verts[i, 3, 2] == verts[i, 2, 2]
+        for c in range(3):
+            a, b, d, e = verts[i, 0, c], verts[i, 1, c], verts[i, 2, c], verts[i, 3, c]
+            if tri:
+                if s == 3:
+                    out[r, c] = (a + b + d) / 3.0
+                else:
+                    out[r, c] = (a + b + d + 3.0 * (a if s == 0 else b if s == 1 else d)) / 6.0
+            else:
+                u = 0.25 if (s == 0 or s == 3) else 0.75
+                v = 0.25 if s < 2 else 0.75
+                out[r, c] = (1 - u) * (1 - v) * a + u * (1 - v) * b + u * v * d + (1 - u) * v * e
+
+
+def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """1 - the blocked fraction of a link's rays (one row of ep, eq: (L, k) elements): the ray
+    in column c runs between point cols[c] % 4 of ep's element and point (cols[c] + 2) % 4 of
+    eq's (_ends), so a link between two originals, whose k picks are the same two elements,
+    casts k different rays, and sees a shadow that crosses them (its centroids alone say 0 or
+    1). cols (k,) or (L, k). Returns (L,) float64."""
     L, k = ep.shape
-    n_el = len(e.area)
-    if dedupe and k > 1 and float(L) * n_el * n_el < 2.0 ** 62:  # the key (row, i, j) fits in int64
-        key = (np.arange(L, dtype=np.int64)[:, None] * n_el + ep) * n_el + eq
-        uniq, inverse = np.unique(key.ravel(), return_inverse=True)
-        ui, uj = (uniq // n_el) % n_el, uniq % n_el
-    else:
-        ui, uj, inverse = ep.ravel(), eq.ravel(), np.arange(ep.size)
-    n = len(ui)
-    pts = np.concatenate([e.center[ui], e.center[uj]])
+    n = ep.size
+    pts = np.empty((2 * n, 3))
+    cc = np.ascontiguousarray(np.broadcast_to(cols, ep.shape), np.int64).ravel()
+    ids = np.concatenate([ep.ravel(), eq.ravel()])
+    _ends(e.verts, ids[:n], cc, pts[:n])
+    _ends(e.verts, ids[n:], cc + 2, pts[n:])
     idx = np.arange(n)
-    occ = caster.occluded_pairs(pts, idx, idx + n, np.concatenate([ui, uj]))
-    return 1.0 - occ[inverse.ravel()].reshape(L, k).mean(axis=1)
+    occ = caster.occluded_pairs(pts, idx, idx + n, ids)
+    return 1.0 - occ.reshape(L, k).mean(axis=1)
 
 
 def _one_of(links: np.ndarray, k: int) -> np.ndarray:
@@ -162,9 +184,9 @@ def _one_of(links: np.ndarray, k: int) -> np.ndarray:
 def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
                  samples: int = FF_SAMPLES, faint: float = 0.0) -> tuple:
     """Form factors (len(links), 2) and visible fractions (len(links),) of cluster links, CHUNK
-    links at a time (_weights). The visible fraction from k rays between the centroids of k
-    sample pairs, taken from the form factors' samples (every samples/k-th: one per stratum of
-    the k) where k divides `samples`. A link whose carried light in the oracle's weighting,
+    links at a time (_weights). The visible fraction from k rays between points on the
+    elements of k sample pairs (_visible), taken from the form factors' samples (every
+    samples/k-th: one per stratum of the k) where k divides `samples`. A link whose carried light in the oracle's weighting,
     max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref, is at most `faint` gets one ray, one of
     its k picked by a hash of the link (_one_of): wholly wrong, its visibility errs by no more
     than the oracle lets a link err, and over many links the rays cover every stratum (one
@@ -192,10 +214,10 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
         va = v[a:a + len(lk)]
         many = ~few
         if many.any():
-            va[many] = _visible(caster, ct.elems, ep[many], eq[many])
+            va[many] = _visible(caster, ct.elems, ep[many], eq[many], np.arange(k))
         if few.any():
             col = _one_of(lk[few], k)[:, None]
             va[few] = _visible(caster, ct.elems, np.take_along_axis(ep[few], col, 1),
-                               np.take_along_axis(eq[few], col, 1))
+                               np.take_along_axis(eq[few], col, 1), col)
         rays += k * int(many.sum()) + int(few.sum())
     return F, v, rays

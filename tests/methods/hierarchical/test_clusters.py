@@ -163,29 +163,45 @@ def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
                             ct.lref) < eps
 
 
-def test_a_repeated_ray_is_cast_once_and_the_fractions_stay_the_same():
-    """A closed sphere with a small sphere inside it (so that rays are blocked): the visible
-    fractions of its cluster links, with each ray repeated on a link's row cast once, equal
-    those with every ray cast; and repeats do occur (ends of one or two elements)."""
-    from radiosity.methods.hierarchical.clusterweights import FF_SAMPLES, _visible, _weights
+def test_a_link_between_two_originals_sees_a_shadow_that_misses_their_centroids():
+    """A floor triangle and the same triangle in the ceiling, a blocker between them over
+    x < 0.3: the ray between their centroids passes it, so a link that cast its k rays between
+    the centroids (as it did) saw the pair wholly visible. Its rays now run between four points
+    of each triangle (the centroids of its midpoint sub-triangles, whose mean is the centroid):
+    the link sees the shadow, within one of its four rays of the fraction that 40 000 rays
+    between uniform points give."""
+    from radiosity.methods.hierarchical.clusterweights import _ends, link_weights
     from radiosity.tracing.rays import RayCaster
 
-    v1, n1 = _sphere(16, 32)
-    v2, n2 = _sphere(6, 12, inward=False)
-    el = _elements(np.concatenate([v1, v2 * 0.3]), np.concatenate([n1, n2]))
+    floor = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 1, 0)]
+    ceiling = [(0, 0, 1), (0, 1, 1), (1, 0, 1), (1, 0, 1)]
+    blocker = [(-1, -1, 0.5), (-1, 2, 0.5), (0.3, 2, 0.5), (0.3, -1, 0.5)]
+    el = _elements([floor, ceiling, blocker], [3, 3, 4])
     ct = _tree(el)
-    links, _, _ = refine_all(ct, 1e-3, 64)
-    # 4 pairs picked anew (no column of the form factors' samples), the second end rotated
-    sp, sq = np.empty((len(links), 4), np.int64), np.empty((len(links), 4), np.int64)
-    _weights(ct.tree, ct.elems, links, FF_SAMPLES, np.zeros(0, np.int64), 0.0, 0.0,
-             np.empty((len(links), 2)), sp, sq, np.empty(len(links), np.bool_))
+    leaf = {int(o): x for x, o in enumerate(ct.leaf_orig) if o >= 0}
+    link = np.array([[leaf[0], leaf[1]]], np.int64)
     caster = RayCaster(el.verts, el.nverts)
-    once = _visible(caster, ct.elems, sp, sq)
-    every = _visible(caster, ct.elems, sp, sq, dedupe=False)
-    assert np.array_equal(once, every)
-    assert ((every > 0) & (every < 1)).any() and (every == 0).any() and (every == 1).any()
-    rows = np.sort(sp * len(el) + sq, axis=1)
-    assert (rows[:, 1:] == rows[:, :-1]).any()
+    assert not caster.occluded(el.center[:1], el.center[1:2])[0]
+    _, v, rays = link_weights(ct, link, caster, 4)
+    assert rays == 4 and 0.0 < v[0] < 1.0
+    rng = np.random.default_rng(3)
+
+    def uniform(tri, n):
+        a, b = rng.random((2, n))
+        flip = a + b > 1
+        a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
+        t = np.asarray(tri, float)
+        return t[0] + a[:, None] * (t[1] - t[0]) + b[:, None] * (t[2] - t[0])
+
+    x, y = uniform(floor, 40_000), uniform(ceiling, 40_000)
+    d = y - x
+    w = d[:, 2] ** 2 / (d ** 2).sum(1) ** 2  # the kernel's cosines over r^4
+    exact = 1.0 - (w * caster.occluded(x, y)).sum() / w.sum()
+    assert 0.2 < exact < 0.8 and abs(v[0] - exact) <= 0.25
+    pts = np.empty((4, 3))
+    _ends(ct.elems.verts, np.zeros(4, np.int64), np.arange(4), pts)
+    assert np.allclose(pts.mean(0), el.center[0]) and (pts[:, :2] > 0).all() \
+        and (pts[:, :2].sum(1) < 1).all() and len(np.unique(pts, axis=0)) == 4
 
 
 def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():

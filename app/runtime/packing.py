@@ -1,8 +1,9 @@
 """Cutting work into tasks and groups (pure integer arithmetic on numpy, no Dask): the task
-unit, contiguous ranges of about equal weight, groups of about equal cost."""
+unit, contiguous ranges of about equal weight or under a cap, groups of about equal cost."""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 
@@ -13,6 +14,29 @@ def choose_unit(unit: str, n_originals: int, threshold: int) -> str:
     if unit not in ("block", "stripe"):
         raise ValueError(f"--task-unit must be block, stripe or auto, got {unit!r}")
     return unit
+
+
+@numba.njit(cache=True, nogil=True)
+def capped_starts(cost, cap):
+    """The starts of consecutive runs of items (cost (n,) int64), each run closed before the item
+    that would take its sum above `cap` (an item above the cap alone is a run): (k + 1,) int64,
+    run r holding items starts[r]:starts[r + 1]. A loop, but in numba: the 200 000-triangle
+    terrain hands its link stage 3.5 M pairs of originals (a Python loop: about a second)."""
+    n = cost.shape[0]
+    out = np.empty(n + 1, np.int64)
+    out[0] = 0
+    k = 1
+    acc = 0
+    for i in range(n):
+        if i > 0 and acc + cost[i] > cap:
+            out[k] = i
+            k += 1
+            acc = 0
+        acc += cost[i]
+    if n == 0:
+        return out[:1]
+    out[k] = n
+    return out[:k + 1]
 
 
 def subscene_ranges(weights: np.ndarray, ntasks: int) -> list[tuple[int, int]]:

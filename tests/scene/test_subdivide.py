@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 
 from radiosity.core.camera import pixel_directions, project
 from radiosity.core.geometry import polygon_properties
-from radiosity.runtime.packing import subscene_ranges
+from radiosity.runtime.packing import capped_starts, subscene_ranges
 from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
@@ -177,6 +177,21 @@ def test_subscene_ranges_are_contiguous_and_balanced():
     assert r[0][0] == 0 and r[-1][1] == len(w)
     assert all(a[1] == b[0] for a, b in zip(r, r[1:]))
     assert subscene_ranges(np.ones(2), 8) == [(0, 1), (1, 2)]
+
+
+def test_capped_starts_close_each_run_before_the_cap():
+    """The link stage's stripes: consecutive runs covering every item once, each within the cap
+    unless it is one item above it, and each closed only where the next item would go over."""
+    rng = np.random.default_rng(1)
+    cost = rng.integers(1, 60, 5000).astype(np.int64)
+    cost[17] = 500
+    for cap in (1, 50, 100, 1000, 10 ** 9):
+        s = capped_starts(cost, np.int64(cap))
+        assert s[0] == 0 and s[-1] == len(cost) and (np.diff(s) > 0).all()
+        sums = np.add.reduceat(cost, s[:-1])
+        assert ((sums <= cap) | (np.diff(s) == 1)).all()
+        assert (sums[:-1] + cost[s[1:-1]] > cap).all()
+    assert capped_starts(np.zeros(0, np.int64), np.int64(5)).tolist() == [0]
 
 
 def test_pixel_directions_invert_projection():

@@ -26,6 +26,7 @@ from radiosity.methods.hierarchical.clustertasks import plan_clusters
 from radiosity.methods.hierarchical.sampling import link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
+from radiosity.runtime.packing import capped_starts, choose_unit
 from radiosity.tracing.shafts import OccluderTree, node_boxes, occluders
 
 WEIGHTS = ("none", "bf")
@@ -299,14 +300,7 @@ def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, ma
         # of small originals would otherwise be thousands of tasks at ~50 ms each), and the cap
         # leaves at least `min_tasks` tasks for the master to balance
         cap = max(1, min(max_task_cost, int(pc.sum()) // max(1, min_tasks)))
-        starts = [0]
-        acc = 0
-        for k in range(len(pairs)):
-            if k > 0 and acc + pc[k] > cap:
-                starts.append(k)
-                acc = 0
-            acc += int(pc[k])
-        first = np.array(starts + [len(pairs)], np.int64) if len(pairs) else np.zeros(1, np.int64)
+        first = capped_starts(np.ascontiguousarray(pc, np.int64), np.int64(cap))
     else:
         raise ValueError(f"task unit must be block or stripe, got {unit!r}")
     cum = np.concatenate([[0], np.cumsum(pc)])
@@ -435,7 +429,6 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
     with a `client`, the cluster layer runs as tasks on it (clustertasks.plan_clusters)."""
     from dask.base import tokenize
 
-    from radiosity.runtime.packing import choose_unit
     from radiosity.scene.originals import FacingPairsError, pairs_within_budget, tree_of
     from radiosity.scene.splittrees import seen_originals
 

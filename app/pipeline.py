@@ -59,6 +59,8 @@ class RenderFigures(StageFigures):
                          f"{sol.get('solution', 'written')}")),
             ("closure", (sol.get("closure") or self.report.get("plan", {}).get("closure")
                          or {}).get("reason", "-")),
+            *([("rounds", self.report["rounds"]["why"])]
+              if (self.report.get("rounds") or {}).get("why") else []),
             *([("views", f"{len(st['views'])} more camera(s): "
                          + ", ".join(f"views/{n}/image.png" for n in st["views"]))]
               if st.get("views") else []),

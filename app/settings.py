@@ -153,7 +153,9 @@ class HierarchySettings(_Section):
     shadow_factor: float
     min_node_size: float
     split_hidden: bool
-    rounds: int
+    rounds: int | str
+    rounds_auto_ratio: float
+    rounds_auto_share: float
     rounds_epsilon: float
     rounds_change: float
     rounds_rays: int

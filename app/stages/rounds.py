@@ -8,29 +8,41 @@ from __future__ import annotations
 
 import time
 
-from radiosity.methods.hierarchical.rounds import (Rounds, previous_solution, rounds_of,
-                                                   warm_start)
+from radiosity.methods.hierarchical.rounds import (AUTO, Rounds, auto_rounds, previous_solution,
+                                                   rounds_of, warm_start)
 
 
 def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: bool = True,
                       progress: bool = True, echo=None, **solve_kw):
     """run_solve (stages/solve.py), then with hierarchy.rounds > 0 the rounds of refinement by
     the solved radiance (methods/hierarchical/rounds.py) on a hierarchical run; returns the last
-    solve's figures. solve_kw: run_solve's keywords (effects, preview, closure, keep_unconverged,
-    method)."""
-    from radiosity.runtime.store import update_report
+    solve's figures. hierarchy.rounds auto: the first solve is the plain one (final gather and
+    all), then auto_rounds decides from its answer; where it says none, that solve is the
+    answer (nothing else runs). solve_kw: run_solve's keywords (effects, preview, closure,
+    keep_unconverged, method)."""
+    from radiosity.runtime.store import RunStore, update_report
     from radiosity.settings import resolve
     from radiosity.stages.solve import run_solve
 
     n, _, _ = rounds_of(settings)
-    if n <= 0 or solve_kw.get("method") not in (None, "hierarchical"):
+    if n == 0 or solve_kw.get("method") not in (None, "hierarchical"):
         return run_solve(run_dir, client, settings, progress=progress, **solve_kw)
-    from radiosity.runtime.store import RunStore
-
     t0 = time.perf_counter()
     mid = resolve({"hierarchy.final-gather": "none"}, base=settings)
     kw = {**solve_kw, "keep_unconverged": True}
-    fig = run_solve(run_dir, client, mid, progress=progress, **kw)
+    why = None
+    if n == AUTO:
+        fig = run_solve(run_dir, client, settings, progress=progress, **solve_kw)
+        n, why = auto_rounds(RunStore(run_dir), settings)
+        if echo is not None:
+            echo(f"rounds: {why}")
+        if n == 0:
+            update_report(run_dir, "rounds", {"why": why, "rounds": [], "solves": 1,
+                                              "passes": [fig.iterations],
+                                              "time_s": round(time.perf_counter() - t0, 4)})
+            return fig
+    else:
+        fig = run_solve(run_dir, client, mid, progress=progress, **kw)
     passes = [fig.iterations]
     r = Rounds(run_dir, settings, unit, occlusion)
     last = False
@@ -55,7 +67,8 @@ def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: b
                         **solve_kw)
         passes.append(fig.iterations)
         solves += 1
-    update_report(run_dir, "rounds", {"rounds": r.figures, "solves": solves, "passes": passes,
+    update_report(run_dir, "rounds", {"why": why or f"stated: {n} round(s)", "rounds": r.figures,
+                                      "solves": solves, "passes": passes,
                                       "time_s": round(time.perf_counter() - t0, 4),
                                       "epsilon_factor": r.factor, "change": r.change})
     return fig

@@ -37,20 +37,72 @@ from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.formfactors import _spread
 
 
+#: rounds_of's count for hierarchy.rounds auto (auto_rounds decides after the first solve)
+AUTO = -1
+
+
 def rounds_of(settings) -> tuple[int, float, float]:
-    """(rounds, epsilon factor, change) of hierarchy.rounds, rounds-epsilon, rounds-change,
-    checked."""
+    """(rounds, epsilon factor, change) of hierarchy.rounds (AUTO for auto), rounds-epsilon,
+    rounds-change, checked."""
     h = settings.hierarchy
+    if h.rounds == "auto":
+        f, c = float(h.rounds_epsilon), float(h.rounds_change)
+        if not f > 0 or not c >= 0 or not float(h.rounds_auto_ratio) > 0 \
+                or not 0 <= float(h.rounds_auto_share) <= 1:
+            raise RadiosityError(f"radiosity.hierarchy.rounds-epsilon must be > 0, rounds-change "
+                                 f">= 0, rounds-auto-ratio > 0 and rounds-auto-share in [0, 1], "
+                                 f"got {f}, {c}, {h.rounds_auto_ratio}, {h.rounds_auto_share}")
+        return AUTO, f, c
     try:
         n, f, c = int(h.rounds), float(h.rounds_epsilon), float(h.rounds_change)
     except (TypeError, ValueError):
-        raise RadiosityError(f"radiosity.hierarchy.rounds, rounds-epsilon and rounds-change must "
-                             f"be numbers, got {h.rounds!r}, {h.rounds_epsilon!r}, "
+        raise RadiosityError(f"radiosity.hierarchy.rounds (a number or auto), rounds-epsilon and "
+                             f"rounds-change must be numbers, got {h.rounds!r}, {h.rounds_epsilon!r}, "
                              f"{h.rounds_change!r}") from None
     if n < 0 or not f > 0 or not c >= 0:
         raise RadiosityError(f"radiosity.hierarchy.rounds must be >= 0, rounds-epsilon > 0 and "
                              f"rounds-change >= 0, got {n}, {f}, {c}")
     return n, f, c
+
+
+def hot_share(rs, weight: str, ratio: float) -> float:
+    """The share of the solved reflected power (sub-elements' area times the largest channel of
+    their reflected radiance, both sides) that leaves sub-elements whose reflected radiance is
+    more than `ratio` times the a-priori estimate the oracle weighed their links with (the
+    ambient term of links.oracle_weights; `weight` none: the oracle weighs no radiance, 0)."""
+    from radiosity.methods.hierarchical.links import oracle_weights
+
+    el = rs.load_elements()
+    if weight != "bf":
+        return 0.0
+    sol, part = rs.read_arrays("solution"), rs.read_arrays("partition")
+    o = np.asarray(part["orig"], np.int64)
+    _, lhat, _ = oracle_weights(el, weight)
+    em = np.asarray(el.emission, np.float64).max(axis=2)
+    refl = np.maximum(np.asarray(sol["radiance"]).max(axis=2) - em[o], 0.0)  # (m, 2)
+    power = np.asarray(part["area"], np.float64)[:, None] * refl
+    total = power.sum()
+    if not total > 0:
+        return 0.0
+    ambient = np.maximum(lhat - em, 0.0)[o]
+    return float(power[refl > ratio * ambient].sum() / total)
+
+
+def auto_rounds(rs, settings) -> tuple[int, str]:
+    """hierarchy.rounds auto after the first solve: (1, why) where more than rounds-auto-share of
+    the reflected light leaves sub-elements over rounds-auto-ratio times brighter than the
+    a-priori estimate (hot_share: the a-priori weights were wrong there, as in a room lit by
+    light bounced off its ceiling), else (0, why)."""
+    h = settings.hierarchy
+    ratio, share = float(h.rounds_auto_ratio), float(h.rounds_auto_share)
+    if "clusters" in rs.root:  # the links start at clusters, which rounds leave as they are
+        return 0, ("auto: none: the links start at clusters above the originals, which rounds "
+                   "do not refine")
+    got = hot_share(rs, h.weight, ratio)
+    on = got > share
+    return int(on), (f"auto: {'one round' if on else 'none'}: {got:.0%} of the reflected light "
+                     f"leaves surfaces over {ratio:g}x brighter than the a-priori estimate "
+                     f"({'above' if on else 'not above'} rounds-auto-share {share:g})")
 
 
 def node_radiance(tree, area: np.ndarray, radiance: np.ndarray) -> np.ndarray:

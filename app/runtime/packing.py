@@ -20,8 +20,8 @@ def choose_unit(unit: str, n_originals: int, threshold: int) -> str:
 def capped_starts(cost, cap):
     """The starts of consecutive runs of items (cost (n,) int64), each run closed before the item
     that would take its sum above `cap` (an item above the cap alone is a run): (k + 1,) int64,
-    run r holding items starts[r]:starts[r + 1]. A loop, but in numba: the 200 000-triangle
-    terrain hands its link stage 3.5 M pairs of originals (a Python loop: about a second)."""
+    run r holding items starts[r]:starts[r + 1]. In numba: the link stage's pairs of
+    originals run to millions on meshes of many triangles."""
     n = cost.shape[0]
     out = np.empty(n + 1, np.int64)
     out[0] = 0

@@ -186,13 +186,14 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
     """Form factors (len(links), 2) and visible fractions (len(links),) of cluster links, CHUNK
     links at a time (_weights). The visible fraction from k rays between points on the
     elements of k sample pairs (_visible), taken from the form factors' samples (every
-    samples/k-th: one per stratum of the k) where k divides `samples`. A link whose carried light in the oracle's weighting,
-    max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref, is at most `faint` gets one ray, one of
-    its k picked by a hash of the link (_one_of): wholly wrong, its visibility errs by no more
-    than the oracle lets a link err, and over many links the rays cover every stratum (one
-    fixed stratum put every ray's ends at the same place in each node, a bias: rows 0.3-0.6 %
-    short at 4 epsilon on the tessellated Cornell box). caster None or k = 0: every link fully
-    visible. Returns (F, v, rays: the number of rays the links took)."""
+    samples/k-th: one per stratum of the k) where k divides `samples`. A link whose carried
+    light in the oracle's weighting, max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref, is at
+    most `faint` gets one ray, one of its k picked by a hash of the link (_one_of): wholly
+    wrong, its visibility errs by no more than the oracle lets a link err, and over many links
+    the rays cover every stratum (one fixed stratum put every ray's ends at the same place in
+    each node, a bias: rows 0.3-0.6 % short at 4 epsilon on the tessellated Cornell box).
+    caster None or k = 0: every link fully visible. Returns (F, v, rays: the number of rays
+    the links took)."""
     F = np.zeros((len(links), 2))
     v = np.ones(len(links))
     rays = 0

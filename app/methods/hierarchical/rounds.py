@@ -57,8 +57,8 @@ def rounds_of(settings) -> tuple[int, float, float]:
         n, f, c = int(h.rounds), float(h.rounds_epsilon), float(h.rounds_change)
     except (TypeError, ValueError):
         raise RadiosityError(f"radiosity.hierarchy.rounds (a number or auto), rounds-epsilon and "
-                             f"rounds-change must be numbers, got {h.rounds!r}, {h.rounds_epsilon!r}, "
-                             f"{h.rounds_change!r}") from None
+                             f"rounds-change must be numbers, got {h.rounds!r}, "
+                             f"{h.rounds_epsilon!r}, {h.rounds_change!r}") from None
     if n < 0 or not f > 0 or not c >= 0:
         raise RadiosityError(f"radiosity.hierarchy.rounds must be >= 0, rounds-epsilon > 0 and "
                              f"rounds-change >= 0, got {n}, {f}, {c}")
@@ -72,9 +72,9 @@ def hot_share(rs, weight: str, ratio: float) -> float:
     ambient term of links.oracle_weights; `weight` none: the oracle weighs no radiance, 0)."""
     from radiosity.methods.hierarchical.links import oracle_weights
 
-    el = rs.load_elements()
     if weight != "bf":
         return 0.0
+    el = rs.load_elements()
     sol, part = rs.read_arrays("solution"), rs.read_arrays("partition")
     o = np.asarray(part["orig"], np.int64)
     _, lhat, _ = oracle_weights(el, weight)

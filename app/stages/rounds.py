@@ -34,7 +34,7 @@ def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: b
     if n == AUTO:
         fig = run_solve(run_dir, client, settings, progress=progress, **solve_kw)
         n, why = auto_rounds(RunStore(run_dir), settings)
-        if echo is not None:
+        if echo is not None and n > 0:  # (none: the summary's rounds line says so)
             echo(f"rounds: {why}")
         if n == 0:
             update_report(run_dir, "rounds", {"why": why, "rounds": [], "solves": 1,

@@ -224,7 +224,7 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
     counts[C_PAIRS] = len(pairs)
     pairs = np.ascontiguousarray(pairs, np.int64).reshape(-1, 2)
     # room for the roots (one node per original of the pairs) and as many again; refine grows
-    # the table when it fills (4 per pair zeroed about 1 GB in all for the tessellated box)
+    # the table when it fills (4 nodes a pair zeroed far more than a task of many pairs uses)
     tab = new_table(max(64, 2 * len(np.unique(pairs)) + 4))
     pmap = np.full(len(inp.t_orig), -1, np.int64)
     rays_only = inp.reach[pairs[:, 0]] * inp.reach[pairs[:, 1]] < SHAFT_MIN_LEAVES

@@ -178,12 +178,11 @@ def cluster_final_gather(Lroot, parent, leaf_orig, area, p, q, g, layout: FinalL
     S, _ = _pull_means(Lroot, parent, leaf_orig, area)
     cut = np.linspace(0, len(p), part[1] + 1).astype(np.int64)
     a, b = cut[part[0]], cut[part[0] + 1]
-    lay = layout
     nodes = np.zeros((len(parent), 4 * S.shape[1]))
-    _final_links(S, area, p[a:b], q[a:b], g[a:b], lay.cnt, lay.off, lay.cen, lay.nrm, lay.reach,
-                 lay.geo, lay.row_node, nodes, FLAT)
+    _final_links(S, area, p[a:b], q[a:b], g[a:b], layout.cnt, layout.off, layout.cen,
+                 layout.nrm, layout.reach, layout.geo, layout.row_node, nodes, FLAT)
     del S
-    _push_fields(nodes, parent, leaf_orig, lay.off, lay.cen, lay.geo)
+    _push_fields(nodes, parent, leaf_orig, layout.off, layout.cen, layout.geo)
     return nodes
 
 

@@ -95,7 +95,7 @@ def auto_rounds(rs, settings) -> tuple[int, str]:
     light bounced off its ceiling), else (0, why)."""
     h = settings.hierarchy
     ratio, share = float(h.rounds_auto_ratio), float(h.rounds_auto_share)
-    if "clusters" in rs.root:  # the links start at clusters, which rounds leave as they are
+    if rs.has("clusters"):  # the links start at clusters, which rounds leave as they are
         return 0, ("auto: none: the links start at clusters above the originals, which rounds "
                    "do not refine")
     got = hot_share(rs, h.weight, ratio)

@@ -87,6 +87,7 @@ class LinkSolveInputs:
         self.sided = np.zeros(len(self.leaf_node), np.bool_)
         self._ncap = None
         self.clusters = None  # clusters.ClusterLinks: the layer above the originals, or None
+        self._final_layout = None  # the cluster links' final gather layout (final_layout_of)
 
     def cap_args(self):
         """(mode, node caps (N,), leaf scaling d (M,) or empty) of the current cap."""
@@ -284,19 +285,17 @@ def cluster_final(inp: LinkSolveInputs, Lbar: np.ndarray, d: np.ndarray, y: np.n
 def final_layout_of(inp: LinkSolveInputs):
     """The cluster tree's clusterlinks.FinalLayout, built once per inputs (the final gather's
     parts share it)."""
-    lay = getattr(inp, "_final_layout", None)
-    if lay is None:
+    if inp._final_layout is None:
         from radiosity.methods.hierarchical.clusterlinks import final_layout
 
         cl = inp.clusters
         roots = inp.noff[:-1]
-        lay = final_layout(cl.parent, cl.leaf_orig, cl.area,
-                           np.ascontiguousarray(inp.node_center[roots]), inp.normal,
-                           np.ascontiguousarray(inp.node_area[roots]),
-                           np.ascontiguousarray(inp.verts[roots]),
-                           np.ascontiguousarray(inp.nverts[roots]))
-        inp._final_layout = lay
-    return lay
+        inp._final_layout = final_layout(cl.parent, cl.leaf_orig, cl.area,
+                                         np.ascontiguousarray(inp.node_center[roots]),
+                                         inp.normal, np.ascontiguousarray(inp.node_area[roots]),
+                                         np.ascontiguousarray(inp.verts[roots]),
+                                         np.ascontiguousarray(inp.nverts[roots]))
+    return inp._final_layout
 
 
 def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray,

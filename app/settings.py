@@ -159,6 +159,7 @@ class HierarchySettings(_Section):
     rounds_epsilon: float
     rounds_change: float
     rounds_rays: int
+    rounds_row_excess: float
     task_unit: str
     max_task_cost: int
     driver_solve_links: int

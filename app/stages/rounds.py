@@ -16,10 +16,10 @@ def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: b
                       progress: bool = True, echo=None, **solve_kw):
     """run_solve (stages/solve.py), then with hierarchy.rounds > 0 the rounds of refinement by
     the solved radiance (methods/hierarchical/rounds.py) on a hierarchical run; returns the last
-    solve's figures. hierarchy.rounds auto: the first solve is the plain one (final gather and
-    all), then auto_rounds decides from its answer; where it says none, that solve is the
-    answer (nothing else runs). solve_kw: run_solve's keywords (effects, preview, closure,
-    keep_unconverged, method)."""
+    solve's figures. hierarchy.rounds auto: the first solve is the plain one, and auto_rounds
+    decides from its answer before the final gather; where it says none, that solve goes on as
+    the answer (final gather and all: nothing else runs), else it skips the final gather.
+    solve_kw: run_solve's keywords (effects, preview, closure, keep_unconverged, method)."""
     from radiosity.runtime.store import RunStore, update_report
     from radiosity.settings import resolve
     from radiosity.stages.solve import run_solve
@@ -32,8 +32,15 @@ def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: b
     kw = {**solve_kw, "keep_unconverged": True}
     why = None
     if n == AUTO:
-        fig = run_solve(run_dir, client, settings, progress=progress, **solve_kw)
-        n, why = auto_rounds(RunStore(run_dir), settings)
+        chose = {}
+
+        def gather(opened, L):  # the final gather only where no round follows
+            chose["n"], chose["why"] = auto_rounds(RunStore(run_dir), settings, opened.to_sub(L))
+            return chose["n"] == 0
+
+        fig = run_solve(run_dir, client, settings, progress=progress, gather_if=gather,
+                        **solve_kw)
+        n, why = chose["n"], chose["why"]
         if echo is not None and n > 0:  # (none: the summary's rounds line says so)
             echo(f"rounds: {why}")
         if n == 0:

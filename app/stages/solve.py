@@ -187,7 +187,7 @@ def _balance(op, sums, target, balance, dead):
     return d, it + 1, float(err), int(stuck.sum())
 
 
-def normalise_rows(op, mode="cap", rows: RowTargets | None = None):
+def normalise_rows(op, mode="cap", rows: RowTargets | None = None, sums=None):
     """Detect rows of F that sum to more than 1 (the point kernel near large elements close
     together, where 1/r^2 blows up) and decide how to handle them. Returns (figures, scaling):
     what was found and done, and the operator inputs to configure ({} for none: cap (m,) and
@@ -203,12 +203,13 @@ def normalise_rows(op, mode="cap", rows: RowTargets | None = None):
         exact (a side that sees out) are capped in the same iteration instead.
     off (or False): only report.
     rows: the closure's RowTargets; with contact unknowns (rows.dead) every mode scales by
-    d_a d_b, d = 0 on them: they neither receive nor send.
+    d_a d_b, d = 0 on them: they neither receive nor send. sums: op.row_sums() when the caller
+    has them already.
     """
     mode = {True: "cap", False: "off", None: "cap", "auto": "cap"}.get(mode, mode)
     if mode not in ("cap", "closed", "off"):
         raise RadiosityError(f"radiosity.solve.normalise-rows must be cap, closed or off, got {mode!r}")
-    sums = op.row_sums()
+    sums = op.row_sums() if sums is None else sums
     rs = sums.max(axis=0)
     over = rs > 1.0 + 1e-12
     out = {"rows_over_1": int(over.sum()), "max_row_sum": float(rs.max(initial=0.0)),
@@ -262,7 +263,7 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
               kernel: str | None = None, tol: float | None = None, max_iter: int | None = None,
               progress: bool = True, callback=None, normalise=None, effects=None, preview=None,
               closure=None, keep_unconverged: bool = False, method: str | None = None,
-              where: str = "auto", x0=None) -> SolveFigures:
+              where: str = "auto", x0=None, gather_if=None) -> SolveFigures:
     """Solve the run's radiosity system with the method whose stage it holds (or `method`);
     write solution/ and the report's "solve" section.
 
@@ -276,7 +277,9 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     (2, C, m) radiance per sub-element -> (h, w, 3) uint8 image for the dashboard
     (image.previewer), or None. closure: a closure.Closure already decided (the plan's), else
     solve.closure. where: the hierarchical method's driver / cluster choice. x0: a warm start,
-    a function of the opened method (methods.base.Opened) -> (2, C, M) (hierarchical/rounds.py)."""
+    a function of the opened method (methods.base.Opened) -> (2, C, M) (hierarchical/rounds.py).
+    gather_if: a function (opened, solved L) -> False where the method's final gather is to be
+    skipped (stages/rounds.py: a round follows)."""
     from radiosity.methods.base import get_method, method_of_run
     from radiosity.settings import resolve
 
@@ -303,7 +306,9 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     targets = RowTargets.of(closure, opened.orig, sided)
     if targets is not None and (targets.sided != sided).any():
         op.configure(sided=targets.sided)  # contact backs: those elements solved one-sided
-    rows, changes = normalise_rows(op, row_mode(mode, closure), targets)
+    sums = op.row_sums()  # (2, M), before any scaling: the methods may keep them (rounds.py)
+    opened.state["row_sums"] = sums
+    rows, changes = normalise_rows(op, row_mode(mode, closure), targets, sums)
     channels = 3
     if effects is not None:
         changes["sided"] = effects.two_sided[opened.orig] & (
@@ -347,7 +352,9 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     # one true-residual pass, the same measure for every solver
     y = op.apply(res.radiance)
     final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
-    arrays, extra = impl.finish(opened, res.radiance, rows, s)
+    fin = s if gather_if is None or gather_if(opened, res.radiance) else \
+        resolve({"hierarchy.final-gather": "none"}, base=s)
+    arrays, extra = impl.finish(opened, res.radiance, rows, fin)
     need = op.inp.need
     fig = SolveFigures(**{
         "solver": solver, "kernel": op.kernel, "tol": tol, "iterations": res.iterations,

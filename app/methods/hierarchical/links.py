@@ -138,16 +138,18 @@ class LinkInputs:
         self.ray_offset = float(ray_offset)
         self.params = params
         self.n = n
-        # the solved radiance per partition node and side (k, 2) of refinement rounds
-        # (rounds.py); (0, 2): the a-priori lhat alone
+        # per partition node and side (k, 2), from refinement rounds (rounds.py; refine.Elements):
+        # the solved radiance, its spread over the node, the nodes forced to split; (0, 2): none
         self.nhat = np.zeros((0, 2))
+        self.nvar = np.zeros((0, 2))
+        self.force = np.zeros((0, 2), np.bool_)
 
     def kernel_arrays(self) -> tuple[Tree, Elements, Occluders]:
         """The arrays as the refinement kernels take them (refine.py's named tuples)."""
         return (Tree(self.t_verts, self.t_nverts, self.t_area, self.t_center, self.t_lo,
                      self.t_hi, self.t_child, self.t_orig, self.t_depth, self.t_path, self.ext),
                 Elements(self.normal, self.two_sided, self.wrho, self.lhat, self.lref,
-                         self.nhat),
+                         self.nhat, self.nvar, self.force),
                 Occluders(self.elo, self.ehi, self.verts, self.envert, self.enormal,
                           self.eoffset, self.pad, self.otree))
 

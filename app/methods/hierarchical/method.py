@@ -88,6 +88,8 @@ class HierarchicalMethod:
         F3 = np.broadcast_to(Lf, (2, 3, M)) if Lf.shape[1] == 1 else Lf
         arrays = {"radiance": opened.to_sub(F3),
                   "leaf_radiance": np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))}
+        if "row_sums" in opened.state:  # the rows of F v per leaf and side, unscaled (M, 2)
+            arrays["leaf_rows"] = np.ascontiguousarray(opened.state["row_sums"].T)
         figures = {"method": "hierarchical",
                    "hierarchy": {"leaves": M, "link_terms": int(op.terms),
                                  "passes_on": "driver" if isinstance(op, LocalLinkOperator)

@@ -21,15 +21,20 @@ from radiosity.tracing.shafts import _faces, _shaft_excludes, same_side_polys, t
 # may be split on demand below the camera's partition (links.LinkInputs).
 Tree = namedtuple("Tree", "verts nverts area center lo hi child orig depth path ext")
 # Per original (n): normal (n, 3), two_sided; the oracle's weights wrho, lhat (n, 2) and lref;
-# nhat (k, 2): a source's radiance per partition node (refinement by the solved radiance,
-# rounds.py), used instead of lhat for the nodes of the partition; (0, 2): none (lhat alone).
-Elements = namedtuple("Elements", "normal two_sided wrho lhat lref nhat")
+# Per partition node (k) and side, from the solved radiance of refinement rounds (rounds.py);
+# (0, 2) arrays: none (the a-priori lhat alone): nhat, a source's radiance, used instead of lhat
+# for the nodes of the partition; nvar, the spread of that radiance over the node (half the
+# difference of its children's); force, nodes whose leaves' rows of F summed past 1 (their
+# links' visibility was taken too coarsely): a link with candidate occluders in its shaft splits
+# a forced node, and the nodes split off below it, before any other test.
+Elements = namedtuple("Elements", "normal two_sided wrho lhat lref nhat nvar force")
 # Per original as an occluder (shafts.occluders): padded boxes lo / hi, polygons verts /
 # nverts, planes normal / offset, the plane tolerance pad, and the tree over them
 # (shafts.OccluderTree) that finds a shaft's candidates without visiting every occluder.
 Occluders = namedtuple("Occluders", "lo hi verts nverts normal offset pad tree")
 # A task's local node table (grown by refine): polygon, area, centroid, box, original, path and
-# depth (the node's name), children (-1: none yet), partition node (-1: split off), can split.
+# depth (the node's name), children (-1: none yet), partition node (split off below partition
+# node t: -2 - t; part_of), can split.
 NodeTable = namedtuple("NodeTable",
                        "verts nverts area center lo hi orig path depth child pnode can")
 # Links to refine: local nodes p, q, candidate occluders pool[c0:c1], visible fraction frac (-1:
@@ -141,6 +146,17 @@ def _plane_range(nx, ny, nz, d0, V, x, nv):
 
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def part_of(pnode):
+    """The partition node a local node is (pnode >= 0) or was split off below (pnode <= -2)."""
+    return pnode if pnode >= 0 else -2 - pnode
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _forced(force, pnode, side):
+    return force.shape[0] > 0 and force[part_of(pnode), side]
+
+
 @numba.njit(cache=True, nogil=True)
 def _new_node(x, verts, nv, orig, path, depth, pnode, can, tab, c):
     """Node x of the local table `tab`: polygon verts[:nv], its name (orig, path, depth), the
@@ -230,7 +246,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
     wp, wq, wc, wpool = waiting
     Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab
     t_child = tree.child
-    normal, two_sided, wrho, lhat, lref, nhat = elem
+    normal, two_sided, wrho, lhat, lref, nhat, nvar, force = elem
     by_node = nhat.shape[0] > 0
     elo, ehi, everts, envert, enormal, eoffset, pad = occ.lo, occ.hi, occ.verts, occ.nverts, \
         occ.normal, occ.offset, occ.pad
@@ -353,13 +369,30 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                         if Aq < Ap or not far_polygon:
                             eq += max(wpq, wqp) * curv
                     err = max(ep, eq)
-                if near or err > eps:
+                    if nvar.shape[0] > 0 and not (near or err > eps):
+                        # the source's own spread of solved radiance: rho_p F_pq dL_q
+                        vq = wrho[op, sp] * fpq * nvar[Lpn[q], sq] / lref \
+                            if can_q and Lpn[q] >= 0 else 0.0
+                        vp = wrho[oq, sq] * fqp * nvar[Lpn[p], sp] / lref \
+                            if can_p and Lpn[p] >= 0 else 0.0
+                        if max(vq, vp) > eps:
+                            split = 1 if vq >= vp else 0
+                if split >= 0:
+                    pass
+                elif near or err > eps:
                     # the smaller node only when the larger cannot split and its own error is
                     # above epsilon (splitting a node below the other's size dilutes the error
                     # per link: many small links each under epsilon, summing to a large one)
                     other = eps <= 0.0 or (oracle == 2 and (ep if prefer == 1 else eq) > eps) \
                         or oracle == 1 or (near and oracle == 0)
                     split = _pick(prefer, can_p, can_q, other)
+            if split < 0 and (l1 > l0 or l0 < 0):
+                # a link to keep with occluders in its shaft at a forced node: split that node,
+                # so that the link's visibility is sampled finer there
+                fp_ = can_p and _forced(force, Lpn[p], sp)
+                fq_ = can_q and _forced(force, Lpn[q], sq)
+                if fp_ or fq_:
+                    split = 0 if fp_ and (Ap >= Aq or not fq_) else 1
         elif 0.0 < frac < 1.0 and amount > shadow:
             split = _pick(prefer, can_p, can_q, oracle > 0 or eps <= 0.0)
             if split >= 0:
@@ -380,10 +413,11 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                 else:
                     split_one(Lv[x], Ln[x], c0, c1)
                     d1 = Ld[x] + 1
+                    below = -2 - part_of(Lpn[x])
                     for h in range(2):
                         path = Lp[x] | _bit(Ld[x]) if h == 1 else Lp[x]
                         cv = c1 if h == 1 else c0
-                        _new_node(cnt, cv, Ln[x], Lo[x], path, d1, -1, False, tab, cc)
+                        _new_node(cnt, cv, Ln[x], Lo[x], path, d1, below, False, tab, cc)
                         Lcan[cnt] = np.sqrt(La[cnt]) > min_size and d1 < MAX_DEPTH
                         Lch[x, h] = cnt
                         cnt += 1

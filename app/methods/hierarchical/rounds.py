@@ -65,21 +65,24 @@ def rounds_of(settings) -> tuple[int, float, float]:
     return n, f, c
 
 
-def hot_share(rs, weight: str, ratio: float) -> float:
+def hot_share(rs, weight: str, ratio: float, radiance: np.ndarray | None = None) -> float:
     """The share of the solved reflected power (sub-elements' area times the largest channel of
     their reflected radiance, both sides) that leaves sub-elements whose reflected radiance is
     more than `ratio` times the a-priori estimate the oracle weighed their links with (the
-    ambient term of links.oracle_weights; `weight` none: the oracle weighs no radiance, 0)."""
+    ambient term of links.oracle_weights; `weight` none: the oracle weighs no radiance, 0).
+    radiance (m, 2, C) per sub-element; None: the run's solution/radiance."""
     from radiosity.methods.hierarchical.links import oracle_weights
 
     if weight != "bf":
         return 0.0
     el = rs.load_elements()
-    sol, part = rs.read_arrays("solution"), rs.read_arrays("partition")
+    part = rs.read_arrays("partition")
+    if radiance is None:
+        radiance = rs.read_arrays("solution")["radiance"]
     o = np.asarray(part["orig"], np.int64)
     _, lhat, _ = oracle_weights(el, weight)
     em = np.asarray(el.emission, np.float64).max(axis=2)
-    refl = np.maximum(np.asarray(sol["radiance"]).max(axis=2) - em[o], 0.0)  # (m, 2)
+    refl = np.maximum(np.asarray(radiance).max(axis=2) - em[o], 0.0)  # (m, 2)
     power = np.asarray(part["area"], np.float64)[:, None] * refl
     total = power.sum()
     if not total > 0:
@@ -88,17 +91,17 @@ def hot_share(rs, weight: str, ratio: float) -> float:
     return float(power[refl > ratio * ambient].sum() / total)
 
 
-def auto_rounds(rs, settings) -> tuple[int, str]:
+def auto_rounds(rs, settings, radiance: np.ndarray | None = None) -> tuple[int, str]:
     """hierarchy.rounds auto after the first solve: (1, why) where more than rounds-auto-share of
     the reflected light leaves sub-elements over rounds-auto-ratio times brighter than the
     a-priori estimate (hot_share: the a-priori weights were wrong there, as in a room lit by
-    light bounced off its ceiling), else (0, why)."""
+    light bounced off its ceiling), else (0, why). radiance: as hot_share takes it."""
     h = settings.hierarchy
     ratio, share = float(h.rounds_auto_ratio), float(h.rounds_auto_share)
     if rs.has("clusters"):  # the links start at clusters, which rounds leave as they are
         return 0, ("auto: none: the links start at clusters above the originals, which rounds "
                    "do not refine")
-    got = hot_share(rs, h.weight, ratio)
+    got = hot_share(rs, h.weight, ratio, radiance)
     on = got > share
     return int(on), (f"auto: {'one round' if on else 'none'}: {got:.0%} of the reflected light "
                      f"leaves surfaces over {ratio:g}x brighter than the a-priori estimate "
@@ -148,10 +151,11 @@ def warm_start(prev: dict):
 
 
 @numba.njit(cache=True, nogil=True)
-def _weighted(a, b, sa, sb, V, NV, A, C, orig, normal, wrho, wnode, can, lref, oracle,
+def _weighted(a, b, sa, sb, V, NV, A, C, orig, normal, wrho, wnode, vnode, can, lref, oracle,
               far_polygon):
     """(transfer, error estimate) of link a <- b (sides sa, sb) under the node weights wnode
-    (N, 2): refine._refine_loop's, from the node table's polygons."""
+    and radiance spreads vnode (N, 2): refine._refine_loop's, from the node table's
+    polygons."""
     op, oq = orig[a], orig[b]
     gp = 1.0 if sa == 0 else -1.0
     gq = 1.0 if sb == 0 else -1.0
@@ -184,24 +188,27 @@ def _weighted(a, b, sa, sb, V, NV, A, C, orig, normal, wrho, wnode, can, lref, o
         eq = wqp * big
         if Aq < Ap or not far_polygon:
             eq += max(wpq, wqp) * curv
-    return amount, max(ep, eq)
+    # the source's spread of solved radiance (refine: rho_p F_pq dL_q)
+    vq = wrho[op, sa] * fpq * vnode[b, sb] / lref if can[b] else 0.0
+    vp = wrho[oq, sb] * fqp * vnode[a, sa] / lref if can[a] else 0.0
+    return amount, max(ep, eq, vq, vp)
 
 
 @numba.njit(cache=True, nogil=True)
-def links_to_refine(p, q, sp, sq, v, V, NV, A, C, orig, normal, wrho, old, new, can, lref,
-                    eps, shadow, change, oracle, far_polygon):
+def links_to_refine(p, q, sp, sq, v, V, NV, A, C, orig, normal, wrho, old, new, vold, vnew,
+                    can, lref, eps, shadow, change, oracle, far_polygon):
     """(k,) bool: the stored links p <- q (node table indices, sides, visible fractions) that
-    the oracle would split under the new node weights (k nodes, 2) and whose estimate grew by
-    more than `change` times its target since the old weights: error above epsilon, or partly
-    visible with a transfer above `shadow`, and a node that can split."""
+    the oracle would split under the new node weights and spreads (k nodes, 2) and whose
+    estimate grew by more than `change` times its target since the old ones: error above
+    epsilon, or partly visible with a transfer above `shadow`, and a node that can split."""
     out = np.zeros(p.shape[0], np.bool_)
     for k in range(p.shape[0]):
         a, b = p[k], q[k]
         if not (can[a] or can[b]):
             continue
-        am1, e1 = _weighted(a, b, sp[k], sq[k], V, NV, A, C, orig, normal, wrho, new, can,
+        am1, e1 = _weighted(a, b, sp[k], sq[k], V, NV, A, C, orig, normal, wrho, new, vnew, can,
                             lref, oracle, far_polygon)
-        am0, e0 = _weighted(a, b, sp[k], sq[k], V, NV, A, C, orig, normal, wrho, old, can,
+        am0, e0 = _weighted(a, b, sp[k], sq[k], V, NV, A, C, orig, normal, wrho, old, vold, can,
                             lref, oracle, far_polygon)
         if 0.0 < v[k] < 1.0:
             out[k] = am1 > shadow and am1 - am0 > change * shadow
@@ -247,18 +254,62 @@ class Rounds:
                               settings.rays.epsilon, self.lp.hit)
         self.apriori = self.inp.lhat[np.asarray(self.tree.orig, np.int64)]  # (k, 2)
         self.used = self.apriori.copy()
+        self.used_var = np.zeros_like(self.used)
+        self.force = np.zeros(self.used.shape, np.bool_)
+        self.excess = float(settings.hierarchy.rounds_row_excess)
+        if not self.excess >= 0:
+            raise RadiosityError(f"radiosity.hierarchy.rounds-row-excess must be >= 0, got "
+                                 f"{settings.hierarchy.rounds_row_excess!r}")
         self.figures: list[dict] = []
 
-    def weights(self, radiance: np.ndarray) -> np.ndarray:
-        """The new weights (k, 2) from the solved radiance per sub-element (m, 2, C): the
-        solved node radiance / rounds-epsilon, never below the weights used so far."""
+    def weights(self, radiance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The new weights and spreads (k, 2) from the solved radiance per sub-element (m, 2,
+        C): the solved node radiance / rounds-epsilon, and half the difference of its two
+        children's (0 at the partition's leaves), each never below what was used so far."""
         solved = node_radiance(self.tree, self.part.area, radiance) / self.factor
-        return np.maximum(self.used, solved)
+        ch = np.asarray(self.tree.child, np.int64)
+        inner = ch[:, 0] >= 0
+        var = np.zeros_like(solved)
+        var[inner] = 0.5 * np.abs(solved[ch[inner, 0]] - solved[ch[inner, 1]])
+        return np.maximum(self.used, solved), np.maximum(self.used_var, var)
 
-    def tasks(self, new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def row_flags(self, rs) -> np.ndarray:
+        """(k, 2) bool: the partition nodes (and sides) above a leaf whose row of F v summed
+        past 1 + rounds-row-excess in the last solve (solution/leaf_rows, before the rows were
+        capped): a row past 1 proves that some of its links' visibility or form factors were
+        taken too large, as where a coarse node's rays pass an occluder's edge that hides part of
+        it (a lamp just under a ceiling). Split-off leaves count for the partition node they
+        were split off below. Only where the solve capped its rows (an open scene): a closed
+        one's are balanced to their targets, which loses nothing."""
+        out = np.zeros(self.used.shape, np.bool_)
+        mode = (rs.group_attrs("solution").get("row_sums") or {}).get("mode")
+        sol = rs.read_arrays("solution")
+        if mode != "cap" or "leaf_rows" not in sol:
+            return out
+        rows = np.asarray(sol["leaf_rows"])
+        t = rs.read_arrays("hierarchy")
+        leaf, side = np.nonzero(rows > 1.0 + self.excess)
+        node = np.asarray(t["leaf_node"])[leaf]
+        tpar, pnode = np.asarray(t["parent"]), np.asarray(t["pnode"])
+        while np.any(pnode[node] < 0):  # up to the partition
+            up = pnode[node] < 0
+            node[up] = tpar[node[up]]
+        k = pnode[node]
+        par = np.asarray(self.tree.parent, np.int64)
+        while len(k):  # and every partition node above
+            out[k, side] = True
+            keep = par[k] >= 0
+            k, side = par[k[keep]], side[keep]
+            new = ~out[k, side]
+            k, side = k[new], side[new]
+        return out
+
+    def tasks(self, new: np.ndarray, var: np.ndarray,
+              force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(the link tasks to refine again, the originals whose links they hold): those with a
-        stored link that the oracle would split under the new weights and whose error estimate
-        grew by more than rounds-change times the target (links_to_refine)."""
+        stored link that the oracle would split under the new weights and spreads and whose
+        error estimate grew by more than rounds-change times the target (links_to_refine), and
+        those holding a pair of an original with nodes newly forced to split."""
         from radiosity.core.geometry import polygon_properties
         from radiosity.methods.hierarchical.store import LinkStore, read_links
         from radiosity.runtime.store import RunStore
@@ -284,21 +335,29 @@ class Rounds:
         per_orig = inp.lhat[orig]
         old = np.where((pnode >= 0)[:, None], self.used[pn], per_orig)
         nw = np.where((pnode >= 0)[:, None], new[pn], per_orig)
-        todo, touched = [], np.zeros(len(self.el), bool)
+        vold = np.where((pnode >= 0)[:, None], self.used_var[pn], 0.0)
+        vnew = np.where((pnode >= 0)[:, None], var[pn], 0.0)
+        touched = np.zeros(len(self.el), bool)
+        forced = np.unique(np.asarray(self.tree.orig)[(force & ~self.force).any(axis=1)])
+        hold = np.isin(self.pairs[:, 0], forced) | np.isin(self.pairs[:, 1], forced)
+        todo = set((np.searchsorted(self.first, np.nonzero(hold)[0], side="right") - 1).tolist())
         for task in sorted(done):
+            if task in todo:
+                continue
             links, _ = read_links(rs.path, task, done[task])
             p = find_codes(orig, path, depth, noff, links["po"].astype(np.int64), links["pc"])
             q = find_codes(orig, path, depth, noff, links["qo"].astype(np.int64), links["qc"])
             hit = links_to_refine(p, q, links["sp"].astype(np.int64),
                                   links["sq"].astype(np.int64), links["v"].astype(np.float64),
-                                  V, NV, A, C, orig, inp.normal, inp.wrho, old, nw,
+                                  V, NV, A, C, orig, inp.normal, inp.wrho, old, nw, vold, vnew,
                                   can.astype(np.bool_), float(inp.lref), prm.epsilon, prm.shadow,
                                   self.change, prm.oracle, prm.far_polygon)
             if hit.any():
-                todo.append(task)
-                touched[links["po"][hit]] = True
-                touched[links["qo"][hit]] = True
-        return np.array(todo, np.int64), touched
+                todo.add(task)
+        todo = np.array(sorted(todo), np.int64)
+        for t in todo:  # the originals whose links are made again
+            touched[self.pairs[self.first[t]:self.first[t + 1]].ravel()] = True
+        return todo, touched
 
     def refine(self, client, radiance: np.ndarray, progress: bool = False) -> dict:
         """One round: new weights from the solved radiance, the raised originals' link tasks
@@ -314,11 +373,13 @@ class Rounds:
         from radiosity.runtime.store import RunStore, update_report
 
         t0 = time.perf_counter()
-        new = self.weights(radiance)
-        todo, raised = self.tasks(new)
+        new, var = self.weights(radiance)
+        force = self.force | self.row_flags(RunStore(self.run_dir))
+        todo, raised = self.tasks(new, var, force)
         fig = {"round": len(self.figures) + 1, "originals": int(raised.sum()),
-               "tasks": int(len(todo))}
-        self.used = new  # what the links not made again were checked against, too
+               "tasks": int(len(todo)), "forced_nodes": int(force.sum())}
+        # what the links not made again were checked against, too
+        self.used, self.used_var, self.force = new, var, force
         if not len(todo):
             fig["time_s"] = round(time.perf_counter() - t0, 4)
             self.figures.append(fig)
@@ -335,6 +396,8 @@ class Rounds:
             rs.root["clusters"].update_attributes({"token": token})
         ls.rewrite_manifest(token, keep)
         self.inp.nhat = np.ascontiguousarray(new)
+        self.inp.nvar = np.ascontiguousarray(var)
+        self.inp.force = np.ascontiguousarray(force)
         shared = Scattered(client, self.inp)
         s, lp = self.s, self.lp
         cpu = [0.0, 0.0, 0.0]

@@ -56,7 +56,8 @@ class HierarchicalMethod:
         """With hierarchy.final-gather, one final gather that re-evaluates every link into a
         node above the leaves at each of its leaves (the uniform push leaves a saw-tooth over
         coarse receivers): solution/radiance per sub-element comes from it, and
-        solution/leaf_radiance (M, 2, 3) keeps the solver's fixed point L = Le + rho K L."""
+        solution/leaf_radiance (M, 2, 3) keeps the solver's fixed point L = Le + rho K L;
+        solution/leaf_rows (M, 2) the leaves' rows of F v before any scaling (rounds.py)."""
         import time
 
         from radiosity.methods.hierarchical.transport import LocalLinkOperator

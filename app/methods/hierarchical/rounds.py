@@ -7,12 +7,16 @@ where indirect light goes. After a first solve, rounds weigh the links by the so
    mean of its sub-elements, largest channel) divided by hierarchy.rounds-epsilon (the solved
    test's target as a multiple of epsilon), and never below the a-priori weight nor below the
    weight already used: the oracle's weights only rise, so the refinement of a pair only
-   deepens (refine._refine_loop takes them as nhat);
+   deepens (refine._refine_loop takes them as nhat); with them the spread of that radiance
+   over each node (nvar: a source splits while rho F dL exceeds epsilon) and the nodes above
+   leaves whose rows of F v summed past 1 + hierarchy.rounds-row-excess (force: their
+   visibility was taken too coarsely, and the solve's cap of those rows loses light);
 2. every stored link gets the oracle's error estimate again under the old and the new weights
-   (links_to_refine, from the node table's polygons); a link task is made again, with the new
-   weights, when one of its links would now be split (estimate above epsilon, or partly
-   visible above the shadow threshold, with a node that can split) and its estimate rose by
-   more than hierarchy.rounds-change times the target. The other tasks keep their links (the
+   and spreads (links_to_refine, from the node table's polygons); a link task is made again,
+   with the new weights, when one of its links would now be split (estimate above epsilon, or
+   partly visible above the shadow threshold, with a node that can split) and its estimate
+   rose by more than hierarchy.rounds-change times the target, or when it holds a pair of an
+   original with newly forced nodes. The other tasks keep their links (the
    stage's resume: only the tasks taken out of the manifest run). A task holds whole pairs of
    originals and starts again from their root links (the oracle is deterministic: what met
    the target under the new weights comes out as before);

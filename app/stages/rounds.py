@@ -59,7 +59,8 @@ def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: b
         got = r.refine(client, prev["radiance"], progress=progress)
         if echo is not None:
             echo(f"round {k}: {got['tasks']} link tasks (over {got['originals']} originals) "
-                 f"with links above epsilon at the solved radiance"
+                 f"with links above epsilon at the solved radiance or rows of F past 1 "
+                 f"({got['forced_nodes']} nodes forced to split)"
                  + (f", {got['links']} links" if got["tasks"] else ""))
         if not got["tasks"]:
             break

@@ -25,8 +25,8 @@ Tree = namedtuple("Tree", "verts nverts area center lo hi child orig depth path 
 # (0, 2) arrays: none (the a-priori lhat alone): nhat, a source's radiance, used instead of lhat
 # for the nodes of the partition; nvar, the spread of that radiance over the node (half the
 # difference of its children's); force, nodes whose leaves' rows of F summed past 1 (their
-# links' visibility was taken too coarsely): a link with candidate occluders in its shaft splits
-# a forced node, and the nodes split off below it, before any other test.
+# links' visibility was taken too coarsely): a link that the oracle would keep, with candidate
+# occluders left in its shaft, splits a forced node (or a node split off below one) instead.
 Elements = namedtuple("Elements", "normal two_sided wrho lhat lref nhat nvar force")
 # Per original as an occluder (shafts.occluders): padded boxes lo / hi, polygons verts /
 # nverts, planes normal / offset, the plane tolerance pad, and the tree over them

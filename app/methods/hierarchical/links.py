@@ -19,9 +19,10 @@ import numpy as np
 from radiosity.core.arrays import unique
 from radiosity.core.geometry import COS_TOL
 from radiosity.errors import RadiosityError
+from radiosity.methods.hierarchical.localnodes import new_table
 from radiosity.methods.hierarchical.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
-                                                   RefineParams, Tree, new_table, refine, roots)
+                                                   RefineParams, Tree, refine, roots)
 from radiosity.methods.hierarchical.clustertasks import plan_clusters
 from radiosity.methods.hierarchical.sampling import link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable

@@ -2,7 +2,7 @@
 first until each is kept, dropped or waits for rays (_refine_loop says how a link is judged;
 links.refine_pairs casts the rays between rounds). The arrays travel in named tuples grouped by
 meaning: the partition's split trees (Tree), the originals (Elements, Occluders), the task's
-local node table (NodeTable, grown here), the stack (Stack, Entries), the kept and waiting links
+local node table (localnodes.NodeTable, grown here), the stack (Stack, Entries), the kept and waiting links
 (Kept, Waiting) and the scalar settings (RefineParams)."""
 
 from __future__ import annotations
@@ -13,7 +13,9 @@ import numba
 import numpy as np
 
 from radiosity.methods.hierarchical.formfactors import _spread, centroid_to_polygon, near_ff
-from radiosity.scene.splittrees import MAX_DEPTH, _bit, polygon_area_center, split_one
+from radiosity.methods.hierarchical.localnodes import (NodeTable, _copy_tree_node, _forced, _grow,
+                                                       _grown, _new_node, part_of)
+from radiosity.scene.splittrees import MAX_DEPTH, _bit, split_one
 from radiosity.tracing.shafts import _faces, _shaft_excludes, same_side_polys, tree_candidates
 
 # The partition's node table (splittrees.TreeNodes, k nodes): verts (k, 4, 3), nverts, area,
@@ -32,11 +34,6 @@ Elements = namedtuple("Elements", "normal two_sided wrho lhat lref nhat nvar for
 # nverts, planes normal / offset, the plane tolerance pad, and the tree over them
 # (shafts.OccluderTree) that finds a shaft's candidates without visiting every occluder.
 Occluders = namedtuple("Occluders", "lo hi verts nverts normal offset pad tree")
-# A task's local node table (grown by refine): polygon, area, centroid, box, original, path and
-# depth (the node's name), children (-1: none yet), partition node (split off below partition
-# node t: -2 - t; part_of), can split.
-NodeTable = namedtuple("NodeTable",
-                       "verts nverts area center lo hi orig path depth child pnode can")
 # Links to refine: local nodes p, q, candidate occluders pool[c0:c1], visible fraction frac (-1:
 # not measured yet); the depth-first stack adds its candidate lists to pool above base_end.
 Entries = namedtuple("Entries", "p q c0 c1 frac")
@@ -62,29 +59,6 @@ COUNTERS = ("pairs", "links", "evaluated", "refined", "dropped_orientation", "sh
             "split_off_nodes", "rounds")
 C_PAIRS, C_LINKS, C_EVAL, C_REFINED, C_ORIENT, C_SVIS, C_SBLOCK, C_RAYLINKS, C_RAYS, C_RBLOCK, \
     C_PARTIAL, C_EXACT, C_SPLITOFF, C_ROUNDS = range(len(COUNTERS))
-
-def new_table(cap: int) -> NodeTable:
-    """An empty local node table for `cap` nodes."""
-    return NodeTable(np.zeros((cap, 4, 3)), np.zeros(cap, np.int64), np.zeros(cap),
-                     np.zeros((cap, 3)), np.zeros((cap, 3)), np.zeros((cap, 3)),
-                     np.zeros(cap, np.int64), np.zeros(cap, np.uint64), np.zeros(cap, np.int64),
-                     np.full((cap, 2), -1, np.int64), np.full(cap, -1, np.int64),
-                     np.zeros(cap, np.bool_))
-
-
-@numba.njit(cache=True, nogil=True)
-def _grow(a, n):
-    out = np.zeros((n,) + a.shape[1:], a.dtype)
-    out[:a.shape[0]] = a
-    return out
-
-
-def _grown(a: np.ndarray, n: int) -> np.ndarray:
-    """_grow outside the kernels: a copy of `a` with n rows, the new ones zero."""
-    out = np.zeros((n,) + a.shape[1:], a.dtype)
-    out[:a.shape[0]] = a
-    return out
-
 
 @numba.njit(cache=True, nogil=True)
 def _blocks(o, V, p, nP, q, nQ, everts, envert, enormal, eoffset, pad, sp, sq):
@@ -144,69 +118,6 @@ def _plane_range(nx, ny, nz, d0, V, x, nv):
         hi = max(hi, s)
     return lo, hi
 
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def part_of(pnode):
-    """The partition node a local node is (pnode >= 0) or was split off below (pnode <= -2)."""
-    return pnode if pnode >= 0 else -2 - pnode
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _forced(force, pnode, side):
-    return force.shape[0] > 0 and force[part_of(pnode), side]
-
-
-@numba.njit(cache=True, nogil=True)
-def _new_node(x, verts, nv, orig, path, depth, pnode, can, tab, c):
-    """Node x of the local table `tab`: polygon verts[:nv], its name (orig, path, depth), the
-    partition node pnode, whether it can split; c (3,): scratch."""
-    Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab
-    for i in range(4):
-        for k in range(3):
-            Lv[x, i, k] = verts[i, k]
-    Ln[x] = nv
-    La[x] = polygon_area_center(verts, c)
-    for k in range(3):
-        Lc[x, k] = c[k]
-    for k in range(3):
-        lo, hi = np.inf, -np.inf
-        for i in range(nv):
-            lo = min(lo, verts[i, k])
-            hi = max(hi, verts[i, k])
-        Llo[x, k] = lo
-        Lhi[x, k] = hi
-    Lo[x] = orig
-    Lp[x] = path
-    Ld[x] = depth
-    Lch[x, 0] = -1
-    Lch[x, 1] = -1
-    Lpn[x] = pnode
-    Lcan[x] = can
-
-
-@numba.njit(cache=True, nogil=True)
-def _copy_tree_node(x, t, tree, min_size, tab):
-    """Node x of the local table `tab`: partition node t of `tree`."""
-    t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig, t_depth, t_path, ext = tree
-    Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab
-    for i in range(4):
-        for k in range(3):
-            Lv[x, i, k] = t_verts[t, i, k]
-    Ln[x] = t_nverts[t]
-    La[x] = t_area[t]
-    for k in range(3):
-        Lc[x, k] = t_center[t, k]
-        Llo[x, k] = t_lo[t, k]
-        Lhi[x, k] = t_hi[t, k]
-    Lo[x] = t_orig[t]
-    Lp[x] = t_path[t]
-    Ld[x] = t_depth[t]
-    Lch[x, 0] = -1
-    Lch[x, 1] = -1
-    Lpn[x] = t
-    Lcan[x] = t_child[t, 0] >= 0 or (ext[t] and np.sqrt(t_area[t]) > min_size
-                                     and t_depth[t] < MAX_DEPTH)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -54,7 +54,7 @@ LABELS = {0: "floor", 1: "ceiling above the lamp", 2: "ceiling in front", 3: "ce
 GROUPS = {"ceiling": (1, 2, 3, 4, 5), "red wall": (8, 9)}
 
 
-def render(out: str, env: dict, args: list, extra: list, then: str | None = None) -> float:
+def render(out: str, env: dict, args: list, then: str | None = None) -> float:
     cmd = ["radiosity"]
     if then is not None:  # another checkout's package, as `python -m radiosity.cli`
         pkg = os.path.join(os.path.dirname(out), "then-pkg")
@@ -64,7 +64,7 @@ def render(out: str, env: dict, args: list, extra: list, then: str | None = None
         env = {**env, "PYTHONPATH": pkg, "NUMBA_CACHE_DIR": os.path.join(pkg, "numba")}
         cmd = [sys.executable, "-m", "radiosity.cli"]
     t = time.perf_counter()
-    res = subprocess.run([*cmd, "render", SCENE, "-o", out, *args, *extra],
+    res = subprocess.run([*cmd, "render", SCENE, "-o", out, *args],
                          env={**os.environ, **env}, capture_output=True, text=True,
                          cwd=then or None)
     if res.returncode != 0:
@@ -117,14 +117,14 @@ def main() -> None:
     times = {v: [] for v in variants}
     links = {}
     with tempfile.TemporaryDirectory() as tmp:
-        render(os.path.join(tmp, "warm"), env, [], [])
+        render(os.path.join(tmp, "warm"), env, [])
         if a.then:
-            render(os.path.join(tmp, "warm-then"), {}, [], [], a.then)
+            render(os.path.join(tmp, "warm-then"), {}, [], a.then)
         for k in range(a.runs):
             for v in variants:
                 venv, vargs = VARIANTS.get(v, ({}, []))
                 times[v].append(render(os.path.join(tmp, f"{v}-{k}"),
-                                       {} if v == "then" else {**env, **venv}, vargs, [],
+                                       {} if v == "then" else {**env, **venv}, vargs,
                                        a.then if v == "then" else None))
         per = {}
         for v in variants:

@@ -56,7 +56,7 @@ def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: b
     solves = 1
     for k in range(1, n + 1):
         prev = previous_solution(RunStore(run_dir))
-        got = r.refine(client, prev["radiance"], progress=progress)
+        got = r.refine(client, prev, progress=progress)
         if echo is not None:
             echo(f"round {k}: {got['tasks']} link tasks (over {got['originals']} originals) "
                  f"with links above epsilon at the solved radiance or rows of F past 1 "

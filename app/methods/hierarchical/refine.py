@@ -288,9 +288,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                             if can_p and Lpn[p] >= 0 else 0.0
                         if max(vq, vp) > eps:
                             split = 1 if vq >= vp else 0
-                if split >= 0:
-                    pass
-                elif near or err > eps:
+                if split < 0 and (near or err > eps):
                     # the smaller node only when the larger cannot split and its own error is
                     # above epsilon (splitting a node below the other's size dilutes the error
                     # per link: many small links each under epsilon, summing to a large one)

@@ -126,13 +126,17 @@ def node_radiance(tree, area: np.ndarray, radiance: np.ndarray) -> np.ndarray:
 
 
 def previous_solution(rs) -> dict:
-    """What a warm start needs from the run's solution and node table: radiance per
-    sub-element (m, 2, C), per leaf (M, 2, C), and the leaves' names (original, node code)."""
+    """The run's solution and node table, read once for a round and the warm start after it:
+    radiance per sub-element (m, 2, C), per leaf (M, 2, C), the leaves' names (original, node
+    code), their rows of F v before scaling (M, 2; None where the solve kept none) and the
+    solve's row mode, and the node table ("table": the hierarchy group's arrays)."""
     sol = rs.read_arrays("solution")
     t = rs.read_arrays("hierarchy")
     leaf = t["leaf_node"]
     return {"radiance": sol["radiance"], "leaf_radiance": sol["leaf_radiance"],
-            "orig": t["orig"][leaf], "code": t["code"][leaf]}
+            "orig": t["orig"][leaf], "code": t["code"][leaf], "leaf_rows": sol.get("leaf_rows"),
+            "row_mode": (rs.group_attrs("solution").get("row_sums") or {}).get("mode"),
+            "table": t}
 
 
 def warm_start(prev: dict):
@@ -277,21 +281,18 @@ class Rounds:
         var[inner] = 0.5 * np.abs(solved[ch[inner, 0]] - solved[ch[inner, 1]])
         return np.maximum(self.used, solved), np.maximum(self.used_var, var)
 
-    def row_flags(self, rs) -> np.ndarray:
+    def row_flags(self, prev: dict) -> np.ndarray:
         """(k, 2) bool: the partition nodes (and sides) above a leaf whose row of F v summed
-        past 1 + rounds-row-excess in the last solve (solution/leaf_rows, before the rows were
-        capped): a row past 1 proves that some of its links' visibility or form factors were
+        past 1 + rounds-row-excess in the last solve (previous_solution's leaf_rows, before the
+        rows were capped): a row past 1 proves that some of its links' visibility or form factors were
         taken too large, as where a coarse node's rays pass an occluder's edge that hides part of
         it (a lamp just under a ceiling). Split-off leaves count for the partition node they
         were split off below. Only where the solve capped its rows (an open scene): a closed
         one's are balanced to their targets, which loses nothing."""
         out = np.zeros(self.used.shape, np.bool_)
-        mode = (rs.group_attrs("solution").get("row_sums") or {}).get("mode")
-        sol = rs.read_arrays("solution")
-        if mode != "cap" or "leaf_rows" not in sol:
+        if prev["row_mode"] != "cap" or prev["leaf_rows"] is None:
             return out
-        rows = np.asarray(sol["leaf_rows"])
-        t = rs.read_arrays("hierarchy")
+        rows, t = np.asarray(prev["leaf_rows"]), prev["table"]
         leaf, side = np.nonzero(rows > 1.0 + self.excess)
         node = np.asarray(t["leaf_node"])[leaf]
         tpar, pnode = np.asarray(t["parent"]), np.asarray(t["pnode"])
@@ -308,12 +309,13 @@ class Rounds:
             k, side = k[new], side[new]
         return out
 
-    def tasks(self, new: np.ndarray, var: np.ndarray,
-              force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def tasks(self, new: np.ndarray, var: np.ndarray, force: np.ndarray,
+              t: dict) -> tuple[np.ndarray, np.ndarray]:
         """(the link tasks to refine again, the originals whose links they hold): those with a
         stored link that the oracle would split under the new weights and spreads and whose
         error estimate grew by more than rounds-change times the target (links_to_refine), and
-        those holding a pair of an original with nodes newly forced to split."""
+        those holding a pair of an original with nodes newly forced to split. t: the run's node
+        table (previous_solution's)."""
         from radiosity.core.geometry import polygon_properties
         from radiosity.methods.hierarchical.store import LinkStore, read_links
         from radiosity.runtime.store import RunStore
@@ -322,7 +324,6 @@ class Rounds:
         rs = RunStore(self.run_dir)
         ls = LinkStore(rs)
         done = ls.finished(ls.token())
-        t = ls.read_nodes()
         orig, path = t["orig"].astype(np.int64), t["path"]
         depth, noff, pnode = t["depth"].astype(np.int64), t["noff"].astype(np.int64), t["pnode"]
         V, NV = t["verts"], t["nverts"].astype(np.int64)
@@ -363,10 +364,11 @@ class Rounds:
             touched[self.pairs[self.first[t]:self.first[t + 1]].ravel()] = True
         return todo, touched
 
-    def refine(self, client, radiance: np.ndarray, progress: bool = False) -> dict:
-        """One round: new weights from the solved radiance, the raised originals' link tasks
-        refined again, the node table rebuilt. Returns the round's figures ({"tasks": 0}: nothing
-        to refine)."""
+    def refine(self, client, prev: dict, progress: bool = False) -> dict:
+        """One round from the last solve (previous_solution's `prev`): new weights and spreads
+        from the solved radiance, the nodes above rows past one forced, the link tasks they
+        raise refined again, the node table rebuilt. Returns the round's figures ({"tasks": 0}:
+        nothing to refine)."""
         from dask.base import tokenize
 
         from radiosity.methods.hierarchical.links import link_figures, node_table_of, task_links
@@ -377,9 +379,9 @@ class Rounds:
         from radiosity.runtime.store import RunStore, update_report
 
         t0 = time.perf_counter()
-        new, var = self.weights(radiance)
-        force = self.force | self.row_flags(RunStore(self.run_dir))
-        todo, raised = self.tasks(new, var, force)
+        new, var = self.weights(prev["radiance"])
+        force = self.force | self.row_flags(prev)
+        todo, raised = self.tasks(new, var, force, prev["table"])
         fig = {"round": len(self.figures) + 1, "originals": int(raised.sum()),
                "tasks": int(len(todo)), "forced_nodes": int(force.sum())}
         # what the links not made again were checked against, too

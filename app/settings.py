@@ -150,6 +150,7 @@ class HierarchySettings(_Section):
     final_gather_levels: int
     near_gauss_gap: float
     kernel_weighted_rays: bool
+    inside_solids: bool
     shadow_factor: float
     min_node_size: float
     split_hidden: bool

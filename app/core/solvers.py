@@ -116,7 +116,7 @@ def cg(op, Le, rho, area, tol, max_iter, callback=None, x0=None) -> SolveResult:
                              "gauss-seidel or progressive")
     U = rho > 0
     D = np.where(U, area / np.where(U, rho, 1.0), 0.0)
-    Dinv = np.where(U, rho / area, 0.0)
+    Dinv = np.where(U, rho / np.where(U, area, 1.0), 0.0)
     known = np.where(U, 0.0, Le)
     b = np.where(U, D * Le + area * op.apply(known), 0.0)
 

@@ -105,7 +105,9 @@ class Opened:
     orig: np.ndarray
     sub_elements: int
     to_sub: Callable[[np.ndarray], np.ndarray]  # (2, C, M) -> (m, 2, C) per sub-element
-    # the method's own (node table, ...), and the solve's rows of F before any scaling
+    # the method's own (node table, ...; "live" (M,) the part of each unknown outside solids:
+    # the solve leaves those at 0 out of the transport and weighs the others' light by it), and
+    # the solve's rows of F before any scaling
     # ("row_sums" (2, M): stages/solve.py puts them there for the method's finish)
     state: dict = field(default_factory=dict)
 

@@ -84,3 +84,72 @@ def find_contacts(elements: Elements, epsilon: float, points: int = 16,
 
     pts, _ = sample_points(elements.verts, elements.nverts, Sampling("nxm", points))
     return contact_points(elements, pts, epsilon, window).mean(axis=1) >= COVERED
+
+
+#: Hemisphere rays per point of the inside-a-solid test (inside_solid), stratified.
+SOLID_RAYS = 8
+#: The test's rays start this far off the surface, relative to the scene's size (as the
+#: closure's, closure.STEP: beyond float32 rounding, inside the contact window).
+SOLID_STEP = 1e-5
+
+
+#: and this many grazing ones, GRAZING degrees off the normal: a thin gap (a one-sided panel
+#: hung close under a ceiling) lets them out where the cosine-weighted ones all meet its back.
+SOLID_GRAZING = 4
+GRAZING = 85.0
+
+
+def _solid_directions(k: int) -> np.ndarray:
+    """k fixed cosine-weighted directions around +z, one per cell of a ceil(sqrt k)^2 grid, then
+    SOLID_GRAZING grazing ones."""
+    s = int(np.ceil(np.sqrt(k)))
+    i, j = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
+    u, v = (i.ravel() + 0.5) / s, (j.ravel() + 0.5) / s
+    r, phi = np.sqrt(u), 2 * np.pi * v
+    d = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1 - u))], 1)[:k]
+    t = np.radians(GRAZING)
+    a = 2 * np.pi * (np.arange(SOLID_GRAZING) + 0.5) / SOLID_GRAZING
+    g = np.stack([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.full(len(a), np.cos(t))], 1)
+    return np.concatenate([d, g])
+
+
+def inside_solid(caster: RayCaster, pts: np.ndarray, normal: np.ndarray, two_sided: np.ndarray,
+                 rays: int = SOLID_RAYS) -> np.ndarray:
+    """Which points (n, 3) on one-sided surfaces with front normals `normal` (n, 3) lie inside
+    a solid, (n,) bool: every one of `rays` hemisphere rays and SOLID_GRAZING grazing ones from
+    the point (SOLID_STEP of the scene's size off the surface) first meets the back of a
+    one-sided element (the part of a floor under a block standing on it, without a bottom
+    face): the closure's test (closure.py) for single points. One ray along the normal first,
+    the others only where it met a back. The links leave such points out of their visible
+    fractions and the solve such parts of sub-elements out of the transport. `caster` holds
+    the scene's originals; `two_sided` (originals,) their flags (a hit on a two-sided element
+    is never a back)."""
+    n = len(pts)
+    if not n:
+        return np.zeros(0, bool)
+    step = SOLID_STEP * max(1.0, caster.epsilon / 1e-6) * caster.scale
+    o = pts + step * normal
+    out = _backs(caster, o, normal, two_sided)  # first along the normal: most points end here
+    c = np.nonzero(out)[0]
+    if len(c):
+        loc = _solid_directions(rays)
+        nc = normal[c]
+        a = np.where(np.abs(nc[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+        t1 = np.cross(nc, a)
+        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+        t2 = np.cross(nc, t1)
+        d = (loc[None, :, :1] * t1[:, None] + loc[None, :, 1:2] * t2[:, None]
+             + loc[None, :, 2:] * nc[:, None]).reshape(-1, 3)
+        out[c] = _backs(caster, np.repeat(o[c], len(loc), axis=0), d, two_sided) \
+            .reshape(len(c), len(loc)).all(axis=1)
+    return out
+
+
+def _backs(caster: RayCaster, o: np.ndarray, d: np.ndarray, two_sided: np.ndarray) -> np.ndarray:
+    """Whether each ray (origins o, unit directions d) first meets the back of a one-sided
+    element, (n,) bool."""
+    hit = caster.first_hit(np.ascontiguousarray(o), np.ascontiguousarray(d))
+    back = hit >= 0
+    h = np.nonzero(back)[0]
+    back[h] = (np.einsum("ij,ij->i", caster.normal[hit[h]], d[h]) > 0) & ~two_sided[hit[h]]
+    return back

@@ -146,6 +146,16 @@ class RowTargets:
         balance = x[:, 0] & (~sided | x[:, 1]) & ~dead & (target > 0)
         return cls(target, balance, dead, sided)
 
+    @classmethod
+    def burying(cls, targets: "RowTargets | None", buried: np.ndarray,
+                sided: np.ndarray) -> "RowTargets":
+        """`targets` with the unknowns `buried` (M,) dead as well: sub-elements inside a solid
+        (the methods' Opened.state["live"] at 0) take no part, as contact sides."""
+        if targets is None:
+            return cls(np.ones(len(buried)), ~buried, buried.copy(), np.asarray(sided, bool))
+        return cls(targets.target, targets.balance & ~buried, targets.dead | buried,
+                   targets.sided)
+
 
 BALANCE_MIN = 0.5  # rows below this fraction of their target are capped, not balanced
 D_MAX = 4.0        # the balancing scales a row by at most this factor either way
@@ -195,15 +205,17 @@ def normalise_rows(op, mode="cap", rows: RowTargets | None = None, sums=None):
 
     cap (default): scale each pair by min(cap_a, cap_b), cap = 1 / row sum on the rows above 1:
         rows then sum to at most 1 and reciprocity still holds (A_a F'_ab = A_b F'_ba), so every
-        solver converges for rho < 1.
+        solver converges for rho < 1. An operator with `leaf_caps` (links at nodes above the
+        leaves) scales by cap_a cap_b instead (K -> D K D, the same bounds): no pass either.
     closed: for closed scenes, where every row must sum to exactly its target (1; the sides'
         targets summed, RowTargets): scale pairs by d_a d_b with d from the symmetric
         balancing iteration d <- sqrt(d t / (F d)) (reciprocity kept); what is left of the
         kernel's error no longer decides the answer when rho -> 1. Rows whose target is not
         exact (a side that sees out) are capped in the same iteration instead.
     off (or False): only report.
-    rows: the closure's RowTargets; with contact unknowns (rows.dead) every mode scales by
-    d_a d_b, d = 0 on them: they neither receive nor send. sums: op.row_sums() when the caller
+    rows: the closure's RowTargets; with dead unknowns (rows.dead: contact sides, sub-elements
+    inside solids) every mode scales by d_a d_b, d = 0 on them: they neither receive nor send.
+    sums: op.row_sums() when the caller
     has them already.
     """
     mode = {True: "cap", False: "off", None: "cap", "auto": "cap"}.get(mode, mode)
@@ -218,11 +230,20 @@ def normalise_rows(op, mode="cap", rows: RowTargets | None = None, sums=None):
     m = sums.shape[1]
     dead = rows.dead if rows is not None else np.zeros(m, bool)
     scaling = {}
+    # an operator whose links sit at nodes above the leaves caps each leaf's row on its own
+    # (K -> D K D, d = 1 / row sum): the min over a node's leaves would cap every leaf below
+    # a coarse link for one leaf's row (transport.py's leaf_caps)
+    leaf_caps = bool(getattr(op, "leaf_caps", False))
     if dead.any():
         out["contact_unknowns"] = int(dead.sum())
         if mode == "off":
             scaling = {"cap": np.where(dead, 0.0, 1.0), "cmode": CAP_PRODUCT}
             return out, scaling
+        if mode == "cap" and leaf_caps:
+            d = np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0)
+            d[dead] = 0.0
+            out["normalised"] = True
+            return out, {"cap": d, "cmode": CAP_PRODUCT}
         target = rows.target if mode == "closed" else np.ones(m)
         balance = rows.balance if mode == "closed" else np.zeros(m, bool)
         d, passes, err, stuck = _balance(op, sums, target, balance, dead)
@@ -230,7 +251,8 @@ def normalise_rows(op, mode="cap", rows: RowTargets | None = None, sums=None):
         out.update({"normalised": True, "balancing_passes": passes, "balancing_error": err,
                     "rows_at_scaling_bound": stuck})
     elif out["normalised"]:
-        scaling = {"cap": np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0), "cmode": CAP_MIN}
+        scaling = {"cap": np.where(over, 1.0 / np.where(over, rs, 1.0), 1.0),
+                   "cmode": CAP_PRODUCT if leaf_caps else CAP_MIN}
     elif mode == "closed":
         # sub-elements that see nothing (under a block standing on the floor) keep their empty
         # rows; every other row is balanced to its target (1 unless the closure says otherwise)
@@ -304,6 +326,13 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     sided = (effects.two_sided if effects is not None
              else rs.load_elements().two_sided.astype(bool))[opened.orig]
     targets = RowTargets.of(closure, opened.orig, sided)
+    live = opened.state.get("live")
+    if live is not None and (live < 1.0).any():  # sub-elements inside solids, wholly or partly
+        buried = live <= 0.0
+        targets = RowTargets.burying(targets, buried, sided)
+        op.configure(pull_area=opened.area * live)  # they send their live part's light
+        area = area * live  # the solvers' weights: the operator is symmetric in these
+        rho = np.where(buried, 0.0, rho)  # known (L = Le): no weight to divide by
     if targets is not None and (targets.sided != sided).any():
         op.configure(sided=targets.sided)  # contact backs: those elements solved one-sided
     sums = op.row_sums()  # (2, M), before any scaling: the methods may keep them (rounds.py)

@@ -238,3 +238,39 @@ def test_normalise_rows_balances_to_targets_caps_the_rest_and_zeroes_contacts():
     rows, sc = normalise_rows(_Dense(K), "closed")
     d = sc["cap"]
     assert np.allclose((d[:, None] * K * d[None, :]).sum(axis=1), 1.0, atol=1e-11)
+
+
+def test_an_operator_of_coarse_links_caps_rows_leaf_by_leaf_without_passes():
+    """leaf_caps (the hierarchical operator): rows past 1 are capped by d = 1 / row sum as
+    K -> D K D (dead rows 0), in no pass of the operator; every row then sums to at most 1 and
+    reciprocity holds. Without it, the pairs' min(cap_a, cap_b)."""
+    from radiosity.methods.base import CAP_MIN
+
+    rng = np.random.default_rng(5)
+    m = 12
+    A, K = _reciprocal(m, rng)
+    K = K * 1.3
+    dead = np.zeros(m, bool)
+    dead[3] = True
+    rt = RowTargets(np.ones(m), np.zeros(m, bool), dead, np.zeros(m, bool))
+
+    class Coarse(_Dense):
+        leaf_caps = True
+
+        def apply(self, L, use_need=True):
+            raise AssertionError("no pass")
+
+    for rows in (None, rt):
+        op = Coarse(K)
+        fig, sc = normalise_rows(op, "cap", rows, sums=np.stack([K.sum(axis=1), np.zeros(m)]))
+        d = sc["cap"]
+        rs = K.sum(axis=1)
+        live = ~dead if rows is not None else np.ones(m, bool)
+        assert sc["cmode"] == CAP_PRODUCT and fig["normalised"]
+        assert np.allclose(d[live], np.minimum(1.0, 1.0 / rs[live]))
+        K2 = d[:, None] * K * d[None, :]
+        assert np.all(K2.sum(axis=1) <= 1 + 1e-12) and np.all(d[~live] == 0)
+        S = A[:, None] * K2
+        assert np.allclose(S, S.T, atol=1e-14)
+    _, sc = normalise_rows(_Dense(K), "cap")
+    assert sc["cmode"] == CAP_MIN

@@ -14,7 +14,7 @@ import numpy as np
 
 from radiosity.methods.hierarchical.clusterlinks import ClusterLinks
 from radiosity.methods.hierarchical.clusters import ClusterTree, cluster_tree, refine_clusters
-from radiosity.methods.hierarchical.clusterweights import link_weights
+from radiosity.methods.hierarchical.clusterweights import SolidEnds, link_weights
 
 # What a clustered scene costs, as measured (benchmarks/bench_clusters.py, results/clusters.json:
 # a terrain and the Cornell box cut into triangles, 128^2, default epsilon): links in all
@@ -43,7 +43,9 @@ TASKS_PER_THREAD = 16
 @dataclass(frozen=True)
 class ClusterInputs:
     """What every cluster task needs (scattered once): the tree, the oracle's epsilon, the rays
-    per link (0: nothing can block) and the Embree cache key and ray offset of the originals."""
+    per link (0: nothing can block) and the Embree cache key and ray offset of the originals;
+    shadow: the threshold of splitting partly visible links (_shadows); solids: rays inside
+    solids left out of the visible fractions (clusterweights.SolidEnds)."""
 
     ct: ClusterTree
     epsilon: float
@@ -53,6 +55,7 @@ class ClusterInputs:
     nverts: np.ndarray
     ray_offset: float
     shadow: float = np.inf
+    solids: bool = False
 
 
 def task_clusters(inp: ClusterInputs, init: np.ndarray) -> tuple:
@@ -62,18 +65,18 @@ def task_clusters(inp: ClusterInputs, init: np.ndarray) -> tuple:
     links, pairs, counts, _ = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
                                               max(1024, 8 * len(init)), init, 0)
     return _compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon,
-                    inp.shadow)
+                    inp.shadow, inp.solids)
 
 
 def _compact(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: float,
-             shadow: float = np.inf) -> tuple:
+             shadow: float = np.inf, solids: bool = False) -> tuple:
     """Links and pairs as the driver keeps them, each sorted here (so that the driver merges
     sorted runs): the keys p K + q (int64) with g = A_p F_pq v (float32, the one weight a link
     keeps: clusters.ClusterLinks), the pairs of originals sorted by (I, J), the counts, the
     visible fractions' sum and the rays cast (link_weights; one ray for links that carry at
     most eps; partly visible links that carry more than `shadow` refined: _shadows)."""
     links, pairs, counts, F, v, nrays = _shadows(ct, links, pairs, counts, caster, rays, eps,
-                                                 shadow)
+                                                 shadow, solids)
     g = (F[:, 0] * np.asarray(ct.tree.area)[links[:, 0]] * v).astype(np.float32)
     key = links[:, 0] * np.int64(ct.nodes) + links[:, 1]
     order = np.argsort(key, kind="stable")
@@ -83,7 +86,7 @@ def _compact(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
 
 
 def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: float,
-             shadow: float) -> tuple:
+             shadow: float, solids: bool = False) -> tuple:
     """The kept links' form factors and visible fractions (link_weights), with the partly
     visible ones (0 < v < 1) that carry more than `shadow` (the oracle's weighting, as `faint`)
     split and refined again, as the element level splits its partly visible links (SPEC §8):
@@ -93,7 +96,8 @@ def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
     (refine_clusters at epsilon 0: a pair of originals if they face each other). Repeats on the
     new links until none is partly visible or all reached the originals. Returns (links, pairs,
     counts, F, v, rays)."""
-    F, v, nrays = link_weights(ct, links, caster, rays, faint=eps)
+    solid = SolidEnds(caster, ct.elems) if solids and caster is not None and rays > 1 else None
+    F, v, nrays = link_weights(ct, links, caster, rays, faint=eps, solid=solid)
     if caster is None or rays <= 1 or not np.isfinite(shadow) or not len(links):
         return links, pairs, counts, F, v, nrays
     t = ct.tree
@@ -121,7 +125,7 @@ def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
                     links = new
         if not len(kids):
             break
-        F, v, r = link_weights(ct, links, caster, rays, faint=eps)
+        F, v, r = link_weights(ct, links, caster, rays, faint=eps, solid=solid)
         nrays += r
     return (np.concatenate(out_l).reshape(-1, 2), np.concatenate(out_pairs).reshape(-1, 2),
             counts, np.concatenate(out_F).reshape(-1, 2), np.concatenate(out_v), nrays)
@@ -203,11 +207,12 @@ class _Runs:
 
 def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
                   ray_offset: float, client=None, progress: bool = False,
-                  shadow: float = np.inf):
+                  shadow: float = np.inf, solids: bool = False):
     """The cluster layer of a link stage: the tree, its refinement at `epsilon` with the oracle's
     weights (wrho, lhat, lref: links.oracle_weights), the kept links' form factors and visible
     fractions (`rays` rays each; 1 when nothing can block; partly visible links that carry
-    more than `shadow` refined further: _shadows). With a `client`, the refinement is
+    more than `shadow` refined further: _shadows; `solids`: rays inside solids left out,
+    clusterweights.SolidEnds). With a `client`, the refinement is
     cut where CUT_PER_TASK x TASKS_PER_THREAD links per worker thread wait, and every waiting
     link's subtree is a task (refinement, form factors, rays) on the cluster; the links come
     out sorted, so the result does not depend on the cut or the workers. Returns (ClusterLinks,
@@ -226,7 +231,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     threads = sum(client.nthreads().values()) if client is not None else 0
     inp = ClusterInputs(ct, float(epsilon), int(rays) if occlusion else 0,
                         tokenize(elements.verts, elements.nverts), elements.verts,
-                        elements.nverts, float(ray_offset), float(shadow))
+                        elements.nverts, float(ray_offset), float(shadow), bool(solids))
     frontier = CUT_PER_TASK * TASKS_PER_THREAD * threads if threads > 1 else 0
     links, pairs, counts, pending = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
                                                     max(1024, 8 * n), root, frontier)
@@ -240,7 +245,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
         trim_malloc()  # the tasks' arrays freed so far (runs.add keeps copies)
 
     keep(_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon,
-                  inp.shadow))
+                  inp.shadow, inp.solids))
     del links, pairs
     ntasks = 0
     if len(pending):

@@ -155,12 +155,45 @@ def _ends(verts, ids, cols, out):
                 out[r, c] = (1 - u) * (1 - v) * a + u * (1 - v) * b + u * v * d + (1 - u) * v * e
 
 
-def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, cols: np.ndarray) -> np.ndarray:
+class SolidEnds:
+    """Which of each original's four ray ends (_ends) lie inside a solid (contact.inside_solid),
+    found once per original and process, for links that have a blocked ray: a cluster or an
+    original straddling the footprint of a block standing on it starts some rays under the
+    block, where they are all blocked; they are left out of its visible fraction (as the
+    element level's sampling.SolidPoints)."""
+
+    def __init__(self, caster, e):
+        self.caster, self.e = caster, e
+        self.flags = np.full((len(e.area), 4), -1, np.int8)  # 1 inside, 0 not, -1 unknown
+
+    def void(self, ids: np.ndarray, cc: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """(len(ids),) bool: the ends (element ids, point cc % 4, at pts) inside a solid."""
+        from radiosity.scene.contact import inside_solid
+
+        s = cc % 4
+        f = self.flags[ids, s]
+        new = np.nonzero(f < 0)[0]
+        if len(new):
+            key = np.unique(ids[new] * 4 + s[new], return_index=True)[1]
+            u = new[key]
+            one = ~self.e.two_sided[ids[u]]
+            ins = np.zeros(len(u), bool)
+            ins[one] = inside_solid(self.caster, pts[u[one]], self.e.normal[ids[u[one]]],
+                                    self.e.two_sided)
+            self.flags[ids[u], s[u]] = ins
+            f = self.flags[ids, s]
+        return f > 0
+
+
+def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, cols: np.ndarray,
+             solid: SolidEnds | None = None) -> np.ndarray:
     """1 - the blocked fraction of a link's rays (one row of ep, eq: (L, k) elements): the ray
     in column c runs between point cols[c] % 4 of ep's element and point (cols[c] + 2) % 4 of
     eq's (_ends), so a link between two originals, whose k picks are the same two elements,
     casts k different rays, and sees a shadow that crosses them (its centroids alone say 0 or
-    1). cols (k,) or (L, k). Returns (L,) float64."""
+    1). cols (k,) or (L, k). With `solid`, the rays of a link with a blocked ray that start or
+    end inside a solid are left out of its fraction, unless all do (SolidEnds). Returns (L,)
+    float64."""
     L, k = ep.shape
     n = ep.size
     pts = np.empty((2 * n, 3))
@@ -169,8 +202,21 @@ def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, cols: np.ndarray) -> np.
     _ends(e.verts, ids[:n], cc, pts[:n])
     _ends(e.verts, ids[n:], cc + 2, pts[n:])
     idx = np.arange(n)
-    occ = caster.occluded_pairs(pts, idx, idx + n, ids)
-    return 1.0 - occ.reshape(L, k).mean(axis=1)
+    occ = caster.occluded_pairs(pts, idx, idx + n, ids).reshape(L, k)
+    v = 1.0 - occ.mean(axis=1)
+    if solid is None or k == 1:
+        return v
+    hit = np.nonzero(occ.any(axis=1))[0]
+    if not len(hit):
+        return v
+    r = (hit[:, None] * k + np.arange(k)[None, :]).ravel()
+    void = (solid.void(ids[r], cc[r], pts[r]) | solid.void(ids[n + r], cc[r] + 2, pts[n + r])) \
+        .reshape(len(hit), k)
+    live = (~void).sum(axis=1)
+    some = live > 0
+    free = (~occ[hit] & ~void).sum(axis=1)
+    v[hit[some]] = free[some] / live[some]
+    return v
 
 
 def _one_of(links: np.ndarray, k: int) -> np.ndarray:
@@ -182,7 +228,8 @@ def _one_of(links: np.ndarray, k: int) -> np.ndarray:
 
 
 def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
-                 samples: int = FF_SAMPLES, faint: float = 0.0) -> tuple:
+                 samples: int = FF_SAMPLES, faint: float = 0.0,
+                 solid: SolidEnds | None = None) -> tuple:
     """Form factors (len(links), 2) and visible fractions (len(links),) of cluster links, CHUNK
     links at a time (_weights). The visible fraction from k rays between points on the
     elements of k sample pairs (_visible), taken from the form factors' samples (every
@@ -192,8 +239,8 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
     wrong, its visibility errs by no more than the oracle lets a link err, and over many links
     the rays cover every stratum (one fixed stratum put every ray's ends at the same place in
     each node, a bias: rows 0.3-0.6 % short at 4 epsilon on the tessellated Cornell box).
-    caster None or k = 0: every link fully visible. Returns (F, v, rays: the number of rays
-    the links took)."""
+    caster None or k = 0: every link fully visible; `solid`: rays inside solids left out
+    (_visible). Returns (F, v, rays: the number of rays the links took)."""
     F = np.zeros((len(links), 2))
     v = np.ones(len(links))
     rays = 0
@@ -215,7 +262,7 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
         va = v[a:a + len(lk)]
         many = ~few
         if many.any():
-            va[many] = _visible(caster, ct.elems, ep[many], eq[many], np.arange(k))
+            va[many] = _visible(caster, ct.elems, ep[many], eq[many], np.arange(k), solid)
         if few.any():
             col = _one_of(lk[few], k)[:, None]
             va[few] = _visible(caster, ct.elems, np.take_along_axis(ep[few], col, 1),

@@ -24,7 +24,7 @@ from radiosity.methods.hierarchical.refine import (C_EXACT, C_LINKS, C_PAIRS, C_
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
                                                    RefineParams, Tree, refine, roots)
 from radiosity.methods.hierarchical.clustertasks import plan_clusters
-from radiosity.methods.hierarchical.sampling import link_fractions
+from radiosity.methods.hierarchical.sampling import SolidPoints, link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
 from radiosity.runtime.packing import capped_starts, choose_unit
@@ -77,6 +77,7 @@ class LinkParams:
     gauss_gap: float = 2.0
     far_polygon: int = 1
     weighted_rays: bool = True
+    solids: bool = True
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -233,6 +234,8 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
     rays_only = inp.reach[pairs[:, 0]] * inp.reach[pairs[:, 1]] < SHAFT_MIN_LEAVES
     *ent, pool, cnt = roots(pairs, rays_only, inp.root, pmap, tree, tab, 0, occ, kprm)
     frac = np.full(len(pairs), -1.0)
+    solid = SolidPoints(caster, inp.normal, inp.two_sided) \
+        if prm.solids and caster is not None and prm.rays > 1 else None
     kept = []
     while len(ent[0]):
         counts[C_ROUNDS] += 1
@@ -242,7 +245,7 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
         if not len(w.p):
             break
         f = link_fractions(caster, prm.rays, tab.verts, tab.nverts, tab.center, tab.orig, w.p,
-                           w.q, keep_rays, inp.normal if prm.weighted_rays else None)
+                           w.q, keep_rays, inp.normal if prm.weighted_rays else None, solid)
         counts[C_RAYLINKS] += len(w.p)
         counts[C_RAYS] += len(w.p) * prm.rays
         ent = [w.p, w.q, w.lists[:, 0].copy(), (w.lists[:, 0] + w.lists[:, 1]).copy()]
@@ -378,7 +381,8 @@ def resolve_params(elements, settings=None, occlusion: bool = True,
                      exact=bool(KERNELS[kernel].near_field), plane_tol=COS_TOL * diag,
                      occlusion=bool(occlusion), oracle=_oracle_id(h.oracle),
                      gauss_gap=float(h.near_gauss_gap), far_polygon=_far_kernel(h.far_kernel),
-                     weighted_rays=bool(h.kernel_weighted_rays))
+                     weighted_rays=bool(h.kernel_weighted_rays),
+                     solids=bool(h.inside_solids) and bool(occlusion))
     return prm, weight
 
 
@@ -458,7 +462,8 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
                                       f"originals > plan.max-facing-pairs")
     if on:  # links start at the root of the tree over the originals (SPEC §9)
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon, oracle_weights(el, weight), prm.rays,
-                                         occlusion, s.rays.epsilon, client, progress, prm.shadow)
+                                         occlusion, s.rays.epsilon, client, progress, prm.shadow,
+                                         prm.solids)
         cfig["why"] = why_clusters
         bi, bj = cpairs[:, 0], cpairs[:, 1]
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit, int(s.hierarchy.max_task_cost))

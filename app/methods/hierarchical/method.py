@@ -42,15 +42,18 @@ class HierarchicalMethod:
         LinkStore(rs).require()
 
     def open(self, rs, client, settings, where: str = "auto", **options) -> Opened:
-        from radiosity.methods.hierarchical.transport import (leaf_vectors, open_link_operator,
-                                                             to_sub_elements)
+        from radiosity.methods.hierarchical.transport import (leaf_vectors, live_leaves,
+                                                             open_link_operator, to_sub_elements)
+        from radiosity.settings import resolve
 
         op, table, el, part = open_link_operator(rs, client, where, settings)
         Le, rho, area = leaf_vectors(table, el)
         m = len(part)
+        s = settings if settings is not None else resolve()
+        live = live_leaves(table, el, s.rays.epsilon) if s.hierarchy.inside_solids else None
         return Opened(op, Le, rho, area, table["orig"][table["leaf_node"]], m,
                       lambda L: to_sub_elements(L, table, m),
-                      {"table": table, "originals": len(el)})
+                      {"table": table, "originals": len(el), "live": live})
 
     def finish(self, opened: Opened, L: np.ndarray, rows: dict, settings) -> tuple[dict, dict]:
         """With hierarchy.final-gather, one final gather that re-evaluates every link into a

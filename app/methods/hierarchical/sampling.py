@@ -77,23 +77,33 @@ def link_points(Lv, Ln, Lc, Lo, p, q, s, tri_uv, perm):
 
 
 @numba.njit(cache=True, nogil=True)
-def _weighted(occ, pts, e, normal, n, k):
-    """Kernel-weighted visible fraction of each link: sum_j K_j V_j / sum_j K_j over its k
-    rays, K_j = |cos_a cos_b| / r^4 of the sample pair (unnormalised cosines), (n,)."""
+def _fractions(occ, pts, e, normal, n, k, void, weighted):
+    """Visible fraction of each link from its k rays, (n,): with `weighted`, sum_j K_j V_j /
+    sum_j K_j, K_j = |cos_a cos_b| / r^4 of the sample pair (unnormalised cosines), else the
+    visible rays' share. Rays with an end inside a solid (void) are left out, unless all are."""
     out = np.empty(n)
     for i in range(n):
         num = 0.0
         den = 0.0
+        all_void = True
+        for j in range(k):
+            a = i * k + j
+            if not (void[a] or void[n * k + a]):
+                all_void = False
         for j in range(k):
             a = i * k + j
             b = n * k + a
-            dx = pts[b, 0] - pts[a, 0]
-            dy = pts[b, 1] - pts[a, 1]
-            dz = pts[b, 2] - pts[a, 2]
-            r2 = dx * dx + dy * dy + dz * dz + 1e-300
-            ca = normal[e[a], 0] * dx + normal[e[a], 1] * dy + normal[e[a], 2] * dz
-            cb = normal[e[b], 0] * dx + normal[e[b], 1] * dy + normal[e[b], 2] * dz
-            w = abs(ca * cb) / (r2 * r2)
+            if not all_void and (void[a] or void[b]):
+                continue
+            w = 1.0
+            if weighted:
+                dx = pts[b, 0] - pts[a, 0]
+                dy = pts[b, 1] - pts[a, 1]
+                dz = pts[b, 2] - pts[a, 2]
+                r2 = dx * dx + dy * dy + dz * dz + 1e-300
+                ca = normal[e[a], 0] * dx + normal[e[a], 1] * dy + normal[e[a], 2] * dz
+                cb = normal[e[b], 0] * dx + normal[e[b], 1] * dy + normal[e[b], 2] * dz
+                w = abs(ca * cb) / (r2 * r2)
             den += w
             if not occ[a]:
                 num += w
@@ -101,12 +111,58 @@ def _weighted(occ, pts, e, normal, n, k):
     return out
 
 
+class SolidPoints:
+    """Which of each local node's k sample points lie inside a solid (contact.inside_solid),
+    found once per node of a link task's table, and only for nodes of links that have a blocked
+    ray: a node straddling the footprint of a block standing on it (a floor node) starts some
+    of its rays under the block, where they are all blocked; they are left out of its links'
+    visible fractions (docs/src/design/methods-hierarchical-rounds.md#inside-solids)."""
+
+    def __init__(self, caster, normal: np.ndarray, two_sided: np.ndarray):
+        self.caster, self.normal, self.two_sided = caster, normal, two_sided
+        self.mask = np.full(0, -1, np.int64)  # per local node: bit j = point j inside; -1 unknown
+
+    def void(self, verts, nverts, center, orig, p, q, occ, s, tri_uv, perm) -> np.ndarray:
+        """(2 n k,) bool: the rays' ends (link_points' order) inside a solid, for links (p, q)
+        with a blocked ray (occ (n k,)); False elsewhere."""
+        from radiosity.scene.contact import inside_solid
+
+        n, k = len(p), s * s
+        void = np.zeros(2 * n * k, np.bool_)
+        hit = np.nonzero(occ.reshape(n, k).any(axis=1))[0]
+        if not len(hit) or k > 62:
+            return void
+        if len(self.mask) < len(verts):
+            grown = np.full(len(verts), -1, np.int64)
+            grown[:len(self.mask)] = self.mask
+            self.mask = grown
+        nodes = np.unique(np.concatenate([p[hit], q[hit]]))
+        new = nodes[self.mask[nodes] < 0]
+        if len(new):
+            pts, e = link_points(verts, nverts, center, orig, new, new, s, tri_uv, perm)
+            pts, e = pts[:len(new) * k], e[:len(new) * k]
+            one = ~self.two_sided[e]
+            ins = np.zeros(len(e), bool)
+            ins[one] = inside_solid(self.caster, pts[one], self.normal[e[one]], self.two_sided)
+            self.mask[new] = (ins.reshape(len(new), k) << np.arange(k)).sum(axis=1)
+        bits = np.arange(k)
+        mp = self.mask[p[hit]][:, None] >> bits[None, :] & 1
+        mq = self.mask[q[hit]][:, None] >> perm[None, :] & 1
+        vp = void[:n * k].reshape(n, k)
+        vq = void[n * k:].reshape(n, k)
+        vp[hit] = mp > 0
+        vq[hit] = mq > 0
+        return void
+
+
 def link_fractions(caster, k: int, verts: np.ndarray, nverts: np.ndarray, center: np.ndarray,
                    orig: np.ndarray, p: np.ndarray, q: np.ndarray, keep: list | None = None,
-                   normal: np.ndarray | None = None):
+                   normal: np.ndarray | None = None, solid: SolidPoints | None = None):
     """Visible fraction of links (p, q) (node ids into verts (N, 4, 3), nverts, center (N, 3),
     orig (N,)), with k rays each: k = 1 one ray between centroids; k = s^2 between the s x s
-    stratified points of each node (link_points) paired by ray_pairing. Returns (w,) float64."""
+    stratified points of each node (link_points) paired by ray_pairing; rays weighted by the
+    point kernel with `normal` (per original); with `solid`, rays from points inside a solid
+    left out (SolidPoints). Returns (w,) float64."""
     if len(p) == 0:
         return np.zeros(0)
     s = int(round(np.sqrt(k)))
@@ -121,8 +177,12 @@ def link_fractions(caster, k: int, verts: np.ndarray, nverts: np.ndarray, center
         if keep is not None:
             keep.append((pts, e))
         occ = caster.occluded_pairs(pts, idx, idx + n, e)
-        if normal is None or k == 1:
+        if (normal is None or k == 1) and solid is None:
             out[a:a + len(pp)] = 1.0 - occ.reshape(len(pp), k).mean(axis=1)
-        else:
-            out[a:a + len(pp)] = _weighted(occ, pts, e, normal, len(pp), k)
+            continue
+        void = (solid.void(verts, nverts, center, orig, pp, qq, occ, s, tri_uv, perm)
+                if solid is not None and k > 1 else np.zeros(2 * n, np.bool_))
+        out[a:a + len(pp)] = _fractions(occ, pts, e, normal if normal is not None
+                                        else np.zeros((1, 3)), len(pp), k, void,
+                                        normal is not None and k > 1)
     return out

@@ -47,8 +47,8 @@ class LinkSolveInputs:
 
     Row normalisation (stages/solve.normalise_rows) works through `cap` and `cmode`: with
     CAP_MIN a link is scaled by min(cap over the leaves of p, cap over the leaves of q) (the
-    pairs' min(cap_a, cap_b) at leaf links); with CAP_PRODUCT (closed-scene balancing) by
-    d_a d_b, i.e. K -> D K D."""
+    pairs' min(cap_a, cap_b) at leaf links); with CAP_PRODUCT (the default cap, leaf by leaf,
+    and closed-scene balancing) by d_a d_b, i.e. K -> D K D."""
 
     def __init__(self, table: dict, entries: np.ndarray, store_path: str, token: str,
                  normal: np.ndarray, memory: list | None = None):
@@ -64,6 +64,10 @@ class LinkSolveInputs:
         self.leaf_orig = self.orig[self.leaf_node]
         # node areas as sums of their leaves' (what pull divides by), summed bottom-up
         self.node_area = _node_sums(self.leaf_area, self.leaf_node, self.parent)
+        # what a leaf's radiance weighs in its nodes' means: its area, times the part of it
+        # outside solids where some lies inside (stages/solve.py configures it: a node sends its
+        # live part's light, as its links' rays see it)
+        self.pull_area = self.leaf_area
         self.normal = np.asarray(normal, np.float64)  # (n, 3) of the originals
         self.verts = table["verts"]
         self.nverts = table["nverts"].astype(np.int64)
@@ -105,7 +109,7 @@ class LinkSolveInputs:
 
     def geometry(self) -> Geometry:
         """Areas, polygons, centroids and normals as the passes take them (passes.Geometry)."""
-        return Geometry(self.node_area, self.leaf_area, self.verts, self.nverts, self.node_center,
+        return Geometry(self.node_area, self.pull_area, self.verts, self.nverts, self.node_center,
                         self.leaf_center, self.normal)
 
 
@@ -195,7 +199,7 @@ def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = T
 
 def _pull(inp: LinkSolveInputs, cap, L, S):
     """Lbar (2, C, N): the node means of L into S (cap: inp.cap_args())."""
-    return pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, cap[2], S)
+    return pull(L, inp.leaf_node, inp.pull_area, inp.parent, inp.node_area, cap[2], S)
 
 
 def _gather_tasks(inp: LinkSolveInputs, cap, task_ids, Lbar, G) -> int:
@@ -309,7 +313,7 @@ def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray,
     mode, ncap, d = inp.cap_args()
     origs = np.asarray(origs, np.int64)
     S, G = scratch((L.shape[0], L.shape[1], len(inp.parent)))
-    Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d, S)
+    Lbar = pull(L, inp.leaf_node, inp.pull_area, inp.parent, inp.node_area, d, S)
     y = np.zeros_like(L)
     if inp.fg_mode == "linear":
         sel = np.zeros(len(inp.noff) - 1, np.bool_)
@@ -343,7 +347,7 @@ def task_gs_sweep(inp: LinkSolveInputs, L, Le, rho):
     if mode == 1:
         ends = ends._replace(w=ends.w * np.minimum(ncap[ends.tp], ncap[ends.sn]))
     L = L.copy()
-    S = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area, d,
+    S = pull(L, inp.leaf_node, inp.pull_area, inp.parent, inp.node_area, d,
              np.empty((L.shape[0], L.shape[1], len(inp.parent))))
     S *= inp.node_area  # pull returns means; the sweep keeps sums
     terms = gs_sweep(L, Le, rho, S, ends, inp.nodes(), inp.geometry(), d, inp.need)
@@ -355,6 +359,12 @@ def task_gs_sweep(inp: LinkSolveInputs, L, Le, rho):
 class _Base:
     """What the two operators share: the kernel name (solvers check reciprocity by it), the
     pass and term counters, row_sums and the groups of link tasks."""
+
+    # rows past 1 are capped leaf by leaf (stages/solve.normalise_rows: CAP_PRODUCT, d = 1 / row
+    # sum): CAP_MIN's minimum over the leaves below a coarse link would cap all of them for one
+    # leaf's row (the Cornell box against Mitsuba: cells 0.97 -> 0.86 %,
+    # docs/src/design/methods-hierarchical-rounds.md#inside-solids)
+    leaf_caps = True
 
     def __init__(self, inp: LinkSolveInputs, kernel: str, ngroups: int):
         self.inp = inp
@@ -536,6 +546,36 @@ def leaf_vectors(table: dict, elements):
     Le = np.ascontiguousarray(np.transpose(elements.emission[o], (1, 2, 0)))
     rho = np.ascontiguousarray(np.transpose(elements.reflectance[o], (1, 2, 0)))
     return Le, rho, table["leaf_area"]
+
+
+def live_leaves(table: dict, elements, epsilon: float) -> np.ndarray:
+    """(M,) the part of each leaf outside solids: 1 minus the share of its four stratified
+    points (sampling.link_points) that lie inside a solid (scene/contact.inside_solid: a
+    floor's leaves under a block standing on it are 0, those across the block's edge between).
+    The solve leaves the leaves at 0 out of the transport, as contact sides
+    (stages/solve.RowTargets), and weighs the others' light in their nodes by it
+    (LinkSolveInputs.pull_area); two-sided leaves are 1."""
+    from radiosity.methods.hierarchical.sampling import link_points, ray_pairing, triangle_strata
+    from radiosity.scene.contact import inside_solid
+    from radiosity.tracing.rays import RayCaster
+
+    ln = np.asarray(table["leaf_node"], np.int64)
+    o = table["orig"][ln]
+    out = np.ones(len(ln))
+    two = np.asarray(elements.two_sided, bool)
+    one = np.nonzero(~two[o])[0]
+    if not len(one):
+        return out
+    k = 4
+    verts, nverts = table["verts"], table["nverts"].astype(np.int64)
+    nodes = ln[one]
+    pts, e = link_points(verts, nverts, np.zeros((len(verts), 3)), table["orig"].astype(np.int64),
+                         nodes, nodes, 2, triangle_strata(k), ray_pairing(k))
+    pts, e = pts[:len(nodes) * k], e[:len(nodes) * k]
+    ins = inside_solid(RayCaster(elements.verts, elements.nverts, epsilon), pts,
+                       elements.normal[e], two)
+    out[one] = 1.0 - ins.reshape(len(nodes), k).mean(axis=1)
+    return out
 
 
 def to_sub_elements(L: np.ndarray, table: dict, m: int) -> np.ndarray:

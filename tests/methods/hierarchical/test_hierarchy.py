@@ -24,7 +24,8 @@ from helpers import link_power_balance, prepared, radiance, scene_path, write_sc
 
 ALL_PAIRS = {"radiosity.hierarchy.min-node-size": 1e9, "radiosity.hierarchy.weight": "none",
              "radiosity.hierarchy.near-gauss-gap": float("inf"),
-             "radiosity.hierarchy.far-kernel": "centroid"}
+             "radiosity.hierarchy.far-kernel": "centroid",
+             "radiosity.hierarchy.inside-solids": False}
 
 
 def _count(counts, name):
@@ -58,13 +59,19 @@ def in_process(path, res=None, kernel="point-nf", epsilon=None, rays=None, seen=
                                                 ("cornell-box", 16, "point"),
                                                 ("cornell-box", 16, "point-nf")])
 def test_epsilon_zero_with_one_ray_per_leaf_pair_equals_the_pairs_method(client, tmp_path, scene,
-                                                                         res, kernel):
+                                                                         res, kernel,
+                                                                         monkeypatch):
     """epsilon = 0 refines every link to a pair of leaves; one ray between centroids
     (--link-rays 1) is the pairs method's visibility; unseen originals are not split; near
-    links use the contour integral (no Gauss shortcut). Then F L and the solver's solution
-    equal --method pairs with the same kernel (near field and row caps included)."""
+    links use the contour integral (no Gauss shortcut); nothing is taken for inside a solid.
+    Then F L and the solver's solution equal --method pairs with the same kernel (near field
+    and row caps included: with the pairs' min(cap_a, cap_b), which at leaf links is what the
+    hierarchical operator's CAP_MIN does; its default caps leaf by leaf, transport.leaf_caps)."""
+    from radiosity.methods.hierarchical import transport
     from radiosity.methods.pairs.transport import open_operator
     from radiosity.stages.solve import run_solve
+
+    monkeypatch.setattr(transport._Base, "leaf_caps", False)
 
     out = prepared(client, tmp_path, scene_path(scene), res)
     rs = RunStore(out)
@@ -78,7 +85,8 @@ def test_epsilon_zero_with_one_ray_per_leaf_pair_equals_the_pairs_method(client,
     x = np.random.default_rng(3).random((2, 3, len(part)))
     yP, yH = opP.apply(x, use_need=False), opH.apply(x, use_need=False)
     assert np.abs(yH - yP).max() <= 1e-9 * np.abs(yP).max()
-    run_solve_links(out, None, solver="cg", tol=1e-12, progress=False)
+    with dask.config.set(ALL_PAIRS):
+        run_solve_links(out, None, solver="cg", tol=1e-12, progress=False)
     # the solver's fixed point on the leaves (leaf k is sub-element k, asserted above); the
     # final gather after it re-evaluates form factors exactly, without the pairs' row caps
     LH = RunStore(out).read_arrays("solution")["leaf_radiance"]

@@ -61,3 +61,47 @@ def diameter(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
 # One value for every stage that asks "do these two elements face each other?" (visibility,
 # shafts, near field), so that they all agree on which pairs exist.
 COS_TOL = 1e-9
+
+
+def on_hull_planes(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray,
+                   tol: float = 1e-7) -> np.ndarray:
+    """(n,) bool: the polygons whose plane supports the convex hull of all the vertices (every
+    vertex on one side, within tol times the hull's diagonal): the walls, floor and ceiling of a
+    room. No open segment between two points of the polygons can cross such a polygon except
+    within tol of its plane, i.e. when it runs in that plane from one end to the other, where
+    it carries no light (tracing.rays.RayCaster leaves them out of segment queries)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    n = len(verts)
+    if n == 0:
+        return np.zeros(0, bool)
+    V = np.concatenate([verts[nverts == 4].reshape(-1, 3), verts[nverts == 3][:, :3].reshape(-1, 3)])
+    c = 0.5 * (V.min(0) + V.max(0))
+    diag = float(np.linalg.norm(V.max(0) - V.min(0)))
+    try:
+        H = V[ConvexHull(V - c).vertices]
+    except (QhullError, ValueError):  # flat (or a line): every polygon lies in the one plane
+        return np.ones(n, bool)
+    offset = np.einsum("ij,ij->i", normal, verts[:, 0])
+    return _supports(np.ascontiguousarray(normal, np.float64), offset, np.ascontiguousarray(H),
+                     tol * diag)
+
+
+@numba.njit(cache=True, nogil=True)
+def _supports(normal, offset, H, tol):
+    """Is every point of H within tol of one side of each plane (normal[i], offset[i])? Stops
+    at the first point on each side."""
+    out = np.zeros(normal.shape[0], np.bool_)
+    for i in range(normal.shape[0]):
+        above = False
+        below = False
+        for h in range(H.shape[0]):
+            s = normal[i, 0] * H[h, 0] + normal[i, 1] * H[h, 1] + normal[i, 2] * H[h, 2] - offset[i]
+            if s > tol:
+                above = True
+            elif s < -tol:
+                below = True
+            if above and below:
+                break
+        out[i] = not (above and below)
+    return out

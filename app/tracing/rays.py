@@ -58,6 +58,34 @@ class RayCaster:
         self._scene = rtcore_scene.EmbreeScene()
         self._mesh = mesh_construction.TriangleMesh(
             self._scene, ((tris - self.origin) / self.scale).astype(np.float32))
+        self._verts, self._nverts = verts, nverts
+        self._inner = None  # (scene or None, owner, ...): segment queries' occluders, on use
+        self._inner_lock = threading.Lock()
+
+    def _inner_scene(self):
+        """The Embree scene of the elements that can block a segment between two points on
+        elements: all but those in a supporting plane of the scene's convex hull (a room's
+        walls, floor and ceiling: core.geometry.on_hull_planes), and its owner map; (None,
+        None) when no element is left (nothing can block). Built once, on the first query."""
+        with self._inner_lock:
+            if self._inner is None:
+                from radiosity.core.geometry import on_hull_planes
+
+                verts = np.asarray(self._verts, float)
+                nverts = np.asarray(self._nverts)
+                keep = np.nonzero(~on_hull_planes(verts, nverts, self.normal))[0]
+                if not len(keep):
+                    self._inner = (None, None)
+                elif len(keep) > INNER_SHARE * len(verts):  # a terrain: not worth a second BVH
+                    self._inner = (self._scene, self.owner)
+                else:
+                    rtcore_scene, mesh_construction = _embree()
+                    tris, owner = element_triangles(verts[keep], nverts[keep])
+                    scene = rtcore_scene.EmbreeScene()
+                    mesh = mesh_construction.TriangleMesh(
+                        scene, ((tris - self.origin) / self.scale).astype(np.float32))
+                    self._inner = (scene, keep[owner].astype(np.int32), mesh)
+            return self._inner[:2]
 
     def _to_frame(self, p: np.ndarray) -> np.ndarray:
         return (p - self.origin) * (1.0 / self.scale)
@@ -113,7 +141,10 @@ class RayCaster:
         report such a hit) a reported occlusion is re-checked and hits on those two elements are
         stepped over. The query is symmetric (it always runs from the lexicographically smaller
         endpoint); the segment is shortened by epsilon at both ends, and segments shorter than
-        2 epsilon are never occluded.
+        2 epsilon are never occluded. With `elem` (every end on an element, so inside the
+        scene's convex hull) the elements in the hull's supporting planes are left out: they
+        cannot block such a segment (_inner_scene; on a room's rays Embree takes about a third
+        less time).
         """
         n = len(ia)
         out = np.zeros(n, bool)
@@ -122,6 +153,11 @@ class RayCaster:
         ib = np.ascontiguousarray(ib, np.int64)
         has_e = elem is not None
         elem = np.ascontiguousarray(elem, np.int64) if has_e else np.zeros(1, np.int64)
+        # both ends on elements: the elements in the hull's planes cannot block (_inner_scene)
+        scene, owner = self._inner_scene() if has_e and n and elem.min() >= 0 else \
+            (self._scene, self.owner)
+        if scene is None:
+            return out
         buf = self._buffers()
         for s in range(0, n, BATCH):
             sl = slice(s, min(n, s + BATCH))
@@ -129,7 +165,7 @@ class RayCaster:
             o32, d32, far, graze = (b[:k] for b in buf)
             _segments(points, ia[sl], ib[sl], self.origin, self.scale, self.epsilon, self.normal,
                       elem, has_e, GRAZING, o32, d32, far, graze)
-            occ = np.asarray(self._scene.run(o32, d32, dists=far, query="OCCLUDED")) != -1
+            occ = np.asarray(scene.run(o32, d32, dists=far, query="OCCLUDED")) != -1
             occ &= far > 0
             g = np.nonzero(occ & graze)[0]
             if len(g):
@@ -140,7 +176,7 @@ class RayCaster:
                 d = y - x
                 length = np.linalg.norm(d, axis=1)
                 occ[g] = self._beyond_own(x, d / length[:, None], length, elem[ia[sl][g]],
-                                          elem[ib[sl][g]])
+                                          elem[ib[sl][g]], scene, owner)
             out[sl] = occ
         return out
 
@@ -153,8 +189,9 @@ class RayCaster:
             self._local.buf = b
         return b
 
-    def _beyond_own(self, a, d, length, ea, eb, rounds: int = 8) -> np.ndarray:
-        """For segments reported occluded: is the first hit on another element than ea, eb?"""
+    def _beyond_own(self, a, d, length, ea, eb, scene, owner, rounds: int = 8) -> np.ndarray:
+        """For segments reported occluded in `scene` (owner: its triangles' elements): is the
+        first hit on another element than ea, eb?"""
         eps = self.epsilon
         t0 = np.full(len(a), eps)
         result = np.zeros(len(a), bool)
@@ -164,10 +201,10 @@ class RayCaster:
                 break
             o = (a[live] + t0[live, None] * d[live]).astype(np.float32)
             far = (length[live] - eps - t0[live]).astype(np.float32)
-            res = self._scene.run(o, d[live].astype(np.float32), dists=np.maximum(far, 0), output=1)
+            res = scene.run(o, d[live].astype(np.float32), dists=np.maximum(far, 0), output=1)
             prim = res["primID"]
             hit = (prim >= 0) & (far > 0)
-            own = np.where(hit, self.owner[np.maximum(prim, 0)], -1)
+            own = np.where(hit, owner[np.maximum(prim, 0)], -1)
             other = hit & (own != ea[live]) & (own != eb[live])
             result[live[other]] = True
             again = hit & ~other
@@ -177,6 +214,9 @@ class RayCaster:
         return result
 
 
+#: A second scene for segment queries only where it leaves out more than this share of the
+#: elements (RayCaster._inner_scene): it costs a second BVH's memory.
+INNER_SHARE = 0.9
 GRAZING = 0.1  # |cos| below which a segment leaving its element may self-hit in float32
 
 

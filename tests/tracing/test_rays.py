@@ -50,3 +50,49 @@ def test_degenerate_segments_are_not_occluded():
     rc = RayCaster(VERTS, NV)
     p = np.array([[0.5, 0.5, 0.5]])
     assert not rc.occluded(p, p)[0]
+
+
+def test_the_hull_planes_are_a_rooms_walls_and_never_block_a_segment_between_elements(rng):
+    """core.geometry.on_hull_planes flags the polygons in the supporting planes of the scene's
+    convex hull (the Cornell box's walls, floor, ceiling and the light in it; not the blocks'
+    faces), and segment queries between points on elements, which leave those out, answer as
+    the whole scene does wherever the answer is not a grazing one."""
+    from radiosity.core.geometry import on_hull_planes
+    from radiosity.scene.load import load_scene
+
+    el = load_scene("scenes/cornell-box").elements
+    hull = on_hull_planes(el.verts, el.nverts, el.normal)
+    names = np.array(el.material_names)[el.material]
+    assert hull[names != "white"].all()  # the coloured walls and the light
+    v = el.verts.reshape(-1, 3)
+    top = el.verts[:, :, 1].min(axis=1) > v[:, 1].max() - 1e-6   # the ceiling and the light
+    bottom = el.verts[:, :, 1].max(axis=1) < v[:, 1].min() + 1e-6
+    assert hull[top].all() and hull[bottom].all()
+    inner = np.nonzero(~hull)[0]
+    assert len(inner) == 10  # the two blocks' faces but their bottoms (none in this scene)
+    assert on_hull_planes(VERTS[:1], NV[:1], np.array([[0, 0, -1.0]])).all()  # one quad: flat
+
+    rc = RayCaster(el.verts, el.nverts)
+    n = 4000
+    a, b = rng.integers(0, len(el), n), rng.integers(0, len(el), n)
+    w = rng.dirichlet(np.ones(3), 2 * n)
+    ids = np.concatenate([a, b])
+    pts = np.einsum("kj,kjc->kc", w, el.verts[ids][:, :3])
+    idx = np.arange(n)
+    part = rc.occluded_pairs(pts, idx, idx + n, ids)
+    assert rc._inner_scene()[0] is not None
+    rc._inner = (rc._scene, rc.owner)  # the whole scene
+    whole = rc.occluded_pairs(pts, idx, idx + n, ids)
+    d = pts[n:] - pts[:n]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    clear = (np.abs(np.einsum("ij,ij->i", el.normal[a], d)) > 0.1) & \
+        (np.abs(np.einsum("ij,ij->i", el.normal[b], d)) > 0.1)
+    assert 0.05 < whole[clear].mean() < 0.95
+    np.testing.assert_array_equal(part[clear], whole[clear])
+    # without the ends' elements the ends may lie outside the hull: the whole scene, whose
+    # walls block a segment from outside the box to its middle
+    rc._inner = (None, None)  # as if nothing inside could block
+    mid = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    out = mid + np.array([0.0, 2.0, 0.0]) * (v.max(axis=0) - v.min(axis=0))  # above, below
+    assert rc.occluded(np.array([out, 2 * mid - out]), np.array([mid, mid])).all()
+    assert not rc.occluded_pairs(pts, idx, idx + n, ids).any()

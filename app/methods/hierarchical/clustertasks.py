@@ -252,8 +252,11 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
         from radiosity.runtime.cluster import Scattered
         from radiosity.runtime.runner import run_tasks
 
-        cuts = np.array_split(pending, max(1, len(pending) // CUT_PER_TASK))
-        ntasks = len(cuts)
+        # every ntasks-th waiting link to a task: neighbours in the breadth-first order are
+        # subtrees of one node and cost alike (on the tessellated Cornell box contiguous cuts
+        # ran from 1 k to 2.6 M links a task, and one thread waited on the last)
+        ntasks = max(1, len(pending) // CUT_PER_TASK)
+        cuts = [np.ascontiguousarray(pending[i::ntasks]) for i in range(ntasks)]
         shared = Scattered(client, inp)
         run_tasks(client, task_clusters, range(ntasks), lambda i: (shared.future(), cuts[i]),
                   name="clusters", token=tokenize(inp.key, inp.epsilon, inp.rays, ct.lref,

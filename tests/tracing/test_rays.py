@@ -69,7 +69,7 @@ def test_the_hull_planes_are_a_rooms_walls_and_never_block_a_segment_between_ele
     bottom = el.verts[:, :, 1].max(axis=1) < v[:, 1].min() + 1e-6
     assert hull[top].all() and hull[bottom].all()
     inner = np.nonzero(~hull)[0]
-    assert len(inner) == 10  # the two blocks' faces but their bottoms (none in this scene)
+    assert len(inner) == 10  # the two blocks' five faces each (the scene has none under them)
     assert on_hull_planes(VERTS[:1], NV[:1], np.array([[0, 0, -1.0]])).all()  # one quad: flat
 
     rc = RayCaster(el.verts, el.nverts)

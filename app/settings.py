@@ -188,6 +188,7 @@ class ImageSettings(_Section):
     SECTION: ClassVar[str] = "render"
     sampling: str
     area_samples: int
+    edge_samples: int
     filter: str
     sigma: float
     exposure: float | None

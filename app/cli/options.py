@@ -213,6 +213,11 @@ def solve_options(fn):
 
 
 def image_options(fn):
+    fn = click.option("--edge-samples", type=click.IntRange(min=0), default=None,
+                      expose_value=False,
+                      help="--sampling area: K x K rays again for each pixel on a silhouette or "
+                           "corner (default: radiosity.render.edge-samples; 0: none).",
+                      callback=_setting("render.edge-samples"))(fn)
     fn = click.option("--area-samples", type=POSITIVE_INT, default=None, expose_value=False,
                       help="--sampling area: K x K rays per pixel (default: "
                            "radiosity.render.area-samples).",

@@ -26,9 +26,10 @@ from radiosity.stages.export import (VIEWER_GROW_PX, VIEWER_MAX_TRIANGLES, expor
 from radiosity.stages.smooth import smooth_mesh
 from radiosity.stages.tables import light_tables, write_light_tables
 from radiosity.stages.pixels import (AUTO_KEY, AUTO_PERCENTILE, LUMA, SAMPLINGS, RenderError,
-                                     auto_exposure, downsample, facing_side, sample_raster,
-                                     pixel_radiance, read_exr, srgb_encode, tonemap, write_exr,
-                                     write_png)
+                                     auto_exposure, downsample, edge_pixels, facing_side,
+                                     pixel_radiance, plane_ids, read_exr, sample_pixels,
+                                     sample_raster, seen_radiance, srgb_encode, tonemap,
+                                     write_exr, write_png)
 
 __all__ = ["ImageFigures", "render_outputs", "previewer",
            "AUTO_KEY", "AUTO_PERCENTILE", "LUMA", "SAMPLINGS", "RenderError", "sample_raster",
@@ -57,6 +58,8 @@ class ImageFigures(StageFigures):
     sampling: str                # area or point (render.sampling)
     area_samples: int            # rays per side of each fine pixel (1 with point)
     rays: int                    # sample rays cast for the image (0 with point: the raster's)
+    edge_pixels: int             # fine pixels on a silhouette or corner, sampled again
+    edge_rays: int               # their rays (render.edge-samples per side)
     filter: str
     sigma: float
     mean_radiance: list
@@ -72,8 +75,10 @@ class ImageFigures(StageFigures):
     def rows(self):
         return [("outputs", "image.exr, image.png, mesh.glb, mesh.ply, viewer.html"),
                 ("image", f"{self.width}x{self.height}, {self.sampling} sampling"
-                          + (f" ({self.area_samples * self.subpixel}^2 rays a pixel)"
-                             if self.sampling == "area" else "")
+                          + (f" ({self.area_samples * self.subpixel}^2 rays a pixel"
+                             + (f", {self.edge_rays // max(self.edge_pixels, 1)} at each of "
+                                f"{self.edge_pixels} on an edge" if self.edge_pixels else "")
+                             + ")" if self.sampling == "area" else "")
                           + f", exposure {self.exposure:.3g}")]
 
 
@@ -81,17 +86,21 @@ class ImageFigures(StageFigures):
 
 def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None = None,
                    exposure: float | str | None = None, settings: Settings | None = None,
-                   sampling: str | None = None, area_samples: int | None = None) -> ImageFigures:
+                   sampling: str | None = None, area_samples: int | None = None,
+                   edge_samples: int | None = None) -> ImageFigures:
     """Image, meshes and viewer of a solved run: writes image.exr, image.png, mesh.glb,
     mesh.ply and viewer.html into `run_dir` and section "render" of report.json.
 
-    filter, sigma, exposure, sampling, area_samples: None takes `render.filter`,
-    `render.sigma`, `render.exposure`, `render.sampling`, `render.area-samples` of `settings`
-    (None: resolved here); an exposure of None there (or "auto" here) is automatic
-    (`auto_exposure` of the final image). sampling "area": each fine pixel is the mean of
-    ceil(area-samples / subpixel)^2 rays over its area (pixels.sample_raster); "point": the
-    sub-element at its centre (the run's ID raster). Returns the figures: paths, exposure,
-    width, height, subpixel, sampling, area_samples, rays, filter, sigma, mean_radiance (RGB mean
+    filter, sigma, exposure, sampling, area_samples, edge_samples: None takes `render.filter`,
+    `render.sigma`, `render.exposure`, `render.sampling`, `render.area-samples`,
+    `render.edge-samples` of `settings` (None: resolved here); an exposure of None there (or
+    "auto" here) is automatic (`auto_exposure` of the final image). sampling "area": each fine
+    pixel is the mean of ceil(area-samples / subpixel)^2 rays over its area
+    (pixels.sample_raster), and one whose rays see two planes or materials the mean of
+    ceil(edge-samples / subpixel)^2 (pixels.edge_pixels); "point": the sub-element at its
+    centre (the run's ID raster). Returns the figures: paths, exposure,
+    width, height, subpixel, sampling, area_samples, rays, edge_pixels, edge_rays (the pixels
+    sampled again and their rays), filter, sigma, mean_radiance (RGB mean
     over the image, black pixels included), hit_fraction (fine pixels whose centre sees an
     element), triangles, time_s.
     """
@@ -100,7 +109,8 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     t0 = time.perf_counter()
     sigma_given = sigma is not None
     st = resolve({"render.filter": filter, "render.sigma": sigma, "render.exposure": exposure,
-                  "render.sampling": sampling, "render.area-samples": area_samples},
+                  "render.sampling": sampling, "render.area-samples": area_samples,
+                  "render.edge-samples": edge_samples},
                  base=settings)
     r = st.render
     if r.sampling not in SAMPLINGS:
@@ -109,6 +119,9 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     if not int(r.area_samples) >= 1:
         raise RenderError(f"radiosity.render.area-samples must be a positive integer, got "
                           f"{r.area_samples!r}")
+    if not int(r.edge_samples) >= 0:
+        raise RenderError(f"radiosity.render.edge-samples must be 0 or a positive integer, got "
+                          f"{r.edge_samples!r}")
     filter = r.filter
     sigma = float(r.sigma)
     exposure = r.exposure
@@ -157,6 +170,17 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     else:
         raster_or_samples = raster
     fine = pixel_radiance(part, elements, camera, raster_or_samples, radiance)
+    edges = edge_rays = 0
+    edge_side = max(0, -(-int(r.edge_samples) // k))
+    if r.sampling == "area" and edge_side > per_side:
+        # pixels on a silhouette or a corner: their covered fractions from more rays
+        rows, cols = np.nonzero(edge_pixels(raster_or_samples, part, plane_ids(elements)))
+        if len(rows):
+            sub = sample_pixels(part, elements, camera, k, edge_side, rows, cols, caster)
+            lum = seen_radiance(part, elements, camera, radiance)
+            fine[rows, cols] = np.where(sub[..., None] >= 0, lum[np.maximum(sub, 0)], 0.0) \
+                .mean(axis=1)
+            edges, edge_rays = len(rows), int(sub.size)
     img = downsample(fine, k, filter, sigma)
     e = auto_exposure(img) if auto else exposure
     t_image = time.perf_counter() - t0
@@ -182,6 +206,7 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
         "width": int(img.shape[1]), "height": int(img.shape[0]), "subpixel": k,
         "sampling": r.sampling, "area_samples": per_side,
         "rays": int(raster_or_samples.size) if r.sampling == "area" else 0,
+        "edge_pixels": edges, "edge_rays": edge_rays,
         "filter": filter, "sigma": sigma,
         "mean_radiance": [float(x) for x in img.reshape(-1, 3).mean(axis=0)],
         "hit_fraction": float(np.mean(raster >= 0)),

@@ -145,7 +145,6 @@ def sample_raster(part: Partition, elements: Elements, camera: Camera, subpixel:
     two-level lookup): any sub-element, also one that no pixel centre hits. caster: a
     RayCaster of the original elements (None: built here with the ray offset `epsilon`).
     """
-    from radiosity.scene.subdivide import lookup
     from radiosity.tracing.rays import RayCaster
 
     rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, epsilon)
@@ -153,25 +152,85 @@ def sample_raster(part: Partition, elements: Elements, camera: Camera, subpixel:
     s = len(offsets)
     w, h = camera.width * subpixel, camera.height * subpixel
     out = np.full((h, w, s), -1, np.int32)
-    origin = np.asarray(camera.center, np.float64)
-    normal = np.asarray(elements.normal, np.float64)
-    center = np.asarray(elements.center, np.float64)
     band = max(1, AREA_BATCH // (w * s))
     for r0 in range(0, h, band):
         r1 = min(h, r0 + band)
         d = sample_directions(camera, subpixel, offsets, r0, r1).reshape(-1, 3)
-        orig = rc.first_hit(origin, d.astype(np.float32), unit=True)
-        hit = orig >= 0
-        e = orig[hit]
-        dh = d[hit]
-        # the exact hit point on the element's plane (float64), as camera.hit_points does (a
-        # ray Embree says hits a plane it runs along lands anywhere: the lookup stays in bounds)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.einsum("ij,ij->i", normal[e], center[e] - origin) / \
-                np.einsum("ij,ij->i", normal[e], dh)
-        sub = np.full(len(orig), -1, np.int32)
-        sub[hit] = lookup(part, origin + t[:, None] * dh, e)
-        out[r0:r1] = sub.reshape(r1 - r0, w, s)
+        out[r0:r1] = _seen(part, elements, camera, rc, d).reshape(r1 - r0, w, s)
+    return out
+
+
+def _seen(part: Partition, elements: Elements, camera: Camera, rc, d: np.ndarray) -> np.ndarray:
+    """The sub-element seen along each unit direction d (r, 3) from the camera, (r,) int32, -1
+    where nothing is hit: Embree's original, the hit point on its plane in float64, the split
+    tree's sub-element there."""
+    from radiosity.scene.subdivide import lookup
+
+    origin = np.asarray(camera.center, np.float64)
+    orig = rc.first_hit(origin, d.astype(np.float32), unit=True)
+    hit = orig >= 0
+    e = orig[hit]
+    dh = d[hit]
+    normal = np.asarray(elements.normal, np.float64)
+    center = np.asarray(elements.center, np.float64)
+    # the exact hit point on the element's plane (float64), as camera.hit_points does (a ray
+    # Embree says hits a plane it runs along lands anywhere: the lookup stays in bounds)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("ij,ij->i", normal[e], center[e] - origin) / \
+            np.einsum("ij,ij->i", normal[e], dh)
+    sub = np.full(len(orig), -1, np.int32)
+    sub[hit] = lookup(part, origin + t[:, None] * dh, e)
+    return sub
+
+
+def plane_ids(elements: Elements) -> np.ndarray:
+    """(n,) int64: one id per plane and material of the original elements (normal and offset
+    rounded to 1e-6, the offset relative to the scene's size): a surface cut into many
+    elements is one, so edge pixels do not depend on how it was cut; a lamp in its ceiling's
+    plane is another."""
+    n = np.asarray(elements.normal, np.float64)
+    v = np.asarray(elements.verts, np.float64).reshape(-1, 3)
+    size = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if len(v) else 1.0
+    size = size if size > 0 else 1.0
+    off = np.einsum("ij,ij->i", n, np.asarray(elements.center, np.float64)) / size
+    key = np.column_stack([np.round(np.column_stack([n, off]) * 1e6).astype(np.int64),
+                           np.asarray(elements.material, np.int64)])
+    return np.unique(key, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
+
+
+def edge_pixels(samples: np.ndarray, part: Partition, plane: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the fine pixels whose sample rays (samples (H, W, S) sub-elements, -1 for
+    none) see more than one plane or material (plane_ids), or some and nothing: a silhouette,
+    a corner, a lamp's border; and their eight neighbours, where an edge that cuts off a sliver
+    may have passed between all of a pixel's rays."""
+    orig = np.asarray(part.orig)
+    pl = np.where(samples >= 0, plane[orig[np.maximum(samples, 0)]], -1)
+    seen = (pl != pl[:, :, :1]).any(axis=2)
+    out = seen.copy()
+    h, w = seen.shape
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            out[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)] |= \
+                seen[max(-dy, 0):h + min(-dy, 0), max(-dx, 0):w + min(-dx, 0)]
+    return out
+
+
+def sample_pixels(part: Partition, elements: Elements, camera: Camera, subpixel: int, k: int,
+                  rows: np.ndarray, cols: np.ndarray, rc) -> np.ndarray:
+    """As sample_raster, for the fine pixels (rows, cols) only: (n, k*k) int32."""
+    offsets = area_offsets(k)
+    s = len(offsets)
+    w, h = camera.width * subpixel, camera.height * subpixel
+    out = np.full((len(rows), s), -1, np.int32)
+    step = max(1, AREA_BATCH // s)
+    for a in range(0, len(rows), step):
+        r, c = rows[a:a + step, None], cols[a:a + step, None]
+        u = camera.half_w * (2.0 * (c + offsets[None, :, 0]) / w - 1.0)      # (b, S)
+        v = camera.half_h * (1.0 - 2.0 * (r + offsets[None, :, 1]) / h)
+        d = (camera.focal * camera.z[None, None, :] + u[..., None] * camera.x[None, None, :]
+             + v[..., None] * camera.y[None, None, :])
+        d = (d / np.linalg.norm(d, axis=-1, keepdims=True)).reshape(-1, 3)
+        out[a:a + len(r)] = _seen(part, elements, camera, rc, d).reshape(len(r), s)
     return out
 
 

@@ -252,7 +252,22 @@ def test_render_outputs_writes_deterministic_images(cornell_run):
     # the default: each of the 2 x 2 fine pixels (subpixel 2) the mean of 2 x 2 rays over its area
     assert (f1["sampling"], f1["area_samples"], f1["rays"]) == ("area", 2, 32 * 32 * 4)
     rays = render.sample_raster(part, el, cam, 2, 2, 1e-6)
-    want = render.downsample(render.pixel_radiance(part, el, cam, rays, L), 2, "box")
+    fine = render.pixel_radiance(part, el, cam, rays, L)
+    # fine pixels whose rays see two planes or materials (and their neighbours): the mean of
+    # ceil(edge-samples 12 / 2)^2 = 36 rays over their area
+    from radiosity.stages import pixels
+    from radiosity.tracing.rays import RayCaster
+
+    rows, cols = np.nonzero(pixels.edge_pixels(rays, part, pixels.plane_ids(el)))
+    assert 0 < len(rows) < 32 * 32
+    assert (f1["edge_pixels"], f1["edge_rays"]) == (len(rows), 36 * len(rows))
+    rc = RayCaster(el.verts, el.nverts, 1e-6)
+    sub = pixels.sample_pixels(part, el, cam, 2, 6, rows, cols, rc)
+    lum = pixels.seen_radiance(part, el, cam, L)
+    edge = np.where(sub[..., None] >= 0, lum[np.maximum(sub, 0)], 0.0).mean(axis=1)
+    assert np.abs(edge - fine[rows, cols]).max() > 0  # they change the image
+    fine[rows, cols] = edge
+    want = render.downsample(fine, 2, "box")
     np.testing.assert_array_equal(img, want.astype(np.float32))
     # the seed's point samples: the ID raster of the fine pixels' centres
     fp = render.render_outputs(cornell_run, sampling="point")

@@ -120,18 +120,25 @@ def test_an_edge_pixel_is_the_coverage_weighted_mean_of_its_two_sides(edge_run):
     inside = (cov == 0.0) | (cov == 1.0)
     assert edge.sum() >= 12 and inside.sum() > 300
     err = {}
-    for sampling in ("area", "point"):
-        fig = render_outputs(out, sampling=sampling)
+    for sampling, edges in (("area", 0), ("area", 24), ("point", 0)):
+        fig = render_outputs(out, sampling=sampling, area_samples=4, edge_samples=edges)
         img = read_exr(f"{out}/image.exr").astype(float)[..., 0]
         assert fig.sampling == sampling and fig.rays == (20 * 20 * 16 if sampling == "area" else 0)
+        # the pixels sampled again: those whose 16 rays see both the light and the ceiling
+        assert (fig.edge_pixels > edge.sum()) == (edges > 0) and \
+            fig.edge_rays == fig.edge_pixels * edges ** 2
         share = np.abs((img - want) / (L_LIGHT - L_CEILING))[edge]
         total = img[edge].sum() / want[edge].sum() - 1
-        err[sampling] = (share.mean(), share.max(), total)
+        err[sampling, edges] = (share.mean(), share.max(), total)
         np.testing.assert_allclose(img[inside], want[inside], rtol=1e-6)
     # measured: area 3.1 % of the pixel on average, 10 % at worst, the edge's total -0.2 %;
-    # point 30 % on average (its total is about right too: its errors cancel along an edge)
-    assert err["area"][0] < 0.04 and err["area"][1] < 0.12 and abs(err["area"][2]) < 0.02, err
-    assert err["point"][0] > 0.2, err
+    # with the edge pixels' 24 x 24 rays 0.4 % and 1.0 % (the coverage above is exact to
+    # about 1 %, its 64 x 64 rays), total -0.1 %; point 30 % on average (its total
+    # is about right too: its errors cancel along an edge)
+    a, e = err["area", 0], err["area", 24]
+    assert a[0] < 0.04 and a[1] < 0.12 and abs(a[2]) < 0.02, err
+    assert e[0] < 0.006 and e[1] < 0.02 and abs(e[2]) < 0.002, err
+    assert err["point", 0][0] > 0.2, err
 
 
 def test_the_flags_choose_the_sampling_and_the_report_says_which(edge_run):

@@ -2,7 +2,7 @@
 block standing on it, with no bottom face, sees only the block's insides. Its points are left
 out of the links' visible fractions (element links: sampling.SolidPoints; cluster links:
 clusterweights.SolidEnds) and its sub-elements out of the transport
-(transport.live_leaves, stages/solve.py)."""
+(leaves.live_leaves, stages/solve.py)."""
 
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ def test_a_floor_node_half_under_a_block_sees_the_ceiling_by_its_live_half():
     every ray from its live half reaches the ceiling, every ray from under the block is
     blocked. Its visible fraction: one half with every ray counted, 1 with the points inside
     the block left out (the live half's light then comes through the solve's weights,
-    transport.live_leaves)."""
+    leaves.live_leaves)."""
     V, nv, two = _block_scene()
     rc = RayCaster(V, nv, 1e-6)
     floor = _quad([1, 0, 4], [1, 0, 5], [5, 0, 5], [5, 0, 4])
@@ -123,7 +123,7 @@ def test_a_cluster_link_leaves_out_the_rays_of_elements_under_a_block():
 
 def test_the_floor_under_the_cornell_boxs_blocks_takes_no_part(client, tmp_path):
     """The Cornell box (its blocks have no bottom faces) at 16^2: the floor leaves whose four
-    points lie under a block are 0 in transport.live_leaves, those across a block's edge
+    points lie under a block are 0 in leaves.live_leaves, those across a block's edge
     between 0 and 1, every other leaf 1; the solve leaves the first out (no radiance), and a
     render without the rule (hierarchy.inside-solids false) gives them light."""
     import dask
@@ -132,7 +132,8 @@ def test_the_floor_under_the_cornell_boxs_blocks_takes_no_part(client, tmp_path)
     from helpers import prepared, scene_path
     from radiosity.core.geometry import polygon_properties
     from radiosity.methods.hierarchical.links import compute_links
-    from radiosity.methods.hierarchical.transport import live_leaves, open_link_operator
+    from radiosity.methods.hierarchical.leaves import live_leaves
+    from radiosity.methods.hierarchical.transport import open_link_operator
     from radiosity.runtime.store import RunStore
     from radiosity.stages.solve import run_solve
 

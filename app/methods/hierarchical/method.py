@@ -42,8 +42,8 @@ class HierarchicalMethod:
         LinkStore(rs).require()
 
     def open(self, rs, client, settings, where: str = "auto", **options) -> Opened:
-        from radiosity.methods.hierarchical.transport import (leaf_vectors, live_leaves,
-                                                             open_link_operator, to_sub_elements)
+        from radiosity.methods.hierarchical.leaves import leaf_vectors, live_leaves, to_sub_elements
+        from radiosity.methods.hierarchical.transport import open_link_operator
         from radiosity.settings import resolve
 
         op, table, el, part = open_link_operator(rs, client, where, settings)

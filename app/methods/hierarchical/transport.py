@@ -4,7 +4,8 @@ works. Vectors are (2, C, M) float64 [side, channel, leaf]. Links are read from 
 task and kept in the worker's bounded cache (runtime/cache.CACHE); `LinkOperator` runs a pass as
 one Dask task per group of link tasks, each pinned to a worker; `LocalLinkOperator` runs the same
 task functions in the driver (no round trips, links read once: faster up to
-hierarchy.driver-solve-links links). Also here: opening a run's operator and its leaf vectors."""
+hierarchy.driver-solve-links links). Also here: opening a run's operator (its leaves' vectors:
+leaves.py)."""
 
 from __future__ import annotations
 
@@ -538,57 +539,6 @@ def memory_inputs(table: dict, tasks: list, normal: np.ndarray) -> LinkSolveInpu
 
     return LinkSolveInputs(table, entries, "memory", f"memory-{uuid.uuid4().hex}", normal,
                            memory=list(tasks))
-
-
-def leaf_vectors(table: dict, elements):
-    """Le, rho (2, 3, M) and area (M,) of the leaves, per side."""
-    o = table["orig"][table["leaf_node"]]
-    Le = np.ascontiguousarray(np.transpose(elements.emission[o], (1, 2, 0)))
-    rho = np.ascontiguousarray(np.transpose(elements.reflectance[o], (1, 2, 0)))
-    return Le, rho, table["leaf_area"]
-
-
-def live_leaves(table: dict, elements, epsilon: float) -> np.ndarray:
-    """(M,) the part of each leaf outside solids: 1 minus the share of its four stratified
-    points (sampling.link_points) that lie inside a solid (scene/contact.inside_solid: a
-    floor's leaves under a block standing on it are 0, those across the block's edge between).
-    The solve leaves the leaves at 0 out of the transport, as contact sides
-    (stages/solve.RowTargets), and weighs the others' light in their nodes by it
-    (LinkSolveInputs.pull_area); two-sided leaves are 1."""
-    from radiosity.methods.hierarchical.sampling import link_points, ray_pairing, triangle_strata
-    from radiosity.scene.contact import inside_solid
-    from radiosity.tracing.rays import RayCaster
-
-    ln = np.asarray(table["leaf_node"], np.int64)
-    o = table["orig"][ln]
-    out = np.ones(len(ln))
-    two = np.asarray(elements.two_sided, bool)
-    one = np.nonzero(~two[o])[0]
-    if not len(one):
-        return out
-    k = 4
-    verts, nverts = table["verts"], table["nverts"].astype(np.int64)
-    nodes = ln[one]
-    pts, e = link_points(verts, nverts, np.zeros((len(verts), 3)), table["orig"].astype(np.int64),
-                         nodes, nodes, 2, triangle_strata(k), ray_pairing(k))
-    pts, e = pts[:len(nodes) * k], e[:len(nodes) * k]
-    ins = inside_solid(RayCaster(elements.verts, elements.nverts, epsilon), pts,
-                       elements.normal[e], two)
-    out[one] = 1.0 - ins.reshape(len(nodes), k).mean(axis=1)
-    return out
-
-
-def to_sub_elements(L: np.ndarray, table: dict, m: int) -> np.ndarray:
-    """Leaf radiance (2, C, M) -> sub-element radiance (m, 2, C): identical for seen originals,
-    the area-weighted mean of the split-off leaves for an unseen original's one sub-element."""
-    sub = table["leaf_sub"]
-    A = table["leaf_area"]
-    out = np.zeros((m, L.shape[0], L.shape[1]))
-    wsum = np.bincount(sub, A, minlength=m)
-    for s in range(L.shape[0]):
-        for c in range(L.shape[1]):
-            out[:, s, c] = np.bincount(sub, A * L[s, c], minlength=m) / np.where(wsum > 0, wsum, 1)
-    return out
 
 
 def open_link_operator(rs, client=None, where: str = "auto", settings=None):

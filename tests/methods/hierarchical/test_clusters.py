@@ -423,7 +423,8 @@ def test_clusters_mixing_faces_do_not_darken_the_elements_that_face_the_light(cl
 def test_energy_is_conserved_with_cluster_links(client, tmp_path):
     """An open scene with cluster links: emitted = absorbed + escaped to 1e-9, with the
     operator's own row sums (diag(A) K symmetric, the solution exact to the tolerance)."""
-    from radiosity.methods.hierarchical.transport import leaf_vectors, open_link_operator
+    from radiosity.methods.hierarchical.leaves import leaf_vectors
+    from radiosity.methods.hierarchical.transport import open_link_operator
     from radiosity.runtime.store import RunStore
     from radiosity.settings import resolve
 

@@ -124,13 +124,19 @@ def sample_directions(camera: Camera, subpixel: int, offsets: np.ndarray, r0: in
     of the K-times finer raster (K = subpixel), S rays each at `offsets` (S, 2) (x right, y down,
     in pixels from the fine pixel's top-left corner; (0.5, 0.5) is the centre, as
     camera.pixel_directions)."""
-    w, h = camera.width * subpixel, camera.height * subpixel
+    w = camera.width * subpixel
     ox, oy = offsets[:, 0], offsets[:, 1]
-    u = camera.half_w * (2.0 * (np.arange(w)[:, None] + ox[None, :]) / w - 1.0)       # (W, S)
-    v = camera.half_h * (1.0 - 2.0 * (np.arange(r0, r1)[:, None] + oy[None, :]) / h)  # (R, S)
-    d = (camera.focal * camera.z[None, None, None, :]
-         + u[None, :, :, None] * camera.x[None, None, None, :]
-         + v[:, None, :, None] * camera.y[None, None, None, :])
+    return _through(camera, subpixel, np.arange(w)[None, :, None] + ox[None, None, :],
+                    np.arange(r0, r1)[:, None, None] + oy[None, None, :])
+
+
+def _through(camera: Camera, subpixel: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Unit directions (..., 3) float64 of the rays through the points (x right, y down, in
+    fine pixels from the K-times finer raster's top-left corner; x and y broadcast)."""
+    w, h = camera.width * subpixel, camera.height * subpixel
+    u, v = np.broadcast_arrays(camera.half_w * (2.0 * x / w - 1.0),
+                               camera.half_h * (1.0 - 2.0 * y / h))
+    d = camera.focal * camera.z + u[..., None] * camera.x + v[..., None] * camera.y
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
@@ -188,11 +194,11 @@ def plane_ids(elements: Elements) -> np.ndarray:
     rounded to 1e-6, the offset relative to the scene's size): a surface cut into many
     elements is one, so edge pixels do not depend on how it was cut; a lamp in its ceiling's
     plane is another."""
+    from radiosity.scene.contact import scene_scale
+
     n = np.asarray(elements.normal, np.float64)
-    v = np.asarray(elements.verts, np.float64).reshape(-1, 3)
-    size = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if len(v) else 1.0
-    size = size if size > 0 else 1.0
-    off = np.einsum("ij,ij->i", n, np.asarray(elements.center, np.float64)) / size
+    off = np.einsum("ij,ij->i", n, np.asarray(elements.center, np.float64)) / \
+        (scene_scale(elements) or 1.0)
     key = np.column_stack([np.round(np.column_stack([n, off]) * 1e6).astype(np.int64),
                            np.asarray(elements.material, np.int64)])
     return np.unique(key, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
@@ -203,16 +209,11 @@ def edge_pixels(samples: np.ndarray, part: Partition, plane: np.ndarray) -> np.n
     none) see more than one plane or material (plane_ids), or some and nothing: a silhouette,
     a corner, a lamp's border; and their eight neighbours, where an edge that cuts off a sliver
     may have passed between all of a pixel's rays."""
+    from scipy.ndimage import binary_dilation
+
     orig = np.asarray(part.orig)
     pl = np.where(samples >= 0, plane[orig[np.maximum(samples, 0)]], -1)
-    seen = (pl != pl[:, :, :1]).any(axis=2)
-    out = seen.copy()
-    h, w = seen.shape
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            out[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)] |= \
-                seen[max(-dy, 0):h + min(-dy, 0), max(-dx, 0):w + min(-dx, 0)]
-    return out
+    return binary_dilation((pl != pl[:, :, :1]).any(axis=2), np.ones((3, 3), bool))
 
 
 def sample_pixels(part: Partition, elements: Elements, camera: Camera, subpixel: int, k: int,
@@ -220,17 +221,12 @@ def sample_pixels(part: Partition, elements: Elements, camera: Camera, subpixel:
     """As sample_raster, for the fine pixels (rows, cols) only: (n, k*k) int32."""
     offsets = area_offsets(k)
     s = len(offsets)
-    w, h = camera.width * subpixel, camera.height * subpixel
     out = np.full((len(rows), s), -1, np.int32)
     step = max(1, AREA_BATCH // s)
     for a in range(0, len(rows), step):
         r, c = rows[a:a + step, None], cols[a:a + step, None]
-        u = camera.half_w * (2.0 * (c + offsets[None, :, 0]) / w - 1.0)      # (b, S)
-        v = camera.half_h * (1.0 - 2.0 * (r + offsets[None, :, 1]) / h)
-        d = (camera.focal * camera.z[None, None, :] + u[..., None] * camera.x[None, None, :]
-             + v[..., None] * camera.y[None, None, :])
-        d = (d / np.linalg.norm(d, axis=-1, keepdims=True)).reshape(-1, 3)
-        out[a:a + len(r)] = _seen(part, elements, camera, rc, d).reshape(len(r), s)
+        d = _through(camera, subpixel, c + offsets[None, :, 0], r + offsets[None, :, 1])
+        out[a:a + len(r)] = _seen(part, elements, camera, rc, d.reshape(-1, 3)).reshape(len(r), s)
     return out
 
 

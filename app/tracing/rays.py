@@ -59,7 +59,8 @@ class RayCaster:
         self._mesh = mesh_construction.TriangleMesh(
             self._scene, ((tris - self.origin) / self.scale).astype(np.float32))
         self._verts, self._nverts = verts, nverts
-        self._inner = None  # (scene or None, owner, ...): segment queries' occluders, on use
+        self._inner = None  # (scene or None, owner): segment queries' occluders, built on use
+        self._inner_mesh = None  # keeps the second scene's triangles alive
         self._inner_lock = threading.Lock()
 
     def _inner_scene(self):
@@ -67,6 +68,8 @@ class RayCaster:
         elements: all but those in a supporting plane of the scene's convex hull (a room's
         walls, floor and ceiling: core.geometry.on_hull_planes), and its owner map; (None,
         None) when no element is left (nothing can block). Built once, on the first query."""
+        if self._inner is not None:  # the hot path: every segment query asks
+            return self._inner
         with self._inner_lock:
             if self._inner is None:
                 from radiosity.core.geometry import on_hull_planes
@@ -82,10 +85,10 @@ class RayCaster:
                     rtcore_scene, mesh_construction = _embree()
                     tris, owner = element_triangles(verts[keep], nverts[keep])
                     scene = rtcore_scene.EmbreeScene()
-                    mesh = mesh_construction.TriangleMesh(
+                    self._inner_mesh = mesh_construction.TriangleMesh(
                         scene, ((tris - self.origin) / self.scale).astype(np.float32))
-                    self._inner = (scene, keep[owner].astype(np.int32), mesh)
-            return self._inner[:2]
+                    self._inner = (scene, keep[owner].astype(np.int32))
+            return self._inner
 
     def _to_frame(self, p: np.ndarray) -> np.ndarray:
         return (p - self.origin) * (1.0 / self.scale)

@@ -156,7 +156,13 @@ class PairBins:
         self.k = k = len(first) - 1
         task = np.repeat(np.arange(k, dtype=np.int64), np.diff(first))
         cell = (pairs[:, 0] * b // n) * b + pairs[:, 1] * b // n
-        key, cnt = np.unique(task * (b * b) + cell, return_counts=True)
+        keys = task * (b * b) + cell
+        if k * b * b <= 8 * len(keys) + (1 << 20):  # a count per (task, bin): no sort
+            cnt = np.bincount(keys, minlength=k * b * b)
+            key = np.nonzero(cnt)[0]
+            cnt = cnt[key]
+        else:
+            key, cnt = np.unique(keys, return_counts=True)
         self.task, self.cell, self.cnt = key // (b * b), key % (b * b), cnt.astype(float)
         self.total = np.bincount(cell, minlength=b * b).astype(float)
         self.pairs = np.diff(first)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from radiosity.errors import RadiosityError
@@ -317,44 +318,66 @@ def _leaf_members(t: OriginalsTree, nodes: np.ndarray):
     return ids, ok
 
 
-def _facing(t: OriginalsTree, I: np.ndarray, J: np.ndarray) -> np.ndarray:
-    """facing(I, J) for element arrays I (P, a), J (P, b): (P, a, b) bool, with the arithmetic
-    of plan.facing_blocks (front of I's plane, or behind it for a two-sided I)."""
-    n_ = t.normal[I]                     # (P, a, 3)
-    v = t.verts[J]                       # (P, b, 4, 3)
-    d = (n_[:, :, None, None, :] * v[:, None, :, :, :]).sum(-1) - t.offset[I][:, :, None, None]
-    front = (d > t.eps).any(axis=3)
-    back = (d < -t.eps).any(axis=3)
-    return front | (t.two_sided[I][:, :, None] & back)
-
-
 def _exact_pairs(t: OriginalsTree, A: np.ndarray, B: np.ndarray):
     """The facing pairs between leaves A[p] and B[p] (distinct), as (min, max) element ids."""
-    if len(A) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    ia, oka = _leaf_members(t, A)
-    ib, okb = _leaf_members(t, B)
-    IA, IB = np.maximum(ia, 0), np.maximum(ib, 0)
-    both = _facing(t, IA, IB) & np.transpose(_facing(t, IB, IA), (0, 2, 1))
-    both &= oka[:, :, None] & okb[:, None, :]
-    p, x, y = np.nonzero(both)
-    i, j = IA[p, x], IB[p, y]
-    return np.minimum(i, j).astype(np.int64), np.maximum(i, j).astype(np.int64)
+    A = np.ascontiguousarray(A, np.int64)
+    return _leaf_pairs(A, np.ascontiguousarray(B, np.int64), False, t.order, t.start, t.end,
+                       t.normal, t.verts, t.offset, t.two_sided, float(t.eps))
 
 
 def _exact_self(t: OriginalsTree, S: np.ndarray):
     """The facing pairs within each leaf S[p], as (min, max) element ids."""
-    if len(S) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    ids, ok = _leaf_members(t, S)
-    I = np.maximum(ids, 0)
-    f = _facing(t, I, I)
-    both = f & np.transpose(f, (0, 2, 1))
-    L = ids.shape[1]
-    both &= ok[:, :, None] & ok[:, None, :] & (np.arange(L)[:, None] < np.arange(L)[None, :])
-    p, x, y = np.nonzero(both)
-    i, j = I[p, x], I[p, y]
-    return np.minimum(i, j).astype(np.int64), np.maximum(i, j).astype(np.int64)
+    S = np.ascontiguousarray(S, np.int64)
+    return _leaf_pairs(S, S, True, t.order, t.start, t.end, t.normal, t.verts, t.offset,
+                       t.two_sided, float(t.eps))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _faces(normal, verts, offset, two_sided, eps, i, j) -> bool:
+    """Element j has a vertex strictly in front of element i's plane (or behind it, for a
+    two-sided i): the arithmetic of plan.facing_blocks."""
+    front = False
+    back = False
+    for k in range(verts.shape[1]):
+        d = (normal[i, 0] * verts[j, k, 0] + normal[i, 1] * verts[j, k, 1]
+             + normal[i, 2] * verts[j, k, 2]) - offset[i]
+        front |= d > eps
+        back |= d < -eps
+    return front or (two_sided[i] and back)
+
+
+@numba.njit(cache=True, nogil=True)
+def _leaf_pairs(A, B, same, order, start, end, normal, verts, offset, two_sided, eps):
+    """The pairs of elements (one of leaf A[p], one of leaf B[p]; within A[p] when `same`) that
+    face each other both ways, as (min, max) element ids in leaf-pair order."""
+    total = 0
+    for p in range(len(A)):
+        a = end[A[p]] - start[A[p]]
+        total += a * (a - 1) // 2 if same else a * (end[B[p]] - start[B[p]])
+    lo = np.empty(total, np.int64)
+    hi = np.empty(total, np.int64)
+    m = 0
+    for p in range(len(A)):
+        for x in range(start[A[p]], end[A[p]]):
+            i = order[x]
+            for y in range(x + 1 if same else start[B[p]], end[B[p]]):
+                j = order[y]
+                if _faces(normal, verts, offset, two_sided, eps, i, j) and \
+                        _faces(normal, verts, offset, two_sided, eps, j, i):
+                    lo[m] = min(i, j)
+                    hi[m] = max(i, j)
+                    m += 1
+    return lo[:m], hi[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def _face_each_other(I, J, normal, verts, offset, two_sided, eps):
+    """(k,) bool: elements I[k] and J[k] face each other both ways."""
+    out = np.empty(len(I), np.bool_)
+    for k in range(len(I)):
+        out[k] = _faces(normal, verts, offset, two_sided, eps, I[k], J[k]) and \
+            _faces(normal, verts, offset, two_sided, eps, J[k], I[k])
+    return out
 
 
 # ----------------------------------------------------------------------------- behind
@@ -476,8 +499,8 @@ def _sampled(t: OriginalsTree, A: np.ndarray, B: np.ndarray, k: int, rng) -> flo
         a, b = A[s0:s0 + LEAF_BATCH], B[s0:s0 + LEAF_BATCH]
         I = t.order[t.start[a][:, None] + (rng.random((len(a), k)) * t.size[a][:, None]).astype(np.int64)]
         J = t.order[t.start[b][:, None] + (rng.random((len(b), k)) * t.size[b][:, None]).astype(np.int64)]
-        i, j = I.reshape(-1, 1), J.reshape(-1, 1)
-        f = (_facing(t, i, j) & _facing(t, j, i)).reshape(len(a), k)
+        f = _face_each_other(I.ravel(), J.ravel(), t.normal, t.verts, t.offset, t.two_sided,
+                             float(t.eps)).reshape(len(a), k)
         total += float((f.mean(axis=1) * t.size[a] * t.size[b]).sum())
     return total
 

@@ -5,6 +5,7 @@ Design notes and measurements: docs/src/design/scene-closure.md.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -76,9 +77,11 @@ def _frame(n: np.ndarray):
 
 def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
                    directions: int = DIRECTIONS, leak: float = LEAK, seed: int = 0,
-                   contact: bool = True) -> Closure:
+                   contact: bool = True, threads: int = 2) -> Closure:
     """The closure test above, per element side; epsilon: the ray offset (rays.epsilon).
-    contact: find contact sides first (contact.py) and leave their covered points out."""
+    contact: find contact sides first (contact.py) and leave their covered points out; the
+    rays go in batches of about 256 k on `threads` threads (the driver's, before any link
+    task runs)."""
     from radiosity.scene.contact import COVERED, contact_points, scene_scale
 
     n = len(elements)
@@ -95,37 +98,43 @@ def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
     # off the surface, beyond float32 rounding, and well inside the contact window: a point
     # nearer than that to another surface is covered (contact.py), never stepped through it
     step = STEP * max(1.0, epsilon / 1e-6) * scene_scale(elements) if n else 0.0
+    jobs = []
     for side in (1.0, -1.0):
         k = 0 if side > 0 else 1
         ids = np.arange(n) if side > 0 else np.nonzero(elements.two_sided)[0]
         if not len(ids):
             continue
         loc = _directions(directions, rng)                           # (D, 3)
-        # elements in batches of about 1 M rays: memory stays bounded however many there are
-        batch = max(1, (1 << 20) // (P * directions))
-        for s0 in range(0, len(ids), batch):
-            sub = ids[s0:s0 + batch]
-            nrm = side * elements.normal[sub]
-            t1, t2 = _frame(nrm)
-            dirs = (loc[None, :, :1] * t1[:, None] + loc[None, :, 1:2] * t2[:, None]
-                    + loc[None, :, 2:] * nrm[:, None])                  # (k, D, 3)
-            o = pts[sub][:, :, None, :] + step * nrm[:, None, None, :]  # (k, P, 1, 3)
-            o = np.broadcast_to(o, (len(sub), P, directions, 3)).reshape(-1, 3)
-            d = np.broadcast_to(dirs[:, None], (len(sub), P, directions, 3)).reshape(-1, 3)
-            hit = rc.first_hit(np.ascontiguousarray(o), np.ascontiguousarray(d))
-            # a hit on a one-sided element from behind is black: the light is lost there too
-            back = np.zeros(len(hit), bool)
-            h = hit >= 0
-            back[h] = (np.einsum("ij,ij->i", elements.normal[hit[h]], d[h]) > 0) & \
-                ~elements.two_sided[hit[h]]
-            # a point whose every ray meets a back face lies inside a solid (the part of a floor
-            # under a block standing on it), a covered point (contact.py) sees only its cover:
-            # neither takes part in the transport, and neither is counted
-            miss = (~h).reshape(len(sub), P, directions)
-            back = back.reshape(len(sub), P, directions)
-            skip = back.all(axis=2) | covered[sub, :, k]
-            lost[sub, k] += np.where(skip[..., None], False, miss | back).sum(axis=(1, 2))
-            cast[sub, k] += (~skip).sum(axis=1) * directions
+        # elements in batches of about 256 k rays: memory stays bounded however many there are
+        batch = max(1, (1 << 18) // (P * directions))
+        jobs += [(ids[s0:s0 + batch], k, side, loc) for s0 in range(0, len(ids), batch)]
+
+    def run(job):  # the batches hold disjoint elements: each writes its own rows
+        sub, k, side, loc = job
+        nrm = side * elements.normal[sub]
+        t1, t2 = _frame(nrm)
+        dirs = (loc[None, :, :1] * t1[:, None] + loc[None, :, 1:2] * t2[:, None]
+                + loc[None, :, 2:] * nrm[:, None])                  # (k, D, 3)
+        o = pts[sub][:, :, None, :] + step * nrm[:, None, None, :]  # (k, P, 1, 3)
+        o = np.broadcast_to(o, (len(sub), P, directions, 3)).reshape(-1, 3)
+        d = np.broadcast_to(dirs[:, None], (len(sub), P, directions, 3)).reshape(-1, 3)
+        hit = rc.first_hit(np.ascontiguousarray(o), np.ascontiguousarray(d))
+        # a hit on a one-sided element from behind is black: the light is lost there too
+        back = np.zeros(len(hit), bool)
+        h = hit >= 0
+        back[h] = (np.einsum("ij,ij->i", elements.normal[hit[h]], d[h]) > 0) & \
+            ~elements.two_sided[hit[h]]
+        # a point whose every ray meets a back face lies inside a solid (the part of a floor
+        # under a block standing on it), a covered point (contact.py) sees only its cover:
+        # neither takes part in the transport, and neither is counted
+        miss = (~h).reshape(len(sub), P, directions)
+        back = back.reshape(len(sub), P, directions)
+        skip = back.all(axis=2) | covered[sub, :, k]
+        lost[sub, k] += np.where(skip[..., None], False, miss | back).sum(axis=(1, 2))
+        cast[sub, k] += (~skip).sum(axis=1) * directions
+
+    with ThreadPoolExecutor(threads) as pool:  # Embree and numpy's big loops let go of the GIL
+        list(pool.map(run, jobs))
     frac = lost / np.maximum(cast, 1)
     cover = covered.mean(axis=1)                      # (n, 2): the covered fraction
     touching = cover >= COVERED

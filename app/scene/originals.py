@@ -18,7 +18,7 @@ TOL = 1e-9            # relative to the scene's size, as plan.facing_blocks
 LEAF = 16             # elements per leaf
 BATCH = 1 << 14       # node pairs classified per batch
 ESTIMATE_NODE_PAIRS = 1 << 16  # node pairs counted before the budget check samples the rest
-LEAF_BATCH = 256      # leaf pairs tested exactly per batch (256 x 16 x 16 x 4 x 3 floats: 25 MB)
+LEAF_BATCH = 256      # leaf pairs tested exactly per batch
 
 
 class FacingPairsError(RadiosityError):
@@ -333,9 +333,10 @@ def _exact_self(t: OriginalsTree, S: np.ndarray):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _faces(normal, verts, offset, two_sided, eps, i, j) -> bool:
-    """Element j has a vertex strictly in front of element i's plane (or behind it, for a
-    two-sided i): the arithmetic of plan.facing_blocks."""
+def faces(normal, verts, offset, two_sided, eps, i, j) -> bool:
+    """Does element j have a vertex strictly in front of element i's plane (behind it, for a
+    two-sided i)? The arithmetic of plan.facing_blocks; verts (n, 4, 3), a triangle repeating
+    a vertex. Also the cluster refinement's test of two originals (clusters.py)."""
     front = False
     back = False
     for k in range(verts.shape[1]):
@@ -362,8 +363,8 @@ def _leaf_pairs(A, B, same, order, start, end, normal, verts, offset, two_sided,
             i = order[x]
             for y in range(x + 1 if same else start[B[p]], end[B[p]]):
                 j = order[y]
-                if _faces(normal, verts, offset, two_sided, eps, i, j) and \
-                        _faces(normal, verts, offset, two_sided, eps, j, i):
+                if faces(normal, verts, offset, two_sided, eps, i, j) and \
+                        faces(normal, verts, offset, two_sided, eps, j, i):
                     lo[m] = min(i, j)
                     hi[m] = max(i, j)
                     m += 1
@@ -375,8 +376,8 @@ def _face_each_other(I, J, normal, verts, offset, two_sided, eps):
     """(k,) bool: elements I[k] and J[k] face each other both ways."""
     out = np.empty(len(I), np.bool_)
     for k in range(len(I)):
-        out[k] = _faces(normal, verts, offset, two_sided, eps, I[k], J[k]) and \
-            _faces(normal, verts, offset, two_sided, eps, J[k], I[k])
+        out[k] = faces(normal, verts, offset, two_sided, eps, I[k], J[k]) and \
+            faces(normal, verts, offset, two_sided, eps, J[k], I[k])
     return out
 
 

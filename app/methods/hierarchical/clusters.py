@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from radiosity.scene.originals import faces
+
 # A link is near when its ends' box diagonals summed exceed this many times the distance
 # between the boxes: never kept between clusters (the estimate from sample pairs, and the
 # receivers' uniform share, fail there; docs/src/design/methods-hierarchical-clusters.md).
@@ -168,22 +170,6 @@ def _may_face(rec, A, B, eps):
     s = rec[A, SPREAD] * np.sqrt(vmax2)
     half = 0.5 * eps
     return (up + s > half) or (rec[A, TWO] > 0 and low - s < -half)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _faces(normal, verts, offset, two_sided, eps, i, j):
-    """Does original j have a vertex strictly in front of i's plane (behind it, two-sided i)?
-    The arithmetic of plan.facing_blocks / originals._facing (CElems' arrays)."""
-    front = False
-    back = False
-    for v in range(4):
-        d = (normal[i, 0] * verts[j, v, 0] + normal[i, 1] * verts[j, v, 1]
-             + normal[i, 2] * verts[j, v, 2]) - offset[i]
-        if d > eps:
-            front = True
-        if d < -eps:
-            back = True
-    return front or (two_sided[i] and back)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -396,8 +382,8 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
                 or _error_estimate(rec, center, start, end, ona, p, q, d2, lref) < eps)
         if lp and lq:  # two originals: a link over both, or a pair for the element level
             i, j = order[start[p]], order[start[q]]
-            if not (_faces(normal, verts, offset, two_sided, feps, i, j)
-                    and _faces(normal, verts, offset, two_sided, feps, j, i)):
+            if not (faces(normal, verts, offset, two_sided, feps, i, j)
+                    and faces(normal, verts, offset, two_sided, feps, j, i)):
                 counts[1] += 1
                 continue
             if not keep:

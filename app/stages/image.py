@@ -28,8 +28,8 @@ from radiosity.stages.tables import light_tables, write_light_tables
 from radiosity.stages.pixels import (AUTO_KEY, AUTO_PERCENTILE, LUMA, SAMPLINGS, RenderError,
                                      auto_exposure, downsample, edge_pixels, facing_side,
                                      pixel_radiance, plane_ids, read_exr, sample_pixels,
-                                     sample_raster, seen_radiance, srgb_encode, tonemap,
-                                     write_exr, write_png)
+                                     sample_raster, samples_radiance, seen_radiance,
+                                     srgb_encode, tonemap, write_exr, write_png)
 
 __all__ = ["ImageFigures", "render_outputs", "previewer",
            "AUTO_KEY", "AUTO_PERCENTILE", "LUMA", "SAMPLINGS", "RenderError", "sample_raster",
@@ -169,7 +169,8 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
                                           float(st.rays.epsilon), caster=caster)
     else:
         raster_or_samples = raster
-    fine = pixel_radiance(part, elements, camera, raster_or_samples, radiance)
+    lum = seen_radiance(part, elements, camera, radiance)
+    fine = samples_radiance(lum, raster_or_samples)
     edges = edge_rays = 0
     edge_side = max(0, -(-int(r.edge_samples) // k))
     if r.sampling == "area" and edge_side > per_side:
@@ -177,9 +178,7 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
         rows, cols = np.nonzero(edge_pixels(raster_or_samples, part, plane_ids(elements)))
         if len(rows):
             sub = sample_pixels(part, elements, camera, k, edge_side, rows, cols, caster)
-            lum = seen_radiance(part, elements, camera, radiance)
-            fine[rows, cols] = np.where(sub[..., None] >= 0, lum[np.maximum(sub, 0)], 0.0) \
-                .mean(axis=1)
+            fine[rows, cols] = samples_radiance(lum, sub[:, None, :])[:, 0]
             edges, edge_rays = len(rows), int(sub.size)
     img = downsample(fine, k, filter, sigma)
     e = auto_exposure(img) if auto else exposure

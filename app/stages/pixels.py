@@ -79,7 +79,12 @@ def pixel_radiance(part: Partition, elements: Elements, camera: Camera, raster_s
     sub-element, shown as `seen_radiance` says; rays that hit nothing are 0 (black, no
     background colour).
     """
-    lum = seen_radiance(part, elements, camera, radiance)
+    return samples_radiance(seen_radiance(part, elements, camera, radiance), raster_sub)
+
+
+def samples_radiance(lum: np.ndarray, raster_sub: np.ndarray) -> np.ndarray:
+    """pixel_radiance from the seen radiance lum (m, 3) (seen_radiance): raster_sub (..., ) or
+    (..., S) sub-elements, -1 for none -> (..., 3), the mean over the S samples."""
     sub = np.asarray(raster_sub)
     if sub.ndim == 3:
         out = np.zeros(sub.shape[:2] + (3,), np.float64)

@@ -146,8 +146,7 @@ class RayCaster:
         endpoint); the segment is shortened by epsilon at both ends, and segments shorter than
         2 epsilon are never occluded. With `elem` (every end on an element, so inside the
         scene's convex hull) the elements in the hull's supporting planes are left out: they
-        cannot block such a segment (_inner_scene; on a room's rays Embree takes about a third
-        less time).
+        cannot block such a segment (_inner_scene).
         """
         n = len(ia)
         out = np.zeros(n, bool)

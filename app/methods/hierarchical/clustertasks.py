@@ -253,8 +253,8 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
         from radiosity.runtime.runner import run_tasks
 
         # every ntasks-th waiting link to a task: neighbours in the breadth-first order are
-        # subtrees of one node and cost alike (on the tessellated Cornell box contiguous cuts
-        # ran from 1 k to 2.6 M links a task, and one thread waited on the last)
+        # subtrees of one node and cost alike, so contiguous runs make tasks of very unequal
+        # cost (docs/src/design/methods-hierarchical-clusters.md, "Tasks")
         ntasks = max(1, len(pending) // CUT_PER_TASK)
         cuts = [np.ascontiguousarray(pending[i::ntasks]) for i in range(ntasks)]
         shared = Scattered(client, inp)

@@ -166,6 +166,8 @@ class HierarchySettings(_Section):
     driver_solve_links: int
     clusters: str
     clusters_above: int
+    clusters_epsilon: float
+    unseen_importance: float
 
     def clustered(self, originals: int) -> tuple[bool, str]:
         """(on, why): clusters above the originals (clusters: auto | on | off; auto above

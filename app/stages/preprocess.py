@@ -338,7 +338,9 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         figures["sub_elements_exact"] = len(exact)
         figures["over_refined_elements"] = int(np.sum(np.diff(part.offsets) != np.diff(exact.offsets)))
     store.save_partition(part, figures)
-    store.write_arrays("raster", {"orig": elem.reshape(h, w), "sub": sub.reshape(h, w)})
+    # seen: the originals any camera's pixel hits (the cluster layer's importance, links.py)
+    store.write_arrays("raster", {"orig": elem.reshape(h, w), "sub": sub.reshape(h, w),
+                                  "seen": seen})
     fig = PreprocessFigures(**figures, time_total_s=round(time.perf_counter() - t0, 4),
                             peak_rss_mb=peak_rss_mb(client))
     fig.write(out)

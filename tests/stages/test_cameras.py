@@ -157,6 +157,11 @@ def test_each_cameras_image_matches_its_single_camera_render(tmp_path):
     # the union partition is finer than either camera's own
     assert both.report["preprocess"]["sub_elements"] > max(
         front.report["preprocess"]["sub_elements"], above.report["preprocess"]["sub_elements"])
+    # the originals seen (the cluster layer's importance): those any camera's pixel hits
+    ras = RunStore(str(tmp_path / "both")).read_arrays("raster")
+    own = np.zeros(len(ras["seen"]), bool)
+    own[ras["orig"][ras["orig"] >= 0]] = True
+    assert (ras["seen"] | ~own).all() and (ras["seen"] & ~own).any()
     for img, ref, run in ((both.image, front.image, "front"), (both.views["above"], above.image,
                                                                "above")):
         orig = RunStore(str(tmp_path / run)).read_arrays("raster")["orig"]

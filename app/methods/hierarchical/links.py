@@ -192,6 +192,18 @@ def oracle_weights(elements, weight: str):
     return rho, em + La, lref
 
 
+def cluster_weights(elements, weight: str, seen: np.ndarray, importance: float):
+    """The cluster layer's oracle weights: oracle_weights, with the receiving weight wrho of
+    the originals no camera sees (`seen` False) times `importance` (Smits, Arvo & Salesin
+    1992's importance, one value for all unseen receivers): their light reaches the image only
+    after a bounce off a seen surface, which passes on at most its reflectance of their error,
+    spread over what they light."""
+    wrho, lhat, lref = oracle_weights(elements, weight)
+    if importance != 1.0:
+        wrho = wrho * np.where(np.asarray(seen, bool), 1.0, float(importance))[:, None]
+    return wrho, lhat, lref
+
+
 # ----------------------------------------------------------------------------- the task
 
 #: A pair of originals whose leaves within reach multiply to fewer than this skips the shaft
@@ -368,6 +380,12 @@ def resolve_params(elements, settings=None, occlusion: bool = True,
     k = int(h.link_rays)
     if k < 1 or int(round(np.sqrt(k))) ** 2 != k:
         raise RadiosityError(f"--link-rays must be a square (1, 4, 9, 16, ...), got {k}")
+    if not float(h.clusters_epsilon) > 0:
+        raise RadiosityError("radiosity.hierarchy.clusters-epsilon must be above 0, got "
+                             f"{h.clusters_epsilon}")
+    if not 0 < float(h.unseen_importance) <= 1:
+        raise RadiosityError("radiosity.hierarchy.unseen-importance must be in (0, 1], got "
+                             f"{h.unseen_importance}")
     weight = h.weight
     if weight not in WEIGHTS:
         raise RadiosityError(f"radiosity.hierarchy.weight must be one of {', '.join(WEIGHTS)}, "
@@ -389,7 +407,12 @@ def resolve_params(elements, settings=None, occlusion: bool = True,
 def _clusters_row(c: dict) -> str:
     if "links" not in c:
         return c.get("why", "off")
+    imp = (f", the light to the {c['unseen']} originals no camera sees weighed "
+           f"{c['unseen_importance']:g}" if c.get("unseen") else "")
     return (f"{c['links']} cluster links over {c['nodes']} nodes, {c['pairs_to_elements']} pairs "
+            f"of originals refined below them ({c['why']}; epsilon {c['epsilon']:.3g}{imp}; "
+            f"{c['time_s']:.2f} s)" if "epsilon" in c else
+            f"{c['links']} cluster links over {c['nodes']} nodes, {c['pairs_to_elements']} pairs "
             f"of originals refined below them ({c['why']}; {c['time_s']:.2f} s)")
 
 
@@ -461,10 +484,15 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
             on, why_clusters = True, (f"on: auto, about {e.estimate:.3g} facing pairs of "
                                       f"originals > plan.max-facing-pairs")
     if on:  # links start at the root of the tree over the originals (SPEC §9)
-        cl, cpairs, cfig = plan_clusters(el, prm.epsilon, oracle_weights(el, weight), prm.rays,
-                                         occlusion, s.rays.epsilon, client, progress, prm.shadow,
-                                         prm.solids)
-        cfig["why"] = why_clusters
+        ce, imp = float(s.hierarchy.clusters_epsilon), float(s.hierarchy.unseen_importance)
+        # seen by any camera (older stores: the run's own camera's raster)
+        seen_any = raster["seen"] if "seen" in raster else seen_originals(raster["orig"], len(el))
+        cl, cpairs, cfig = plan_clusters(el, prm.epsilon * ce,
+                                         cluster_weights(el, weight, seen_any, imp), prm.rays,
+                                         occlusion, s.rays.epsilon, client, progress,
+                                         prm.shadow * ce, prm.solids)
+        cfig.update(why=why_clusters, epsilon=prm.epsilon * ce, unseen_importance=imp,
+                    unseen=int((~np.asarray(seen_any, bool)).sum()))
         bi, bj = cpairs[:, 0], cpairs[:, 1]
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit, int(s.hierarchy.max_task_cost))
     seen = seen_originals(raster["orig"], len(el))

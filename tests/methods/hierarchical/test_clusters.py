@@ -289,6 +289,60 @@ def _room_with_block(n: int = 16):
     return _elements(v, np.full(len(v), 3), emit=np.full((len(v), 2, 3), 1.0))
 
 
+def test_unseen_receivers_weigh_less_only_where_both_ends_are_unseen():
+    """links.cluster_weights: the light to originals no camera sees weighs `importance` in the
+    cluster oracle. On a room with a block whose walls no camera sees: with every original seen
+    the weights are oracle_weights'; the links (and the pairs handed down) whose two ends both
+    hold a seen original are the same at importance 0.25 as at 1 (every link above them holds a
+    seen original at both ends too, and a node's weight is its largest); the links between
+    wholly unseen nodes are fewer."""
+    from radiosity.methods.hierarchical.links import cluster_weights, oracle_weights
+
+    el = _room_with_block(16)
+    zfloor = np.abs(el.normal[:, 2]) > 0.5  # the floors, the ceiling and the block's top
+    base = oracle_weights(el, "bf")
+    same = cluster_weights(el, "bf", np.ones(len(el), bool), 0.25)
+    assert all(np.array_equal(a, b) for a, b in zip(same[:2], base[:2])) and same[2] == base[2]
+    w = cluster_weights(el, "bf", zfloor, 0.25)
+    np.testing.assert_array_equal(w[0][zfloor], base[0][zfloor])
+    np.testing.assert_allclose(w[0][~zfloor], 0.25 * base[0][~zfloor])
+    np.testing.assert_array_equal(w[1], base[1])
+
+    def run(weights):
+        ct = cluster_tree(el, *weights)
+        links, pairs, _ = refine_all(ct, 0.02)
+        t = ct.tree
+        cs = np.concatenate([[0], np.cumsum(zfloor[t.order])])
+        any_seen = (cs[t.end] - cs[t.start]) > 0
+        both = any_seen[links[:, 0]] & any_seen[links[:, 1]]
+        none = ~any_seen[links[:, 0]] & ~any_seen[links[:, 1]]
+        key = {tuple(x) for x in links[both]}
+        pk = {tuple(x) for x in pairs[zfloor[pairs[:, 0]] & zfloor[pairs[:, 1]]]}
+        return key, pk, int(none.sum()), len(links) + len(pairs)
+
+    k1, p1, none1, all1 = run(base)
+    k4, p4, none4, all4 = run(w)
+    assert len(k1) > 100 and k1 == k4 and p1 == p4
+    assert none4 < none1 and all4 < all1
+
+
+@pytest.mark.parametrize("key,value,words", [
+    ("hierarchy.clusters-epsilon", 0.0, "clusters-epsilon must be above 0, got 0.0"),
+    ("hierarchy.unseen-importance", 0.0, "unseen-importance must be in (0, 1], got 0.0"),
+    ("hierarchy.unseen-importance", 1.5, "unseen-importance must be in (0, 1], got 1.5")])
+def test_the_cluster_layers_settings_are_checked_up_front(key, value, words):
+    """resolve_params (the method's check before any cluster starts) names the bad setting."""
+    import re
+
+    from radiosity.errors import RadiosityError
+    from radiosity.methods.hierarchical.links import resolve_params
+    from radiosity.settings import resolve
+
+    el = _elements(*_grid(2, 0.0, True))
+    with pytest.raises(RadiosityError, match=re.escape(words)):
+        resolve_params(el, resolve({key: value}))
+
+
 def test_partly_visible_cluster_links_are_split_and_cover_the_same_pairs():
     """clustertasks._shadows on a closed room with a block on its floor: afterwards no kept
     link that carries more than the shadow threshold is partly visible, some were split, and

@@ -17,11 +17,12 @@ from radiosity.methods.hierarchical.clusters import ClusterTree, cluster_tree, r
 from radiosity.methods.hierarchical.clusterweights import SolidEnds, link_weights
 
 # What a clustered scene costs, as measured (benchmarks/bench_clusters.py, results/clusters.json:
-# a terrain and the Cornell box cut into triangles, 128^2, default epsilon): links in all
-# (cluster and element level) per original, and links made per second per worker thread in the
-# link stage; `radiosity plan` estimates from them.
-LINKS_PER_ORIGINAL = (248.0, 344.0)
-LINKS_PER_THREAD_S = (238e3, 442e3)
+# terrains of 2 x 10^4 and 2 x 10^5 triangles and the Cornell box cut into 2 000 a face, 128^2,
+# the defaults): links in all (cluster and element level) per original, and links made per
+# second per worker thread in the link stage (cluster layer and element links); `radiosity
+# plan` estimates from them.
+LINKS_PER_ORIGINAL = (261.0, 355.0)
+LINKS_PER_THREAD_S = (450e3, 588e3)
 
 
 def refine_all(ct: ClusterTree, eps: float, cap: int = 1024):

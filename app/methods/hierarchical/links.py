@@ -407,7 +407,7 @@ def resolve_params(elements, settings=None, occlusion: bool = True,
 def _clusters_row(c: dict) -> str:
     if "links" not in c:
         return c.get("why", "off")
-    imp = (f", the light to the {c['unseen']} originals no camera sees weighed "
+    imp = (f", the light to the {c['unseen']} originals no pixel hits weighed "
            f"{c['unseen_importance']:g}" if c.get("unseen") else "")
     return (f"{c['links']} cluster links over {c['nodes']} nodes, {c['pairs_to_elements']} pairs "
             f"of originals refined below them ({c['why']}; epsilon {c['epsilon']:.3g}{imp}; "

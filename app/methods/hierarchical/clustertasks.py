@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from radiosity.methods.hierarchical.clusterlinks import ClusterLinks
@@ -78,12 +79,54 @@ def _compact(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
     most eps; partly visible links that carry more than `shadow` refined: _shadows)."""
     links, pairs, counts, F, v, nrays = _shadows(ct, links, pairs, counts, caster, rays, eps,
                                                  shadow, solids)
-    g = (F[:, 0] * np.asarray(ct.tree.area)[links[:, 0]] * v).astype(np.float32)
-    key = links[:, 0] * np.int64(ct.nodes) + links[:, 1]
-    order = np.argsort(key, kind="stable")
+    key, g = _keys_weights(links, F, v, np.asarray(ct.tree.area), np.int64(ct.nodes))
+    order = np.argsort(key)  # the keys (and the pairs) are unique: any sort gives one order
     n = np.int64(len(ct.elems.area))
-    pairs = pairs[np.argsort(pairs[:, 0] * n + pairs[:, 1], kind="stable")]
+    pairs = pairs[np.argsort(pairs[:, 0] * n + pairs[:, 1])]
     return key[order], g[order], pairs, counts, float(v.sum()), nrays
+
+
+@numba.njit(cache=True, nogil=True)
+def _keys_weights(links, F, v, area, K):
+    """The sort keys p K + q (int64) and weights g = A_p F_pq v (float32) of links (p, q)."""
+    m = links.shape[0]
+    key = np.empty(m, np.int64)
+    g = np.empty(m, np.float32)
+    for a in range(m):
+        p = links[a, 0]
+        key[a] = p * K + links[a, 1]
+        g[a] = F[a, 0] * area[p] * v[a]
+    return key, g
+
+
+@numba.njit(cache=True, nogil=True)
+def _partial(links, F, v, rho, lhat, lref, shadow):
+    """(m,) bool: the links partly visible (0 < v < 1) that carry more than `shadow` in the
+    oracle's weighting, max(rho_p F_pq Lhat_q, rho_q F_qp Lhat_p) / lref (lref 0: every one)."""
+    m = links.shape[0]
+    out = np.zeros(m, np.bool_)
+    for a in range(m):
+        if 0.0 < v[a] < 1.0:
+            p, q = links[a, 0], links[a, 1]
+            if lref <= 0.0:
+                out[a] = True
+            else:
+                out[a] = max(rho[p] * F[a, 0] * lhat[q], rho[q] * F[a, 1] * lhat[p]) / lref \
+                    > shadow
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _put_kept(links, F, v, part, at, L_out, F_out, v_out):
+    """Copy the rows of (links, F, v) that are not `part` into the outputs from row `at` on;
+    returns the next free row."""
+    for a in range(links.shape[0]):
+        if not part[a]:
+            L_out[at, 0], L_out[at, 1] = links[a, 0], links[a, 1]
+            F_out[at, 0], F_out[at, 1] = F[a, 0], F[a, 1]
+            v_out[at] = v[a]
+            at += 1
+    return at
 
 
 def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: float,
@@ -102,16 +145,11 @@ def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
     if caster is None or rays <= 1 or not np.isfinite(shadow) or not len(links):
         return links, pairs, counts, F, v, nrays
     t = ct.tree
-    out_l, out_F, out_v, out_pairs = [], [], [], [pairs]
+    rounds, out_pairs = [], [pairs]  # (links, F, v, part) of each round
     counts = np.array(counts, np.int64)
     while len(links):
-        p, q = links[:, 0], links[:, 1]
-        carried = np.maximum(t.rho[p] * F[:, 0] * t.lhat[q], t.rho[q] * F[:, 1] * t.lhat[p]) \
-            / ct.lref if ct.lref > 0 else np.full(len(links), np.inf)
-        part = (v > 0.0) & (v < 1.0) & (carried > shadow)
-        out_l.append(links[~part])
-        out_F.append(F[~part])
-        out_v.append(v[~part])
+        part = _partial(links, F, v, t.rho, t.lhat, ct.lref, shadow)
+        rounds.append((links, F, v, part))
         if not part.any():
             break
         counts[2] -= int(part.sum())
@@ -128,8 +166,12 @@ def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
             break
         F, v, r = link_weights(ct, links, caster, rays, faint=eps, solid=solid)
         nrays += r
-    return (np.concatenate(out_l).reshape(-1, 2), np.concatenate(out_pairs).reshape(-1, 2),
-            counts, np.concatenate(out_F).reshape(-1, 2), np.concatenate(out_v), nrays)
+    kept = sum(len(r[3]) - int(r[3].sum()) for r in rounds)
+    L_out, F_out, v_out = np.empty((kept, 2), np.int64), np.empty((kept, 2)), np.empty(kept)
+    at = 0
+    for r in rounds:
+        at = _put_kept(*r, at, L_out, F_out, v_out)
+    return L_out, np.concatenate(out_pairs).reshape(-1, 2), counts, F_out, v_out, nrays
 
 
 def _split_links(t, links: np.ndarray) -> tuple:

@@ -185,36 +185,73 @@ class SolidEnds:
         return f > 0
 
 
-def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, cols: np.ndarray,
-             solid: SolidEnds | None = None) -> np.ndarray:
-    """1 - the blocked fraction of a link's rays (one row of ep, eq: (L, k) elements): the ray
-    in column c runs between point cols[c] % 4 of ep's element and point (cols[c] + 2) % 4 of
-    eq's (_ends), so a link between two originals, whose k picks are the same two elements,
-    casts k different rays, and sees a shadow that crosses them (its centroids alone say 0 or
-    1). cols (k,) or (L, k). With `solid`, the rays of a link with a blocked ray that start or
-    end inside a solid are left out of its fraction, unless all do (SolidEnds). Returns (L,)
-    float64."""
+@numba.njit(cache=True, nogil=True)
+def _ray_ends(ep, eq, few, col, ids, cc, first):
+    """The rays of links whose k picks are ep, eq (L, k), flat and in link order: k for a link,
+    one (column col[a]) for a faint one (few[a]). ids[:n] and ids[n:] the elements of the two
+    ends (n = len(cc)), cc each ray's column, first[a] link a's first ray."""
     L, k = ep.shape
-    n = ep.size
+    n = cc.shape[0]
+    r = 0
+    for a in range(L):
+        first[a] = r
+        if few[a]:
+            c = col[a]
+            ids[r], ids[n + r], cc[r] = ep[a, c], eq[a, c], c
+            r += 1
+        else:
+            for c in range(k):
+                ids[r], ids[n + r], cc[r] = ep[a, c], eq[a, c], c
+                r += 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _fractions(occ, few, first, k, v):
+    """v[a] = 1 - the blocked share of link a's rays (occ from first[a]: k, or one if few[a])."""
+    for a in range(few.shape[0]):
+        if few[a]:
+            v[a] = 1.0 - (1.0 if occ[first[a]] else 0.0)
+        else:
+            blocked = 0
+            for c in range(k):
+                if occ[first[a] + c]:
+                    blocked += 1
+            v[a] = 1.0 - blocked / k
+
+
+def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, few: np.ndarray, col: np.ndarray,
+             solid: SolidEnds | None = None) -> np.ndarray:
+    """1 - the blocked fraction of a link's rays (one row of ep, eq: (L, k) elements; one ray,
+    column col[a], where few[a]): the ray in column c runs between point c % 4 of ep's element
+    and point (c + 2) % 4 of eq's (_ends), so a link between two originals, whose k picks are
+    the same two elements, casts k different rays, and sees a shadow that crosses them (its
+    centroids alone say 0 or 1). With `solid`, the rays of a link (of k rays) with a blocked
+    ray that start or end inside a solid are left out of its fraction, unless all do
+    (SolidEnds). Returns (L,) float64."""
+    L, k = ep.shape
+    n = int(k * (L - int(few.sum())) + few.sum())
+    ids = np.empty(2 * n, np.int64)
+    cc = np.empty(n, np.int64)
+    first = np.empty(L, np.int64)
+    _ray_ends(ep, eq, few, col, ids, cc, first)
     pts = np.empty((2 * n, 3))
-    cc = np.ascontiguousarray(np.broadcast_to(cols, ep.shape), np.int64).ravel()
-    ids = np.concatenate([ep.ravel(), eq.ravel()])
     _ends(e.verts, ids[:n], cc, pts[:n])
     _ends(e.verts, ids[n:], cc + 2, pts[n:])
     idx = np.arange(n)
-    occ = caster.occluded_pairs(pts, idx, idx + n, ids).reshape(L, k)
-    v = 1.0 - occ.mean(axis=1)
+    occ = caster.occluded_pairs(pts, idx, idx + n, ids)
+    v = np.empty(L)
+    _fractions(occ, few, first, k, v)
     if solid is None or k == 1:
         return v
-    hit = np.nonzero(occ.any(axis=1))[0]
+    hit = np.nonzero(~few & (v < 1.0))[0]
     if not len(hit):
         return v
-    r = (hit[:, None] * k + np.arange(k)[None, :]).ravel()
+    r = (first[hit][:, None] + np.arange(k)[None, :]).ravel()
     void = (solid.void(ids[r], cc[r], pts[r]) | solid.void(ids[n + r], cc[r] + 2, pts[n + r])) \
         .reshape(len(hit), k)
     live = (~void).sum(axis=1)
     some = live > 0
-    free = (~occ[hit] & ~void).sum(axis=1)
+    free = (~occ[r].reshape(len(hit), k) & ~void).sum(axis=1)
     v[hit[some]] = free[some] / live[some]
     return v
 
@@ -259,13 +296,7 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
         _weights(ct.tree, ct.elems, lk, samples, cols, lref, faint, F[a:a + len(lk)], ep, eq, few)
         if k == 0:
             continue
-        va = v[a:a + len(lk)]
-        many = ~few
-        if many.any():
-            va[many] = _visible(caster, ct.elems, ep[many], eq[many], np.arange(k), solid)
-        if few.any():
-            col = _one_of(lk[few], k)[:, None]
-            va[few] = _visible(caster, ct.elems, np.take_along_axis(ep[few], col, 1),
-                               np.take_along_axis(eq[few], col, 1), col)
-        rays += k * int(many.sum()) + int(few.sum())
+        v[a:a + len(lk)] = _visible(caster, ct.elems, ep, eq, few, _one_of(lk, k), solid)
+        nfew = int(few.sum())
+        rays += k * (len(lk) - nfew) + nfew
     return F, v, rays

@@ -407,13 +407,12 @@ def resolve_params(elements, settings=None, occlusion: bool = True,
 def _clusters_row(c: dict) -> str:
     if "links" not in c:
         return c.get("why", "off")
-    imp = (f", the light to the {c['unseen']} originals no pixel hits weighed "
-           f"{c['unseen_importance']:g}" if c.get("unseen") else "")
+    extra = f"; epsilon {c['epsilon']:.3g}" if "epsilon" in c else ""
+    if c.get("unseen"):
+        extra += (f", the light to the {c['unseen']} originals no pixel hits weighed "
+                  f"{c['unseen_importance']:g}")
     return (f"{c['links']} cluster links over {c['nodes']} nodes, {c['pairs_to_elements']} pairs "
-            f"of originals refined below them ({c['why']}; epsilon {c['epsilon']:.3g}{imp}; "
-            f"{c['time_s']:.2f} s)" if "epsilon" in c else
-            f"{c['links']} cluster links over {c['nodes']} nodes, {c['pairs_to_elements']} pairs "
-            f"of originals refined below them ({c['why']}; {c['time_s']:.2f} s)")
+            f"of originals refined below them ({c['why']}{extra}; {c['time_s']:.2f} s)")
 
 
 def links_rows(fig: dict) -> list[tuple[str, object]]:

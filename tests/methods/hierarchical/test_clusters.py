@@ -488,6 +488,10 @@ def test_energy_is_conserved_with_cluster_links(client, tmp_path):
                                          "solve.normalise-rows": "off",
                                          "hierarchy.final-gather": "none"})
     assert fig["cluster_links"] > 0 and fig["links"] > 0
+    # the cluster layer at clusters-epsilon times epsilon, its unseen receivers weighed less
+    c = fig["clusters"]
+    assert c["epsilon"] == pytest.approx(0.5 * 2e-2) and c["unseen_importance"] == 0.25
+    assert 0 <= c["unseen"] < len(RunStore(out).load_elements())
     rs = RunStore(out)
     op, table, el, _ = open_link_operator(rs, None, "driver", resolve())
     Le, rho, area = leaf_vectors(table, el)

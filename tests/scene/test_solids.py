@@ -111,12 +111,15 @@ def test_a_cluster_link_leaves_out_the_rays_of_elements_under_a_block():
     live, under, ceil = 7, 8, 9
     ep = np.array([[live, under, live, under], [live] * 4, [under] * 4])
     eq = np.full((3, 4), ceil)
-    cols = np.arange(4)
-    plain = _visible(rc, e, ep, eq, cols)
+    few, col = np.zeros(3, bool), np.zeros(3, np.int64)  # every link with its four rays
+    plain = _visible(rc, e, ep, eq, few, col)
     solid = SolidEnds(rc, e)
-    with_solid = _visible(rc, e, ep, eq, cols, solid)
+    with_solid = _visible(rc, e, ep, eq, few, col, solid)
     assert plain.tolist() == [0.5, 1.0, 0.0]
     assert with_solid.tolist() == [1.0, 1.0, 0.0]
+    # a faint link takes the one ray of its column, and solids are not asked for it
+    one = _visible(rc, e, ep, eq, np.ones(3, bool), np.array([1, 0, 2]), solid)
+    assert one.tolist() == [0.0, 1.0, 0.0]
     assert (solid.flags[under] == 1).all()  # tested where a link had a blocked ray
     assert solid.flags[live].tolist() == [0, -1, 0, -1]
 

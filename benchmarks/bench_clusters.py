@@ -4,7 +4,7 @@
 cut into triangles beside the 32-original box (the same picture). Per scene: load, plan, cluster
 links, element links, rays, time per stage, peak memory of the driver and the workers, and the
 image against a reference image (the plain box for the tessellated one; the same scene with
-clusters off where that fits) and, for both boxes, against a Mitsuba 3 reference
+clusters off where that fits) and, for both boxes and the room, against a Mitsuba 3 reference
 (--reference-spp; its noise on a 4 x 4-pixel cell stated as ref_cell_noise, the median
 per-pixel relative standard error / 4). Writes benchmarks/results/clusters.json.
 
@@ -100,7 +100,15 @@ def main():
             rows.append(row)
         for n in [int(x) for x in a.room.split(",") if x]:
             sc = gen.room_with_sphere(os.path.join(tmp, f"room{n}"), n, a.resolution)
-            rows.append({"scene": f"room, sphere {n}", **render(sc, os.path.join(tmp, f"r{n}"))})
+            row = {"scene": f"room, sphere {n}", **render(sc, os.path.join(tmp, f"r{n}"))}
+            if a.reference_spp > 0:  # against Mitsuba, as the boxes
+                ref_r = os.path.join(tmp, f"reference-room{n}")
+                _run(["reference", sc, "--out", ref_r, "--resolution", str(a.resolution),
+                      "--spp", str(a.reference_spp)])
+                noise = json.load(open(os.path.join(ref_r, "reference.json")))["rel_stderr_median"]
+                row.update(_against(ref_r, os.path.join(tmp, f"r{n}", "image.exr")),
+                           ref_cell_noise=round(noise / 4, 4))
+            rows.append(row)
         plain = os.path.join(tmp, "cornell")
         src = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
         base = {"scene": "cornell-box (32 originals)",

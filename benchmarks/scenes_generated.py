@@ -97,7 +97,7 @@ def room_with_sphere(folder: str, triangles: int, resolution: int = 128) -> str:
     materials = ("[material.wall]\nreflectance = [0.7, 0.7, 0.7]\n"
                  "[material.ball]\nreflectance = [0.6, 0.3, 0.2]\n"
                  "[material.light]\nreflectance = [0.0, 0.0, 0.0]\nemission = [20.0, 20.0, 20.0]\n")
-    return _write(folder, "room-sphere", {"wall": walls, "ball": ball, "light": [light[::-1]]},
+    return _write(folder, "room-sphere", {"wall": walls, "ball": ball, "light": [light]},  # down
                   camera, materials)
 
 

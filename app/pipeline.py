@@ -206,7 +206,8 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
         write_direct_solution(out)
     stages["solve_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    fig = render_outputs(out, filter=filter, sigma=sigma, exposure=exposure, settings=s)
+    fig = render_outputs(out, filter=filter, sigma=sigma, exposure=exposure, settings=s,
+                         progress=progress)
     stages["image_s"] = time.perf_counter() - t
     if scene.views:  # the other cameras: views of the one solution (stages/views.py)
         from radiosity.stages.views import Viewer

@@ -258,7 +258,7 @@ def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up,
     _started(run_dir, resume=False)
     with run_lock(run_dir, _command_line()):
         fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure,
-                             settings=settings_from_flags())
+                             settings=settings_from_flags(), progress=True)
         _record_run(run_dir)
         _finish(run_dir, [])
     click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, "

@@ -87,14 +87,16 @@ class ImageFigures(StageFigures):
 def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None = None,
                    exposure: float | str | None = None, settings: Settings | None = None,
                    sampling: str | None = None, area_samples: int | None = None,
-                   edge_samples: int | None = None) -> ImageFigures:
+                   edge_samples: int | None = None, progress: bool = False) -> ImageFigures:
     """Image, meshes and viewer of a solved run: writes image.exr, image.png, mesh.glb,
     mesh.ply and viewer.html into `run_dir` and section "render" of report.json.
 
     filter, sigma, exposure, sampling, area_samples, edge_samples: None takes `render.filter`,
     `render.sigma`, `render.exposure`, `render.sampling`, `render.area-samples`,
     `render.edge-samples` of `settings` (None: resolved here); an exposure of None there (or
-    "auto" here) is automatic (`auto_exposure` of the final image). sampling "area": each fine
+    "auto" here) is automatic (`auto_exposure` of the final image). progress: a bar (or a
+    started and a done line) over the four outputs: image, meshes, viewer, tables. sampling
+    "area": each fine
     pixel is the mean of ceil(area-samples / subpixel)^2 rays over its area
     (pixels.sample_raster), and one whose rays see two planes or materials the mean of
     ceil(edge-samples / subpixel)^2 (pixels.edge_pixels); "point": the sub-element at its
@@ -135,6 +137,9 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
         if not exposure > 0.0 or not math.isfinite(exposure):
             raise RenderError(bad)
 
+    from radiosity.runtime.monitor import progress_bar
+
+    bar = progress_bar(4, "outputs", progress, unit="output")
     rs = RunStore(run_dir, "r")
     part = rs.load_partition()
     elements = rs.load_elements()
@@ -189,14 +194,19 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
              ("image.exr", "image.png", "mesh.glb", "mesh.ply", "viewer.html")}
     write_exr(paths["image.exr"], img)
     write_png(paths["image.png"], tonemap(img, e))
+    bar.update()
     two = np.asarray(elements.two_sided, bool)[part.orig]
     smooth = smooth_mesh(part, elements, radiance)  # radiance at vertices: mesh and viewer
     mesh = export_mesh(paths["mesh.glb"], paths["mesh.ply"], part, radiance, e, two_sided=two,
                        smooth=smooth)
+    bar.update()
     title = rs.attrs.get("scene_name") or os.path.basename(d)
     viewer = write_viewer(paths["viewer.html"], part, radiance, e, title, camera=camera,
                           two_sided=two, smooth=smooth)
+    bar.update()
     write_light_tables(d, light_tables(part, elements, radiance))  # elements/surfaces.csv
+    bar.update()
+    bar.close()
     fig = ImageFigures(**{
         "image_exr": paths["image.exr"], "image_png": paths["image.png"],
         "mesh_glb": paths["mesh.glb"], "mesh_ply": paths["mesh.ply"],

@@ -434,7 +434,7 @@ def test_a_successful_run_prints_plain_progress_and_no_traceback(reference_run):
     assert rc == 0, stderr
     assert "Traceback" not in stderr and "CommClosedError" not in stderr, stderr
     assert "\r" not in stderr  # no progress bar carriage returns into a pipe
-    for stage in ("raster", "subdivide", "visibility", "solve (jacobi)"):
+    for stage in ("raster", "subdivide", "visibility", "solve (jacobi)", "outputs"):
         assert f"{stage}: started" in stderr and f"{stage}: done" in stderr, stderr
     assert "wall time" in stdout
     rep = json.loads((out / "report.json").read_text())

@@ -383,7 +383,12 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
     fin = s if gather_if is None or gather_if(opened, res.radiance) else \
         resolve({"hierarchy.final-gather": "none"}, base=s)
-    arrays, extra = impl.finish(opened, res.radiance, rows, fin)
+    # the hierarchical final gather re-evaluates every link at the leaves: a stage of its own
+    gathers = impl.name == "hierarchical" and \
+        fin.hierarchy.final_gather not in (False, None, "none")
+    with progress_bar(1, "final gather", progress and gathers, unit="pass") as fbar:
+        arrays, extra = impl.finish(opened, res.radiance, rows, fin)
+        fbar.update()
     need = op.inp.need
     fig = SolveFigures(**{
         "solver": solver, "kernel": op.kernel, "tol": tol, "iterations": res.iterations,

@@ -68,6 +68,19 @@ def test_visibility_on_a_directory_that_is_not_a_run(tmp_path):
     assert r.exit_code == 2 and "is not a run directory" in r.output
 
 
+def test_a_hierarchical_render_says_when_its_final_gather_and_outputs_run(client, tmp_path):
+    """The stages after the solve's passes, a minute or more on large scenes, have their
+    started and done lines where stderr is no terminal."""
+    r = CliRunner().invoke(main, ["render", scene_path("cornell-box"), "--out", str(tmp_path / "r"),
+                                  "--resolution", "16", "--method", "hierarchical",
+                                  "--scheduler", client.scheduler.address])
+    assert r.exit_code == 0, r.output
+    out = r.output
+    for stage in ("solve (cg)", "final gather", "outputs"):
+        assert f"{stage}: started" in out and f"{stage}: done" in out, out
+    assert out.index("final gather: done") < out.index("outputs: started")
+
+
 @pytest.mark.parametrize("name", BUILTIN)
 def test_render_end_to_end_on_every_builtin_scene(client, tmp_path, name):
     """Every output file, and the image: the exact answer where the scene has one (furnaces),
@@ -84,6 +97,8 @@ def test_render_end_to_end_on_every_builtin_scene(client, tmp_path, name):
     stage = {"pairs": "visibility", "hierarchical": "links"}[rep["plan"]["method"]]
     for section in ("preprocess", stage, "solve", "render"):
         assert section in rep
+    # one started and one done line per stage (stderr is no terminal here), the outputs too
+    assert "outputs: started" in r.output and "outputs: done" in r.output, r.output
     assert rep["solve"]["converged"] and rep["solve"]["final_residual"] <= 1e-6
     assert "workers" in rep["render"]["stages"]["peak_rss_mb"]
     img = read_exr(str(out / "image.exr"))

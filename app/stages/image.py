@@ -96,8 +96,7 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     `render.edge-samples` of `settings` (None: resolved here); an exposure of None there (or
     "auto" here) is automatic (`auto_exposure` of the final image). progress: a bar (or a
     started and a done line) over the four outputs: image, meshes, viewer, tables. sampling
-    "area": each fine
-    pixel is the mean of ceil(area-samples / subpixel)^2 rays over its area
+    "area": each fine pixel is the mean of ceil(area-samples / subpixel)^2 rays over its area
     (pixels.sample_raster), and one whose rays see two planes or materials the mean of
     ceil(edge-samples / subpixel)^2 (pixels.edge_pixels); "point": the sub-element at its
     centre (the run's ID raster). Returns the figures: paths, exposure,

@@ -77,7 +77,7 @@ class ClusterTree:
 
 def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float) -> ClusterTree:
     """The cluster tree over `elements` (types.Elements) with the oracle's per-original weights
-    wrho, lhat (n, 2) and lref (links.oracle_weights); front sides only (a cluster holding a
+    wrho, lhat (n, 2) and lref (params.oracle_weights); front sides only (a cluster holding a
     two-sided original is never kept as a link end)."""
     from radiosity.scene.originals import build_tree
 

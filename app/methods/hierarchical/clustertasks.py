@@ -252,7 +252,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
                   ray_offset: float, client=None, progress: bool = False,
                   shadow: float = np.inf, solids: bool = False):
     """The cluster layer of a link stage: the tree, its refinement at `epsilon` with the oracle's
-    weights (wrho, lhat, lref: links.oracle_weights), the kept links' form factors and visible
+    weights (wrho, lhat, lref: params.oracle_weights), the kept links' form factors and visible
     fractions (`rays` rays each; 1 when nothing can block; partly visible links that carry
     more than `shadow` refined further: _shadows; `solids`: rays inside solids left out,
     clusterweights.SolidEnds). With a `client`, the refinement is

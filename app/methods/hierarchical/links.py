@@ -5,8 +5,8 @@ A link p <- q between nodes of two originals (scene/splittrees.py) carries the u
 factors F_pq, F_qp (A_p F_pq = A_q F_qp) and the visible fraction v. One task per pair of
 originals I < J that face each other (originals.facing_pairs: nothing n x n), or per stripe of
 pairs, run by the one stage executor (runtime/stage.py) like the visibility matrix. Here: the
-settings, the task plan, the task (refine.py's rounds, sampling.py's rays between them) and the
-master.
+task's inputs, the task plan, the task (refine.py's rounds, sampling.py's rays between them)
+and the master; the settings are params.py's.
 """
 
 from __future__ import annotations
@@ -17,77 +17,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from radiosity.core.arrays import unique
-from radiosity.core.geometry import COS_TOL
-from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.localnodes import new_table
+from radiosity.methods.hierarchical.params import (LinkParams, choose_epsilon, cluster_weights,
+                                                   oracle_weights, resolve_params)
 from radiosity.methods.hierarchical.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
-                                                   RefineParams, Tree, refine, roots)
+                                                   Tree, refine, roots)
 from radiosity.methods.hierarchical.clustertasks import plan_clusters
 from radiosity.methods.hierarchical.sampling import SolidPoints, link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
 from radiosity.runtime.packing import capped_starts, choose_unit
 from radiosity.tracing.shafts import OccluderTree, node_boxes, occluders
-
-WEIGHTS = ("none", "bf")
-ORACLES = ("ff", "gradient", "spread")
-
-
-FAR_KERNELS = ("centroid", "polygon", "gauss")
-
-
-def _far_kernel(name: str) -> int:
-    if name not in FAR_KERNELS:
-        raise RadiosityError(f"radiosity.hierarchy.far-kernel must be one of "
-                             f"{', '.join(FAR_KERNELS)}, got {name!r}")
-    return FAR_KERNELS.index(name)
-
-
-def _oracle_id(name: str) -> int:
-    if name not in ORACLES:
-        raise RadiosityError(f"radiosity.hierarchy.oracle must be one of {', '.join(ORACLES)}, "
-                             f"got {name!r}")
-    return ORACLES.index(name)
-
-
-# ----------------------------------------------------------------------------- inputs
-
-@dataclass(frozen=True)
-class LinkParams:
-    """The refinement settings (resolved on the driver).
-
-    epsilon: oracle threshold; shadow: threshold for splitting partly visible links; near:
-    near-field factor (node sizes); min_size: size limit (sqrt of area, scene units) for
-    splitting unseen originals; rays: sample rays per link (1: centroids); kid: 0 point, 1 disc
-    (kept far links); exact: kept near links get the exact polygon form factor; plane_tol:
-    distance (scene units) within which a vertex counts as on a plane; occlusion: False when
-    nothing can block (scene/effects.py)."""
-
-    epsilon: float
-    shadow: float
-    near: float
-    min_size: float
-    rays: int
-    kid: int
-    exact: bool
-    plane_tol: float
-    occlusion: bool = True
-    oracle: int = 2
-    gauss_gap: float = 2.0
-    far_polygon: int = 1
-    weighted_rays: bool = True
-    solids: bool = True
-
-    def to_dict(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
-
-    def kernel_params(self) -> RefineParams:
-        """The scalars the refinement kernels read (refine.RefineParams)."""
-        return RefineParams(self.epsilon, self.shadow, self.near, self.min_size, self.kid,
-                            self.exact, self.plane_tol, self.oracle, self.gauss_gap,
-                            self.far_polygon, self.occlusion)
-
 
 @scatterable
 class LinkInputs:
@@ -165,43 +106,6 @@ def occluder_tree(elements, elo: np.ndarray, ehi: np.ndarray, leaf: int = 8) -> 
                    elements.two_sided, leaf=leaf)
     lo, hi = node_boxes(t.left, t.right, t.start, t.end, t.order, elo, ehi)
     return OccluderTree(t.left, t.right, t.start, t.end, t.order, lo, hi)
-
-
-def oracle_weights(elements, weight: str):
-    """The oracle's weights: link p <- q counts F_pq * wrho[p, side] * lhat[q, side] / lref.
-
-    none: all 1 (form factors alone). bf: wrho = the largest channel of the reflectance of that
-    side; lhat = the largest channel of the emission plus an ambient estimate
-    La = E rho / (1 - rho) (E, rho: area-weighted means over the scene); lref = E + La, the
-    mean radiance one expects. Returns wrho (n, 2), lhat (n, 2), lref."""
-    n = len(elements)
-    if weight == "none":
-        return np.ones((n, 2)), np.ones((n, 2)), 1.0
-    if weight != "bf":
-        raise RadiosityError(f"radiosity.hierarchy.weight must be one of {', '.join(WEIGHTS)}, "
-                             f"got {weight!r}")
-    A = elements.area
-    rho = elements.reflectance.max(axis=2)   # (n, 2)
-    em = elements.emission.max(axis=2)
-    E = float((A * em.sum(axis=1)).sum() / A.sum())
-    r = float(min((A * rho[:, 0]).sum() / A.sum(), 0.99))
-    La = E * r / (1.0 - r)
-    lref = E + La
-    if lref <= 0:
-        return np.ones((n, 2)), np.ones((n, 2)), 1.0
-    return rho, em + La, lref
-
-
-def cluster_weights(elements, weight: str, seen: np.ndarray, importance: float):
-    """The cluster layer's oracle weights: oracle_weights, with the receiving weight wrho of
-    the originals no camera sees (`seen` False) times `importance` (Smits, Arvo & Salesin
-    1992's importance, one value for all unseen receivers): their light reaches the image only
-    after a bounce off a seen surface, which passes on at most its reflectance of their error,
-    spread over what they light."""
-    wrho, lhat, lref = oracle_weights(elements, weight)
-    if importance != 1.0:
-        wrho = wrho * np.where(np.asarray(seen, bool), 1.0, float(importance))[:, None]
-    return wrho, lhat, lref
 
 
 # ----------------------------------------------------------------------------- the task
@@ -326,82 +230,6 @@ def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, ma
     cum = np.concatenate([[0], np.cumsum(pc)])
     cost = (cum[first[1:]] - cum[first[:-1]]).astype(np.int64)
     return pairs, first, cost
-
-
-# ----------------------------------------------------------------------------- settings
-
-def choose_epsilon(settings, pixels: int | None = None) -> tuple[float, str]:
-    """The links' epsilon and why, from a settings.Settings or its hierarchy section: a number
-    (hierarchy.epsilon) as given; `auto`: epsilon-base for a criterion raster of up to
-    epsilon-resolution^2 pixels, times epsilon-resolution / sqrt(pixels) above. A link's error
-    estimate is first order in its nodes' size and the leaves shrink like 1 / sqrt(pixels): at a
-    fixed epsilon a finer image keeps the same links over smaller leaves, so its error stops
-    falling (MEASURED in radiosity.yaml). pixels None (before the camera's raster exists): the
-    base."""
-    h = getattr(settings, "hierarchy", settings)
-    v = h.epsilon
-    if v != "auto":
-        try:
-            eps = float(v)
-        except (TypeError, ValueError):
-            raise RadiosityError(f"radiosity.hierarchy.epsilon must be a number >= 0 or auto, "
-                                 f"got {v!r}") from None
-        if not eps >= 0:
-            raise RadiosityError(f"--epsilon must be >= 0, got {eps}")
-        return eps, "stated"
-    base = float(h.epsilon_base)
-    res0 = float(h.epsilon_resolution)
-    if not (base >= 0 and res0 > 0):
-        raise RadiosityError(f"radiosity.hierarchy.epsilon-base must be >= 0 and epsilon-resolution "
-                             f"> 0, got {base} and {res0}")
-    r = float(np.sqrt(pixels)) if pixels else 0.0
-    if r <= res0:
-        return base, f"auto: {base:g} up to {res0:g}^2 pixels"
-    return base * res0 / r, (f"auto: {base:g} x {res0:g} / {r:.0f} (finer leaves than at "
-                             f"{res0:g}^2 pixels get finer links)")
-
-
-def resolve_params(elements, settings=None, occlusion: bool = True,
-                   pixels: int | None = None) -> tuple[LinkParams, str]:
-    """The link settings from a settings.Settings (None: resolved here from dask.config),
-    checked; returns (LinkParams, weight). epsilon `auto` (the default): choose_epsilon's for a
-    criterion raster of `pixels` (None: its base)."""
-    from radiosity.core.kernels import KERNELS, base_kernel, kernel_id
-    from radiosity.settings import resolve
-
-    s = settings if settings is not None else resolve()
-    h = s.hierarchy
-    kernel = h.kernel
-    kernel_id(kernel)
-    if base_kernel(kernel) not in ("point", "disc"):
-        raise RadiosityError(f"--method hierarchical supports the kernels point, disc, point-nf "
-                             f"and disc-nf (links sample their own rays: --link-rays), not {kernel!r}")
-    eps, _ = choose_epsilon(h, pixels)
-    k = int(h.link_rays)
-    if k < 1 or int(round(np.sqrt(k))) ** 2 != k:
-        raise RadiosityError(f"--link-rays must be a square (1, 4, 9, 16, ...), got {k}")
-    if not float(h.clusters_epsilon) > 0:
-        raise RadiosityError("radiosity.hierarchy.clusters-epsilon must be above 0, got "
-                             f"{h.clusters_epsilon}")
-    if not 0 < float(h.unseen_importance) <= 1:
-        raise RadiosityError("radiosity.hierarchy.unseen-importance must be in (0, 1], got "
-                             f"{h.unseen_importance}")
-    weight = h.weight
-    if weight not in WEIGHTS:
-        raise RadiosityError(f"radiosity.hierarchy.weight must be one of {', '.join(WEIGHTS)}, "
-                             f"got {weight!r}")
-    v = elements.verts.reshape(-1, 3)
-    diag = float(np.linalg.norm(v.max(0) - v.min(0)))
-    prm = LinkParams(epsilon=eps, shadow=eps * float(h.shadow_factor),
-                     near=float(s.solve.near_field_factor),
-                     min_size=float(h.min_node_size) * diag, rays=k,
-                     kid=0 if base_kernel(kernel) == "point" else 1,
-                     exact=bool(KERNELS[kernel].near_field), plane_tol=COS_TOL * diag,
-                     occlusion=bool(occlusion), oracle=_oracle_id(h.oracle),
-                     gauss_gap=float(h.near_gauss_gap), far_polygon=_far_kernel(h.far_kernel),
-                     weighted_rays=bool(h.kernel_weighted_rays),
-                     solids=bool(h.inside_solids) and bool(occlusion))
-    return prm, weight
 
 
 def _clusters_row(c: dict) -> str:

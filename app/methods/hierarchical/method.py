@@ -15,7 +15,7 @@ class HierarchicalMethod:
 
     def check(self, rs, settings) -> None:
         """Settings that would fail the stage, failed before any cluster starts."""
-        from radiosity.methods.hierarchical.links import resolve_params
+        from radiosity.methods.hierarchical.params import resolve_params
 
         resolve_params(rs.load_elements(), settings)
 

@@ -48,7 +48,7 @@ Waiting = namedtuple("Waiting", "p q lists pool")
 # (the tessellated Cornell box: 43 us per evaluated link). Scenes of fewer originals never have
 # this many, and are unchanged.
 MAX_OCCLUDERS = 64
-# The scalar settings (links.LinkParams.kernel_params).
+# The scalar settings (params.LinkParams.kernel_params).
 RefineParams = namedtuple("RefineParams", "eps shadow near min_size kid exact plane_tol oracle "
                                           "gauss_gap far_polygon occlusion")
 

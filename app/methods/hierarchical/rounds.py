@@ -1,6 +1,6 @@
 """Refinement by the solved radiance (issue 26; Hanrahan, Salzman & Aupperle 1991's "BF
 refinement"; SPEC §8): the link oracle weighs a link p <- q by rho_p F_pq L_q / lref with an
-a-priori radiance L_q (emission plus an ambient term: links.oracle_weights), which does not know
+a-priori radiance L_q (emission plus an ambient term: params.oracle_weights), which does not know
 where indirect light goes. After a first solve, rounds weigh the links by the solved radiance:
 
 1. per node of the partition's split trees and side, the solved radiance (the area-weighted
@@ -73,9 +73,9 @@ def hot_share(rs, weight: str, ratio: float, radiance: np.ndarray | None = None)
     """The share of the solved reflected power (sub-elements' area times the largest channel of
     their reflected radiance, both sides) that leaves sub-elements whose reflected radiance is
     more than `ratio` times the a-priori estimate the oracle weighed their links with (the
-    ambient term of links.oracle_weights; `weight` none: the oracle weighs no radiance, 0).
+    ambient term of params.oracle_weights; `weight` none: the oracle weighs no radiance, 0).
     radiance (m, 2, C) per sub-element; None: the run's solution/radiance."""
-    from radiosity.methods.hierarchical.links import oracle_weights
+    from radiosity.methods.hierarchical.params import oracle_weights
 
     if weight != "bf":
         return 0.0

@@ -47,7 +47,7 @@ def _grid(n: int, z: float, up: bool, x0=0.0, size=1.0):
 
 
 def _tree(el):
-    from radiosity.methods.hierarchical.links import oracle_weights
+    from radiosity.methods.hierarchical.params import oracle_weights
 
     return cluster_tree(el, *oracle_weights(el, "none"))
 
@@ -215,7 +215,7 @@ def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
     v2, n2 = _sphere(6, 12, inward=False)
     el = _elements(np.concatenate([v1, v2 * 0.3]), np.concatenate([n1, n2]),
                    emit=np.full((len(v1) + len(v2), 2, 3), 1.0))
-    from radiosity.methods.hierarchical.links import oracle_weights
+    from radiosity.methods.hierarchical.params import oracle_weights
 
     ct = cluster_tree(el, *oracle_weights(el, "bf"))
     links, _, _ = refine_all(ct, 1e-3, 64)
@@ -261,7 +261,7 @@ def test_one_ray_links_are_not_biased_toward_any_part_of_their_nodes():
     every link put all those rays' ends at the same place of each node (in the tree's order,
     low on the walls, near the block): 0.991 and 0.86."""
     from radiosity.methods.hierarchical.clusterweights import link_weights
-    from radiosity.methods.hierarchical.links import oracle_weights
+    from radiosity.methods.hierarchical.params import oracle_weights
     from radiosity.tracing.rays import RayCaster
 
     el = _room_with_block(16)
@@ -290,13 +290,13 @@ def _room_with_block(n: int = 16):
 
 
 def test_unseen_receivers_weigh_less_only_where_both_ends_are_unseen():
-    """links.cluster_weights: the light to originals no camera sees weighs `importance` in the
+    """params.cluster_weights: the light to originals no camera sees weighs `importance` in the
     cluster oracle. On a room with a block whose walls no camera sees: with every original seen
     the weights are oracle_weights'; the links (and the pairs handed down) whose two ends both
     hold a seen original are the same at importance 0.25 as at 1 (every link above them holds a
     seen original at both ends too, and a node's weight is its largest); the links between
     wholly unseen nodes are fewer."""
-    from radiosity.methods.hierarchical.links import cluster_weights, oracle_weights
+    from radiosity.methods.hierarchical.params import cluster_weights, oracle_weights
 
     el = _room_with_block(16)
     zfloor = np.abs(el.normal[:, 2]) > 0.5  # the floors, the ceiling and the block's top
@@ -335,7 +335,7 @@ def test_the_cluster_layers_settings_are_checked_up_front(key, value, words):
     import re
 
     from radiosity.errors import RadiosityError
-    from radiosity.methods.hierarchical.links import resolve_params
+    from radiosity.methods.hierarchical.params import resolve_params
     from radiosity.settings import resolve
 
     el = _elements(*_grid(2, 0.0, True))
@@ -349,7 +349,7 @@ def test_partly_visible_cluster_links_are_split_and_cover_the_same_pairs():
     the kept links and the pairs handed down cover every pair of facing triangles that the
     links before covered, each once."""
     from radiosity.methods.hierarchical.clustertasks import _shadows
-    from radiosity.methods.hierarchical.links import oracle_weights
+    from radiosity.methods.hierarchical.params import oracle_weights
     from radiosity.tracing.rays import RayCaster
 
     el = _room_with_block(8)
@@ -565,7 +565,7 @@ def test_the_cluster_layer_is_the_same_in_tasks_and_in_one_process(client):
     weights as the whole refinement in one process: the result does not depend on the cut or
     the workers."""
     from radiosity.methods.hierarchical import clustertasks as clusters
-    from radiosity.methods.hierarchical.links import oracle_weights
+    from radiosity.methods.hierarchical.params import oracle_weights
 
     v, n = _sphere(40, 64)
     el = _elements(v, n, rho=0.8, emit=np.where(np.arange(len(v))[:, None, None] < 40, 1.0, 0.0)

@@ -12,7 +12,8 @@ import pytest
 
 from radiosity.core.exact import differential_to_rectangle, pair_form_factors_exact
 from radiosity.scene.splittrees import decode, node_table, seen_originals, tree_nodes
-from radiosity.methods.hierarchical.links import COUNTERS, LinkInputs, compute_links, refine_pairs, resolve_params
+from radiosity.methods.hierarchical.links import COUNTERS, LinkInputs, compute_links, refine_pairs
+from radiosity.methods.hierarchical.params import resolve_params
 from radiosity.methods.hierarchical.transport import (LinkOperator, LocalLinkOperator,
                                                       open_link_operator)
 from radiosity.tracing.rays import RayCaster
@@ -552,7 +553,7 @@ def test_epsilon_auto_scales_with_the_raster_and_reaches_the_links(client, tmp_p
     leaf than the same epsilon would keep); a number is used as given; a bad value is one
     line. The run's report says which epsilon and why."""
     from radiosity.errors import RadiosityError
-    from radiosity.methods.hierarchical.links import choose_epsilon
+    from radiosity.methods.hierarchical.params import choose_epsilon
 
     s = resolve({"hierarchy.epsilon": "auto", "hierarchy.epsilon-base": 5e-4,
                  "hierarchy.epsilon-resolution": 128})

@@ -229,7 +229,8 @@ def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, few: np.ndarray, col: np
     ray that start or end inside a solid are left out of its fraction, unless all do
     (SolidEnds). Returns (L,) float64."""
     L, k = ep.shape
-    n = int(k * (L - int(few.sum())) + few.sum())
+    nfew = int(few.sum())
+    n = k * (L - nfew) + nfew
     ids = np.empty(2 * n, np.int64)
     cc = np.empty(n, np.int64)
     first = np.empty(L, np.int64)

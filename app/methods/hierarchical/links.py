@@ -291,7 +291,8 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
     from radiosity.scene.originals import FacingPairsError, pairs_within_budget, tree_of
     from radiosity.scene.splittrees import seen_originals
 
-    raster = rs.read_arrays("raster")  # orig, sub: (H, W) per criterion pixel
+    raster = rs.read_arrays("raster")  # orig, sub: (H, W) per criterion pixel; seen (n,)
+    seen = seen_originals(raster["orig"], len(el))  # by the run's own camera
     _, why = choose_epsilon(s, raster["orig"].size)
     prm, weight = resolve_params(el, s, occlusion, pixels=raster["orig"].size)
     unit = s.hierarchy.task_unit if unit is None else unit
@@ -312,8 +313,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
                                       f"originals > plan.max-facing-pairs")
     if on:  # links start at the root of the tree over the originals (SPEC §9)
         ce, imp = float(s.hierarchy.clusters_epsilon), float(s.hierarchy.unseen_importance)
-        # seen by any camera (older stores: the run's own camera's raster)
-        seen_any = raster["seen"] if "seen" in raster else seen_originals(raster["orig"], len(el))
+        seen_any = raster.get("seen", seen)  # by any camera (older stores: the run's own)
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon * ce,
                                          cluster_weights(el, weight, seen_any, imp), prm.rays,
                                          occlusion, s.rays.epsilon, client, progress,
@@ -322,7 +322,6 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
                     unseen=int((~np.asarray(seen_any, bool)).sum()))
         bi, bj = cpairs[:, 0], cpairs[:, 1]
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit, int(s.hierarchy.max_task_cost))
-    seen = seen_originals(raster["orig"], len(el))
     hit = None
     if s.hierarchy.split_hidden:
         sub = raster["sub"]

@@ -10,11 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from radiosity.scene.originals import (LEAF, FacingPairsError, behind_any, pairs_within_budget,
-                                       tree_of)
+from radiosity.scene.originals import (LEAF, TOL, FacingPairsError, behind_any,
+                                       pairs_within_budget, tree_of)
 from radiosity.core.bundles import Elements
-
-EPS = 1e-9
 
 
 @dataclass(frozen=True)
@@ -59,7 +57,7 @@ def _behind(elements: Elements) -> np.ndarray:
     d = np.einsum("ic,jkc->ijk", elements.normal, v) - \
         np.einsum("ic,ic->i", elements.normal, elements.center)[:, None, None]
     scale = float(np.linalg.norm(v.reshape(-1, 3).max(0) - v.reshape(-1, 3).min(0)))
-    return (d < -EPS * scale).any(axis=2)
+    return (d < -TOL * scale).any(axis=2)
 
 
 def _reachable(bi: np.ndarray, bj: np.ndarray, emitter: np.ndarray,

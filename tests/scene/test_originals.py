@@ -9,8 +9,8 @@ import pytest
 
 from helpers import scene_path
 from radiosity.scene.effects import _behind
-from radiosity.scene.originals import (FacingPairsError, behind_any, build_tree, check_budget,
-                                 estimate_facing_pairs, facing_pairs, tree_of)
+from radiosity.scene.originals import (TOL, FacingPairsError, behind_any, build_tree,
+                                       check_budget, estimate_facing_pairs, facing_pairs, tree_of)
 from radiosity.methods.pairs.plan import facing_blocks, make_plan
 from radiosity.scene.load import load_scene
 
@@ -65,7 +65,7 @@ def test_facing_pairs_equal_the_dense_relation_on_random_soups(rng, seed, n, cop
     np.testing.assert_array_equal(bi, di)
     np.testing.assert_array_equal(bj, dj)
     behind = (np.einsum("ic,jkc->ijk", nrm, v) - np.einsum("ic,ic->i", nrm, c)[:, None, None]
-              < -1e-9 * np.linalg.norm(v.reshape(-1, 3).max(0) - v.reshape(-1, 3).min(0))).any(2)
+              < -TOL * np.linalg.norm(v.reshape(-1, 3).max(0) - v.reshape(-1, 3).min(0))).any(2)
     np.testing.assert_array_equal(behind_any(t), behind.any(axis=1))
     wanted = np.arange(n) % 3 == 1  # only some elements asked: the same answer for them
     np.testing.assert_array_equal(behind_any(t, wanted=wanted), behind.any(axis=1) & wanted)

@@ -30,13 +30,15 @@ ADMISSIBLE = 2.0
 # left, right (K,) (-1 at a leaf), start, end (K,) ranges into order (n,); lo, hi (K, 3) vertex
 # boxes; axis (K, 3), spread (K,) the normal cone; two (K,) any two-sided element; area (K,);
 # center (K, 3) area centroid; rho, lhat (K,): the largest reflectance and a-priori radiance
-# of the elements below (the oracle's weights, front side); rec (K, 21) what the refinement
+# of the elements below (the oracle's weights, front side); rec (K, 23) what the refinement
 # reads of both ends of every link, one row a node (it waits on memory more than it computes:
 # docs/src/design/methods-hierarchical-clusters.md): lo, hi, clo, chi, axis (3 each), spread,
-# two, the vertex box's diagonal, area, rho, lhat.
+# two, the vertex box's diagonal, area, rho, lhat, and the slab along the axis (the least and
+# the largest axis . v over the vertices: _may_face).
 CTree = namedtuple("CTree", "left right start end order lo hi clo chi axis spread two area center "
                             "rho lhat rec")
-LO, HI, CLO, CHI, AXIS, SPREAD, TWO, DIAG, AREA, RHO, LHAT = 0, 3, 6, 9, 12, 15, 16, 17, 18, 19, 20
+LO, HI, CLO, CHI, AXIS, SPREAD, TWO, DIAG, AREA, RHO, LHAT, SLO, SHI = (0, 3, 6, 9, 12, 15, 16, 17, 18,
+                                                             19, 20, 21, 22)
 # The originals as the refinement reads them: normal (n, 3), offset (n,) = n . centre, verts
 # (n, 4, 3) (triangles repeat vertex 2), area (n,), center (n, 3), two_sided (n,), eps (the
 # facing tolerance in scene units); ona (n, 7) normal, area and centre in the tree's order (a
@@ -99,8 +101,10 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float) -> C
     old[new] = np.arange(K)
     kid = lambda c: np.where(c[new] >= 0, old[np.maximum(c[new], 0)], -1)  # noqa: E731
     diag = np.linalg.norm(t.hi - t.lo, axis=1)
+    slab = _slabs(t.start, t.end, o, verts, t.axis)
     rec = np.concatenate([t.lo, t.hi, t.clo, t.chi, t.axis, t.spread[:, None], t.two[:, None],
-                          diag[:, None], A[:, None], rho[:, None], lh[:, None]], axis=1)[new]
+                          diag[:, None], A[:, None], rho[:, None], lh[:, None], slab],
+                         axis=1)[new]
     tree = CTree(kid(t.left), kid(t.right), t.start[new], t.end[new], o, t.lo[new], t.hi[new],
                  t.clo[new], t.chi[new], t.axis[new], t.spread[new], t.two[new], A[new],
                  center[new], rho[new], lh[new], np.ascontiguousarray(rec))
@@ -111,6 +115,24 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float) -> C
                    np.ascontiguousarray(ona))
     assert K == len(A)
     return ClusterTree(tree, elems, float(lref))
+
+
+@numba.njit(cache=True, nogil=True)
+def _slabs(start, end, order, verts, axis):
+    """(K, 2): the least and the largest axis_x . v over the vertices v of node x's elements."""
+    K = start.shape[0]
+    out = np.empty((K, 2))
+    for x in range(K):
+        lo, hi = np.inf, -np.inf
+        for m in range(start[x], end[x]):
+            i = order[m]
+            for k in range(verts.shape[1]):
+                s = axis[x, 0] * verts[i, k, 0] + axis[x, 1] * verts[i, k, 1] \
+                    + axis[x, 2] * verts[i, k, 2]
+                lo = min(lo, s)
+                hi = max(hi, s)
+        out[x, 0], out[x, 1] = lo, hi
+    return out
 
 
 def _preorder(left, right) -> np.ndarray:
@@ -151,7 +173,11 @@ def _range_max(values, start, end, left, right):
 @numba.njit(cache=True, nogil=True, inline="always")
 def _may_face(rec, A, B, eps):
     """Can some element of node B lie in front of (or, two-sided, behind) the plane of some
-    element of node A? False only where certainly not (originals._may_face's bound)."""
+    element of node A? False only where certainly not: the least of originals._may_face's
+    bound from the boxes and the same from the slabs along the axes. The slabs prove nodes of
+    one flat face coplanar where it is tilted (its box corners lie off the plane): without
+    them, every pair of nodes on such a face was refined as if they faced, down to links that
+    carry nothing (docs/src/design/methods-hierarchical-clusters.md, "Flat faces")."""
     up = 0.0
     low = 0.0
     vmax2 = 0.0
@@ -167,9 +193,25 @@ def _may_face(rec, A, B, eps):
             low += a * dhi
         m = max(abs(dlo), abs(dhi))
         vmax2 += m * m
+    # the same from the slabs: a_A . v <= a_A . m_B + a_B . (v - m_B) + |a_A - a_B| |v - m_B|
+    # for v in B (m_B its box centre, |v - m_B| at most half its diagonal), and A's centres lie
+    # in A's slab
+    am = 0.0
+    bm = 0.0
+    dd = 0.0
+    for k in range(3):
+        m = 0.5 * (rec[B, LO + k] + rec[B, HI + k])
+        am += rec[A, AXIS + k] * m
+        bm += rec[B, AXIS + k] * m
+        g = rec[A, AXIS + k] - rec[B, AXIS + k]
+        dd += g * g
+    wob = np.sqrt(dd) * 0.5 * rec[B, DIAG]
+    up = min(up, am + rec[B, SHI] - bm + wob - rec[A, SLO])
+    low = max(low, am + rec[B, SLO] - bm - wob - rec[A, SHI])
     s = rec[A, SPREAD] * np.sqrt(vmax2)
-    half = 0.5 * eps
-    return (up + s > half) or (rec[A, TWO] > 0 and low - s < -half)
+    # eps as originals.faces takes it (a leaf's vertex must lie more than eps off the plane):
+    # up + s bounds that distance over every pair, so up + s <= eps leaves no facing pair
+    return (up + s > eps) or (rec[A, TWO] > 0 and low - s < -eps)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

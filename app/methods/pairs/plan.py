@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from radiosity.scene.originals import TOL
+
 # tile columns
 I, J, R0, R1, NCOLS, START, NBYTES = range(7)
 # task columns
@@ -93,8 +95,9 @@ class VisibilityPlan:
 
 
 def facing_blocks(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, center: np.ndarray,
-                  two_sided: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+                  two_sided: np.ndarray, tol: float | None = None) -> np.ndarray:
     """(n, n) bool: can any point of J lie strictly in front of I (either side if I is two-sided)?
+    Distances below tol (originals.TOL) times the scene's diagonal count as 0.
 
     A block (I, J) needs work only if J is in front of I *and* I is in front of J; otherwise every
     pair in it has cos <= 0 on one side and V = 0 without a ray (SPEC §5).
@@ -102,7 +105,7 @@ def facing_blocks(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, cen
     # signed distances of every vertex of J to the plane of I: (n_I, n_J, 4)
     d = np.einsum("ic,jkc->ijk", normal, verts) - np.einsum("ic,ic->i", normal, center)[:, None, None]
     scale = np.linalg.norm(verts.reshape(-1, 3).max(0) - verts.reshape(-1, 3).min(0))
-    eps = tol * scale
+    eps = (TOL if tol is None else tol) * scale
     front = (d > eps).any(axis=2)
     back = (d < -eps).any(axis=2)
     return front | (two_sided[:, None] & back)

@@ -89,6 +89,64 @@ def test_epsilon_zero_lists_exactly_the_facing_pairs_of_originals():
     assert got == set(zip(bi.tolist(), bj.tolist())) and len(got) == len(pairs)
 
 
+def _tilted(v, axis=(0.3, -0.5, 0.8), angle=0.7, at=(0.0, 0.0, 0.0)):
+    """v (n, 4, 3) turned by `angle` about `axis`, moved to `at`, rounded to float32 (as a mesh
+    file stores it)."""
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_rotvec(np.asarray(axis) / np.linalg.norm(axis) * angle)
+    out = r.apply(v.reshape(-1, 3)).reshape(v.shape) + np.asarray(at)
+    return out.astype(np.float32).astype(np.float64)
+
+
+def test_a_tilted_flat_face_in_float32_has_no_links_within_itself():
+    """A flat face cut into 1 250 triangles, turned off the axes and rounded to float32, facing
+    a plate: no cluster link and no pair of originals joins two of its triangles (they lie on
+    one plane within the facing tolerance), at epsilon 0 as at a working epsilon."""
+    v1, n1 = _grid(25, 0.0, True, size=1.0)
+    v2, n2 = _grid(4, 0.6, False, x0=0.2, size=0.6)
+    v = _tilted(np.concatenate([v1, v2]))
+    el = _elements(v, np.concatenate([n1, n2]))
+    face = np.arange(len(v)) < len(v1)
+    normals = el.normal[face]
+    assert np.ptp(normals, axis=0).max() > 0   # float32: not one normal to the bit
+    ct = _tree(el)
+    for eps in (0.0, 1e-3):
+        links, pairs, _ = refine_all(ct, eps, 64)
+        assert len(links) + len(pairs) > 0
+        assert not (face[pairs[:, 0]] & face[pairs[:, 1]]).any()
+        start, end, order = ct.tree.start, ct.tree.end, ct.tree.order
+        within = [face[order[start[p]:end[p]]].all() and face[order[start[q]:end[q]]].all()
+                  for p, q in links]
+        assert not any(within), eps
+
+
+def test_epsilon_zero_lists_exactly_the_facing_pairs_on_tilted_and_folded_faces():
+    """The slab bound of _may_face never drops a facing pair: two tilted faces folded at a
+    shallow angle (they face each other a little), a tilted plate above, and a soup of random
+    triangles; epsilon 0 lists exactly originals.facing_pairs."""
+    a, na = _grid(12, 0.0, True, size=1.0)
+    b, nb = _grid(12, 0.0, True, x0=1.0, size=1.0)
+    fold = np.radians(3.0)   # b turned up about the line x = 1: it faces a, and a faces it
+    x = b[..., 0] - 1.0
+    b = np.stack([1.0 + x * np.cos(fold), b[..., 1], x * np.sin(fold)], -1)
+    c, nc = _grid(5, 0.4, False, x0=0.3, size=0.5)
+    rng = np.random.default_rng(7)
+    s = rng.random((60, 1, 3)) * 2 + rng.normal(scale=0.1, size=(60, 4, 3))
+    s[:, 3] = s[:, 2]
+    v = _tilted(np.concatenate([a, b, c, s]))
+    el = _elements(v, np.concatenate([na, nb, nc, np.full(60, 3)]))
+    ct = _tree(el)
+    links, pairs, _ = refine_all(ct, 0.0, 64)
+    assert len(links) == 0
+    bi, bj, _ = facing_pairs(tree_of(el))
+    got = {tuple(p) for p in pairs.tolist()}
+    want = set(zip(bi.tolist(), bj.tolist()))
+    assert got == want and len(got) == len(pairs)
+    n = len(a)
+    assert any(i < n <= j < 2 * n for i, j in want)   # the fold's pairs are there
+
+
 def test_far_groups_are_one_cluster_link_whose_form_factor_is_the_exact_sum():
     """Two groups of 2 000 small coplanar triangles facing each other far apart: one link
     between the groups at a moderate epsilon, and its transported power within 1 % of the sum

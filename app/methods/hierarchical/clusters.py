@@ -34,9 +34,11 @@ ADMISSIBLE = 2.0
 # reads of both ends of every link, one row a node (it waits on memory more than it computes:
 # docs/src/design/methods-hierarchical-clusters.md): lo, hi, clo, chi, axis (3 each), spread,
 # two, the vertex box's diagonal, area, rho, lhat, and the slab along the axis (the least and
-# the largest axis . v over the vertices: _may_face).
+# the largest axis . v over the vertices: _may_face); stop (K,) bool: an inner node that stays
+# whole where a link to it can be kept (refine_clusters: unseen and small, as the element level
+# leaves unseen originals).
 CTree = namedtuple("CTree", "left right start end order lo hi clo chi axis spread two area center "
-                            "rho lhat rec")
+                            "rho lhat rec stop")
 LO, HI, CLO, CHI, AXIS, SPREAD, TWO, DIAG, AREA, RHO, LHAT, SLO, SHI = (0, 3, 6, 9, 12, 15, 16, 17, 18,
                                                              19, 20, 21, 22)
 # The originals as the refinement reads them: normal (n, 3), offset (n,) = n . centre, verts
@@ -77,10 +79,13 @@ class ClusterTree:
         return out
 
 
-def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float) -> ClusterTree:
+def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float,
+                 unseen: np.ndarray | None = None, min_size: float = 0.0) -> ClusterTree:
     """The cluster tree over `elements` (types.Elements) with the oracle's per-original weights
     wrho, lhat (n, 2) and lref (params.oracle_weights); front sides only (a cluster holding a
-    two-sided original is never kept as a link end)."""
+    two-sided original is never kept as a link end). Inner nodes whose originals are all
+    `unseen` (n,) bool and whose sqrt(area) is at most `min_size` (scene units; the element
+    level's hierarchy.min-node-size) stay whole where a link to them can be kept (`stop`)."""
     from radiosity.scene.originals import build_tree
 
     t = build_tree(elements.verts, elements.nverts, elements.normal, elements.center,
@@ -107,7 +112,8 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float) -> C
                          axis=1)[new]
     tree = CTree(kid(t.left), kid(t.right), t.start[new], t.end[new], o, t.lo[new], t.hi[new],
                  t.clo[new], t.chi[new], t.axis[new], t.spread[new], t.two[new], A[new],
-                 center[new], rho[new], lh[new], np.ascontiguousarray(rec))
+                 center[new], rho[new], lh[new], np.ascontiguousarray(rec),
+                 _stops(t, A, unseen, min_size)[new])
     ona = np.concatenate([np.asarray(elements.normal, np.float64), area[:, None],
                           np.asarray(elements.center, np.float64)], axis=1)[o]
     elems = CElems(np.asarray(elements.normal, np.float64), t.offset, verts, area,
@@ -133,6 +139,16 @@ def _slabs(start, end, order, verts, axis):
                 hi = max(hi, s)
         out[x, 0], out[x, 1] = lo, hi
     return out
+
+
+def _stops(t, area: np.ndarray, unseen: np.ndarray | None, min_size: float) -> np.ndarray:
+    """(K,) bool: inner nodes of tree t whose originals are all unseen and whose sqrt(area) is
+    at most min_size."""
+    if unseen is None or min_size <= 0.0:
+        return np.zeros(len(t.left), np.bool_)
+    cum = np.concatenate([[0], np.cumsum(np.asarray(unseen, bool)[t.order])])
+    whole = cum[t.end] - cum[t.start] == t.end - t.start
+    return whole & (t.left >= 0) & (np.sqrt(area) <= min_size)
 
 
 def _preorder(left, right) -> np.ndarray:
@@ -372,13 +388,15 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
     orientation, kept, pairs], pending (r, 2) int64). A link between nodes p, q (neither
     holding a two-sided original, boxes apart) is kept when its error bound (_error_bound) is at
     most eps (two originals: one link over both, as the element-level refinement's root link);
-    otherwise the end with more area (the larger solid angle from the other) is split. eps = 0
-    lists exactly the facing pairs of originals. frontier > 0: breadth first, stop once that
+    otherwise the end with more area (the larger solid angle from the other) is split, but not
+    an end that stays whole (t.stop) where the link could be kept: then the other end, or
+    where neither can split the link is kept (as the element level keeps a link between nodes
+    it cannot split). eps = 0 lists exactly the facing pairs of originals. frontier > 0: breadth first, stop once that
     many links wait to be refined and return them as `pending` (the cut into tasks: refining
     each of them on its own gives the same links and pairs); 0: depth first to the end (pending
     empty)."""
-    left, right, start, end, order, rec, center = t.left, t.right, t.start, t.end, t.order, \
-        t.rec, t.center
+    left, right, start, end, order, rec, center, stop = t.left, t.right, t.start, t.end, \
+        t.order, t.rec, t.center, t.stop
     normal, verts, offset, two_sided, ona, feps = e.normal, e.verts, e.offset, e.two_sided, \
         e.ona, e.eps
     links = np.empty((max(cap, 16), 2), np.int64)
@@ -418,10 +436,16 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
             counts[1] += 1
             continue
         d2 = _box_distance2(rec, p, q)
-        keep = d2 > 0.0 and rec[p, TWO] == 0 and rec[q, TWO] == 0 and \
-            not _near(rec, p, q, d2) and (
-                _error_bound(rec, p, q, d2, lref) <= eps
-                or _error_estimate(rec, center, start, end, ona, p, q, d2, lref) < eps)
+        ok = d2 > 0.0 and rec[p, TWO] == 0 and rec[q, TWO] == 0 and not _near(rec, p, q, d2)
+        keep = ok and (_error_bound(rec, p, q, d2, lref) <= eps
+                       or _error_estimate(rec, center, start, end, ona, p, q, d2, lref) < eps)
+        # an end that stays whole (stop) is not split where the link could be kept: the other
+        # end is, and where neither can split the link is kept above epsilon (eps > 0 only:
+        # epsilon 0 still lists every facing pair of originals)
+        fp = lp or (ok and eps > 0.0 and stop[p])
+        fq = lq or (ok and eps > 0.0 and stop[q])
+        if fp and fq and not (lp and lq):
+            keep = True
         if lp and lq:  # two originals: a link over both, or a pair for the element level
             i, j = order[start[p]], order[start[q]]
             if not (faces(normal, verts, offset, two_sided, feps, i, j)
@@ -445,7 +469,7 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
             nl += 1
             continue
         # split the end with more area (the larger solid angle seen from the other)
-        split_p = (not lp) and (lq or rec[p, AREA] >= rec[q, AREA])
+        split_p = (not fp) and (fq or rec[p, AREA] >= rec[q, AREA])
         if split_p:
             stack[ns, 0], stack[ns, 1] = left[p], q
             stack[ns + 1, 0], stack[ns + 1, 1] = right[p], q

@@ -176,10 +176,10 @@ def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
 
 def _split_links(t, links: np.ndarray) -> tuple:
     """The links one level below each of `links` (s, 2): its end with more area split into
-    its two children (the other end where that one is a leaf); and the links whose two ends are
-    leaves, as they are."""
+    its two children (the other end where that one is a leaf or stays whole, t.stop); and the
+    links neither of whose ends can split, as they are."""
     p, q = links[:, 0], links[:, 1]
-    inner_p, inner_q = t.left[p] >= 0, t.left[q] >= 0
+    inner_p, inner_q = (t.left[p] >= 0) & ~t.stop[p], (t.left[q] >= 0) & ~t.stop[q]
     sp = inner_p & (~inner_q | (t.area[p] >= t.area[q]))
     sq = inner_q & ~sp
     kids = [np.stack([t.left[p[sp]], q[sp]], 1), np.stack([t.right[p[sp]], q[sp]], 1),
@@ -250,12 +250,14 @@ class _Runs:
 
 def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
                   ray_offset: float, client=None, progress: bool = False,
-                  shadow: float = np.inf, solids: bool = False):
+                  shadow: float = np.inf, solids: bool = False,
+                  unseen: np.ndarray | None = None, min_size: float = 0.0):
     """The cluster layer of a link stage: the tree, its refinement at `epsilon` with the oracle's
     weights (wrho, lhat, lref: params.oracle_weights), the kept links' form factors and visible
     fractions (`rays` rays each; 1 when nothing can block; partly visible links that carry
     more than `shadow` refined further: _shadows; `solids`: rays inside solids left out,
-    clusterweights.SolidEnds). With a `client`, the refinement is
+    clusterweights.SolidEnds; nodes wholly `unseen` and at most `min_size` across stay whole
+    where they can: clusters.cluster_tree). With a `client`, the refinement is
     cut where CUT_PER_TASK x TASKS_PER_THREAD links per worker thread wait, and every waiting
     link's subtree is a task (refinement, form factors, rays) on the cluster; the links come
     out sorted, so the result does not depend on the cut or the workers. Returns (ClusterLinks,
@@ -268,7 +270,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     from radiosity.runtime.cluster import trim_malloc
 
     t0 = time.perf_counter()
-    ct = cluster_tree(elements, *weights)
+    ct = cluster_tree(elements, *weights, unseen=unseen, min_size=min_size)
     n = len(elements)
     root = np.zeros((1, 2), np.int64)
     threads = sum(client.nthreads().values()) if client is not None else 0
@@ -303,7 +305,8 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
         shared = Scattered(client, inp)
         run_tasks(client, task_clusters, range(ntasks), lambda i: (shared.future(), cuts[i]),
                   name="clusters", token=tokenize(inp.key, inp.epsilon, inp.rays, ct.lref,
-                                                  inp.shadow, pending), window=2 * threads,
+                                                  inp.shadow, ct.tree.stop, pending),
+                  window=2 * threads,
                   on_result=lambda i, res: keep(res), progress=progress,
                   repair="run the render again")
     counts = np.sum([x[1] for x in rest], axis=0)

@@ -317,7 +317,9 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon * ce,
                                          cluster_weights(el, weight, seen_any, imp), prm.rays,
                                          occlusion, s.rays.epsilon, client, progress,
-                                         prm.shadow * ce, prm.solids)
+                                         prm.shadow * ce, prm.solids,
+                                         unseen=~np.asarray(seen_any, bool),
+                                         min_size=prm.min_size)
         cfig.update(why=why_clusters, epsilon=prm.epsilon * ce, unseen_importance=imp,
                     unseen=int((~np.asarray(seen_any, bool)).sum()))
         bi, bj = cpairs[:, 0], cpairs[:, 1]

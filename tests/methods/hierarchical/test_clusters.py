@@ -384,6 +384,73 @@ def test_unseen_receivers_weigh_less_only_where_both_ends_are_unseen():
     assert none4 < none1 and all4 < all1
 
 
+def test_small_unseen_clusters_stay_whole_and_the_links_still_cover_every_facing_pair():
+    """cluster_tree's `stop`: nodes wholly unseen and at most min_size across are not split
+    where a link to them can be kept (the element level's min-node-size for unseen originals).
+    On a room with a block whose walls no camera sees: the links and pairs still cover every
+    facing pair of triangles once; every kept link meets epsilon unless neither of its ends
+    can split; fewer links reach below the stopped nodes; epsilon 0 still lists exactly the
+    facing pairs of originals."""
+    from radiosity.methods.hierarchical.clusters import (_box_distance2, _error_bound,
+                                                         _error_estimate)
+    from radiosity.methods.hierarchical.params import oracle_weights
+
+    el = _room_with_block(16)
+    seen = np.abs(el.normal[:, 2]) > 0.5  # the floors, the ceiling and the block's top
+    w = oracle_weights(el, "bf")
+    eps = 0.005
+    plain = cluster_tree(el, *w)
+    ct = cluster_tree(el, *w, unseen=~seen, min_size=0.15)
+    t = ct.tree
+    assert t.stop.any() and not plain.tree.stop.any()
+    assert not t.stop[t.left < 0].any()
+    cs = np.concatenate([[0], np.cumsum(seen[t.order])])
+    assert ((cs[t.end] - cs[t.start])[t.stop] == 0).all()
+    assert (np.sqrt(t.area[t.stop]) <= 0.15).all()
+
+    d = el.center[None, :, :] - el.center[:, None, :]
+    facing = (np.einsum("ic,ijc->ij", el.normal, d) > 0) & \
+        (np.einsum("jc,ijc->ij", el.normal, d) < 0)
+
+    def covered(tree, lk, pr):  # how often each pair of triangles is covered
+        c = np.zeros((len(el), len(el)), np.int16)
+        for p, q in lk:
+            ep = tree.order[tree.start[p]:tree.end[p]]
+            eq = tree.order[tree.start[q]:tree.end[q]]
+            c[ep[:, None], eq] += 1
+        c[pr[:, 0], pr[:, 1]] += 1
+        return c + c.T
+
+    L0, P0, _ = refine_all(plain, eps)
+    L1, P1, _ = refine_all(ct, eps)
+    both = facing & facing.T
+    assert (covered(plain.tree, L0, P0)[both] == 1).all()
+    assert (covered(t, L1, P1)[both] == 1).all()
+    whole = (t.left < 0) | t.stop
+    over = 0
+    for p, q in L1:
+        d2 = _box_distance2(t.rec, p, q)
+        ok = _error_bound(t.rec, p, q, d2, ct.lref) <= eps or \
+            _error_estimate(t.rec, t.center, t.start, t.end, ct.elems.ona, p, q, d2, ct.lref) < eps
+        assert ok or (whole[p] and whole[q])
+        over += not ok
+    assert over > 0
+
+    def below_stops(tree, lk):  # link ends strictly inside a stopped node of `t`
+        inside = np.zeros(len(el), bool)
+        for x in np.flatnonzero(t.stop):
+            inside[t.order[t.start[x]:t.end[x]]] = True
+        size = tree.end - tree.start
+        return sum(1 for p, q in lk for x in (p, q)
+                   if inside[tree.order[tree.start[x]]] and size[x] < 4)
+
+    assert below_stops(t, L1) < 0.8 * below_stops(plain.tree, L0) and len(L1) < len(L0)
+    links, pairs, _ = refine_all(ct, 0.0)
+    bi, bj, _ = facing_pairs(tree_of(el))
+    assert len(links) == 0 and {tuple(p) for p in pairs.tolist()} == set(zip(bi.tolist(),
+                                                                               bj.tolist()))
+
+
 @pytest.mark.parametrize("key,value,words", [
     ("hierarchy.clusters-epsilon", 0.0, "clusters-epsilon must be above 0, got 0.0"),
     ("hierarchy.unseen-importance", 0.0, "unseen-importance must be in (0, 1], got 0.0"),

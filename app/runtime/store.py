@@ -52,9 +52,15 @@ def record_compressors(itemsize: int) -> tuple:
     return (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle", typesize=int(itemsize)),)
 
 
+# Every chunk is written, even one that equals the fill value: zarr otherwise compares each
+# chunk with it first. MEASURED: 18 arrays of 2.5 MB written with record_compressors, 0.31-0.36 s
+# -> 0.15-0.17 s; a link task's writes were 0.2-0.3 s of the tessellated box's worker CPU.
+ARRAY_CONFIG = {"write_empty_chunks": True}
+
+
 def create_array(group, name: str, **kw):
     """group.create_array with the store's compressor (`name`: the array's name in `group`)."""
-    return group.create_array(name, compressors=COMPRESSORS, **kw)
+    return group.create_array(name, compressors=COMPRESSORS, config=ARRAY_CONFIG, **kw)
 
 
 class RunStore:
@@ -102,7 +108,7 @@ class RunStore:
         async def write(g):
             async def one(name, a):
                 z = await g.create_array(name, shape=a.shape, dtype=a.dtype, chunks=chunks_of(a),
-                                         compressors=COMPRESSORS)
+                                         compressors=COMPRESSORS, config=ARRAY_CONFIG)
                 if a.size:
                     await z.setitem(..., a)
 

@@ -17,7 +17,8 @@ import zlib
 import numpy as np
 
 from radiosity.errors import StoreError
-from radiosity.runtime.store import Manifest, RunStore, chunks_of, create_array, record_compressors, zarr_module
+from radiosity.runtime.store import (ARRAY_CONFIG, Manifest, RunStore, chunks_of, create_array,
+                                     record_compressors, zarr_module)
 
 LINK_DTYPE = np.dtype([("po", "<i4"), ("pc", "<u8"), ("qo", "<i4"), ("qc", "<u8"),
                        ("fpq", "<f8"), ("fqp", "<f8"), ("v", "<f4"), ("sp", "i1"), ("sq", "i1")])
@@ -46,7 +47,8 @@ def write_links(store_path: str, task: int, links: np.ndarray, nodes: np.ndarray
             continue
         raw = a.view(np.uint8).reshape(-1)
         g.create_array(f"{task}-{name}", data=raw, chunks=chunks_of(raw) if len(raw) else (1,),
-                       overwrite=True, compressors=record_compressors(a.dtype.itemsize))
+                       overwrite=True, compressors=record_compressors(a.dtype.itemsize),
+                       config=ARRAY_CONFIG)
     return {"crc": _links_crc(links, nodes), "n": int(len(links)), "nx": int(len(nodes))}
 
 

@@ -390,3 +390,30 @@ def seen_originals(raster_orig: np.ndarray, n: int) -> np.ndarray:
     """(n,) bool: originals that some pixel of the raster sees."""
     e = np.asarray(raster_orig).ravel()
     return np.bincount(e[e >= 0], minlength=n) > 0
+
+
+def footprint_originals(elements: Elements, hit_e: np.ndarray, hit_p: np.ndarray,
+                        hit_cam: np.ndarray, eyes: np.ndarray, pixel: float) -> np.ndarray:
+    """(n,) bool: the originals a pixel may show, not only those its centre hits: each hit
+    original (hit_e (p,) at points hit_p (p, 3), of cameras hit_cam (p,) at eyes (c, 3)), and
+    each other one whose centroid lies within its own radius plus `pixel` (a seen pixel's size,
+    subdivide.pixel_size) of a hit point and that faces that point's camera (or is two-sided).
+    On a mesh finer than the pixels most originals lie between pixel centres; these count as
+    seen here. O(n log p)."""
+    from scipy.spatial import cKDTree
+
+    n = len(elements)
+    out = np.zeros(n, bool)
+    out[np.asarray(hit_e, np.int64)] = True
+    idx = np.flatnonzero(~out)
+    if pixel <= 0.0 or not len(hit_p) or not len(idx):
+        return out
+    c = np.asarray(elements.center)[idx]
+    radius = np.linalg.norm(elements.verts[idx] - c[:, None, :], axis=2).max(axis=1)
+    d, j = cKDTree(hit_p).query(c)
+    near = d <= radius + pixel
+    idx, c, j = idx[near], c[near], j[near]
+    eye = np.asarray(eyes, float)[np.asarray(hit_cam)[j]]
+    facing = elements.two_sided[idx] | (np.einsum("ic,ic->i", elements.normal[idx], eye - c) > 0)
+    out[idx[facing]] = True
+    return out

@@ -21,6 +21,7 @@ from radiosity.tracing.rays import RayCaster, caster_for, raster_band
 from radiosity.runtime.runner import run_tasks
 from radiosity.runtime.store import RunStore, StageFigures
 from radiosity.scene.hidden import anchors, split_hidden
+from radiosity.scene.splittrees import footprint_originals
 from radiosity.scene.subdivide import (importance_points, lookup, merge_partitions, pixel_size,
                                        subdivide, warn_depth_guard)
 from radiosity.core.bundles import Scene
@@ -338,9 +339,12 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         figures["sub_elements_exact"] = len(exact)
         figures["over_refined_elements"] = int(np.sum(np.diff(part.offsets) != np.diff(exact.offsets)))
     store.save_partition(part, figures)
-    # seen: the originals any camera's pixel hits (the cluster layer's importance, links.py)
+    # seen: the originals any camera's pixel hits (the cluster layer's importance, links.py);
+    # footprint: those a pixel may show (the cluster layer keeps the others coarse)
+    foot = footprint_originals(el, seen_e, seen_p, seen_g, np.array([cm.center for cm in cams]),
+                               pixel or pixel_size(seen_p))
     store.write_arrays("raster", {"orig": elem.reshape(h, w), "sub": sub.reshape(h, w),
-                                  "seen": seen})
+                                  "seen": seen, "footprint": foot})
     fig = PreprocessFigures(**figures, time_total_s=round(time.perf_counter() - t0, 4),
                             peak_rss_mb=peak_rss_mb(client))
     fig.write(out)

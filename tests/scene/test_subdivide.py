@@ -210,3 +210,45 @@ def test_numba_camera_rays_match_the_numpy_reference():
     sc = load_scene(scene_path("cornell-box"), resolution=[12, 7])
     d = ray_directions32(sc.camera, 2, 3, 9)
     np.testing.assert_allclose(d, pixel_directions(sc.camera, 2, slice(3, 9)), atol=1e-7)
+
+
+def test_the_footprint_holds_the_originals_between_pixel_centres_that_face_the_camera():
+    """splittrees.footprint_originals: on a floor of triangles finer than the pixels, the
+    triangles no pixel centre hits still count (they lie within a pixel of a hit point and face
+    the camera); the same triangles turned away from the camera do not, nor does a facing floor
+    far from every hit point."""
+    from radiosity.core.bundles import Elements
+    from radiosity.scene.splittrees import footprint_originals
+
+    def grid(n, z, up, x0=0.0):
+        tris = []
+        for i in range(n):
+            for j in range(n):
+                a, b = (x0 + i / n, j / n, z), (x0 + (i + 1) / n, j / n, z)
+                c, d = (x0 + (i + 1) / n, (j + 1) / n, z), (x0 + i / n, (j + 1) / n, z)
+                for t in ((a, b, c), (a, c, d)):
+                    tris.append(t if up else (t[0], t[2], t[1]))
+        v = np.zeros((len(tris), 4, 3))
+        v[:, :3] = tris
+        v[:, 3] = v[:, 2]
+        return v
+
+    v = np.concatenate([grid(32, 0.0, True), grid(32, -0.01, False), grid(32, 0.0, True, 5.0)])
+    nv = np.full(len(v), 3)
+    area, normal, center = polygon_properties(v, nv)
+    n = len(v)
+    el = Elements(verts=v, nverts=nv.astype(np.int8), normal=normal, center=center, area=area,
+                  reflectance=np.full((n, 2, 3), 0.5), emission=np.zeros((n, 2, 3)),
+                  two_sided=np.zeros(n, bool), material=np.zeros(n, np.int32),
+                  source=np.zeros(n, np.int32), face=np.arange(n, dtype=np.int64),
+                  material_names=("m",), sources=("x",))
+    g = np.arange(0.5, 8) / 8   # pixel centres every 1/8: one triangle in 32 is hit
+    hp = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    hp = np.concatenate([hp, np.zeros((len(hp), 1))], 1)
+    he = np.array([np.argmin(np.linalg.norm(center[:2048] - p, axis=1)) for p in hp])
+    foot = footprint_originals(el, he, hp, np.zeros(len(hp), np.int64),
+                               np.array([[0.5, 0.5, 3.0]]), 1 / 8)
+    first = np.arange(n) < 2048
+    assert foot[he].all() and len(set(he.tolist())) < 100
+    assert foot[first].all()
+    assert not foot[2048:].any()

@@ -162,6 +162,7 @@ def test_each_cameras_image_matches_its_single_camera_render(tmp_path):
     own = np.zeros(len(ras["seen"]), bool)
     own[ras["orig"][ras["orig"] >= 0]] = True
     assert (ras["seen"] | ~own).all() and (ras["seen"] & ~own).any()
+    assert (ras["footprint"] | ~ras["seen"]).all()   # every hit original is in the footprint
     for img, ref, run in ((both.image, front.image, "front"), (both.views["above"], above.image,
                                                                "above")):
         orig = RunStore(str(tmp_path / run)).read_arrays("raster")["orig"]

@@ -341,8 +341,8 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     store.save_partition(part, figures)
     # seen: the originals any camera's pixel hits (the cluster layer's importance, links.py);
     # footprint: those a pixel may show (the cluster layer keeps the others coarse)
-    foot = footprint_originals(el, seen_e, seen_p, seen_g, np.array([cm.center for cm in cams]),
-                               pixel or pixel_size(seen_p))
+    eyes = np.array([cm.center for cm in cams])
+    foot = footprint_originals(el, seen_e, seen_p, seen_g, eyes, pixel or pixel_size(seen_p))
     store.write_arrays("raster", {"orig": elem.reshape(h, w), "sub": sub.reshape(h, w),
                                   "seen": seen, "footprint": foot})
     fig = PreprocessFigures(**figures, time_total_s=round(time.perf_counter() - t0, 4),

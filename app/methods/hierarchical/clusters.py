@@ -35,12 +35,12 @@ ADMISSIBLE = 2.0
 # docs/src/design/methods-hierarchical-clusters.md): lo, hi, clo, chi, axis (3 each), spread,
 # two, the vertex box's diagonal, area, rho, lhat, and the slab along the axis (the least and
 # the largest axis . v over the vertices: _may_face); stop (K,) bool: an inner node that stays
-# whole where a link to it can be kept (refine_clusters: unseen and small, as the element level
-# leaves unseen originals).
+# whole where a link to it can be kept (refine_clusters: no camera's pixel shows it and it is
+# small, as the element level leaves unseen originals).
 CTree = namedtuple("CTree", "left right start end order lo hi clo chi axis spread two area center "
                             "rho lhat rec stop")
-LO, HI, CLO, CHI, AXIS, SPREAD, TWO, DIAG, AREA, RHO, LHAT, SLO, SHI = (0, 3, 6, 9, 12, 15, 16, 17, 18,
-                                                             19, 20, 21, 22)
+LO, HI, CLO, CHI, AXIS, SPREAD, TWO, DIAG, AREA, RHO, LHAT = 0, 3, 6, 9, 12, 15, 16, 17, 18, 19, 20
+SLO, SHI = 21, 22
 # The originals as the refinement reads them: normal (n, 3), offset (n,) = n . centre, verts
 # (n, 4, 3) (triangles repeat vertex 2), area (n,), center (n, 3), two_sided (n,), eps (the
 # facing tolerance in scene units); ona (n, 7) normal, area and centre in the tree's order (a
@@ -84,8 +84,9 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float,
     """The cluster tree over `elements` (types.Elements) with the oracle's per-original weights
     wrho, lhat (n, 2) and lref (params.oracle_weights); front sides only (a cluster holding a
     two-sided original is never kept as a link end). Inner nodes whose originals are all
-    `unseen` (n,) bool and whose sqrt(area) is at most `min_size` (scene units; the element
-    level's hierarchy.min-node-size) stay whole where a link to them can be kept (`stop`)."""
+    `unseen` (n,) bool (outside every camera's footprint: links.plan_links) and whose
+    sqrt(area) is at most `min_size` (scene units; the element level's
+    hierarchy.min-node-size) stay whole where a link to them can be kept (`stop`)."""
     from radiosity.scene.originals import build_tree
 
     t = build_tree(elements.verts, elements.nverts, elements.normal, elements.center,
@@ -391,10 +392,10 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
     otherwise the end with more area (the larger solid angle from the other) is split, but not
     an end that stays whole (t.stop) where the link could be kept: then the other end, or
     where neither can split the link is kept (as the element level keeps a link between nodes
-    it cannot split). eps = 0 lists exactly the facing pairs of originals. frontier > 0: breadth first, stop once that
-    many links wait to be refined and return them as `pending` (the cut into tasks: refining
-    each of them on its own gives the same links and pairs); 0: depth first to the end (pending
-    empty)."""
+    it cannot split). eps = 0 lists exactly the facing pairs of originals. frontier > 0:
+    breadth first, stop once that many links wait to be refined and return them as `pending`
+    (the cut into tasks: refining each of them on its own gives the same links and pairs); 0:
+    depth first to the end (pending empty)."""
     left, right, start, end, order, rec, center, stop = t.left, t.right, t.start, t.end, \
         t.order, t.rec, t.center, t.stop
     normal, verts, offset, two_sided, ona, feps = e.normal, e.verts, e.offset, e.two_sided, \

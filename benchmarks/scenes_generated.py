@@ -83,11 +83,10 @@ def room_with_sphere(folder: str, triangles: int, resolution: int = 128) -> str:
     W, H, D = 4.0, 3.0, 4.0
     walls = [[(0, 0, 0), (W, 0, 0), (W, 0, D), (0, 0, D)][::-1],            # floor, up
              [(0, H, 0), (0, H, D), (W, H, D), (W, H, 0)][::-1],            # ceiling, down
-             [(0, 0, D), (W, 0, D), (W, H, D), (0, H, D)],                  # back, -z
-             [(0, 0, 0), (0, H, 0), (W, H, 0), (W, 0, 0)],                  # front, +z
-             [(0, 0, 0), (0, 0, D), (0, H, D), (0, H, 0)],                  # left, +x
-             [(W, 0, 0), (W, H, 0), (W, H, D), (W, 0, D)]]                  # right, -x
-    walls = [w for w in walls]
+             [(0, 0, D), (W, 0, D), (W, H, D), (0, H, D)][::-1],            # back, -z
+             [(0, 0, 0), (0, H, 0), (W, H, 0), (W, 0, 0)][::-1],            # front, +z
+             [(0, 0, 0), (0, 0, D), (0, H, D), (0, H, 0)][::-1],            # left, +x
+             [(W, 0, 0), (W, H, 0), (W, H, D), (W, 0, D)][::-1]]            # right, -x
     n_phi = max(8, int(round(np.sqrt(triangles))))
     n_theta = max(4, n_phi // 2)
     ball = sphere_tris(n_theta, n_phi, np.array([2.0, 0.8, 2.0]), 0.8)

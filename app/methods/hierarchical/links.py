@@ -315,15 +315,15 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
         ce, imp = float(s.hierarchy.clusters_epsilon), float(s.hierarchy.unseen_importance)
         seen_any = raster.get("seen", seen)  # by any camera (older stores: the run's own)
         # no pixel shows them: their clusters stay whole below min-node-size
-        hidden = ~np.asarray(raster.get("footprint", seen_any), bool)
+        outside = ~np.asarray(raster.get("footprint", seen_any), bool)
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon * ce,
                                          cluster_weights(el, weight, seen_any, imp), prm.rays,
                                          occlusion, s.rays.epsilon, client, progress,
-                                         prm.shadow * ce, prm.solids, unseen=hidden,
+                                         prm.shadow * ce, prm.solids, unseen=outside,
                                          min_size=prm.min_size)
         cfig.update(why=why_clusters, epsilon=prm.epsilon * ce, unseen_importance=imp,
                     unseen=int((~np.asarray(seen_any, bool)).sum()),
-                    outside_footprint=int(hidden.sum()))
+                    outside_footprint=int(outside.sum()))
         bi, bj = cpairs[:, 0], cpairs[:, 1]
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit, int(s.hierarchy.max_task_cost))
     hit = None

@@ -298,16 +298,17 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     runs = _Runs(np.int64(ct.nodes))
     rest = []  # (pairs, counts, visible sum, rays) of each task
 
-    freed = [0]
+    freed = 0  # bytes of the tasks' results copied (runs.add) and freed since the last trim
 
     def keep(res):
+        nonlocal freed
         key, g, *other = res
         runs.add(key, g)
         rest.append(other)
-        freed[0] += key.nbytes + g.nbytes
-        if freed[0] >= TRIM_BYTES:  # the tasks' arrays freed so far (runs.add keeps copies)
+        freed += key.nbytes + g.nbytes
+        if freed >= TRIM_BYTES:
             trim_malloc()
-            freed[0] = 0
+            freed = 0
 
     keep(_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon,
                   inp.shadow, inp.solids))

@@ -16,8 +16,6 @@ from radiosity.methods.hierarchical.refine import RefineParams
 
 WEIGHTS = ("none", "bf")
 ORACLES = ("ff", "gradient", "spread")
-
-
 FAR_KERNELS = ("centroid", "polygon", "gauss")
 
 

@@ -1,10 +1,12 @@
 """Array helpers where numpy is slow on large arrays: `unique` by one sort (numpy 2's np.unique
 of plain values hashes them: 34 s against 2.7 s for sorting 3e7 scattered int64 keys on this
 machine) and `unique_rows` by one lexsort (np.unique(axis=0) sorts structured records: 3.1 s
-against 0.7 s for 1e6 rows of 4 int64)."""
+against 0.7 s for 1e6 rows of 4 int64); `radix_order`, the stable order of non-negative int64
+keys of few bits, in a few linear passes (5x np.argsort's speed on the cluster links' keys)."""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 
@@ -26,3 +28,37 @@ def unique_rows(keys: np.ndarray):
     inv = np.empty(len(keys), np.int64)
     inv[order] = np.cumsum(new) - 1
     return k[new], order[new], inv
+
+
+@numba.njit(cache=True, nogil=True)
+def radix_order(key: np.ndarray, bits: int) -> np.ndarray:
+    """The stable sorting order of key (n,) int64 with 0 <= key < 2**bits (np.argsort(key,
+    kind="stable")): least significant digit first, 11 bits a pass. MEASURED: 280 000 keys
+    of 33 bits (a cluster task's links) in 3.6 ms against 17 ms for np.argsort."""
+    n = key.shape[0]
+    idx = np.arange(n)
+    k = key.copy()
+    idx2 = np.empty(n, np.int64)
+    k2 = np.empty(n, np.int64)
+    mask = (1 << 11) - 1
+    cnt = np.empty(mask + 1, np.int64)
+    shift = 0
+    while shift < bits:
+        cnt[:] = 0
+        for i in range(n):
+            cnt[(k[i] >> shift) & mask] += 1
+        at = 0
+        for d in range(mask + 1):
+            c = cnt[d]
+            cnt[d] = at
+            at += c
+        for i in range(n):
+            d = (k[i] >> shift) & mask
+            j = cnt[d]
+            cnt[d] = j + 1
+            idx2[j] = idx[i]
+            k2[j] = k[i]
+        idx, idx2 = idx2, idx
+        k, k2 = k2, k
+        shift += 11
+    return idx

@@ -61,6 +61,8 @@ class RayCaster:
         self._verts, self._nverts = verts, nverts
         self._inner = None  # (scene or None, owner): segment queries' occluders, built on use
         self._inner_mesh = None  # keeps the second scene's triangles alive
+        self._keep = None  # the elements of the segment queries' occluders (_inner_scene)
+        self._boxes = None  # occluder_boxes, built on use
         self._inner_lock = threading.Lock()
 
     def _inner_scene(self):
@@ -77,6 +79,7 @@ class RayCaster:
                 verts = np.asarray(self._verts, float)
                 nverts = np.asarray(self._nverts)
                 keep = np.nonzero(~on_hull_planes(verts, nverts, self.normal))[0]
+                self._keep = keep
                 if not len(keep):
                     self._inner = (None, None)
                 elif len(keep) > INNER_SHARE * len(verts):  # a terrain: not worth a second BVH
@@ -89,6 +92,36 @@ class RayCaster:
                         scene, ((tris - self.origin) / self.scale).astype(np.float32))
                     self._inner = (scene, keep[owner].astype(np.int32))
             return self._inner
+
+    def occluder_boxes(self):
+        """(lo, hi) (b, 3) world boxes that hold every element a segment between two points on
+        elements can meet (_inner_scene's), the occluders cut into OCCLUDER_BOXES groups at
+        the median of their centres along the widest axis, each padded by 1e-6 of the scene's
+        diagonal (Embree's float32 rounding is below 1e-7 of it). A segment inside a box that
+        some axis separates from every one of them meets nothing (box_clear).
+        Empty where nothing can block; None where the occluders are the whole scene (a
+        terrain: no box can prove a segment clear)."""
+        if self._boxes is None:
+            scene, _ = self._inner_scene()
+            keep = self._keep
+            if scene is None:
+                boxes = (np.zeros((0, 3)), np.zeros((0, 3)))
+            elif scene is self._scene:
+                boxes = None
+            else:
+                verts = np.asarray(self._verts, float)[keep]
+                groups = [np.arange(len(keep))]
+                center = verts.mean(axis=1)
+                while len(groups) < OCCLUDER_BOXES and max(len(g) for g in groups) > 1:
+                    g = groups.pop(int(np.argmax([len(g) for g in groups])))
+                    c = center[g]
+                    o = np.argsort(c[:, int(np.argmax(c.max(0) - c.min(0)))], kind="stable")
+                    groups += [g[o[:len(g) // 2]], g[o[len(g) // 2:]]]
+                pad = 1e-6 * self.scale
+                boxes = (np.array([verts[g].reshape(-1, 3).min(0) - pad for g in groups]),
+                         np.array([verts[g].reshape(-1, 3).max(0) + pad for g in groups]))
+            self._boxes = (boxes,)
+        return self._boxes[0]
 
     def _to_frame(self, p: np.ndarray) -> np.ndarray:
         return (p - self.origin) * (1.0 / self.scale)
@@ -216,6 +249,10 @@ class RayCaster:
         return result
 
 
+#: Boxes over the segment queries' occluders (RayCaster.occluder_boxes). MEASURED on the
+#: tessellated Cornell box's 8.6 M cluster links: 1, 8 and 16 boxes prove 26, 29 and 30 % of
+#: them clear, at 5, 9 and 13 ns a link.
+OCCLUDER_BOXES = 8
 #: A second scene for segment queries only where it leaves out more than this share of the
 #: elements (RayCaster._inner_scene): it costs a second BVH's memory.
 INNER_SHARE = 0.9
@@ -269,6 +306,22 @@ def _segments(pts, ia, ib, origin, scale, eps, normal, elem, has_e, grazing, o32
             graze[k] = min(c1, c2) < grazing
         else:
             graze[k] = False
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def box_clear(ulo, uhi, lo, hi) -> bool:
+    """Can no segment inside the box (ulo, uhi) (3,) meet an occluder, all of which lie in the
+    boxes lo, hi (b, 3) (RayCaster.occluder_boxes)? True where some axis separates the box from
+    each of them."""
+    for b in range(lo.shape[0]):
+        apart = False
+        for c in range(3):
+            if uhi[c] < lo[b, c] or ulo[c] > hi[b, c]:
+                apart = True
+                break
+        if not apart:
+            return False
+    return True
 
 
 _CACHE: "OrderedDict[tuple, RayCaster]" = OrderedDict()

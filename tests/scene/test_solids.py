@@ -112,14 +112,16 @@ def test_a_cluster_link_leaves_out_the_rays_of_elements_under_a_block():
     ep = np.array([[live, under, live, under], [live] * 4, [under] * 4])
     eq = np.full((3, 4), ceil)
     few, col = np.zeros(3, bool), np.zeros(3, np.int64)  # every link with its four rays
-    plain = _visible(rc, e, ep, eq, few, col)
+    clear = np.zeros(3, bool)
+    plain, n = _visible(rc, e, ep, eq, few, clear, col)
+    assert n == 12
     solid = SolidEnds(rc, e)
-    with_solid = _visible(rc, e, ep, eq, few, col, solid)
+    with_solid, _ = _visible(rc, e, ep, eq, few, clear, col, solid)
     assert plain.tolist() == [0.5, 1.0, 0.0]
     assert with_solid.tolist() == [1.0, 1.0, 0.0]
     # a faint link takes the one ray of its column, and solids are not asked for it
-    one = _visible(rc, e, ep, eq, np.ones(3, bool), np.array([1, 0, 2]), solid)
-    assert one.tolist() == [0.0, 1.0, 0.0]
+    one, n = _visible(rc, e, ep, eq, np.ones(3, bool), clear, np.array([1, 0, 2]), solid)
+    assert one.tolist() == [0.0, 1.0, 0.0] and n == 3
     assert (solid.flags[under] == 1).all()  # tested where a link had a blocked ray
     assert solid.flags[live].tolist() == [0, -1, 0, -1]
 

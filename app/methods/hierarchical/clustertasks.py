@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from radiosity.core.arrays import radix_order
 from radiosity.methods.hierarchical.clusterlinks import ClusterLinks
 from radiosity.methods.hierarchical.clusters import ClusterTree, cluster_tree, refine_clusters
 from radiosity.methods.hierarchical.clusterweights import SolidEnds, link_weights
@@ -80,9 +81,10 @@ def _compact(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
     links, pairs, counts, F, v, nrays = _shadows(ct, links, pairs, counts, caster, rays, eps,
                                                  shadow, solids)
     key, g = _keys_weights(links, F, v, np.asarray(ct.tree.area), np.int64(ct.nodes))
-    order = np.argsort(key)  # the keys (and the pairs) are unique: any sort gives one order
+    # the keys (and the pairs) are unique: any sort gives one order
+    order = radix_order(key, int(ct.nodes * ct.nodes).bit_length())
     n = np.int64(len(ct.elems.area))
-    pairs = pairs[np.argsort(pairs[:, 0] * n + pairs[:, 1])]
+    pairs = pairs[radix_order(pairs[:, 0] * n + pairs[:, 1], int(n * n).bit_length())]
     return key[order], g[order], pairs, counts, float(v.sum()), nrays
 
 
@@ -338,7 +340,7 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     t1 = time.perf_counter()
     # sorted by (p, q): the cluster layer does not depend on the cut or the workers (a merge
     # of the tasks' sorted runs, bucket by bucket)
-    order = np.argsort(pairs[:, 0] * np.int64(n) + pairs[:, 1], kind="stable")
+    order = radix_order(pairs[:, 0] * np.int64(n) + pairs[:, 1], int(n * n).bit_length())
     pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
     del order  # the merge below is the stage's peak of memory
     cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), *runs.merged())

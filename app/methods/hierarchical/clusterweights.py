@@ -11,7 +11,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from radiosity.methods.hierarchical.clusters import ClusterTree
+from radiosity.methods.hierarchical.clusters import HI, LO, ClusterTree
+from radiosity.tracing.rays import box_clear
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -186,15 +187,35 @@ class SolidEnds:
 
 
 @numba.njit(cache=True, nogil=True)
-def _ray_ends(ep, eq, few, col, ids, cc, first):
+def clear_links(rec, links, lo, hi):
+    """(len(links),) bool: the cluster links (p, q) that no segment between their boxes can
+    block (box_clear of the box around both ends' boxes against the occluder boxes lo, hi:
+    RayCaster.occluder_boxes). Their rays would all find the link visible."""
+    out = np.zeros(links.shape[0], np.bool_)
+    ulo = np.empty(3)
+    uhi = np.empty(3)
+    for a in range(links.shape[0]):
+        p, q = links[a, 0], links[a, 1]
+        for c in range(3):
+            ulo[c] = min(rec[p, LO + c], rec[q, LO + c])
+            uhi[c] = max(rec[p, HI + c], rec[q, HI + c])
+        out[a] = box_clear(ulo, uhi, lo, hi)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _ray_ends(ep, eq, few, clear, col, ids, cc, first):
     """The rays of links whose k picks are ep, eq (L, k), flat and in link order: k for a link,
-    one (column col[a]) for a faint one (few[a]). ids[:n] and ids[n:] the elements of the two
-    ends (n = len(cc)), cc each ray's column, first[a] link a's first ray."""
+    one (column col[a]) for a faint one (few[a]), none for a clear one (clear[a]). ids[:n] and
+    ids[n:] the elements of the two ends (n = len(cc)), cc each ray's column, first[a] link a's
+    first ray."""
     L, k = ep.shape
     n = cc.shape[0]
     r = 0
     for a in range(L):
         first[a] = r
+        if clear[a]:
+            continue
         if few[a]:
             c = col[a]
             ids[r], ids[n + r], cc[r] = ep[a, c], eq[a, c], c
@@ -206,10 +227,13 @@ def _ray_ends(ep, eq, few, col, ids, cc, first):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fractions(occ, few, first, k, v):
-    """v[a] = 1 - the blocked share of link a's rays (occ from first[a]: k, or one if few[a])."""
+def _fractions(occ, few, clear, first, k, v):
+    """v[a] = 1 - the blocked share of link a's rays (occ from first[a]: k, or one if few[a]);
+    1 where clear[a]."""
     for a in range(few.shape[0]):
-        if few[a]:
+        if clear[a]:
+            v[a] = 1.0
+        elif few[a]:
             v[a] = 1.0 - (1.0 if occ[first[a]] else 0.0)
         else:
             blocked = 0
@@ -219,34 +243,38 @@ def _fractions(occ, few, first, k, v):
             v[a] = 1.0 - blocked / k
 
 
-def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, few: np.ndarray, col: np.ndarray,
-             solid: SolidEnds | None = None) -> np.ndarray:
+def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, few: np.ndarray, clear: np.ndarray,
+             col: np.ndarray, solid: SolidEnds | None = None) -> tuple[np.ndarray, int]:
     """1 - the blocked fraction of a link's rays (one row of ep, eq: (L, k) elements; one ray,
-    column col[a], where few[a]): the ray in column c runs between point c % 4 of ep's element
+    column col[a], where few[a]; none, 1, where clear[a]), and the rays cast: the ray in
+    column c runs between point c % 4 of ep's element
     and point (c + 2) % 4 of eq's (_ends), so a link between two originals, whose k picks are
     the same two elements, casts k different rays, and sees a shadow that crosses them (its
     centroids alone say 0 or 1). With `solid`, the rays of a link (of k rays) with a blocked
     ray that start or end inside a solid are left out of its fraction, unless all do
-    (SolidEnds). Returns (L,) float64."""
+    (SolidEnds)."""
     L, k = ep.shape
-    nfew = int(few.sum())
-    n = k * (L - nfew) + nfew
+    nclear = int(clear.sum())
+    nfew = int((few & ~clear).sum())
+    n = k * (L - nfew - nclear) + nfew
+    v = np.ones(L)
+    if n == 0:
+        return v, 0
     ids = np.empty(2 * n, np.int64)
     cc = np.empty(n, np.int64)
     first = np.empty(L, np.int64)
-    _ray_ends(ep, eq, few, col, ids, cc, first)
+    _ray_ends(ep, eq, few, clear, col, ids, cc, first)
     pts = np.empty((2 * n, 3))
     _ends(e.verts, ids[:n], cc, pts[:n])
     _ends(e.verts, ids[n:], cc + 2, pts[n:])
     idx = np.arange(n)
     occ = caster.occluded_pairs(pts, idx, idx + n, ids)
-    v = np.empty(L)
-    _fractions(occ, few, first, k, v)
+    _fractions(occ, few, clear, first, k, v)
     if solid is None or k == 1:
-        return v
+        return v, n
     hit = np.nonzero(~few & (v < 1.0))[0]
     if not len(hit):
-        return v
+        return v, n
     r = (first[hit][:, None] + np.arange(k)[None, :]).ravel()
     void = (solid.void(ids[r], cc[r], pts[r]) | solid.void(ids[n + r], cc[r] + 2, pts[n + r])) \
         .reshape(len(hit), k)
@@ -254,7 +282,7 @@ def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, few: np.ndarray, col: np
     some = live > 0
     free = (~occ[r].reshape(len(hit), k) & ~void).sum(axis=1)
     v[hit[some]] = free[some] / live[some]
-    return v
+    return v, n
 
 
 def _one_of(links: np.ndarray, k: int) -> np.ndarray:
@@ -277,8 +305,9 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
     wrong, its visibility errs by no more than the oracle lets a link err, and over many links
     the rays cover every stratum (one fixed stratum put every ray's ends at the same place in
     each node, a bias: rows 0.3-0.6 % short at 4 epsilon on the tessellated Cornell box).
-    caster None or k = 0: every link fully visible; `solid`: rays inside solids left out
-    (_visible). Returns (F, v, rays: the number of rays the links took)."""
+    Links that no segment between their boxes can block (clear_links against the caster's
+    occluder_boxes) take no ray. caster None or k = 0: every link fully visible; `solid`:
+    rays inside solids left out (_visible). Returns (F, v, rays: the number of rays cast)."""
     F = np.zeros((len(links), 2))
     v = np.ones(len(links))
     rays = 0
@@ -289,6 +318,7 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
     if 0 < k <= samples and samples % k == 0:
         cols = np.arange(k) * (samples // k) + samples // k // 2  # each stratum's middle
     lref = ct.lref if faint > 0 and k > 1 else 0.0
+    boxes = caster.occluder_boxes() if k > 0 else None
     for a in range(0, len(links), CHUNK):
         lk = np.ascontiguousarray(links[a:a + CHUNK])
         ep = np.empty((len(lk), k), np.int64)
@@ -297,7 +327,9 @@ def link_weights(ct: ClusterTree, links: np.ndarray, caster, k: int,
         _weights(ct.tree, ct.elems, lk, samples, cols, lref, faint, F[a:a + len(lk)], ep, eq, few)
         if k == 0:
             continue
-        v[a:a + len(lk)] = _visible(caster, ct.elems, ep, eq, few, _one_of(lk, k), solid)
-        nfew = int(few.sum())
-        rays += k * (len(lk) - nfew) + nfew
+        clear = np.zeros(len(lk), np.bool_) if boxes is None else \
+            clear_links(ct.tree.rec, lk, *boxes)
+        v[a:a + len(lk)], n = _visible(caster, ct.elems, ep, eq, few, clear, _one_of(lk, k),
+                                       solid)
+        rays += n
     return F, v, rays

@@ -24,7 +24,7 @@ from radiosity.methods.hierarchical.refine import (C_EXACT, C_LINKS, C_PAIRS, C_
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
                                                    Tree, refine, roots)
 from radiosity.methods.hierarchical.clustertasks import plan_clusters
-from radiosity.methods.hierarchical.sampling import SolidPoints, link_fractions
+from radiosity.methods.hierarchical.sampling import SolidPoints, clear_pairs, link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
 from radiosity.runtime.packing import capped_starts, choose_unit
@@ -160,10 +160,13 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
         kept.append(k)
         if not len(w.p):
             break
+        boxes = caster.occluder_boxes() if caster is not None else None
+        clear = None if boxes is None else clear_pairs(tab.verts, tab.nverts, w.p, w.q, *boxes)
         f = link_fractions(caster, prm.rays, tab.verts, tab.nverts, tab.center, tab.orig, w.p,
-                           w.q, keep_rays, inp.normal if prm.weighted_rays else None, solid)
+                           w.q, keep_rays, inp.normal if prm.weighted_rays else None, solid,
+                           clear)
         counts[C_RAYLINKS] += len(w.p)
-        counts[C_RAYS] += len(w.p) * prm.rays
+        counts[C_RAYS] += (len(w.p) - (0 if clear is None else int(clear.sum()))) * prm.rays
         ent = [w.p, w.q, w.lists[:, 0].copy(), (w.lists[:, 0] + w.lists[:, 1]).copy()]
         frac = f
         pool = w.pool

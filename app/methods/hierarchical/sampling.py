@@ -8,6 +8,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from radiosity.tracing.rays import box_clear
+
 
 def ray_pairing(k: int) -> np.ndarray:
     """The sample of Q each of the k = s^2 stratified points of P is paired with, (k,) int64:
@@ -74,6 +76,26 @@ def link_points(Lv, Ln, Lc, Lo, p, q, s, tri_uv, perm):
             orig[i * k + j] = Lo[p[i]]
             orig[n * k + i * k + j] = Lo[q[i]]
     return pts, orig
+
+
+@numba.njit(cache=True, nogil=True)
+def clear_pairs(verts, nverts, p, q, lo, hi):
+    """(len(p),) bool: the links (p, q) (node ids into verts (N, 4, 3), nverts) that no
+    segment between their polygons can block: box_clear of the box around both polygons
+    against the occluder boxes lo, hi (RayCaster.occluder_boxes)."""
+    out = np.zeros(p.shape[0], np.bool_)
+    ulo = np.empty(3)
+    uhi = np.empty(3)
+    for a in range(p.shape[0]):
+        ulo[:] = np.inf
+        uhi[:] = -np.inf
+        for x in (p[a], q[a]):
+            for v in range(nverts[x]):
+                for c in range(3):
+                    ulo[c] = min(ulo[c], verts[x, v, c])
+                    uhi[c] = max(uhi[c], verts[x, v, c])
+        out[a] = box_clear(ulo, uhi, lo, hi)
+    return out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -157,12 +179,14 @@ class SolidPoints:
 
 def link_fractions(caster, k: int, verts: np.ndarray, nverts: np.ndarray, center: np.ndarray,
                    orig: np.ndarray, p: np.ndarray, q: np.ndarray, keep: list | None = None,
-                   normal: np.ndarray | None = None, solid: SolidPoints | None = None):
+                   normal: np.ndarray | None = None, solid: SolidPoints | None = None,
+                   clear: np.ndarray | None = None):
     """Visible fraction of links (p, q) (node ids into verts (N, 4, 3), nverts, center (N, 3),
     orig (N,)), with k rays each: k = 1 one ray between centroids; k = s^2 between the s x s
     stratified points of each node (link_points) paired by ray_pairing; rays weighted by the
     point kernel with `normal` (per original); with `solid`, rays from points inside a solid
-    left out (SolidPoints). Returns (w,) float64."""
+    left out (SolidPoints); the rays of the links `clear` (n,) bool (clear_pairs) not cast,
+    every one of them visible. Returns (w,) float64."""
     if len(p) == 0:
         return np.zeros(0)
     s = int(round(np.sqrt(k)))
@@ -176,7 +200,13 @@ def link_fractions(caster, k: int, verts: np.ndarray, nverts: np.ndarray, center
         idx = np.arange(n)
         if keep is not None:
             keep.append((pts, e))
-        occ = caster.occluded_pairs(pts, idx, idx + n, e)
+        if clear is None or not clear[a:a + step].any():
+            occ = caster.occluded_pairs(pts, idx, idx + n, e)
+        else:
+            occ = np.zeros(n, np.bool_)
+            cast = np.nonzero(np.repeat(~clear[a:a + step], k))[0]
+            if len(cast):
+                occ[cast] = caster.occluded_pairs(pts, cast, cast + n, e)
         if (normal is None or k == 1) and solid is None:
             out[a:a + len(pp)] = 1.0 - occ.reshape(len(pp), k).mean(axis=1)
             continue

@@ -266,7 +266,7 @@ def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
     """link_weights' `faint`: a link that carries at most that much light (the oracle's weights)
     casts one ray, one of its k, and every other link its k; the form factors do not change,
     and the one-ray links' fractions are what that ray alone gives."""
-    from radiosity.methods.hierarchical.clusterweights import link_weights
+    from radiosity.methods.hierarchical.clusterweights import clear_links, link_weights
     from radiosity.tracing.rays import RayCaster
 
     v1, n1 = _sphere(16, 32)
@@ -279,13 +279,14 @@ def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
     links, _, _ = refine_all(ct, 1e-3, 64)
     caster = RayCaster(el.verts, el.nverts)
     F4, v4, r4 = link_weights(ct, links, caster, 4)
-    assert r4 == 4 * len(links)
+    clear = clear_links(ct.tree.rec, links, *caster.occluder_boxes())  # cast no ray
+    assert r4 == 4 * (~clear).sum()
     t, p, q = ct.tree, links[:, 0], links[:, 1]  # the carried light, as the oracle weighs it
     c = np.maximum(t.rho[p] * F4[:, 0] * t.lhat[q], t.rho[q] * F4[:, 1] * t.lhat[p]) / ct.lref
     faint = float(np.median(c))
     F, v, r = link_weights(ct, links, caster, 4, faint=faint)
     few = c <= faint
-    assert 0 < few.sum() < len(links) and r == 4 * (~few).sum() + few.sum()
+    assert 0 < few.sum() < len(links) and r == 4 * (~few & ~clear).sum() + (few & ~clear).sum()
     assert np.array_equal(F, F4) and np.array_equal(v[~few], v4[~few])
     F1, v1_, _ = link_weights(ct, links, caster, 4, faint=np.inf)
     assert np.array_equal(v[few], v1_[few]) and set(np.unique(v1_)) <= {0.0, 1.0}
@@ -318,7 +319,7 @@ def test_one_ray_links_are_not_biased_toward_any_part_of_their_nodes():
     within 0.4 % in all and 3 % over the partly visible links. One fixed column of the k for
     every link put all those rays' ends at the same place of each node (in the tree's order,
     low on the walls, near the block): 0.991 and 0.86."""
-    from radiosity.methods.hierarchical.clusterweights import link_weights
+    from radiosity.methods.hierarchical.clusterweights import clear_links, link_weights
     from radiosity.methods.hierarchical.params import oracle_weights
     from radiosity.tracing.rays import RayCaster
 
@@ -328,7 +329,8 @@ def test_one_ray_links_are_not_biased_toward_any_part_of_their_nodes():
     caster = RayCaster(el.verts, el.nverts)
     F, v16, _ = link_weights(ct, links, caster, 16)
     _, v1, rays = link_weights(ct, links, caster, 4, faint=np.inf)
-    assert rays == len(links) > 50_000
+    clear = clear_links(ct.tree.rec, links, *caster.occluder_boxes())  # take no ray
+    assert rays == (~clear).sum() > 20_000 and len(links) > 50_000
     g = ct.tree.area[links[:, 0]] * F[:, 0]
     part = (v16 > 0) & (v16 < 1)
     assert part.sum() > 1000
@@ -345,6 +347,46 @@ def _room_with_block(n: int = 16):
               _plane(m, 1, 0.3, -1, (0.0, 0.3), (0.4, 0.3)), _plane(m, 1, 0.6, 1, (0.0, 0.3), (0.4, 0.3))]
     v = np.concatenate(parts)
     return _elements(v, np.full(len(v), 3), emit=np.full((len(v), 2, 3), 1.0))
+
+
+def test_links_clear_of_every_occluder_box_cast_no_ray_and_see_the_same():
+    """RayCaster.occluder_boxes and box_clear: in a room of 3 072 triangles with a block on its
+    floor, the boxes hold the block (the walls, in the hull's planes, block nothing). The
+    cluster links and the element-level ray links whose ends' box is apart from them cast no
+    ray; the visible fractions, links and form factors are the same as with every ray cast,
+    and rays through the block still find it."""
+    from radiosity.methods.hierarchical.clusterweights import clear_links, link_weights
+    from radiosity.methods.hierarchical.params import oracle_weights
+    from radiosity.tracing.rays import RayCaster
+
+    el = _room_with_block(16)
+    caster = RayCaster(el.verts, el.nverts)
+    lo, hi = caster.occluder_boxes()
+    block = el.verts[3072:, :3].reshape(-1, 3)
+    assert len(lo) == 8 and (lo.min(0) <= block.min(0)).all() and (hi.max(0) >= block.max(0)).all()
+    assert (lo.min(0)[:2] > 0.29).all() and (hi.max(0) < [0.61, 0.61, 0.41]).all()
+    ct = cluster_tree(el, *oracle_weights(el, "bf"))
+    links, _, _ = refine_all(ct, 2e-3, 64)
+    clear = clear_links(ct.tree.rec, links, lo, hi)
+    F, v, r = link_weights(ct, links, caster, 4)
+    every = RayCaster(el.verts, el.nverts)
+    every.occluder_boxes = lambda: None  # no box: every link casts its rays
+    F0, v0, r0 = link_weights(ct, links, every, 4)
+    assert 0.1 < clear.mean() < 0.9 and (v0[~clear] < 1).any()
+    assert np.array_equal(F, F0) and np.array_equal(v, v0) and (v0[clear] == 1).all()
+    assert r0 == 4 * len(links) and r == 4 * (~clear).sum()
+    # the element level's ray links (nodes here: the originals themselves)
+    from radiosity.methods.hierarchical.sampling import clear_pairs, link_fractions
+
+    rng = np.random.default_rng(3)
+    p, q = rng.integers(0, len(el.verts), (2, 4000))
+    args = (el.verts, el.nverts, el.center, np.arange(len(el.verts)), p, q, None)
+    cp = clear_pairs(el.verts, el.nverts, p, q, lo, hi)
+    w = link_fractions(caster, 4, *args)
+    assert 0.1 < cp.mean() < 0.9 and (w[~cp] < 1).any() and (w[cp] == 1).all()
+    assert np.array_equal(link_fractions(caster, 4, *args, None, None, cp), w)
+    weighted = link_fractions(caster, 4, *args, el.normal)  # rays weighted by the kernel
+    assert np.array_equal(link_fractions(caster, 4, *args, el.normal, None, cp), weighted)
 
 
 def test_unseen_receivers_weigh_less_only_where_both_ends_are_unseen():

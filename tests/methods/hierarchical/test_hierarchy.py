@@ -400,8 +400,9 @@ def test_links_the_shafts_prove_visible_cast_no_ray(tmp_path, occluder, rays):
 def test_a_pair_of_originals_with_few_leaves_leaves_visibility_to_rays(tmp_path, min_size):
     """Two unseen facing unit squares whose refinement can reach few leaves (min-node-size at
     or above their size, as a mesh's small triangles, or a few times below it): no shaft
-    search, every link takes its rays; the squares that may split finely are proven visible
-    by the shafts (the test above)."""
+    search, every link takes its rays (with no occluder box proving them clear, which here,
+    where nothing can block, leaves them none); the squares that may split finely are proven
+    visible by the shafts (the test above)."""
     from radiosity.methods.hierarchical.links import SHAFT_MIN_LEAVES
 
     path = write_scene(tmp_path, TWO_SQUARES, MATERIALS, camera=CAMERA_AWAY)
@@ -409,11 +410,15 @@ def test_a_pair_of_originals_with_few_leaves_leaves_visibility_to_rays(tmp_path,
     leaves = max(1.0, 1.0 / inp.params.min_size ** 2)  # unit squares: area / min_size^2
     np.testing.assert_allclose(inp.reach, [leaves, leaves], rtol=1e-9)
     assert inp.reach[0] * inp.reach[1] < SHAFT_MIN_LEAVES
-    links, _, counts = refine_pairs(inp, np.array([[0, 1]]), RayCaster(sc.elements.verts,
-                                                                       sc.elements.nverts))
+    caster = RayCaster(sc.elements.verts, sc.elements.nverts)
+    assert caster.occluder_boxes()[0].shape == (0, 3)  # nothing can block
+    clear, _, counts_clear = refine_pairs(inp, np.array([[0, 1]]), caster)
+    caster.occluder_boxes = lambda: None  # no box: every ray link casts its rays
+    links, _, counts = refine_pairs(inp, np.array([[0, 1]]), caster)
     assert len(links) >= 1 and np.all(links["v"] == 1.0)
     assert _count(counts, "shaft_visible") == 0
     assert _count(counts, "rays") == 4 * _count(counts, "ray_links") > 0
+    assert np.array_equal(clear, links) and _count(counts_clear, "rays") == 0
 
 
 @pytest.mark.parametrize("height", [0.6, 1.3])

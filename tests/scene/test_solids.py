@@ -90,7 +90,7 @@ def test_a_cluster_link_leaves_out_the_rays_of_elements_under_a_block():
     before."""
     from types import SimpleNamespace
 
-    from radiosity.methods.hierarchical.clusterweights import SolidEnds, _visible
+    from radiosity.methods.hierarchical.clusterweights import SolidEnds, _visible, solid_ends
 
     V, nv, two = _block_scene()
 
@@ -124,6 +124,11 @@ def test_a_cluster_link_leaves_out_the_rays_of_elements_under_a_block():
     assert one.tolist() == [0.0, 1.0, 0.0] and n == 3
     assert (solid.flags[under] == 1).all()  # tested where a link had a blocked ray
     assert solid.flags[live].tolist() == [0, -1, 0, -1]
+    # one per caster and process: the cluster tasks share what each found
+    shared = solid_ends(rc, e)
+    assert shared is solid_ends(rc, e) and shared is not solid_ends(RayCaster(verts, nverts), e)
+    _visible(rc, e, ep, eq, few, clear, col, shared)
+    assert np.array_equal(solid_ends(rc, e).flags, solid.flags)
 
 
 def test_the_floor_under_the_cornell_boxs_blocks_takes_no_part(client, tmp_path):

@@ -16,7 +16,7 @@ import numpy as np
 from radiosity.core.arrays import radix_order
 from radiosity.methods.hierarchical.clusterlinks import ClusterLinks
 from radiosity.methods.hierarchical.clusters import ClusterTree, cluster_tree, refine_clusters
-from radiosity.methods.hierarchical.clusterweights import SolidEnds, link_weights
+from radiosity.methods.hierarchical.clusterweights import link_weights, solid_ends
 
 # What a clustered scene costs, as measured (benchmarks/bench_clusters.py, results/clusters.json:
 # terrains of 2 x 10^4 and 2 x 10^5 triangles and the Cornell box cut into 2 000 a face, 128^2,
@@ -142,7 +142,7 @@ def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
     (refine_clusters at epsilon 0: a pair of originals if they face each other). Repeats on the
     new links until none is partly visible or all reached the originals. Returns (links, pairs,
     counts, F, v, rays)."""
-    solid = SolidEnds(caster, ct.elems) if solids and caster is not None and rays > 1 else None
+    solid = solid_ends(caster, ct.elems) if solids and caster is not None and rays > 1 else None
     F, v, nrays = link_weights(ct, links, caster, rays, faint=eps, solid=solid)
     if caster is None or rays <= 1 or not np.isfinite(shadow) or not len(links):
         return links, pairs, counts, F, v, nrays

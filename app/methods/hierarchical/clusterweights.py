@@ -8,6 +8,9 @@ Design notes and measurements: docs/src/design/methods-hierarchical-clusters.md.
 
 from __future__ import annotations
 
+import threading
+import weakref
+
 import numba
 import numpy as np
 
@@ -158,10 +161,11 @@ def _ends(verts, ids, cols, out):
 
 class SolidEnds:
     """Which of each original's four ray ends (_ends) lie inside a solid (contact.inside_solid),
-    found once per original and process, for links that have a blocked ray: a cluster or an
-    original straddling the footprint of a block standing on it starts some rays under the
-    block, where they are all blocked; they are left out of its visible fraction (as the
-    element level's sampling.SolidPoints)."""
+    found once per original and process (solid_ends), for links that have a blocked ray: a
+    cluster or an original straddling the footprint of a block standing on it starts some rays
+    under the block, where they are all blocked; they are left out of its visible fraction (as
+    the element level's sampling.SolidPoints). Threads may share one: two that test the same
+    end at once write the same flag."""
 
     def __init__(self, caster, e):
         self.caster, self.e = caster, e
@@ -184,6 +188,21 @@ class SolidEnds:
             self.flags[ids[u], s[u]] = ins
             f = self.flags[ids, s]
         return f > 0
+
+
+_SOLIDS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_SOLIDS_LOCK = threading.Lock()
+
+
+def solid_ends(caster, e) -> SolidEnds:
+    """The process's SolidEnds of the originals `e` that `caster` was built from (one per
+    caster: every cluster task of a run shares what the others found; on the tessellated
+    Cornell box the tasks tested 234 402 ends, 51 332 of them distinct)."""
+    with _SOLIDS_LOCK:
+        s = _SOLIDS.get(caster)
+        if s is None or len(s.flags) != len(e.area):
+            s = _SOLIDS[caster] = SolidEnds(caster, e)
+        return s
 
 
 @numba.njit(cache=True, nogil=True)

@@ -145,7 +145,7 @@ def check_scene(scene, settings) -> dict:
     settings.Settings; its subdivide.subpixel sets the raster). Returns {"hits": rays that
     hit, "facing_pairs_estimate": originals.estimate_facing_pairs with the pairs method
     stated, else None, "orientation": check_orientation's figures}."""
-    from radiosity.tracing.rays import RayCaster
+    from radiosity.tracing.rays import caster_of
 
     el, cam = scene.elements, scene.camera
     if not (el.emission > 0).any():
@@ -161,7 +161,7 @@ def check_scene(scene, settings) -> dict:
         est = check_budget(tree_of(el, int(settings.plan.leaf_size)),
                            int(settings.plan.max_facing_pairs), scene.path)
     subpixel = int(settings.subdivide.subpixel)
-    rc = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
+    rc = caster_of(el.verts, el.nverts, float(settings.rays.epsilon))
     seen = _camera_hits(scene, rc, cam, subpixel)
     for name, view in scene.views:  # the other cameras ([[camera]] entries): seen and lit
         _check_view(scene, rc, view, name, _camera_hits(scene, rc, view, subpixel, name))

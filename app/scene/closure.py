@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radiosity.core.kernels import Sampling, sample_points
-from radiosity.tracing.rays import RayCaster
+from radiosity.tracing.rays import caster_of
 from radiosity.core.bundles import Elements
 
 POINTS = 16       # stratified points per element (nxm cells)
@@ -87,7 +87,7 @@ def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
     n = len(elements)
     while points > 1 and n * points * directions > MAX_RAYS:
         points = (int(round(np.sqrt(points))) - 1) ** 2
-    rc = RayCaster(elements.verts, elements.nverts, epsilon)
+    rc = caster_of(elements.verts, elements.nverts, epsilon)
     pts, _ = sample_points(elements.verts, elements.nverts, Sampling("nxm", points))
     P = pts.shape[1]
     covered = (contact_points(elements, pts, epsilon) if contact and n

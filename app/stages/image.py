@@ -162,13 +162,10 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     if r.sampling == "area":
         # about area-samples^2 rays per pixel whatever the sub-pixel factor
         per_side = max(1, -(-int(r.area_samples) // k))
-        from dask.base import tokenize
-
-        from radiosity.tracing.rays import caster_for
+        from radiosity.tracing.rays import caster_of
 
         # the link stage's caster where this process built it (in-process workers)
-        caster = caster_for(tokenize(elements.verts, elements.nverts), elements.verts,
-                            elements.nverts, float(st.rays.epsilon))
+        caster = caster_of(elements.verts, elements.nverts, float(st.rays.epsilon))
         raster_or_samples = sample_raster(part, elements, camera, k, per_side,
                                           float(st.rays.epsilon), caster=caster)
     else:

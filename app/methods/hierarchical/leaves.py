@@ -22,11 +22,9 @@ def live_leaves(table: dict, elements, epsilon: float) -> np.ndarray:
     The solve leaves the leaves at 0 out of the transport, as contact sides
     (stages/solve.RowTargets), and weighs the others' light in their nodes by it
     (LinkSolveInputs.pull_area); two-sided leaves are 1."""
-    from dask.base import tokenize
-
     from radiosity.methods.hierarchical.sampling import link_points, ray_pairing, triangle_strata
     from radiosity.scene.contact import inside_solid
-    from radiosity.tracing.rays import caster_for
+    from radiosity.tracing.rays import caster_of
 
     ln = np.asarray(table["leaf_node"], np.int64)
     o = table["orig"][ln]
@@ -42,8 +40,7 @@ def live_leaves(table: dict, elements, epsilon: float) -> np.ndarray:
                          nodes, nodes, 2, triangle_strata(k), ray_pairing(k))
     pts, e = pts[:len(nodes) * k], e[:len(nodes) * k]
     # the link stage's caster where this process built it (in-process workers)
-    caster = caster_for(tokenize(elements.verts, elements.nverts), elements.verts,
-                        elements.nverts, epsilon)
+    caster = caster_of(elements.verts, elements.nverts, epsilon)
     ins = inside_solid(caster, pts, elements.normal[e], two)
     out[one] = 1.0 - ins.reshape(len(nodes), k).mean(axis=1)
     return out

@@ -2,7 +2,7 @@
 of plain values hashes them: 34 s against 2.7 s for sorting 3e7 scattered int64 keys on this
 machine) and `unique_rows` by one lexsort (np.unique(axis=0) sorts structured records: 3.1 s
 against 0.7 s for 1e6 rows of 4 int64); `radix_order`, the stable order of non-negative int64
-keys of few bits, in a few linear passes (5x np.argsort's speed on the cluster links' keys)."""
+keys of few bits in a few linear passes (faster than np.argsort, in the same memory)."""
 
 from __future__ import annotations
 
@@ -32,33 +32,33 @@ def unique_rows(keys: np.ndarray):
 
 @numba.njit(cache=True, nogil=True)
 def radix_order(key: np.ndarray, bits: int) -> np.ndarray:
-    """The stable sorting order of key (n,) int64 with 0 <= key < 2**bits (np.argsort(key,
-    kind="stable")): least significant digit first, 11 bits a pass. MEASURED: 280 000 keys
-    of 33 bits (a cluster task's links) in 3.6 ms against 17 ms for np.argsort."""
+    """The stable sorting order of key (n,) int64 with 0 <= key < 2**bits and n < 2**31
+    (np.argsort(key, kind="stable")) as int32: least significant digit first, 11 bits a pass,
+    the keys read through the order (two int32 arrays: the memory of np.argsort's result).
+    MEASURED: 280 000 keys of 33 bits (a cluster task's links) in 3.4 ms, 5.9 M of 42 bits in
+    0.57 s, against 17 ms and 0.79 s for np.argsort."""
     n = key.shape[0]
-    idx = np.arange(n)
-    k = key.copy()
-    idx2 = np.empty(n, np.int64)
-    k2 = np.empty(n, np.int64)
+    if n >= 2 ** 31:
+        raise ValueError("radix_order: more than 2**31 keys")
+    idx = np.arange(n).astype(np.int32)
+    idx2 = np.empty(n, np.int32)
     mask = (1 << 11) - 1
     cnt = np.empty(mask + 1, np.int64)
     shift = 0
     while shift < bits:
         cnt[:] = 0
         for i in range(n):
-            cnt[(k[i] >> shift) & mask] += 1
+            cnt[(key[idx[i]] >> shift) & mask] += 1
         at = 0
         for d in range(mask + 1):
             c = cnt[d]
             cnt[d] = at
             at += c
         for i in range(n):
-            d = (k[i] >> shift) & mask
-            j = cnt[d]
-            cnt[d] = j + 1
-            idx2[j] = idx[i]
-            k2[j] = k[i]
+            j = idx[i]
+            d = (key[j] >> shift) & mask
+            idx2[cnt[d]] = j
+            cnt[d] += 1
         idx, idx2 = idx2, idx
-        k, k2 = k2, k
         shift += 11
     return idx

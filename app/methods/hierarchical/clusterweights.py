@@ -264,14 +264,13 @@ def _fractions(occ, few, clear, first, k, v):
 
 def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, few: np.ndarray, clear: np.ndarray,
              col: np.ndarray, solid: SolidEnds | None = None) -> tuple[np.ndarray, int]:
-    """1 - the blocked fraction of a link's rays (one row of ep, eq: (L, k) elements; one ray,
-    column col[a], where few[a]; none, 1, where clear[a]), and the rays cast: the ray in
-    column c runs between point c % 4 of ep's element
-    and point (c + 2) % 4 of eq's (_ends), so a link between two originals, whose k picks are
-    the same two elements, casts k different rays, and sees a shadow that crosses them (its
-    centroids alone say 0 or 1). With `solid`, the rays of a link (of k rays) with a blocked
-    ray that start or end inside a solid are left out of its fraction, unless all do
-    (SolidEnds)."""
+    """(v, rays cast): 1 - the blocked fraction of each link's rays (one row of ep, eq: (L, k)
+    elements; one ray, column col[a], where few[a]; none, and v = 1, where clear[a]). The ray
+    in column c runs between point c % 4 of ep's element and point (c + 2) % 4 of eq's
+    (_ends), so a link between two originals, whose k picks are the same two elements, casts k
+    different rays, and sees a shadow that crosses them (its centroids alone say 0 or 1). With
+    `solid`, the rays of a link (of k rays) with a blocked ray that start or end inside a solid
+    are left out of its fraction, unless all do (SolidEnds)."""
     L, k = ep.shape
     nclear = int(clear.sum())
     nfew = int((few & ~clear).sum())

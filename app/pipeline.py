@@ -11,6 +11,7 @@ import os
 import shutil
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -89,12 +90,14 @@ class PlanFigures(StageFigures):
 
 
 def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = None,
-               full: bool = False, run_dir: str | None = None, settings=None):
+               full: bool = False, run_dir: str | None = None, settings=None, closure=None):
     """The effects plan of a scene (effects.py) and figures for its estimates.
 
     With a preprocessed `run_dir`, the estimates use its partition (sub-elements per original)
     and raster; otherwise one camera raster estimates them (about 1.4 sub-elements per pixel
-    hit, seen on the built-in scenes). Returns PlanFigures."""
+    hit, seen on the built-in scenes). closure: the scene's closure.Closure where the caller
+    resolved it (render_scene, during the preprocess), else resolved here. Returns
+    PlanFigures."""
     s = resolve({"solve.tol": tol, "subdivide.subpixel": subpixel}, base=settings)
     el = scene.elements
     if run_dir is not None:
@@ -112,7 +115,8 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
     return PlanFigures(plan_effects(el, tol=float(s.solve.tol), full=full, sizes=sizes,
                                     max_pairs=int(s.plan.max_facing_pairs),
                                     leaf=int(s.plan.leaf_size), where=scene.path),
-                       resolve_closure(s.solve.closure, el, s.rays.epsilon),
+                       closure if closure is not None
+                       else resolve_closure(s.solve.closure, el, s.rays.epsilon),
                        int((pix == 0).sum()), int(sizes.sum()), estimated=run_dir is None)
 
 
@@ -166,6 +170,11 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
         except Exception:
             reuse = False
     t = time.perf_counter()
+    # the closure test needs only the scene: its rays run beside the preprocess, whose driver
+    # steps leave a core idle (on the tessellated Cornell box about 0.5 s of the render)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="closure")
+    closure = pool.submit(resolve_closure, s.solve.closure, scene.elements, s.rays.epsilon)
+    pool.shutdown(wait=False)
     if reuse:
         echo("preprocess: reusing the partition in the run directory")
     else:
@@ -176,7 +185,7 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
         RunStore(out, "r+").set_attrs(scene_digest=digest)
     stages["preprocess_s"] = time.perf_counter() - t
     # decide the effects before the heavy stages, from the partition just made
-    planned = scene_plan(scene, full=full, run_dir=out, settings=s)
+    planned = scene_plan(scene, full=full, run_dir=out, settings=s, closure=closure.result())
     planned.write(out)
     effects = planned.effects
     est = effects.estimates

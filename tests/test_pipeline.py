@@ -88,3 +88,17 @@ def test_render_summary_prints_the_closure_decision_in_one_line():
     report["plan"] = {"closure": {"reason": "open: 3 of 10 hemisphere rays escape"}}
     rows = dict(RenderFigures(stages, report).rows())
     assert rows["closure"].startswith("open") and "\n" not in rows["closure"]
+
+
+def test_the_plan_takes_the_closure_resolved_beside_the_preprocess():
+    """render_scene resolves the closure in a thread while the preprocess runs and hands it to
+    scene_plan; scene_plan alone resolves the same one (the closed furnace cube: closed)."""
+    from radiosity.pipeline import scene_plan
+    from radiosity.scene.load import load_scene
+    from radiosity.stages.solve import resolve_closure
+
+    sc = load_scene(scene_path("furnace-cube"))
+    own = scene_plan(sc).closure
+    given = resolve_closure("auto", sc.elements, 1e-6)
+    assert own.closed and own.reason == given.reason
+    assert scene_plan(sc, closure=given).closure is given

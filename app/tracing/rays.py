@@ -110,6 +110,8 @@ class RayCaster:
                 boxes = None
             else:
                 verts = np.asarray(self._verts, float)[keep]
+                tri = np.asarray(self._nverts)[keep] == 3  # their fourth slot: the third vertex
+                verts = np.where(tri[:, None, None], verts[:, [0, 1, 2, 2]], verts)
                 groups = [np.arange(len(keep))]
                 center = verts.mean(axis=1)
                 while len(groups) < OCCLUDER_BOXES and max(len(g) for g in groups) > 1:

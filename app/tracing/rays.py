@@ -97,8 +97,9 @@ class RayCaster:
         """(lo, hi) (b, 3) world boxes that hold every element a segment between two points on
         elements can meet (_inner_scene's), the occluders cut into OCCLUDER_BOXES groups at
         the median of their centres along the widest axis, each padded by 1e-6 of the scene's
-        diagonal (Embree's float32 rounding is below 1e-7 of it). A segment inside a box that
-        some axis separates from every one of them meets nothing (box_clear).
+        diagonal (Embree's float32 rounding is below 1e-7 of it). A segment between two boxes
+        whose bounding box some axis separates from every one of them meets nothing
+        (shafts.clear_of).
         Empty where nothing can block; None where the occluders are the whole scene (a
         terrain: no box can prove a segment clear)."""
         if self._boxes is None:
@@ -251,9 +252,8 @@ class RayCaster:
         return result
 
 
-#: Boxes over the segment queries' occluders (RayCaster.occluder_boxes). MEASURED on the
-#: tessellated Cornell box's 8.6 M cluster links: 1, 8 and 16 boxes prove 26, 29 and 30 % of
-#: them clear, at 5, 9 and 13 ns a link.
+#: Boxes over the segment queries' occluders (RayCaster.occluder_boxes); more prove few more
+#: links clear and cost more a link (docs/src/design/methods-hierarchical-clusters.md).
 OCCLUDER_BOXES = 8
 #: A second scene for segment queries only where it leaves out more than this share of the
 #: elements (RayCaster._inner_scene): it costs a second BVH's memory.
@@ -308,22 +308,6 @@ def _segments(pts, ia, ib, origin, scale, eps, normal, elem, has_e, grazing, o32
             graze[k] = min(c1, c2) < grazing
         else:
             graze[k] = False
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def box_clear(ulo, uhi, lo, hi) -> bool:
-    """Can no segment inside the box (ulo, uhi) (3,) meet an occluder, all of which lie in the
-    boxes lo, hi (b, 3) (RayCaster.occluder_boxes)? True where some axis separates the box from
-    each of them."""
-    for b in range(lo.shape[0]):
-        apart = False
-        for c in range(3):
-            if uhi[c] < lo[b, c] or ulo[c] > hi[b, c]:
-                apart = True
-                break
-        if not apart:
-            return False
-    return True
 
 
 _CACHE: "OrderedDict[tuple, RayCaster]" = OrderedDict()

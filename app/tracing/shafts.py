@@ -149,6 +149,29 @@ def _range_box(lo, hi, a0, a1, out):
                 out[1, k] = hi[i, k]
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def box_apart(A, B, LO, HI, o):
+    """Does some axis separate occluder o's box [LO[o], HI[o]] from the bounding box of boxes A
+    and B ((2, 3): lo, hi)? Then no segment between A and B meets it (_shaft_excludes' first
+    test)."""
+    for k in range(3):
+        if HI[o, k] < min(A[0, k], B[0, k]) or LO[o, k] > max(A[1, k], B[1, k]):
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def clear_of(A, B, LO, HI):
+    """box_apart for every occluder box (LO, HI (b, 3)): no segment between boxes A and B can
+    meet an occluder that lies in them (RayCaster.occluder_boxes). The shaft's planes
+    (_shaft_excludes) are left out: the rays they would save cost less than testing them
+    (docs/src/design/methods-hierarchical-clusters.md, "Rays only where an occluder can be")."""
+    for o in range(LO.shape[0]):
+        if not box_apart(A, B, LO, HI, o):
+            return False
+    return True
+
+
 @numba.njit(cache=True, nogil=True)
 def _shaft_excludes(A, B, LO, HI, o):
     """Is occluder o's box C = [LO[o], HI[o]] outside the shaft (convex hull) of boxes A and B? (A[0]=lo, A[1]=hi)
@@ -157,9 +180,8 @@ def _shaft_excludes(A, B, LO, HI, o):
     box sticks out on one axis and the other on a second axis. Conservative: False may be wrong,
     True never is.
     """
-    for k in range(3):
-        if HI[o, k] < min(A[0, k], B[0, k]) or LO[o, k] > max(A[1, k], B[1, k]):
-            return True
+    if box_apart(A, B, LO, HI, o):
+        return True
     for i in range(3):
         for j in range(i + 1, 3):
             for si in range(2):

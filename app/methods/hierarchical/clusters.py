@@ -328,8 +328,8 @@ FLAT_SPREAD = 1e-6
 def _flat_exposure(rec, start, end, ona, x, ux, uy, uz):
     """_exposure of node x toward u, from its area and cone axis where its normals are one
     (spread at most FLAT_SPREAD: the sum is A_x max(0, a . u) to within A_x times the spread),
-    else the sum over its elements. Of the tessellated Cornell box's refinement, the sums over
-    the elements of both ends took about a tenth."""
+    else the sum over its elements (docs/src/design/methods-hierarchical-clusters.md, "Rays only
+    where an occluder can be")."""
     if rec[x, SPREAD] <= FLAT_SPREAD:
         c = max(0.0, rec[x, AXIS] * ux + rec[x, AXIS + 1] * uy + rec[x, AXIS + 2] * uz)
         return rec[x, AREA] * c, c

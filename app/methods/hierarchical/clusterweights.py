@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from radiosity.methods.hierarchical.clusters import HI, LO, ClusterTree
-from radiosity.tracing.rays import box_clear
+from radiosity.tracing.shafts import clear_of
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -197,7 +197,7 @@ _SOLIDS_LOCK = threading.Lock()
 def solid_ends(caster, e) -> SolidEnds:
     """The process's SolidEnds of the originals `e` that `caster` was built from (one per
     caster: every cluster task of a run shares what the others found; on the tessellated
-    Cornell box the tasks tested 234 402 ends, 51 332 of them distinct)."""
+    Cornell box each ray end was otherwise tested in about 4.6 tasks)."""
     with _SOLIDS_LOCK:
         s = _SOLIDS.get(caster)
         if s is None or len(s.flags) != len(e.area):
@@ -208,17 +208,17 @@ def solid_ends(caster, e) -> SolidEnds:
 @numba.njit(cache=True, nogil=True)
 def clear_links(rec, links, lo, hi):
     """(len(links),) bool: the cluster links (p, q) that no segment between their boxes can
-    block (box_clear of the box around both ends' boxes against the occluder boxes lo, hi:
-    RayCaster.occluder_boxes). Their rays would all find the link visible."""
+    block (shafts.clear_of against the occluder boxes lo, hi: RayCaster.occluder_boxes). Their
+    rays would all find the link visible."""
     out = np.zeros(links.shape[0], np.bool_)
-    ulo = np.empty(3)
-    uhi = np.empty(3)
+    A = np.empty((2, 3))
+    B = np.empty((2, 3))
     for a in range(links.shape[0]):
         p, q = links[a, 0], links[a, 1]
         for c in range(3):
-            ulo[c] = min(rec[p, LO + c], rec[q, LO + c])
-            uhi[c] = max(rec[p, HI + c], rec[q, HI + c])
-        out[a] = box_clear(ulo, uhi, lo, hi)
+            A[0, c], A[1, c] = rec[p, LO + c], rec[p, HI + c]
+            B[0, c], B[1, c] = rec[q, LO + c], rec[q, HI + c]
+        out[a] = clear_of(A, B, lo, hi)
     return out
 
 

@@ -160,6 +160,7 @@ def refine_pairs(inp: LinkInputs, pairs: np.ndarray, caster, keep_rays: list | N
         kept.append(k)
         if not len(w.p):
             break
+        # (asked only where a link takes rays: the boxes build the occluders' scene)
         boxes = caster.occluder_boxes() if caster is not None else None
         clear = None if boxes is None else clear_pairs(tab.verts, tab.nverts, w.p, w.q, *boxes)
         f = link_fractions(caster, prm.rays, tab.verts, tab.nverts, tab.center, tab.orig, w.p,

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from radiosity.tracing.rays import box_clear
+from radiosity.tracing.shafts import clear_of
 
 
 def ray_pairing(k: int) -> np.ndarray:
@@ -81,21 +81,27 @@ def link_points(Lv, Ln, Lc, Lo, p, q, s, tri_uv, perm):
 @numba.njit(cache=True, nogil=True)
 def clear_pairs(verts, nverts, p, q, lo, hi):
     """(len(p),) bool: the links (p, q) (node ids into verts (N, 4, 3), nverts) that no
-    segment between their polygons can block: box_clear of the box around both polygons
-    against the occluder boxes lo, hi (RayCaster.occluder_boxes)."""
+    segment between their polygons can block: shafts.clear_of of the polygons' boxes against
+    the occluder boxes lo, hi (RayCaster.occluder_boxes)."""
     out = np.zeros(p.shape[0], np.bool_)
-    ulo = np.empty(3)
-    uhi = np.empty(3)
+    A = np.empty((2, 3))
+    B = np.empty((2, 3))
     for a in range(p.shape[0]):
-        ulo[:] = np.inf
-        uhi[:] = -np.inf
-        for x in (p[a], q[a]):
-            for v in range(nverts[x]):
-                for c in range(3):
-                    ulo[c] = min(ulo[c], verts[x, v, c])
-                    uhi[c] = max(uhi[c], verts[x, v, c])
-        out[a] = box_clear(ulo, uhi, lo, hi)
+        _polygon_box(verts, nverts, p[a], A)
+        _polygon_box(verts, nverts, q[a], B)
+        out[a] = clear_of(A, B, lo, hi)
     return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _polygon_box(verts, nverts, x, out):
+    """out (2, 3): the box of polygon x's nverts[x] vertices."""
+    for c in range(3):
+        out[0, c] = verts[x, 0, c]
+        out[1, c] = verts[x, 0, c]
+        for v in range(1, nverts[x]):
+            out[0, c] = min(out[0, c], verts[x, v, c])
+            out[1, c] = max(out[1, c], verts[x, v, c])
 
 
 @numba.njit(cache=True, nogil=True)

@@ -350,7 +350,7 @@ def _room_with_block(n: int = 16):
 
 
 def test_links_clear_of_every_occluder_box_cast_no_ray_and_see_the_same():
-    """RayCaster.occluder_boxes and box_clear: in a room of 3 072 triangles with a block on its
+    """RayCaster.occluder_boxes and shafts.clear_of: in a room of 3 072 triangles with a block on its
     floor, the boxes hold the block (the walls, in the hull's planes, block nothing). The
     cluster links and the element-level ray links whose ends' box is apart from them cast no
     ray; the visible fractions, links and form factors are the same as with every ray cast,

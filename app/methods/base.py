@@ -82,7 +82,7 @@ class GroupExecutor:
                     w = self.workers[i % len(self.workers)] if self.workers else None
                     return self.client.submit(fn, self.shared.future(), *args_of(i, *vf), pure=False,
                                               workers=[w] if w else None,
-                                              allow_other_workers=True)
+                                              allow_other_workers=bool(w))
 
                 return gather_retrying(self.client, submit, count, self.retries, name=name)
             except (CancelledError, OSError) as e:  # FutureCancelledError, CommClosedError

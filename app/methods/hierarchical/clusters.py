@@ -30,17 +30,18 @@ ADMISSIBLE = 2.0
 # left, right (K,) (-1 at a leaf), start, end (K,) ranges into order (n,); lo, hi (K, 3) vertex
 # boxes; axis (K, 3), spread (K,) the normal cone; two (K,) any two-sided element; area (K,);
 # center (K, 3) area centroid; rho, lhat (K,): the largest reflectance and a-priori radiance
-# of the elements below (the oracle's weights, front side); rec (K, 23) what the refinement
+# of the elements below (the oracle's weights, front side); rec (K, 26) what the refinement
 # reads of both ends of every link, one row a node (it waits on memory more than it computes:
 # docs/src/design/methods-hierarchical-clusters.md): lo, hi, clo, chi, axis (3 each), spread,
-# two, the vertex box's diagonal, area, rho, lhat, and the slab along the axis (the least and
-# the largest axis . v over the vertices: _may_face); stop (K,) bool: an inner node that stays
-# whole where a link to it can be kept (refine_clusters: no camera's pixel shows it and it is
-# small, as the element level leaves unseen originals).
+# two, the vertex box's diagonal, area, rho, lhat, the slab along the axis (the least and
+# the largest axis . v over the vertices: _may_face) and the area centroid; stop (K,) bool: an
+# inner node that stays whole where a link to it can be kept (refine_clusters: no camera's
+# pixel shows it and it is small, as the element level leaves unseen originals).
 CTree = namedtuple("CTree", "left right start end order lo hi clo chi axis spread two area center "
                             "rho lhat rec stop")
 LO, HI, CLO, CHI, AXIS, SPREAD, TWO, DIAG, AREA, RHO, LHAT = 0, 3, 6, 9, 12, 15, 16, 17, 18, 19, 20
 SLO, SHI = 21, 22
+CEN = 23  # the area centroid (3): the estimate reads it with the rest of the row
 # The originals as the refinement reads them: normal (n, 3), offset (n,) = n . centre, verts
 # (n, 4, 3) (triangles repeat vertex 2), area (n,), center (n, 3), two_sided (n,), eps (the
 # facing tolerance in scene units); ona (n, 7) normal, area and centre in the tree's order (a
@@ -109,7 +110,7 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float,
     diag = np.linalg.norm(t.hi - t.lo, axis=1)
     slab = _slabs(t.start, t.end, o, verts, t.axis)
     rec = np.concatenate([t.lo, t.hi, t.clo, t.chi, t.axis, t.spread[:, None], t.two[:, None],
-                          diag[:, None], A[:, None], rho[:, None], lh[:, None], slab],
+                          diag[:, None], A[:, None], rho[:, None], lh[:, None], slab, center],
                          axis=1)[new]
     tree = CTree(kid(t.left), kid(t.right), t.start[new], t.end[new], o, t.lo[new], t.hi[new],
                  t.clo[new], t.chi[new], t.axis[new], t.spread[new], t.two[new], A[new],
@@ -188,16 +189,22 @@ def _range_max(values, start, end, left, right):
 # (docs/src/design/methods-hierarchical-clusters.md).
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _may_face(rec, A, B, eps):
+def _may_face(rec, A, B, eps, gap):
     """Can some element of node B lie in front of (or, two-sided, behind) the plane of some
     element of node A? False only where certainly not: the least of originals._may_face's
-    bound from the boxes and the same from the slabs along the axes. The slabs prove nodes of
-    one flat face coplanar where it is tilted (its box corners lie off the plane): without
-    them, every pair of nodes on such a face was refined as if they faced, down to links that
-    carry nothing (docs/src/design/methods-hierarchical-clusters.md, "Flat faces")."""
+    bound from the boxes and the same from the slabs along the axes (gap = |a_A - a_B|, the
+    two cone axes apart). The slabs prove nodes of one flat face coplanar where it is tilted
+    (its box corners lie off the plane): without them, every pair of nodes on such a face was
+    refined as if they faced, down to links that carry nothing
+    (docs/src/design/methods-hierarchical-clusters.md, "Flat faces")."""
     up = 0.0
     low = 0.0
     vmax2 = 0.0
+    # the same from the slabs: a_A . v <= a_A . m_B + a_B . (v - m_B) + |a_A - a_B| |v - m_B|
+    # for v in B (m_B its box centre, |v - m_B| at most half its diagonal), and A's centres lie
+    # in A's slab
+    am = 0.0
+    bm = 0.0
     for k in range(3):
         dlo = rec[B, LO + k] - rec[A, CHI + k]
         dhi = rec[B, HI + k] - rec[A, CLO + k]
@@ -210,25 +217,27 @@ def _may_face(rec, A, B, eps):
             low += a * dhi
         m = max(abs(dlo), abs(dhi))
         vmax2 += m * m
-    # the same from the slabs: a_A . v <= a_A . m_B + a_B . (v - m_B) + |a_A - a_B| |v - m_B|
-    # for v in B (m_B its box centre, |v - m_B| at most half its diagonal), and A's centres lie
-    # in A's slab
-    am = 0.0
-    bm = 0.0
-    dd = 0.0
-    for k in range(3):
         m = 0.5 * (rec[B, LO + k] + rec[B, HI + k])
-        am += rec[A, AXIS + k] * m
+        am += a * m
         bm += rec[B, AXIS + k] * m
-        g = rec[A, AXIS + k] - rec[B, AXIS + k]
-        dd += g * g
-    wob = np.sqrt(dd) * 0.5 * rec[B, DIAG]
+    wob = gap * 0.5 * rec[B, DIAG]
     up = min(up, am + rec[B, SHI] - bm + wob - rec[A, SLO])
     low = max(low, am + rec[B, SLO] - bm - wob - rec[A, SHI])
     s = rec[A, SPREAD] * np.sqrt(vmax2)
     # eps as originals.faces takes it (a leaf's vertex must lie more than eps off the plane):
     # up + s bounds that distance over every pair, so up + s <= eps leaves no facing pair
     return (up + s > eps) or (rec[A, TWO] > 0 and low - s < -eps)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _may_face_both(rec, p, q, eps):
+    """_may_face both ways (p toward q and q toward p), the cone axes' distance found once."""
+    dd = 0.0
+    for k in range(3):
+        g = rec[p, AXIS + k] - rec[q, AXIS + k]
+        dd += g * g
+    gap = np.sqrt(dd)
+    return _may_face(rec, p, q, eps, gap) and _may_face(rec, q, p, eps, gap)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -273,19 +282,27 @@ def _cos_bound(rec, p, q, d):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _all_face(rec, p, q):
-    """Does every element of node p face every point of node q's box (n . v > 0 for every normal
-    in p's cone and every direction v from p's box to q's box)? n . v / |v| >= min_v a . v /
-    max |v| - spread. Then the centroid direction's cosines are an estimate of every pair's."""
-    low = 0.0
+    """Does every element of node p face every point of node q's box, and every element of q
+    every point of p's box (n . v > 0 for every normal in the node's cone and every direction v
+    from its box to the other's)? n . v / |v| >= min_v a . v / max |v| - spread, where the
+    offsets from q's box to p's are those from p's to q's negated, and so is the largest |v|.
+    Then the centroid direction's cosines are an estimate of every pair's."""
+    lowp = 0.0
+    lowq = 0.0
     vmax2 = 0.0
     for k in range(3):
         a = rec[p, AXIS + k]
+        b = rec[q, AXIS + k]
         lo = rec[q, LO + k] - rec[p, HI + k]
         hi = rec[q, HI + k] - rec[p, LO + k]
-        low += a * lo if a > 0 else a * hi
+        lowp += a * lo if a > 0 else a * hi
+        lowq += b * (-hi) if b > 0 else b * (-lo)
         m = max(abs(lo), abs(hi))
         vmax2 += m * m
-    return low > 0.0 and low / np.sqrt(vmax2) > rec[p, SPREAD]
+    if lowp <= 0.0 or lowq <= 0.0:
+        return False
+    v = np.sqrt(vmax2)
+    return lowp / v > rec[p, SPREAD] and lowq / v > rec[q, SPREAD]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -365,8 +382,8 @@ def _exposure_toward(rec, start, end, ona, x, y, d):
     return s, cmax
 
 
-@numba.njit(cache=True, nogil=True)
-def _error_estimate(rec, center, start, end, ona, p, q, d2, lref):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _error_estimate(rec, start, end, ona, p, q, d2, lref):
     """The oracle's estimate where the bound (_error_bound) says split: the light the link
     carries to the most exposed element of either end, from the other end's projected area
     toward it (exact sums over the elements, at the centroids' distance), weighted as the bound
@@ -375,9 +392,9 @@ def _error_estimate(rec, center, start, end, ona, p, q, d2, lref):
     toward the other's box (_exposure_toward): a cluster mixing faces (a block's corner, a block
     and the floor) may face the other end only away from the centroid direction
     (docs/src/design/methods-hierarchical-clusters.md). Costs the two nodes' element counts."""
-    dx = center[q, 0] - center[p, 0]
-    dy = center[q, 1] - center[p, 1]
-    dz = center[q, 2] - center[p, 2]
+    dx = rec[q, CEN] - rec[p, CEN]
+    dy = rec[q, CEN + 1] - rec[p, CEN + 1]
+    dz = rec[q, CEN + 2] - rec[p, CEN + 2]
     r2 = dx * dx + dy * dy + dz * dz
     if r2 <= d2 or r2 <= 0.0:
         return np.inf
@@ -386,7 +403,7 @@ def _error_estimate(rec, center, start, end, ona, p, q, d2, lref):
     rel = _relative_error(rec, p, q, np.sqrt(d2))
     r = np.sqrt(r2)
     ux, uy, uz = dx / r, dy / r, dz / r
-    if _all_face(rec, p, q) and _all_face(rec, q, p):
+    if _all_face(rec, p, q):
         sp, cp = _flat_exposure(rec, start, end, ona, p, ux, uy, uz)
         sq, cq = _flat_exposure(rec, start, end, ona, q, -ux, -uy, -uz)
     else:
@@ -413,8 +430,8 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
     breadth first, stop once that many links wait to be refined and return them as `pending`
     (the cut into tasks: refining each of them on its own gives the same links and pairs); 0:
     depth first to the end (pending empty)."""
-    left, right, start, end, order, rec, center, stop = t.left, t.right, t.start, t.end, \
-        t.order, t.rec, t.center, t.stop
+    left, right, start, end, order, rec, stop = t.left, t.right, t.start, t.end, t.order, \
+        t.rec, t.stop
     normal, verts, offset, two_sided, ona, feps = e.normal, e.verts, e.offset, e.two_sided, \
         e.ona, e.eps
     links = np.empty((max(cap, 16), 2), np.int64)
@@ -450,13 +467,13 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
             stack[ns + 2, 0], stack[ns + 2, 1] = a, b
             ns += 3
             continue
-        if not (_may_face(rec, p, q, feps) and _may_face(rec, q, p, feps)):
+        if not _may_face_both(rec, p, q, feps):
             counts[1] += 1
             continue
         d2 = _box_distance2(rec, p, q)
         ok = d2 > 0.0 and rec[p, TWO] == 0 and rec[q, TWO] == 0 and not _near(rec, p, q, d2)
         keep = ok and (_error_bound(rec, p, q, d2, lref) <= eps
-                       or _error_estimate(rec, center, start, end, ona, p, q, d2, lref) < eps)
+                       or _error_estimate(rec, start, end, ona, p, q, d2, lref) < eps)
         # an end that stays whole (stop) is not split where the link could be kept: the other
         # end is, and where neither can split the link is kept above epsilon (eps > 0 only:
         # epsilon 0 still lists every facing pair of originals)

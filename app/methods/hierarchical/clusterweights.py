@@ -24,24 +24,30 @@ def _pick(start, end, area, ona, x, ux, uy, uz, k, out):
     into out[:k] as positions in the tree's order (ascending); by area where no element faces
     u. Returns S_x(u) = sum over the elements of A_i max(0, n_i . u) (0 where none faces u).
     Plain arrays, not the tree's named tuple (clusters.py's note on the kernels' arguments)."""
+    s0, s1 = start[x], end[x]
+    if s1 - s0 == 1:  # one element: every pick is it
+        for j in range(k):
+            out[j] = s0
+        return ona[s0, 3] * max(0.0, ona[s0, 0] * ux + ona[s0, 1] * uy + ona[s0, 2] * uz)
     total = 0.0
-    for m in range(start[x], end[x]):
+    for m in range(s0, s1):
         total += ona[m, 3] * max(0.0, ona[m, 0] * ux + ona[m, 1] * uy + ona[m, 2] * uz)
     by_area = total <= 0.0
     if by_area:
         total = area[x]
+    step = total / k  # the strata's width: the j-th pick is where the sum passes (j + 0.5) step
     acc = 0.0
     j = 0
-    for m in range(start[x], end[x]):
+    for m in range(s0, s1):
         if by_area:
             acc += ona[m, 3]
         else:
             acc += ona[m, 3] * max(0.0, ona[m, 0] * ux + ona[m, 1] * uy + ona[m, 2] * uz)
-        while j < k and (j + 0.5) * total / k <= acc:
+        while j < k and (j + 0.5) * step <= acc:
             out[j] = m
             j += 1
     while j < k:  # rounding at the end
-        out[j] = end[x] - 1
+        out[j] = s1 - 1
         j += 1
     return 0.0 if by_area else total
 
@@ -50,21 +56,19 @@ FF_SAMPLES = 16  # sample pairs of elements per cluster link for its form factor
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _kernel(ona, i, j):
+def _kernel_over(ona, i, j, wi, wj):
     """max(0, cos_i) max(0, cos_j) / (pi r^2) between the centroids of the elements at tree
-    positions i and j (CElems.ona)."""
+    positions i and j (CElems.ona), divided by their sampling weights' cosines wi, wj > 0 (one
+    division: the cosines' 1 / r each folded into it)."""
     dx = ona[j, 4] - ona[i, 4]
     dy = ona[j, 5] - ona[i, 5]
     dz = ona[j, 6] - ona[i, 6]
     r2 = dx * dx + dy * dy + dz * dz
-    if r2 <= 0.0:
+    ci = ona[i, 0] * dx + ona[i, 1] * dy + ona[i, 2] * dz
+    cj = -(ona[j, 0] * dx + ona[j, 1] * dy + ona[j, 2] * dz)
+    if r2 <= 0.0 or ci <= 0.0 or cj <= 0.0:
         return 0.0
-    r = np.sqrt(r2)
-    ci = (ona[i, 0] * dx + ona[i, 1] * dy + ona[i, 2] * dz) / r
-    cj = -(ona[j, 0] * dx + ona[j, 1] * dy + ona[j, 2] * dz) / r
-    if ci <= 0.0 or cj <= 0.0:
-        return 0.0
-    return ci * cj / (np.pi * r2)
+    return ci * cj / (np.pi * r2 * r2 * wi * wj)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -99,13 +103,15 @@ def _weights(t, e, links, samples, cols, lref, faint, F, ep, eq, few):
         if r > 0.0 and Sp > 0.0 and Sq > 0.0:
             acc = term = 0.0
             i0 = j0 = -1
+            mq = half  # q's pick paired with p's m-th: (m + half) mod samples
             for m in range(samples):
-                i, j = sp[m], sq[(m + half) % samples]
+                i, j = sp[m], sq[mq]
+                mq = mq + 1 if mq + 1 < samples else 0
                 if i != i0 or j != j0:  # picks repeat in small nodes: one kernel per pair
                     i0, j0 = i, j
                     wi = ona[i, 0] * ux + ona[i, 1] * uy + ona[i, 2] * uz
                     wj = -(ona[j, 0] * ux + ona[j, 1] * uy + ona[j, 2] * uz)
-                    term = _kernel(ona, i, j) / (wi * wj) if wi > 0.0 and wj > 0.0 else 0.0
+                    term = _kernel_over(ona, i, j, wi, wj) if wi > 0.0 and wj > 0.0 else 0.0
                 acc += term
             g = Sp * Sq * acc / samples
             F[a, 0] = g / area[p]

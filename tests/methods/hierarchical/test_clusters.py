@@ -217,7 +217,7 @@ def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
         assert F[k, 0] <= t.area[q] * cc / (np.pi * d2) * (1 + 1e-12)
         assert F[k, 1] <= t.area[p] * cc / (np.pi * d2) * (1 + 1e-12)
         assert _error_bound(t.rec, p, q, d2, ct.lref) <= eps or \
-            _error_estimate(t.rec, t.center, t.start, t.end, ct.elems.ona, p, q, d2,
+            _error_estimate(t.rec, t.start, t.end, ct.elems.ona, p, q, d2,
                             ct.lref) < eps
 
 
@@ -473,7 +473,7 @@ def test_small_unseen_clusters_stay_whole_and_the_links_still_cover_every_facing
     for p, q in L1:
         d2 = _box_distance2(t.rec, p, q)
         ok = _error_bound(t.rec, p, q, d2, ct.lref) <= eps or \
-            _error_estimate(t.rec, t.center, t.start, t.end, ct.elems.ona, p, q, d2, ct.lref) < eps
+            _error_estimate(t.rec, t.start, t.end, ct.elems.ona, p, q, d2, ct.lref) < eps
         assert ok or (whole[p] and whole[q])
         over += not ok
     assert over > 0

@@ -672,6 +672,35 @@ def test_energy_is_conserved_with_cluster_links(client, tmp_path):
     assert escaped + absorbed == pytest.approx(emitted, rel=1e-9)
 
 
+def test_the_solve_takes_the_cluster_links_the_link_stage_wrote_without_reading_them_back(
+        client, tmp_path):
+    """The link stage hands its cluster layer to the next read of the same store and links (the
+    render's solve): the same arrays as the store holds, given once; other links get an error."""
+    from helpers import prepared
+
+    from radiosity.errors import StoreError
+    from radiosity.methods.hierarchical import store
+    from radiosity.methods.hierarchical.links import compute_links
+    from radiosity.runtime.store import RunStore
+    from radiosity.settings import resolve
+
+    scene = _plates_scene(tmp_path)
+    out = prepared(client, tmp_path, scene, 8, name="run", visibility=False)
+    compute_links(out, client, resolve({"hierarchy.clusters": "on", "hierarchy.epsilon": 2e-2}),
+                  progress=False)
+    ls = store.LinkStore(RunStore(out))
+    token = ls.token()
+    assert len(store._HANDOFF) == 1
+    with pytest.raises(StoreError, match="cluster links of other links"):
+        ls.read_clusters("another")
+    handed = ls.read_clusters(token)
+    assert not store._HANDOFF
+    read = ls.read_clusters(token)
+    assert handed.keys() == read.keys() and len(read["p"]) > 0
+    for k in read:
+        np.testing.assert_array_equal(handed[k], read[k])
+
+
 def test_cluster_links_are_the_same_on_the_driver_and_the_workers_and_across_task_cuts(client,
                                                                                          tmp_path):
     """Determinism: the same links and radiance for block and stripe tasks, and the passes in the

@@ -133,7 +133,9 @@ class FinalLayout:
     depth-first list, cen (K, 3) the nodes' area centroids, nrm (K, 3) their area-weighted
     normal sums, reach (K,) a bound on the distance from a node's centroid to its vertices, geo
     (n, 8) the originals in depth-first order (centroid, normal, area, reach), row_node (n,)
-    the leaf node of each row, orig_node (n,) the leaf node of each original."""
+    the leaf node of each row, orig_node (n,) the leaf node of each original; unit (K, 3) the
+    nodes' mean normals (nrm normalised, 0 where it is 0) and flat (K,) bool: the nodes that
+    take a link's light as one linear field (FLAT), each found once instead of once a link."""
 
     cnt: np.ndarray
     off: np.ndarray
@@ -143,6 +145,8 @@ class FinalLayout:
     geo: np.ndarray
     row_node: np.ndarray
     orig_node: np.ndarray
+    unit: np.ndarray
+    flat: np.ndarray
 
 
 def final_layout(parent, leaf_orig, area, ocenter, onormal, oarea, overts, onv) -> FinalLayout:
@@ -160,8 +164,9 @@ def final_layout(parent, leaf_orig, area, ocenter, onormal, oarea, overts, onv) 
     row_node[off[leaves]] = leaves
     orig_node = np.empty(len(oarea), np.int64)
     orig_node[leaf_orig[leaves]] = leaves
+    unit, flat = _mean_normals(nrm, area, FLAT)
     return FinalLayout(cnt, off, cen, nrm, _node_reach(parent, leaf_orig, cen, oreach), geo,
-                       row_node, orig_node)
+                       row_node, orig_node, unit, flat)
 
 
 def cluster_final_gather(Lroot, parent, leaf_orig, area, p, q, g, layout: FinalLayout,
@@ -180,10 +185,26 @@ def cluster_final_gather(Lroot, parent, leaf_orig, area, p, q, g, layout: FinalL
     a, b = cut[part[0]], cut[part[0] + 1]
     nodes = np.zeros((len(parent), 4 * S.shape[1]))
     _final_links(S, area, p[a:b], q[a:b], g[a:b], layout.cnt, layout.off, layout.cen,
-                 layout.nrm, layout.reach, layout.geo, layout.row_node, nodes, FLAT)
+                 layout.unit, layout.flat, layout.reach, layout.geo, layout.row_node, nodes)
     del S
     _push_fields(nodes, parent, leaf_orig, layout.off, layout.cen, layout.geo)
     return nodes
+
+
+@numba.njit(cache=True, nogil=True)
+def _mean_normals(nrm, area, flat):
+    """(K, 3) the nodes' area-weighted normal sums normalised (0 where the sum is 0) and (K,)
+    bool: the sum's length at least `flat` times the node's area."""
+    K = nrm.shape[0]
+    unit = np.zeros((K, 3))
+    out = np.zeros(K, np.bool_)
+    for x in range(K):
+        m = np.sqrt(nrm[x, 0] ** 2 + nrm[x, 1] ** 2 + nrm[x, 2] ** 2)
+        if m > 0.0:
+            for c in range(3):
+                unit[x, c] = nrm[x, c] / m
+        out[x] = m >= flat * area[x]
+    return unit, out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -264,26 +285,21 @@ def _leaf_layout(parent, leaf_orig, area, ocenter, onormal, oarea):
 
 
 @numba.njit(cache=True, nogil=True)
-def _final_links(S, area, p, q, g, cnt, off, cen, nrm, reach, geo, row_node, nodes, flat):
-    """Both directions of links (p, q), into nodes (K, 4C): a flat receiver's row += the
+def _final_links(S, area, p, q, g, cnt, off, cen, unit, flat, reach, geo, row_node, nodes):
+    """Both directions of links (p, q), into nodes (K, 4C): a flat receiver's row (flat) += the
     irradiance at its centroid (C) and its gradient (C x 3); any other receiver's originals'
     leaf rows (row_node of geo's depth-first rows: centroid, normal, area, reach) += the same
-    per original (cluster_final_gather)."""
+    per original (cluster_final_gather). unit: the nodes' mean normals."""
     C = S.shape[1]
     w = np.zeros(geo.shape[0])
     for k in range(p.shape[0]):
         for h in range(2):
             t, s = (p[k], q[k]) if h == 0 else (q[k], p[k])
-            ms = np.sqrt(nrm[s, 0] ** 2 + nrm[s, 1] ** 2 + nrm[s, 2] ** 2)
-            if ms > 0.0:
-                mx, my, mz = nrm[s, 0] / ms, nrm[s, 1] / ms, nrm[s, 2] / ms
-            else:
-                mx = my = mz = 0.0
+            mx, my, mz = unit[s, 0], unit[s, 1], unit[s, 2]
             sx, sy, sz = cen[s, 0], cen[s, 1], cen[s, 2]
             f = np.float64(g[k])
-            mt = np.sqrt(nrm[t, 0] ** 2 + nrm[t, 1] ** 2 + nrm[t, 2] ** 2)
-            if mt >= flat * area[t]:  # one linear field over the node
-                nx, ny, nz = nrm[t, 0] / mt, nrm[t, 1] / mt, nrm[t, 2] / mt
+            if flat[t]:  # one linear field over the node
+                nx, ny, nz = unit[t, 0], unit[t, 1], unit[t, 2]
                 dx, dy, dz = sx - cen[t, 0], sy - cen[t, 1], sz - cen[t, 2]
                 gx = gy = gz = 0.0
                 if nx * dx + ny * dy + nz * dz > 0.0 and mx * dx + my * dy + mz * dz < 0.0:

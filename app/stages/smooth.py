@@ -27,14 +27,15 @@ The reconstruction, in four steps:
    "zippers" (two originals' vertices each inside the other's edges) are solved together as
    one sparse least-squares system.
 
-The values are radiance (W sr^-1 m^-2, linear RGB), as in solution/radiance. Pure numpy and
-scipy; no I/O.
+The values are radiance (W sr^-1 m^-2, linear RGB), as in solution/radiance. numpy and scipy,
+and one numba kernel for the cells' fits (_cell_fits); no I/O.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from radiosity.core.arrays import unique, unique_rows
@@ -263,28 +264,71 @@ def _cell_models(cells_c, cells_n, L, ci, cj):
     """Least-squares gradients (k, 3 channels, 3) and clip ranges lo, hi (k, 3) of the cells'
     linear models from the neighbour pairs (ci, cj) (step 2)."""
     k = len(L)
-    grad = np.zeros((k, 3, 3))
-    lo, hi = L.copy(), L.copy()
     if len(ci) == 0:
-        return grad, lo, hi
-    np.minimum.at(lo, ci, L[cj])
-    np.maximum.at(hi, ci, L[cj])
+        return np.zeros((k, 3, 3)), L.copy(), L.copy()
     t1, t2 = _tangent_basis(cells_n)
-    d = cells_c[cj] - cells_c[ci]
-    x, y = np.einsum("ij,ij->i", d, t1[ci]), np.einsum("ij,ij->i", d, t2[ci])
-    w = 1.0 / np.maximum(x * x + y * y, 1e-300)
-    M = np.zeros((k, 2, 2))
-    M[:, 0, 0] = np.bincount(ci, w * x * x, k)
-    M[:, 0, 1] = M[:, 1, 0] = np.bincount(ci, w * x * y, k)
-    M[:, 1, 1] = np.bincount(ci, w * y * y, k)
-    dL = (L[cj] - L[ci]) * w[:, None]
-    rhs = np.zeros((k, 2, 3))
-    for c in range(3):
-        rhs[:, 0, c] = np.bincount(ci, dL[:, c] * x, k)
-        rhs[:, 1, c] = np.bincount(ci, dL[:, c] * y, k)
-    # neighbours along one line only (a strip one cell wide): the minimum-norm gradient
-    g2 = np.linalg.pinv(M, rcond=1e-8, hermitian=True) @ rhs          # (k, 2, 3)
-    grad = g2[:, 0, :, None] * t1[:, None, :] + g2[:, 1, :, None] * t2[:, None, :]
+    return _cell_fits(np.ascontiguousarray(cells_c, np.float64), t1, t2,
+                      np.ascontiguousarray(L, np.float64), np.asarray(ci, np.int64),
+                      np.asarray(cj, np.int64), PINV_RCOND)
+
+
+#: Eigenvalues of a cell's 2 x 2 normal matrix below this fraction of the largest are taken as
+#: zero (numpy.linalg.pinv's rcond): neighbours along one line only (a strip one cell wide)
+#: give the minimum-norm gradient.
+PINV_RCOND = 1e-8
+
+
+@numba.njit(cache=True, nogil=True)
+def _cell_fits(cc, t1, t2, L, ci, cj, rcond):
+    """_cell_models in one pass over the pairs (i receives from j): each cell's range of its
+    neighbours' values, and the weighted (1 / distance^2) least-squares gradient in its plane
+    (basis t1, t2) by the pseudo-inverse of its symmetric 2 x 2 normal matrix, from its two
+    eigenvalues in closed form."""
+    k = L.shape[0]
+    lo = L.copy()
+    hi = L.copy()
+    M = np.zeros((k, 3))  # [xx, xy, yy]
+    R = np.zeros((k, 2, 3))
+    for e in range(ci.shape[0]):
+        i, j = ci[e], cj[e]
+        dx, dy, dz = cc[j, 0] - cc[i, 0], cc[j, 1] - cc[i, 1], cc[j, 2] - cc[i, 2]
+        x = dx * t1[i, 0] + dy * t1[i, 1] + dz * t1[i, 2]
+        y = dx * t2[i, 0] + dy * t2[i, 1] + dz * t2[i, 2]
+        w = 1.0 / max(x * x + y * y, 1e-300)
+        M[i, 0] += w * x * x
+        M[i, 1] += w * x * y
+        M[i, 2] += w * y * y
+        for c in range(3):
+            lo[i, c] = min(lo[i, c], L[j, c])
+            hi[i, c] = max(hi[i, c], L[j, c])
+            d = (L[j, c] - L[i, c]) * w
+            R[i, 0, c] += d * x
+            R[i, 1, c] += d * y
+    grad = np.zeros((k, 3, 3))
+    for i in range(k):
+        a, b, c_ = M[i, 0], M[i, 1], M[i, 2]
+        m = 0.5 * (a + c_)
+        r = np.sqrt(0.25 * (a - c_) ** 2 + b * b)
+        big, small = m + r, m - r  # the eigenvalues (>= 0 up to rounding)
+        if big <= 0.0:
+            continue
+        if abs(small) > rcond * big:  # regular: the inverse
+            det = a * c_ - b * b
+            p00, p01, p11 = c_ / det, -b / det, a / det
+        else:  # rank one: v v^T / big, v the unit eigenvector of the large eigenvalue
+            if a >= c_:
+                vx, vy = big - c_, b
+            else:
+                vx, vy = b, big - a
+            n2 = vx * vx + vy * vy
+            if n2 <= 0.0:  # b = 0 and a = c: M = a I, already handled as regular
+                vx, vy, n2 = 1.0, 0.0, 1.0
+            p00, p01, p11 = vx * vx / (n2 * big), vx * vy / (n2 * big), vy * vy / (n2 * big)
+        for ch in range(3):
+            g0 = p00 * R[i, 0, ch] + p01 * R[i, 1, ch]
+            g1 = p01 * R[i, 0, ch] + p11 * R[i, 1, ch]
+            for d in range(3):
+                grad[i, ch, d] = g0 * t1[i, d] + g1 * t2[i, d]
     return grad, lo, hi
 
 

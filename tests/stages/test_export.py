@@ -296,3 +296,63 @@ def test_ply_and_viewer_carry_the_vertex_radiance(lamp_run, tmp_path):
     write_viewer(fn, part, L, 2.0, "lamp")  # flat: each sub-element's colour at its corners
     front = colours(open(fn, encoding="utf-8").read())[:, :24].reshape(-1, 4, 2, 3)[:, :, 0]
     np.testing.assert_array_equal(front, np.repeat(tonemap(L[:, 0], 2.0)[:, None], 4, 1))
+
+
+def test_the_cells_fits_are_the_pseudo_inverse_least_squares():
+    """_cell_models (one numba pass, the 2 x 2 pseudo-inverse in closed form) against the
+    weighted least squares by numpy.linalg.pinv: cells with neighbours all round, a strip cell
+    whose neighbours lie on one line (the minimum-norm gradient), one with a single neighbour,
+    and one with none (flat, its own range); a linear field's in-plane gradient is exact."""
+    from radiosity.stages.smooth import PINV_RCOND, _cell_models, _tangent_basis
+
+    rng = np.random.default_rng(5)
+    k = 40
+    n = rng.normal(size=(k, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    c = rng.normal(size=(k, 3))
+    L = rng.random((k, 3))
+    ci, cj = [], []
+    for i in range(k - 3):  # cells 0..k-4: neighbours all round
+        for j in rng.choice(k, 5, replace=False):
+            if j != i:
+                ci.append(i)
+                cj.append(j)
+    t1, t2 = _tangent_basis(n)
+    strip = k - 3  # its neighbours on the line through it along t1
+    for s in (-1.0, 1.0, 2.0):
+        c = np.vstack([c, c[strip] + s * t1[strip]])
+        L = np.vstack([L, rng.random((1, 3))])
+        n = np.vstack([n, n[strip]])
+        ci.append(strip)
+        cj.append(len(c) - 1)
+    ci.append(k - 2)  # a single neighbour; cell k - 1 has none
+    cj.append(0)
+    ci, cj = np.array(ci), np.array(cj)
+    grad, lo, hi = _cell_models(c, n, L, ci, cj)
+    t1, t2 = _tangent_basis(n)
+    for i in range(len(L)):
+        sel = ci == i
+        d = c[cj[sel]] - c[i]
+        x, y = d @ t1[i], d @ t2[i]
+        w = 1.0 / np.maximum(x * x + y * y, 1e-300)
+        M = np.array([[np.sum(w * x * x), np.sum(w * x * y)],
+                      [np.sum(w * x * y), np.sum(w * y * y)]])
+        rhs = np.stack([(w * x) @ (L[cj[sel]] - L[i]), (w * y) @ (L[cj[sel]] - L[i])])
+        g = np.linalg.pinv(M, rcond=PINV_RCOND, hermitian=True) @ rhs if sel.any() \
+            else np.zeros((2, 3))
+        want = g[0][:, None] * t1[i] + g[1][:, None] * t2[i]
+        np.testing.assert_allclose(grad[i], want, rtol=1e-9, atol=1e-12)
+        vals = np.vstack([L[i], L[cj[sel]]])
+        np.testing.assert_array_equal(lo[i], vals.min(0))
+        np.testing.assert_array_equal(hi[i], vals.max(0))
+    assert np.abs(grad[strip] @ t2[strip]).max() < 1e-12  # nothing across the strip
+    assert np.abs(grad[strip]).max() > 0 and not grad[len(L) - 1].any()
+    # a linear field over cells in one plane: its gradient in the plane, exactly
+    c = np.column_stack([rng.random((k, 2)), np.zeros(k)])
+    n = np.tile([0.0, 0.0, 1.0], (k, 1))
+    G = rng.normal(size=(3, 3))
+    keep = (ci < k) & (cj < k)
+    grad, _, _ = _cell_models(c, n, c @ G.T, ci[keep], cj[keep])
+    G[:, 2] = 0.0
+    for i in range(k - 3):
+        np.testing.assert_allclose(grad[i], G, rtol=1e-9, atol=1e-9)

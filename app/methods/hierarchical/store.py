@@ -27,9 +27,9 @@ LINKS_MANIFEST = "links.manifest.jsonl"
 
 
 #: The cluster layer that this process last wrote, handed to the next read of the same store
-#: and token (the render's solve right after its link stage) instead of read back: zarr's
-#: decompression of the tessellated Cornell box's 8.9 M links took 0.2-0.3 s. One entry, given
-#: away on that read: later reads go to the store.
+#: and token (the render's solve right after its link stage) instead of decompressed again
+#: (docs/src/design/methods-hierarchical-clusters.md, "Less work a link"). One entry, held
+#: until that read or the next create: later reads go to the store.
 _HANDOFF: dict = {}
 
 

@@ -171,7 +171,7 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
             reuse = False
     t = time.perf_counter()
     # the closure test needs only the scene: its rays run beside the preprocess, whose driver
-    # steps leave a core idle (on the tessellated Cornell box about 0.5 s of the render)
+    # steps leave a core idle (docs/src/design/pipeline.md: what it saves)
     pool = ThreadPoolExecutor(1, thread_name_prefix="closure")
     closure = pool.submit(resolve_closure, s.solve.closure, scene.elements, s.rays.epsilon)
     pool.shutdown(wait=False)

@@ -263,9 +263,6 @@ def _tangent_basis(n: np.ndarray):
 def _cell_models(cells_c, cells_n, L, ci, cj):
     """Least-squares gradients (k, 3 channels, 3) and clip ranges lo, hi (k, 3) of the cells'
     linear models from the neighbour pairs (ci, cj) (step 2)."""
-    k = len(L)
-    if len(ci) == 0:
-        return np.zeros((k, 3, 3)), L.copy(), L.copy()
     t1, t2 = _tangent_basis(cells_n)
     return _cell_fits(np.ascontiguousarray(cells_c, np.float64), t1, t2,
                       np.ascontiguousarray(L, np.float64), np.asarray(ci, np.int64),

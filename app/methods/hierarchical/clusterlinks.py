@@ -130,17 +130,16 @@ FLAT = 0.99
 class FinalLayout:
     """What the cluster links' final gather reads of the tree, built once per gather
     (final_layout): cnt (K,) originals under each node, off (K,) where they start in the
-    depth-first list, cen (K, 3) the nodes' area centroids, nrm (K, 3) their area-weighted
-    normal sums, reach (K,) a bound on the distance from a node's centroid to its vertices, geo
-    (n, 8) the originals in depth-first order (centroid, normal, area, reach), row_node (n,)
-    the leaf node of each row, orig_node (n,) the leaf node of each original; unit (K, 3) the
-    nodes' mean normals (nrm normalised, 0 where it is 0) and flat (K,) bool: the nodes that
-    take a link's light as one linear field (FLAT), each found once instead of once a link."""
+    depth-first list, cen (K, 3) the nodes' area centroids, reach (K,) a bound on the distance
+    from a node's centroid to its vertices, geo (n, 8) the originals in depth-first order
+    (centroid, normal, area, reach), row_node (n,) the leaf node of each row, orig_node (n,) the
+    leaf node of each original; unit (K, 3) the nodes' mean normals (their area-weighted normal
+    sums normalised, 0 where the sum is 0) and flat (K,) bool: the nodes that take a link's
+    light as one linear field (FLAT), each found once instead of once a link."""
 
     cnt: np.ndarray
     off: np.ndarray
     cen: np.ndarray
-    nrm: np.ndarray
     reach: np.ndarray
     geo: np.ndarray
     row_node: np.ndarray
@@ -165,7 +164,7 @@ def final_layout(parent, leaf_orig, area, ocenter, onormal, oarea, overts, onv) 
     orig_node = np.empty(len(oarea), np.int64)
     orig_node[leaf_orig[leaves]] = leaves
     unit, flat = _mean_normals(nrm, area, FLAT)
-    return FinalLayout(cnt, off, cen, nrm, _node_reach(parent, leaf_orig, cen, oreach), geo,
+    return FinalLayout(cnt, off, cen, _node_reach(parent, leaf_orig, cen, oreach), geo,
                        row_node, orig_node, unit, flat)
 
 

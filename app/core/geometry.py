@@ -51,10 +51,30 @@ def _properties(verts, area, normal, center):
             center[i, k] = (g1 * a1 + g2 * a2) / safe
 
 
-def diameter(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
-    """Largest vertex-to-vertex distance of each polygon, (n,)."""
-    d = np.linalg.norm(verts[:, :, None, :] - verts[:, None, :, :], axis=-1)
-    return d.reshape(len(verts), -1).max(axis=1)
+def diameter(verts: np.ndarray, nverts: np.ndarray | None = None) -> np.ndarray:
+    """Largest vertex-to-vertex distance of each polygon (n, 4, 3), (n,) (a triangle's fourth
+    slot repeats a vertex, so nverts is not needed)."""
+    return _diameter(np.ascontiguousarray(verts, np.float64))
+
+
+@numba.njit(cache=True, nogil=True)
+def _diameter(verts):
+    """diameter without (n, 4, 4, 3) temporaries: each norm sums the squares x, y, z left to
+    right, as numpy's norm over the last axis does (the same values to the bit)."""
+    n = verts.shape[0]
+    out = np.empty(n)
+    for p in range(n):
+        m = 0.0
+        for i in range(4):
+            for j in range(i + 1, 4):
+                dx = verts[p, i, 0] - verts[p, j, 0]
+                dy = verts[p, i, 1] - verts[p, j, 1]
+                dz = verts[p, i, 2] - verts[p, j, 2]
+                d = np.sqrt(dx * dx + dy * dy + dz * dz)
+                if d > m:
+                    m = d
+        out[p] = m
+    return out
 
 
 # |cos| below this (relative to the segment length) counts as coplanar: exactly zero, not noise.

@@ -55,11 +55,25 @@ def pack_groups(cost: np.ndarray, ngroups: int) -> list[np.ndarray]:
     """Tasks with estimated `cost` (k,) packed into at most `ngroups` groups of about equal
     total cost (longest first onto the least loaded group); each group's task ids sorted.
     The solver pins one group to one worker, whose cache keeps the group's tiles."""
-    order = np.argsort(-np.asarray(cost), kind="stable")
-    load = np.zeros(max(1, ngroups))
-    members = [[] for _ in range(len(load))]
+    cost = np.asarray(cost, np.float64)
+    group = _least_loaded(np.argsort(-cost, kind="stable"), cost, max(1, ngroups))
+    order = np.argsort(group, kind="stable")
+    cuts = np.searchsorted(group[order], np.arange(1, max(1, ngroups)))
+    return [m.astype(np.int64) for m in np.split(order, cuts) if len(m)]
+
+
+@numba.njit(cache=True, nogil=True)
+def _least_loaded(order, cost, ngroups):
+    """The group of each task, taken in `order`, onto the least loaded group (the first of
+    equals). In numba: the final gather packs every original, tens of thousands on meshes of
+    many triangles."""
+    load = np.zeros(ngroups)
+    group = np.empty(order.shape[0], np.int64)
     for t in order:
-        g = int(np.argmin(load))
-        members[g].append(int(t))
+        g = 0
+        for h in range(1, ngroups):
+            if load[h] < load[g]:
+                g = h
+        group[t] = g
         load[g] += cost[t]
-    return [np.array(sorted(m), np.int64) for m in members if m]
+    return group

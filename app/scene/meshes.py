@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radiosity.errors import SceneError
-from radiosity.core.geometry import polygon_properties
+from radiosity.core.geometry import diameter, polygon_properties
 from radiosity.scene import meshkernels
 from radiosity.settings import Settings, resolve
 
@@ -280,7 +280,7 @@ def _quad_shapes(p: np.ndarray, tol: float):
         c023 = np.cross(p2 - p0, p3 - p0)
         n = c012 + c023
         nn = _norm(n)
-        diam = meshkernels.diameter(np.ascontiguousarray(p))
+        diam = diameter(p)
         off = np.abs(_dot(p3 - p0, c012))
         c = _norm(c012)
         planar = (nn > 0) & (c > 0) & (off / c <= tol * np.maximum(diam, 1e-300))
@@ -379,7 +379,7 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
         verts, nverts, face, out_m = merge_parallelograms(verts, nverts, face, out_m,
                                                           sc.merge_tolerance)
     area, _, _ = polygon_properties(verts, nverts)
-    diam = meshkernels.diameter(np.ascontiguousarray(verts, np.float64))  # geometry.diameter
+    diam = diameter(verts)
     bad = np.nonzero(~(area > sc.min_relative_area * diam ** 2))[0]
     if len(bad):
         raise SceneError(f"{fn}: face {face[bad[0]] + 1} (material '{out_m[bad[0]]}') has zero area"

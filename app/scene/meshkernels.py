@@ -482,24 +482,3 @@ def merge_pairs(P, vid, mat, order, gstart, group, tol):
             if partner[k] >= 0:
                 break
     return partner, edge, pedge
-
-
-@numba.njit(cache=True, nogil=True)
-def diameter(verts):
-    """Largest vertex-to-vertex distance of each polygon (n, 4, 3): core.geometry.diameter's
-    values to the bit (its norms sum the squares x, y, z left to right), without its
-    (n, 4, 4, 3) temporaries."""
-    n = verts.shape[0]
-    out = np.empty(n)
-    for p in range(n):
-        m = 0.0
-        for i in range(4):
-            for j in range(i + 1, 4):
-                dx = verts[p, i, 0] - verts[p, j, 0]
-                dy = verts[p, i, 1] - verts[p, j, 1]
-                dz = verts[p, i, 2] - verts[p, j, 2]
-                d = np.sqrt(dx * dx + dy * dy + dz * dz)
-                if d > m:
-                    m = d
-        out[p] = m
-    return out

@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 
 from radiosity.core.camera import pixel_directions, project
 from radiosity.core.geometry import polygon_properties
-from radiosity.runtime.packing import capped_starts, subscene_ranges
+from radiosity.runtime.packing import capped_starts, pack_groups, subscene_ranges
 from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
@@ -192,6 +192,31 @@ def test_capped_starts_close_each_run_before_the_cap():
         assert ((sums <= cap) | (np.diff(s) == 1)).all()
         assert (sums[:-1] + cost[s[1:-1]] > cap).all()
     assert capped_starts(np.zeros(0, np.int64), np.int64(5)).tolist() == [0]
+
+
+def test_pack_groups_puts_the_longest_tasks_first_onto_the_least_loaded_group():
+    """The solver's and the final gather's groups: every task once, each group's ids sorted,
+    and the same groups as the greedy rule written out (longest first, stable among equals,
+    onto the first least loaded group), for integer and float costs."""
+    rng = np.random.default_rng(4)
+
+    def greedy(cost, k):
+        load, members = [0.0] * k, [[] for _ in range(k)]
+        for t in sorted(range(len(cost)), key=lambda t: -cost[t]):
+            g = load.index(min(load))
+            members[g].append(t)
+            load[g] += float(cost[t])
+        return [sorted(m) for m in members if m]
+
+    for n, k in ((5000, 2), (37, 5), (3, 8), (1, 1), (0, 2)):
+        for cost in (rng.integers(1, 9, n), rng.random(n)):
+            groups = pack_groups(cost, k)
+            assert [g.tolist() for g in groups] == greedy(cost, k)
+            assert sorted(np.concatenate(groups + [np.zeros(0, np.int64)]).tolist()) == \
+                list(range(n))
+    cost = rng.integers(1, 9, 5000)
+    loads = [cost[g].sum() for g in pack_groups(cost, 2)]
+    assert abs(loads[0] - loads[1]) <= cost.max()
 
 
 def test_pixel_directions_invert_projection():

@@ -323,75 +323,63 @@ def _error_bound(rec, p, q, d2, lref):
     return carried * _relative_error(rec, p, q, d)
 
 
-@numba.njit(cache=True, nogil=True)
-def _exposure(start, end, ona, x, ux, uy, uz):
-    """(S_x(u), the largest max(0, n_i . u)) over node x's elements."""
-    s = 0.0
-    cmax = 0.0
-    for k in range(start[x], end[x]):
-        c = ona[k, 0] * ux + ona[k, 1] * uy + ona[k, 2] * uz
-        if c > 0.0:
-            s += ona[k, 3] * c
-            cmax = max(cmax, c)
-    return s, cmax
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cosine_along(ona, k, ux, uy, uz):
+    """Element k's cosine n_k . u toward the direction u (the centroids' direction)."""
+    return ona[k, 0] * ux + ona[k, 1] * uy + ona[k, 2] * uz
 
 
-#: A node's normal cone at most this wide (rec's SPREAD) counts as one normal in _flat_exposure:
-#: the triangles of a flat face in float32 differ by about 1e-7.
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cosine_toward(rec, ona, k, y, d2):
+    """min(1, max_w n_k . (w - c_k) / max(d, |c_k - box y|)) for element k (centre c_k) and
+    node y's box (d^2 = d2, the boxes' distance): the cosine between the element's normal and
+    the direction from its centre toward the point w of y's box it faces most (the numerator
+    holds for every point of the element: n_k . x = n_k . c_k on its plane); 0 where it faces
+    none of y's box."""
+    up = 0.0
+    for c in range(3):
+        n = ona[k, c]
+        up += n * ((rec[y, HI + c] if n > 0 else rec[y, LO + c]) - ona[k, 4 + c])
+    if up <= 0.0:
+        return 0.0
+    g2 = 0.0
+    for c in range(3):
+        w = ona[k, 4 + c]
+        g = max(rec[y, LO + c] - w, w - rec[y, HI + c], 0.0)
+        g2 += g * g
+    return min(1.0, up / np.sqrt(max(g2, d2)))
+
+
+#: A node's normal cone at most this wide (rec's SPREAD) counts as one normal in the estimate
+#: (its exposure A_x max(0, a . u) to within A_x times the spread): the triangles of a flat face
+#: in float32 differ by about 1e-7.
 FLAT_SPREAD = 1e-6
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _flat_exposure(rec, start, end, ona, x, ux, uy, uz):
-    """_exposure of node x toward u, from its area and cone axis where its normals are one
-    (spread at most FLAT_SPREAD: the sum is A_x max(0, a . u) to within A_x times the spread),
-    else the sum over its elements (docs/src/design/methods-hierarchical-clusters.md, "Rays only
-    where an occluder can be")."""
-    if rec[x, SPREAD] <= FLAT_SPREAD:
-        c = max(0.0, rec[x, AXIS] * ux + rec[x, AXIS + 1] * uy + rec[x, AXIS + 2] * uz)
-        return rec[x, AREA] * c, c
-    return _exposure(start, end, ona, x, ux, uy, uz)
-
-
-@numba.njit(cache=True, nogil=True)
-def _exposure_toward(rec, start, end, ona, x, y, d):
-    """(sum over node x's elements of A_i c_i, the largest c_i): c_i = min(1, max_w n_i . (w - c_i)
-    / max(d, |c_i - box y|)), the cosine between element i's normal and the direction from its
-    centre c_i toward the point w of y's box it faces most (the numerator holds for every point
-    of the element: n_i . x = n_i . c_i on its plane; d is the boxes' distance). Where some of
-    x's elements face away from the centroid direction but toward part of y, _exposure's
-    cosines miss the light they exchange; these do not."""
-    s = 0.0
-    cmax = 0.0
-    d2 = d * d
-    for k in range(start[x], end[x]):
-        up = 0.0
-        for c in range(3):
-            n = ona[k, c]
-            up += n * ((rec[y, HI + c] if n > 0 else rec[y, LO + c]) - ona[k, 4 + c])
-        if up <= 0.0:
-            continue
-        g2 = 0.0
-        for c in range(3):
-            w = ona[k, 4 + c]
-            g = max(rec[y, LO + c] - w, w - rec[y, HI + c], 0.0)
-            g2 += g * g
-        cb = min(1.0, up / np.sqrt(max(g2, d2)))
-        s += ona[k, 3] * cb
-        cmax = max(cmax, cb)
-    return s, cmax
+def _carried(rec, p, q, sp, cp, sq, cq, r2, lref, rel):
+    return max(rec[p, RHO] * sq * cp * rec[q, LHAT],
+               rec[q, RHO] * sp * cq * rec[p, LHAT]) / (np.pi * r2 * lref) * rel
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _error_estimate(rec, start, end, ona, p, q, d2, lref):
+def _error_estimate(rec, start, end, ona, p, q, d2, lref, stop):
     """The oracle's estimate where the bound (_error_bound) says split: the light the link
     carries to the most exposed element of either end, from the other end's projected area
-    toward it (exact sums over the elements, at the centroids' distance), weighted as the bound
-    is and times the same relative error. The cosines are taken along the centroid direction
-    where every element of each end faces the other's box (_all_face), else each element's
-    toward the other's box (_exposure_toward): a cluster mixing faces (a block's corner, a block
-    and the floor) may face the other end only away from the centroid direction
-    (docs/src/design/methods-hierarchical-clusters.md). Costs the two nodes' element counts."""
+    toward it, S_q(-u) max_i cos_i / (pi r^2) (exact sums over the elements, at the centroids'
+    distance), weighted as the bound is and times the same relative error.
+
+    The cosines are taken along the centroid direction u where every element of each end
+    faces the other's box (_all_face; a node whose normals are one, spread at most
+    FLAT_SPREAD, from its area and cone axis), else each element's toward the other's box
+    (_cosine_toward): a cluster mixing faces (a block's corner, a block and the floor) may face
+    the other end only away from the centroid direction
+    (docs/src/design/methods-hierarchical-clusters.md).
+
+    Costs the two nodes' element counts, but the sums only grow, element by element, and so
+    does the estimate from them (each float operation is monotone in non-negative operands):
+    once it reaches `stop` (the caller's epsilon) the loop ends and returns that lower bound,
+    which splits the link as the whole sum would (np.inf: the whole estimate)."""
     dx = rec[q, CEN] - rec[p, CEN]
     dy = rec[q, CEN + 1] - rec[p, CEN + 1]
     dz = rec[q, CEN + 2] - rec[p, CEN + 2]
@@ -400,19 +388,41 @@ def _error_estimate(rec, start, end, ona, p, q, d2, lref):
         return np.inf
     if _near(rec, p, q, d2):  # never kept (and the element sums below not spent on it)
         return np.inf
-    rel = _relative_error(rec, p, q, np.sqrt(d2))
+    d = np.sqrt(d2)
+    rel = _relative_error(rec, p, q, d)
+    d2 = d * d  # as the cosines toward the boxes always took it
     r = np.sqrt(r2)
     ux, uy, uz = dx / r, dy / r, dz / r
-    if _all_face(rec, p, q):
-        sp, cp = _flat_exposure(rec, start, end, ona, p, ux, uy, uz)
-        sq, cq = _flat_exposure(rec, start, end, ona, q, -ux, -uy, -uz)
-    else:
-        d = np.sqrt(d2)
-        sp, cp = _exposure_toward(rec, start, end, ona, p, q, d)
-        sq, cq = _exposure_toward(rec, start, end, ona, q, p, d)
-    carried = max(rec[p, RHO] * sq * cp * rec[q, LHAT],
-                  rec[q, RHO] * sp * cq * rec[p, LHAT]) / (np.pi * r2 * lref)
-    return carried * rel
+    along = _all_face(rec, p, q)
+    sp = cp = sq = cq = 0.0
+    i, j = start[p], start[q]
+    if along and rec[p, SPREAD] <= FLAT_SPREAD:
+        cp = max(0.0, rec[p, AXIS] * ux + rec[p, AXIS + 1] * uy + rec[p, AXIS + 2] * uz)
+        sp = rec[p, AREA] * cp
+        i = end[p]
+    if along and rec[q, SPREAD] <= FLAT_SPREAD:
+        cq = max(0.0, rec[q, AXIS] * -ux + rec[q, AXIS + 1] * -uy + rec[q, AXIS + 2] * -uz)
+        sq = rec[q, AREA] * cq
+        j = end[q]
+    # both ends' sums in their own order, a step of each at a time
+    while i < end[p] or j < end[q]:
+        if i < end[p]:
+            c = _cosine_along(ona, i, ux, uy, uz) if along else \
+                _cosine_toward(rec, ona, i, q, d2)
+            if c > 0.0:
+                sp += ona[i, 3] * c
+                cp = max(cp, c)
+            i += 1
+        if j < end[q]:
+            c = _cosine_along(ona, j, -ux, -uy, -uz) if along else \
+                _cosine_toward(rec, ona, j, p, d2)
+            if c > 0.0:
+                sq += ona[j, 3] * c
+                cq = max(cq, c)
+            j += 1
+        if _carried(rec, p, q, sp, cp, sq, cq, r2, lref, rel) >= stop:
+            break
+    return _carried(rec, p, q, sp, cp, sq, cq, r2, lref, rel)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -473,7 +483,7 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
         d2 = _box_distance2(rec, p, q)
         ok = d2 > 0.0 and rec[p, TWO] == 0 and rec[q, TWO] == 0 and not _near(rec, p, q, d2)
         keep = ok and (_error_bound(rec, p, q, d2, lref) <= eps
-                       or _error_estimate(rec, start, end, ona, p, q, d2, lref) < eps)
+                       or _error_estimate(rec, start, end, ona, p, q, d2, lref, eps) < eps)
         # an end that stays whole (stop) is not split where the link could be kept: the other
         # end is, and where neither can split the link is kept above epsilon (eps > 0 only:
         # epsilon 0 still lists every facing pair of originals)

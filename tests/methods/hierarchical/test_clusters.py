@@ -218,7 +218,40 @@ def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
         assert F[k, 1] <= t.area[p] * cc / (np.pi * d2) * (1 + 1e-12)
         assert _error_bound(t.rec, p, q, d2, ct.lref) <= eps or \
             _error_estimate(t.rec, t.start, t.end, ct.elems.ona, p, q, d2,
-                            ct.lref) < eps
+                            ct.lref, np.inf) < eps
+
+
+def test_the_estimate_stops_once_it_reaches_epsilon_and_decides_as_the_whole_sum():
+    """The estimate's element sums only grow, so it may stop at epsilon: below epsilon it is
+    the whole estimate to the bit, at or above it a lower bound of the whole one that is at
+    least epsilon, on flat nodes, mixed ones (a sphere's), and both branches of _all_face."""
+    from radiosity.methods.hierarchical.clusters import (_all_face, _box_distance2,
+                                                         _error_estimate)
+
+    v1, n1 = _grid(10, 0.0, True)
+    v2, n2 = _grid(10, 3.0, False, x0=0.5)
+    v3, n3 = _sphere(8, 16, inward=False)
+    v = np.concatenate([v1, v2, v3 * 0.3 + [0.5, 0.5, 1.5]])
+    el = _elements(v, np.concatenate([n1, n2, n3]))
+    ct = _tree(el)
+    t = ct.tree
+    rng = np.random.default_rng(3)
+    pairs = rng.integers(0, ct.nodes, (4000, 2))
+    full = np.array([_error_estimate(t.rec, t.start, t.end, ct.elems.ona, p, q,
+                                     _box_distance2(t.rec, p, q), ct.lref, np.inf)
+                     for p, q in pairs])
+    finite = np.isfinite(full) & (full > 0)
+    eps = float(np.median(full[finite]))
+    cut = np.array([_error_estimate(t.rec, t.start, t.end, ct.elems.ona, p, q,
+                                    _box_distance2(t.rec, p, q), ct.lref, eps)
+                    for p, q in pairs])
+    below = full < eps
+    assert below.sum() > 100 and (~below & finite).sum() > 100
+    np.testing.assert_array_equal(cut[below], full[below])
+    assert ((cut[~below] >= eps) & (cut[~below] <= full[~below])).all()
+    assert (cut[~below & finite] < full[~below & finite]).any()  # some stopped early
+    along = np.array([_all_face(t.rec, p, q) for p, q in pairs])
+    assert (along & finite).any() and (~along & finite).any()
 
 
 def test_a_link_between_two_originals_sees_a_shadow_that_misses_their_centroids():
@@ -473,7 +506,8 @@ def test_small_unseen_clusters_stay_whole_and_the_links_still_cover_every_facing
     for p, q in L1:
         d2 = _box_distance2(t.rec, p, q)
         ok = _error_bound(t.rec, p, q, d2, ct.lref) <= eps or \
-            _error_estimate(t.rec, t.start, t.end, ct.elems.ona, p, q, d2, ct.lref) < eps
+            _error_estimate(t.rec, t.start, t.end, ct.elems.ona, p, q, d2, ct.lref,
+                            np.inf) < eps
         assert ok or (whole[p] and whole[q])
         over += not ok
     assert over > 0

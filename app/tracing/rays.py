@@ -68,8 +68,10 @@ class RayCaster:
     def _inner_scene(self):
         """The Embree scene of the elements that can block a segment between two points on
         elements: all but those in a supporting plane of the scene's convex hull (a room's
-        walls, floor and ceiling: core.geometry.on_hull_planes), and its owner map; (None,
-        None) when no element is left (nothing can block). Built once, on the first query."""
+        walls, floor and ceiling: core.geometry.on_hull_planes), each flat face of many
+        elements as one polygon (occluders.merged_faces); with the group of each triangle and
+        of each element (None: the elements themselves); (None, None, None) when no element is
+        left (nothing can block). Built once, on the first query."""
         if self._inner is not None:  # the hot path: every segment query asks
             return self._inner
         with self._inner_lock:
@@ -78,19 +80,25 @@ class RayCaster:
 
                 verts = np.asarray(self._verts, float)
                 nverts = np.asarray(self._nverts)
+                from radiosity.tracing.occluders import merged_faces
+
                 keep = np.nonzero(~on_hull_planes(verts, nverts, self.normal))[0]
                 self._keep = keep
                 if not len(keep):
-                    self._inner = (None, None)
+                    self._inner = (None, None, None)
                 elif len(keep) > INNER_SHARE * len(verts):  # a terrain: not worth a second BVH
-                    self._inner = (self._scene, self.owner)
+                    self._inner = (self._scene, self.owner, None)
                 else:
                     rtcore_scene, mesh_construction = _embree()
-                    tris, owner = element_triangles(verts[keep], nverts[keep])
+                    area = polygon_properties(verts[keep], nverts[keep])[0]
+                    tris, owner, group = merged_faces(verts[keep], nverts[keep],
+                                                      self.normal[keep], area, self.scale)
                     scene = rtcore_scene.EmbreeScene()
                     self._inner_mesh = mesh_construction.TriangleMesh(
                         scene, ((tris - self.origin) / self.scale).astype(np.float32))
-                    self._inner = (scene, keep[owner].astype(np.int32))
+                    group_of = np.arange(len(verts), dtype=np.int64)
+                    group_of[keep] = keep[group]
+                    self._inner = (scene, keep[owner], group_of)
             return self._inner
 
     def occluder_boxes(self):
@@ -103,7 +111,7 @@ class RayCaster:
         Empty where nothing can block; None where the occluders are the whole scene (a
         terrain: no box can prove a segment clear)."""
         if self._boxes is None:
-            scene, _ = self._inner_scene()
+            scene, _, _ = self._inner_scene()
             keep = self._keep
             if scene is None:
                 boxes = (np.zeros((0, 3)), np.zeros((0, 3)))
@@ -192,8 +200,8 @@ class RayCaster:
         has_e = elem is not None
         elem = np.ascontiguousarray(elem, np.int64) if has_e else np.zeros(1, np.int64)
         # both ends on elements: the elements in the hull's planes cannot block (_inner_scene)
-        scene, owner = self._inner_scene() if has_e and n and elem.min() >= 0 else \
-            (self._scene, self.owner)
+        scene, owner, group_of = self._inner_scene() if has_e and n and elem.min() >= 0 else \
+            (self._scene, self.owner, None)
         if scene is None:
             return out
         buf = self._buffers()
@@ -213,8 +221,10 @@ class RayCaster:
                 x, y = np.where(swap[:, None], y, x), np.where(swap[:, None], x, y)
                 d = y - x
                 length = np.linalg.norm(d, axis=1)
-                occ[g] = self._beyond_own(x, d / length[:, None], length, elem[ia[sl][g]],
-                                          elem[ib[sl][g]], scene, owner)
+                ea, eb = elem[ia[sl][g]], elem[ib[sl][g]]
+                if group_of is not None:
+                    ea, eb = group_of[ea], group_of[eb]
+                occ[g] = self._beyond_own(x, d / length[:, None], length, ea, eb, scene, owner)
             out[sl] = occ
         return out
 
@@ -228,8 +238,8 @@ class RayCaster:
         return b
 
     def _beyond_own(self, a, d, length, ea, eb, scene, owner, rounds: int = 8) -> np.ndarray:
-        """For segments reported occluded in `scene` (owner: its triangles' elements): is the
-        first hit on another element than ea, eb?"""
+        """For segments reported occluded in `scene` (owner: its triangles' elements, or their
+        groups: merged faces): is the first hit on another element (group) than ea, eb?"""
         eps = self.epsilon
         t0 = np.full(len(a), eps)
         result = np.zeros(len(a), bool)

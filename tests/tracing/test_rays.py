@@ -81,7 +81,7 @@ def test_the_hull_planes_are_a_rooms_walls_and_never_block_a_segment_between_ele
     idx = np.arange(n)
     part = rc.occluded_pairs(pts, idx, idx + n, ids)
     assert rc._inner_scene()[0] is not None
-    rc._inner = (rc._scene, rc.owner)  # the whole scene
+    rc._inner = (rc._scene, rc.owner, None)  # the whole scene
     whole = rc.occluded_pairs(pts, idx, idx + n, ids)
     d = pts[n:] - pts[:n]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -91,7 +91,7 @@ def test_the_hull_planes_are_a_rooms_walls_and_never_block_a_segment_between_ele
     np.testing.assert_array_equal(part[clear], whole[clear])
     # without the ends' elements the ends may lie outside the hull: the whole scene, whose
     # walls block a segment from outside the box to its middle
-    rc._inner = (None, None)  # as if nothing inside could block
+    rc._inner = (None, None, None)  # as if nothing inside could block
     mid = 0.5 * (v.min(axis=0) + v.max(axis=0))
     out = mid + np.array([0.0, 2.0, 0.0]) * (v.max(axis=0) - v.min(axis=0))  # above, below
     assert rc.occluded(np.array([out, 2 * mid - out]), np.array([mid, mid])).all()

@@ -14,6 +14,7 @@ import math
 import os
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,7 +158,30 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
         raise StoreError(f"{rs.path}: raster/sub has shape {raster.shape}, the camera and "
                          f"subpixel {k} need {(camera.height * k, camera.width * k)}: run "
                          f"preprocess again")
+    # the light tables (elements.csv, surfaces.csv, ...) need only the solution: written on a
+    # thread of their own beside the image and meshes (their numba and file writes let go of
+    # the GIL), joined before the figures
+    pool = ThreadPoolExecutor(1, thread_name_prefix="tables")
+    tables = pool.submit(lambda: write_light_tables(rs.run_dir,
+                                                    light_tables(part, elements, radiance)))
+    pool.shutdown(wait=False)
+    try:
+        fig = _image_and_meshes(rs, st, part, elements, camera, k, raster, radiance, filter,
+                                sigma, auto, exposure, bar, t0)
+    finally:
+        wait([tables])
+    tables.result()
+    bar.update()
+    bar.close()
+    fig = ImageFigures(**{**fig, "time_s": round(time.perf_counter() - t0, 4)})
+    fig.write(rs.run_dir)
+    return fig
 
+
+def _image_and_meshes(rs, st, part, elements, camera, k: int, raster, radiance, filter: str,
+                      sigma: float, auto: bool, exposure, bar, t0: float) -> dict:
+    """render_outputs' image, meshes and viewer; returns its figures but the total time."""
+    r = st.render
     per_side = 1
     if r.sampling == "area":
         # about area-samples^2 rays per pixel whatever the sub-pixel factor
@@ -200,10 +224,7 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     viewer = write_viewer(paths["viewer.html"], part, radiance, e, title, camera=camera,
                           two_sided=two, smooth=smooth)
     bar.update()
-    write_light_tables(d, light_tables(part, elements, radiance))  # elements/surfaces.csv
-    bar.update()
-    bar.close()
-    fig = ImageFigures(**{
+    return {
         "image_exr": paths["image.exr"], "image_png": paths["image.png"],
         "mesh_glb": paths["mesh.glb"], "mesh_ply": paths["mesh.ply"],
         "viewer_html": paths["viewer.html"],
@@ -218,10 +239,7 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
         "sub_elements": len(part), "triangles": mesh["triangles"], "mesh_faces": mesh["faces"],
         "viewer_triangles": viewer["triangles"], "viewer_stride": viewer["stride"],
         "time_image_s": round(t_image, 4),
-        "time_s": round(time.perf_counter() - t0, 4),
-    })
-    fig.write(d)
-    return fig
+    }
 
 
 def previewer(run_dir: str, settings: Settings | None = None):

@@ -15,7 +15,8 @@ import numpy as np
 from common import best_of, table, write
 
 from radiosity.core.camera import ray_directions32
-from radiosity.tracing.rays import RayCaster, element_triangles
+from radiosity.core.geometry import element_triangles
+from radiosity.tracing.rays import RayCaster
 from radiosity.scene.load import load_scene
 from radiosity.tracing.rays import raster_band
 from radiosity.scene.subdivide import subdivide

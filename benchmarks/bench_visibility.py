@@ -39,7 +39,8 @@ def run(scene, res, workers, unit=None):
 
 def ray_throughput(scene, res):
     """Segments of the largest block that needed rays: our occluded() against raw embreex."""
-    from radiosity.tracing.rays import RayCaster, element_triangles
+    from radiosity.core.geometry import element_triangles
+    from radiosity.tracing.rays import RayCaster
     from embreex import mesh_construction, rtcore_scene
 
     sc = load_scene(scene, resolution=res)

@@ -15,6 +15,14 @@ def tri_cross(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     return np.cross(b - a, c - a)
 
 
+def element_triangles(verts: np.ndarray, nverts: np.ndarray):
+    """Triangles (t, 3, 3) of the elements and the element of each triangle (t,) int32."""
+    quad = np.nonzero(nverts == 4)[0]
+    tris = np.concatenate([verts[:, [0, 1, 2]], verts[quad][:, [0, 2, 3]]])
+    owner = np.concatenate([np.arange(len(verts)), quad]).astype(np.int32)
+    return tris, owner
+
+
 def polygon_properties(verts: np.ndarray, nverts: np.ndarray):
     """Area (n,), unit normal (n, 3) and area centroid (n, 3) of triangles and convex quads.
 

@@ -88,7 +88,7 @@ def winding_number(verts: np.ndarray, nverts: np.ndarray, point: np.ndarray) -> 
     Oosterom & Strackee's formula per triangle). 1 inside a closed mesh whose normals point
     out, -1 inside one whose normals point in, 0 outside; an open mesh gives the fraction of
     the sphere of directions it covers."""
-    from radiosity.tracing.rays import element_triangles
+    from radiosity.core.geometry import element_triangles
 
     if not len(verts):
         return 0.0
@@ -134,7 +134,7 @@ def _watertight(verts: np.ndarray, nverts: np.ndarray) -> bool:
     """trimesh's answer: every edge of the (vertex-merged) triangles shared by exactly two."""
     import trimesh
 
-    from radiosity.tracing.rays import element_triangles
+    from radiosity.core.geometry import element_triangles
 
     tris, _ = element_triangles(np.asarray(verts, np.float64), np.asarray(nverts))
     m = trimesh.Trimesh(vertices=tris.reshape(-1, 3), faces=np.arange(3 * len(tris)).reshape(-1, 3),

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from radiosity.core.geometry import element_triangles
+
 #: Faces of at least this many elements are merged: below it the triangles are few anyway.
 MIN_ELEMENTS = 8
 #: A face's elements whose areas sum to more than their convex hull's by this share overlap:
@@ -29,8 +31,6 @@ def merged_faces(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, area
     that union's hull; and the group of each triangle (t,) and of each polygon (n,) int64 (a
     merged face is one group, every other polygon its own). A segment that leaves a polygon
     meets its plane only there, so a hit on its own group is a hit on itself."""
-    from radiosity.tracing.rays import element_triangles
-
     n = len(verts)
     group = np.arange(n, dtype=np.int64)
     faces = _faces(verts, nverts, normal, scale) if n >= MIN_ELEMENTS else []

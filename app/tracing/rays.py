@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from radiosity.core.camera import hit_points, ray_directions32
-from radiosity.core.geometry import polygon_properties
+from radiosity.core.geometry import element_triangles, polygon_properties
 
 BATCH = 1 << 20  # rays per Embree call: bounds the temporary float32 buffers
 
@@ -26,14 +26,6 @@ def _embree():
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise ImportError("the 'embreex' package is required for ray casting: pip install embreex") from e
     return rtcore_scene, mesh_construction
-
-
-def element_triangles(verts: np.ndarray, nverts: np.ndarray):
-    """Triangles (t, 3, 3) of the elements and the element of each triangle (t,) int32."""
-    quad = np.nonzero(nverts == 4)[0]
-    tris = np.concatenate([verts[:, [0, 1, 2]], verts[quad][:, [0, 2, 3]]])
-    owner = np.concatenate([np.arange(len(verts)), quad]).astype(np.int32)
-    return tris, owner
 
 
 #: The ray offset where a caller gives none: radiosity.yaml's rays.epsilon as shipped (a test

@@ -107,10 +107,15 @@ class RunStore:
 
         async def write(g):
             async def one(name, a):
-                z = await g.create_array(name, shape=a.shape, dtype=a.dtype, chunks=chunks_of(a),
+                chunks = chunks_of(a)
+                z = await g.create_array(name, shape=a.shape, dtype=a.dtype, chunks=chunks,
                                          compressors=COMPRESSORS, config=ARRAY_CONFIG)
-                if a.size:
+                if a.ndim == 0 or len(a) <= chunks[0]:
                     await z.setitem(..., a)
+                elif a.size:  # chunk by chunk: a write of several chunks copies each into a
+                    n = chunks[0]  # new buffer first (zarr's _merge_chunk_array)
+                    await asyncio.gather(*(z.setitem(slice(i, i + n), a[i:i + n])
+                                           for i in range(0, len(a), n)))
 
             await asyncio.gather(*(one(name, a) for name, a in arrays.items()))
 

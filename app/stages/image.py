@@ -158,18 +158,19 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
         raise StoreError(f"{rs.path}: raster/sub has shape {raster.shape}, the camera and "
                          f"subpixel {k} need {(camera.height * k, camera.width * k)}: run "
                          f"preprocess again")
-    # the light tables (elements.csv, surfaces.csv, ...) need only the solution: written on a
-    # thread of their own beside the image and meshes (their numba and file writes let go of
-    # the GIL), joined before the figures
-    pool = ThreadPoolExecutor(1, thread_name_prefix="tables")
+    # the light tables (elements.csv, surfaces.csv, ...) and the radiance at the mesh's
+    # vertices need only the solution: made on threads of their own beside the image (their
+    # numba, sorts and file writes let go of the GIL), joined before the figures
+    pool = ThreadPoolExecutor(2, thread_name_prefix="outputs")
+    smooth = pool.submit(smooth_mesh, part, elements, radiance)
     tables = pool.submit(lambda: write_light_tables(rs.run_dir,
                                                     light_tables(part, elements, radiance)))
     pool.shutdown(wait=False)
     try:
         fig = _image_and_meshes(rs, st, part, elements, camera, k, raster, radiance, filter,
-                                sigma, auto, exposure, bar, t0)
+                                sigma, auto, exposure, bar, t0, smooth)
     finally:
-        wait([tables])
+        wait([smooth, tables])
     tables.result()
     bar.update()
     bar.close()
@@ -179,8 +180,9 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
 
 
 def _image_and_meshes(rs, st, part, elements, camera, k: int, raster, radiance, filter: str,
-                      sigma: float, auto: bool, exposure, bar, t0: float) -> dict:
-    """render_outputs' image, meshes and viewer; returns its figures but the total time."""
+                      sigma: float, auto: bool, exposure, bar, t0: float, smooth) -> dict:
+    """render_outputs' image, meshes and viewer (smooth: the future of the radiance at the
+    mesh's vertices, smooth.smooth_mesh); returns its figures but the total time."""
     r = st.render
     per_side = 1
     if r.sampling == "area":
@@ -216,7 +218,7 @@ def _image_and_meshes(rs, st, part, elements, camera, k: int, raster, radiance, 
     write_png(paths["image.png"], tonemap(img, e))
     bar.update()
     two = np.asarray(elements.two_sided, bool)[part.orig]
-    smooth = smooth_mesh(part, elements, radiance)  # radiance at vertices: mesh and viewer
+    smooth = smooth.result()  # radiance at vertices: mesh and viewer
     mesh = export_mesh(paths["mesh.glb"], paths["mesh.ply"], part, radiance, e, two_sided=two,
                        smooth=smooth)
     bar.update()

@@ -177,11 +177,12 @@ class SolidEnds:
         self.caster, self.e = caster, e
         self.flags = np.full((len(e.area), 4), -1, np.int8)  # 1 inside, 0 not, -1 unknown
 
-    def void(self, ids: np.ndarray, cc: np.ndarray, pts: np.ndarray) -> np.ndarray:
-        """(len(ids),) bool: the ends (element ids, point cc % 4, at pts) inside a solid."""
+    def void(self, rows: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """(len(rows),) bool: the ends inside a solid, given as rows 4 i + s of the end table
+        pts (end_table: point s of element i)."""
         from radiosity.scene.contact import inside_solid
 
-        s = cc % 4
+        ids, s = rows // 4, rows % 4
         f = self.flags[ids, s]
         new = np.nonzero(f < 0)[0]
         if len(new):
@@ -189,13 +190,29 @@ class SolidEnds:
             u = new[key]
             one = ~self.e.two_sided[ids[u]]
             ins = np.zeros(len(u), bool)
-            ins[one] = inside_solid(self.caster, pts[u[one]], self.e.normal[ids[u[one]]],
+            ins[one] = inside_solid(self.caster, pts[rows[u[one]]], self.e.normal[ids[u[one]]],
                                     self.e.two_sided)
             self.flags[ids[u], s[u]] = ins
             f = self.flags[ids, s]
         return f > 0
 
 
+def end_table(caster, e) -> tuple[np.ndarray, np.ndarray]:
+    """(4 n, 3) the four ray ends of each of the originals `e` (_ends; row 4 i + s: point s of
+    element i) and (4 n,) the element of each row, made once per caster and process: the rays
+    index it (RayCaster.occluded_pairs) instead of copying two points a ray."""
+    with _SOLIDS_LOCK:
+        t = _TABLES.get(caster)
+        if t is None or len(t[1]) != 4 * len(e.area):
+            n = len(e.area)
+            owner = np.repeat(np.arange(n, dtype=np.int64), 4)
+            pts = np.empty((4 * n, 3))
+            _ends(e.verts, owner, np.tile(np.arange(4, dtype=np.int64), n), pts)
+            t = _TABLES[caster] = (pts, owner)
+        return t
+
+
+_TABLES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLIDS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLIDS_LOCK = threading.Lock()
 
@@ -229,26 +246,23 @@ def clear_links(rec, links, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True)
-def _ray_ends(ep, eq, few, clear, col, ids, cc, first):
+def _ray_ends(ep, eq, few, clear, col, ia, ib, first):
     """The rays of links whose k picks are ep, eq (L, k), flat and in link order: k for a link,
-    one (column col[a]) for a faint one (few[a]), none for a clear one (clear[a]). ids[:n] and
-    ids[n:] the elements of the two ends (n = len(cc)), cc each ray's column, first[a] link a's
-    first ray."""
+    one (column col[a]) for a faint one (few[a]), none for a clear one (clear[a]). ia, ib (n,)
+    each ray's two ends as rows of the end table (end_table: 4 i + s, point s of element i):
+    the ray in column c from point c % 4 of ep's element to point (c + 2) % 4 of eq's;
+    first[a] link a's first ray."""
     L, k = ep.shape
-    n = cc.shape[0]
     r = 0
     for a in range(L):
         first[a] = r
         if clear[a]:
             continue
-        if few[a]:
-            c = col[a]
-            ids[r], ids[n + r], cc[r] = ep[a, c], eq[a, c], c
+        c0, c1 = (col[a], col[a] + 1) if few[a] else (0, k)
+        for c in range(c0, c1):
+            ia[r] = 4 * ep[a, c] + c % 4
+            ib[r] = 4 * eq[a, c] + (c + 2) % 4
             r += 1
-        else:
-            for c in range(k):
-                ids[r], ids[n + r], cc[r] = ep[a, c], eq[a, c], c
-                r += 1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -273,10 +287,10 @@ def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, few: np.ndarray, clear: 
     """(v, rays cast): 1 - the blocked fraction of each link's rays (one row of ep, eq: (L, k)
     elements; one ray, column col[a], where few[a]; none, and v = 1, where clear[a]). The ray
     in column c runs between point c % 4 of ep's element and point (c + 2) % 4 of eq's
-    (_ends), so a link between two originals, whose k picks are the same two elements, casts k
-    different rays, and sees a shadow that crosses them (its centroids alone say 0 or 1). With
-    `solid`, the rays of a link (of k rays) with a blocked ray that start or end inside a solid
-    are left out of its fraction, unless all do (SolidEnds)."""
+    (_ends, end_table), so a link between two originals, whose k picks are the same two
+    elements, casts k different rays, and sees a shadow that crosses them (its centroids
+    alone say 0 or 1). With `solid`, the rays of a link (of k rays) with a blocked ray that
+    start or end inside a solid are left out of its fraction, unless all do (SolidEnds)."""
     L, k = ep.shape
     nclear = int(clear.sum())
     nfew = int((few & ~clear).sum())
@@ -284,15 +298,12 @@ def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, few: np.ndarray, clear: 
     v = np.ones(L)
     if n == 0:
         return v, 0
-    ids = np.empty(2 * n, np.int64)
-    cc = np.empty(n, np.int64)
+    ia = np.empty(n, np.int64)
+    ib = np.empty(n, np.int64)
     first = np.empty(L, np.int64)
-    _ray_ends(ep, eq, few, clear, col, ids, cc, first)
-    pts = np.empty((2 * n, 3))
-    _ends(e.verts, ids[:n], cc, pts[:n])
-    _ends(e.verts, ids[n:], cc + 2, pts[n:])
-    idx = np.arange(n)
-    occ = caster.occluded_pairs(pts, idx, idx + n, ids)
+    _ray_ends(ep, eq, few, clear, col, ia, ib, first)
+    pts, owner = end_table(caster, e)
+    occ = caster.occluded_pairs(pts, ia, ib, owner)
     _fractions(occ, few, clear, first, k, v)
     if solid is None or k == 1:
         return v, n
@@ -300,8 +311,7 @@ def _visible(caster, e, ep: np.ndarray, eq: np.ndarray, few: np.ndarray, clear: 
     if not len(hit):
         return v, n
     r = (first[hit][:, None] + np.arange(k)[None, :]).ravel()
-    void = (solid.void(ids[r], cc[r], pts[r]) | solid.void(ids[n + r], cc[r] + 2, pts[n + r])) \
-        .reshape(len(hit), k)
+    void = (solid.void(ia[r], pts) | solid.void(ib[r], pts)).reshape(len(hit), k)
     live = (~void).sum(axis=1)
     some = live > 0
     free = (~occ[r].reshape(len(hit), k) & ~void).sum(axis=1)

@@ -302,7 +302,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
     unit = s.hierarchy.task_unit if unit is None else unit
     if unit == "auto":
         unit = choose_unit(s.visibility.task_unit, len(el), int(s.visibility.stripe_threshold))
-    cl, cfig = None, None
+    cl, cfig, cl_inputs = None, None, ()
     on, why_clusters = s.hierarchy.clustered(len(el))
     if not on:  # every facing pair of originals starts a link (SPEC §8), within the budget
         try:
@@ -329,6 +329,9 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
                     unseen=int((~np.asarray(seen_any, bool)).sum()),
                     outside_footprint=int(outside.sum()))
         bi, bj = cpairs[:, 0], cpairs[:, 1]
+        # what the cluster layer is made from besides the elements and prm (it does not depend
+        # on the cut or the workers): hashed instead of its links (0.07 s for 8.9 M)
+        cl_inputs = ("clusters", ce, imp, np.asarray(seen_any, bool), outside, occlusion)
     pairs, first, cost = link_plan(part.offsets, bi, bj, unit, int(s.hierarchy.max_task_cost))
     hit = None
     if s.hierarchy.split_hidden:
@@ -337,7 +340,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
         hit[sub[sub >= 0]] = True
     token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,
                      el.emission, seen, hit, prm.to_dict(), weight, s.rays.epsilon,
-                     *([] if cl is None else [cl.p, cl.q, cl.g]))
+                     *cl_inputs)
     return LinkPlan(pairs, first, cost, unit, prm, weight, why, seen, hit, token, cl, cfig)
 
 

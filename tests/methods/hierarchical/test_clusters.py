@@ -910,3 +910,30 @@ def test_the_cluster_final_gather_follows_the_light_over_each_receiver_and_conse
     at_vertices = [abs(scale * (value[0, i] + grad[0, :, i] @ (x - el.center[i])) / exact(x) - 1)
                    for i in rng.choice(n1, 40, replace=False) for x in el.verts[i, :3]]
     assert max(at_vertices) < worst and np.mean(at_vertices) < 0.01
+
+
+def test_the_end_table_holds_every_elements_four_ray_ends_once_per_caster():
+    """clusterweights.end_table: row 4 i + s is point s of element i as _ends gives it (a
+    triangle's four midpoint sub-triangles' centroids, a quad's four sub-quads' centres: their
+    mean the centroid), the element of each row beside it, made once per caster."""
+    from types import SimpleNamespace
+
+    from radiosity.methods.hierarchical.clusterweights import _ends, end_table
+    from radiosity.tracing.rays import RayCaster
+
+    verts = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 1, 0]],
+                      [[0, 0, 1], [2, 0, 1], [2, 1, 1], [0, 1, 1]],
+                      [[1, 1, 2], [2, 1, 2], [1, 3, 3], [1, 3, 3]]], float)
+    nverts = np.array([3, 4, 3])
+    rc = RayCaster(verts, nverts)
+    area, _, center = polygon_properties(verts, nverts)
+    e = SimpleNamespace(verts=verts, area=area)
+    pts, owner = end_table(rc, e)
+    assert pts.shape == (12, 3) and owner.tolist() == [0] * 4 + [1] * 4 + [2] * 4
+    for i in range(3):
+        for s in range(4):
+            one = np.empty((1, 3))
+            _ends(verts, np.array([i]), np.array([s + 4]), one)  # the column modulo 4
+            assert np.array_equal(pts[4 * i + s], one[0])
+        np.testing.assert_allclose(pts[4 * i:4 * i + 4].mean(axis=0), center[i], atol=1e-12)
+    assert end_table(rc, e)[0] is pts  # once per caster

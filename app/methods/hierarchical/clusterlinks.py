@@ -49,20 +49,36 @@ def cluster_gather(Lroot, parent, leaf_orig, area, p, q, g, G, threads=None) -> 
     the leaves' originals. The links go in GATHER_PARTS parts, mapped by `threads` (a function
     (fn, items) -> [fn(x) for x in items], in threads; None: one after another). Returns the
     link terms."""
-    S, inv = _pull_means(Lroot, parent, leaf_orig, area)
-    cut = np.linspace(0, len(p), GATHER_PARTS + 1).astype(np.int64)
+    cg = ClusterGather(Lroot, parent, leaf_orig, area, p, q, g)
+    (threads or (lambda fn, items: [fn(x) for x in items]))(cg.part, list(range(GATHER_PARTS)))
+    return cg.push(G)
 
-    def part(k):
-        H = np.zeros_like(S)
-        _link_sums(S, p[cut[k]:cut[k + 1]], q[cut[k]:cut[k + 1]], g[cut[k]:cut[k + 1]], H)
-        return H
 
-    parts = (threads or (lambda fn, items: [fn(x) for x in items]))(part, list(range(GATHER_PARTS)))
-    H = parts[0]
-    for h in parts[1:]:
-        H += h
-    _push_down(H, inv, parent, leaf_orig, G)
-    return 2 * len(p)
+class ClusterGather:
+    """One pass of cluster_gather in three steps, so that a caller can run the parts in threads
+    beside other work: the nodes' means (here), part(k) for k in range(GATHER_PARTS) (any
+    thread, any order: each into its own buffer), push(G) once all are done (the buffers summed
+    in a fixed order: the same bits whoever ran them)."""
+
+    def __init__(self, Lroot, parent, leaf_orig, area, p, q, g):
+        self.S, self.inv = _pull_means(Lroot, parent, leaf_orig, area)
+        self.parent, self.leaf_orig, self.p, self.q, self.g = parent, leaf_orig, p, q, g
+        self.cut = np.linspace(0, len(p), GATHER_PARTS + 1).astype(np.int64)
+        self.H = [None] * GATHER_PARTS
+
+    def part(self, k: int) -> None:
+        a, b = self.cut[k], self.cut[k + 1]
+        H = np.zeros_like(self.S)
+        _link_sums(self.S, self.p[a:b], self.q[a:b], self.g[a:b], H)
+        self.H[k] = H
+
+    def push(self, G) -> int:
+        """G += the gathered light at the leaves' originals; returns the link terms."""
+        H = self.H[0]
+        for h in self.H[1:]:
+            H += h
+        _push_down(H, self.inv, self.parent, self.leaf_orig, G)
+        return 2 * len(self.p)
 
 
 @numba.njit(cache=True, nogil=True)

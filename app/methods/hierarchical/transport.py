@@ -16,6 +16,7 @@ import numpy as np
 
 from radiosity.errors import RadiosityError, StoreError
 from radiosity.methods.base import CAP_MIN, CAP_PRODUCT, GroupExecutor
+from radiosity.methods.hierarchical.clusterlinks import GATHER_PARTS, ClusterGather
 from radiosity.methods.hierarchical.passes import (Ends, Geometry, LinkArrays, Nodes, _count_ends,
                                                    _fill_ends, _sum_up, final_gather, gather,
                                                    gs_sweep, linear_gather, linear_push, node_min,
@@ -217,18 +218,32 @@ def _cluster_gather(inp: LinkSolveInputs, cap, Lbar, G, threads=None) -> int:
     """G += the cluster links' transfer (front sides) into the originals' roots, from the node
     means Lbar (clusterlinks.cluster_gather, its parts mapped by `threads`; cap:
     inp.cap_args()). Returns the link terms."""
+    cg = _cluster_pass(inp, Lbar)
+    if cg is None:
+        return 0
+    (threads or (lambda fn, items: [fn(x) for x in items]))(cg.part, list(range(GATHER_PARTS)))
+    return _cluster_push(inp, cg, G)
+
+
+def _cluster_pass(inp: LinkSolveInputs, Lbar):
+    """The cluster links' pass from the node means Lbar (clusterlinks.ClusterGather: its parts
+    still to run, then _cluster_push); None without cluster links."""
     cl = inp.clusters
     if cl is None or not cl.links:
-        return 0
-    from radiosity.methods.hierarchical.clusterlinks import cluster_gather
-
+        return None
     roots = inp.noff[:-1]
-    # not capped: the row caps tame the point kernel near contact; cluster links are far field
-    # (boxes apart, error below epsilon), and the min of the caps over a whole cluster would
-    # darken all of its light (the tessellated Cornell box: 3 %)
-    Gc = np.zeros((Lbar.shape[1], len(roots)))
-    terms = cluster_gather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent, cl.leaf_orig,
-                           cl.area, cl.p, cl.q, cl.g, Gc, threads)
+    return ClusterGather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent, cl.leaf_orig,
+                         cl.area, cl.p, cl.q, cl.g)
+
+
+def _cluster_push(inp: LinkSolveInputs, cg, G) -> int:
+    """G += a cluster pass's gathered light at the originals' roots (front sides); returns the
+    link terms. Not capped: the row caps tame the point kernel near contact; cluster links are
+    far field (boxes apart, error below epsilon), and the min of the caps over a whole cluster
+    would darken all of its light (the tessellated Cornell box: 3 %)."""
+    roots = inp.noff[:-1]
+    Gc = np.zeros((G.shape[1], len(roots)))
+    terms = cg.push(Gc)
     G[0][:, roots] += Gc
     return terms
 
@@ -413,15 +428,27 @@ class LocalLinkOperator(_Base):
         bufs = self._buffers.setdefault(shape, [np.empty(shape) for _ in self.groups])
         Lbar = _pull(inp, cap, L, scratch(shape)[0])
 
-        def part(k):
-            bufs[k][...] = 0.0
-            return _gather_tasks(inp, cap, self.groups[k], Lbar, bufs[k])
+        cg = _cluster_pass(inp, Lbar)
+        ng = len(self.groups)
+        # each thread gathers its group's links, then its share of the cluster links' parts:
+        # one join a pass (the parts' sums do not depend on who ran them)
+        ncl = 0 if cg is None else GATHER_PARTS
 
-        self.terms += sum(self._threads(part, list(range(len(self.groups)))))
+        def part(k):
+            terms = 0
+            if k < ng:
+                bufs[k][...] = 0.0
+                terms = _gather_tasks(inp, cap, self.groups[k], Lbar, bufs[k])
+            for j in range(k, ncl, max(ng, 1)):
+                cg.part(j)
+            return terms
+
+        self.terms += sum(self._threads(part, list(range(max(ng, 1 if ncl else 0)))))
         G = bufs[0] if bufs else np.zeros(shape)
         for extra in bufs[1:]:
             G += extra
-        self.terms += _cluster_gather(inp, cap, Lbar, G, self._threads)
+        if cg is not None:
+            self.terms += _cluster_push(inp, cg, G)
         self.passes += 1
         return _push(inp, cap, G, L, use_need)
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from radiosity.core.camera import hit_points, ray_directions32
 from radiosity.core.geometry import element_triangles, polygon_properties
+from radiosity.tracing.occluders import merged_faces
 
 BATCH = 1 << 20  # rays per Embree call: bounds the temporary float32 buffers
 
@@ -72,8 +73,6 @@ class RayCaster:
 
                 verts = np.asarray(self._verts, float)
                 nverts = np.asarray(self._nverts)
-                from radiosity.tracing.occluders import merged_faces
-
                 keep = np.nonzero(~on_hull_planes(verts, nverts, self.normal))[0]
                 self._keep = keep
                 if not len(keep):

@@ -358,6 +358,8 @@ FLAT_SPREAD = 1e-6
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _carried(rec, p, q, sp, cp, sq, cq, r2, lref, rel):
+    """The estimate from the ends' exposures sp, sq and largest cosines cp, cq (the light the
+    link carries to either end's most exposed element, weighted, times the relative error)."""
     return max(rec[p, RHO] * sq * cp * rec[q, LHAT],
                rec[q, RHO] * sp * cq * rec[p, LHAT]) / (np.pi * r2 * lref) * rel
 

@@ -56,6 +56,10 @@ def record_compressors(itemsize: int) -> tuple:
 # chunk with it first. MEASURED: 18 arrays of 2.5 MB written with record_compressors, 0.31-0.36 s
 # -> 0.15-0.17 s; a link task's writes were 0.2-0.3 s of the tessellated box's worker CPU.
 ARRAY_CONFIG = {"write_empty_chunks": True}
+#: Chunks of one RunStore.write_arrays being compressed or written at once (zarr's own default
+#: concurrency is 10): each holds its compressed copy until written, so unbounded, a 2.7 GB
+#: cluster layer would hold most of itself twice.
+WRITE_CHUNKS = 8
 
 
 def create_array(group, name: str, **kw):
@@ -106,6 +110,12 @@ class RunStore:
         arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
 
         async def write(g):
+            gate = asyncio.Semaphore(WRITE_CHUNKS)
+
+            async def put(z, sel, value):
+                async with gate:
+                    await z.setitem(sel, value)
+
             async def one(name, a):
                 chunks = chunks_of(a)
                 z = await g.create_array(name, shape=a.shape, dtype=a.dtype, chunks=chunks,
@@ -114,7 +124,7 @@ class RunStore:
                     await z.setitem(..., a)
                 elif a.size:  # chunk by chunk: a write of several chunks copies each into a
                     n = chunks[0]  # new buffer first (zarr's _merge_chunk_array)
-                    await asyncio.gather(*(z.setitem(slice(i, i + n), a[i:i + n])
+                    await asyncio.gather(*(put(z, slice(i, i + n), a[i:i + n])
                                            for i in range(0, len(a), n)))
 
             await asyncio.gather(*(one(name, a) for name, a in arrays.items()))

@@ -23,6 +23,14 @@ def element_triangles(verts: np.ndarray, nverts: np.ndarray):
     return tris, owner
 
 
+def tangent_basis(n: np.ndarray):
+    """Two unit vectors (k, 3) spanning the plane normal to each unit n (k, 3)."""
+    ref = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(n, ref)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, np.cross(n, t1)
+
+
 def polygon_properties(verts: np.ndarray, nverts: np.ndarray):
     """Area (n,), unit normal (n, 3) and area centroid (n, 3) of triangles and convex quads.
 

@@ -120,10 +120,12 @@ class RunStore:
                 chunks = chunks_of(a)
                 z = await g.create_array(name, shape=a.shape, dtype=a.dtype, chunks=chunks,
                                          compressors=COMPRESSORS, config=ARRAY_CONFIG)
+                if a.size == 0:
+                    return
                 if a.ndim == 0 or len(a) <= chunks[0]:
                     await z.setitem(..., a)
-                elif a.size:  # chunk by chunk: a write of several chunks copies each into a
-                    n = chunks[0]  # new buffer first (zarr's _merge_chunk_array)
+                else:  # chunk by chunk: a write of several chunks copies each into a new
+                    n = chunks[0]  # buffer first (zarr's _merge_chunk_array)
                     await asyncio.gather(*(put(z, slice(i, i + n), a[i:i + n])
                                            for i in range(0, len(a), n)))
 

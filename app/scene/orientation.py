@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radiosity.core.bundles import Elements
+from radiosity.core.geometry import element_triangles
 from radiosity.errors import SceneError
 
 #: Values of a [[mesh]] entry's `orient` key. as-is: the file's winding (counter-clockwise seen
@@ -88,8 +89,6 @@ def winding_number(verts: np.ndarray, nverts: np.ndarray, point: np.ndarray) -> 
     Oosterom & Strackee's formula per triangle). 1 inside a closed mesh whose normals point
     out, -1 inside one whose normals point in, 0 outside; an open mesh gives the fraction of
     the sphere of directions it covers."""
-    from radiosity.core.geometry import element_triangles
-
     if not len(verts):
         return 0.0
     tris, _ = element_triangles(np.asarray(verts, np.float64), np.asarray(nverts))
@@ -133,8 +132,6 @@ def outward_enclosures(elements: Elements, point: np.ndarray) -> list:
 def _watertight(verts: np.ndarray, nverts: np.ndarray) -> bool:
     """trimesh's answer: every edge of the (vertex-merged) triangles shared by exactly two."""
     import trimesh
-
-    from radiosity.core.geometry import element_triangles
 
     tris, _ = element_triangles(np.asarray(verts, np.float64), np.asarray(nverts))
     m = trimesh.Trimesh(vertices=tris.reshape(-1, 3), faces=np.arange(3 * len(tris)).reshape(-1, 3),

@@ -39,6 +39,7 @@ import numba
 import numpy as np
 
 from radiosity.core.arrays import unique, unique_rows
+from radiosity.core.geometry import tangent_basis
 #: Originals whose normals differ by more than this (degrees) are never blended: 30 degrees is
 #: the usual auto-smooth angle; walls meeting at a corner (90) stay apart, the facets of a
 #: finely tessellated curved surface (a few degrees) are blended.
@@ -252,18 +253,10 @@ def _inside_border_edges(P, key, a, b, cell, ends, tol):
     return v, a[e], b[e], t, cell[e], e
 
 
-def _tangent_basis(n: np.ndarray):
-    """Two unit vectors (k, 3) spanning the plane normal to each unit n (k, 3)."""
-    ref = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    t1 = np.cross(n, ref)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    return t1, np.cross(n, t1)
-
-
 def _cell_models(cells_c, cells_n, L, ci, cj):
     """Least-squares gradients (k, 3 channels, 3) and clip ranges lo, hi (k, 3) of the cells'
     linear models from the neighbour pairs (ci, cj) (step 2)."""
-    t1, t2 = _tangent_basis(cells_n)
+    t1, t2 = tangent_basis(cells_n)
     return _cell_fits(np.ascontiguousarray(cells_c, np.float64), t1, t2,
                       np.ascontiguousarray(L, np.float64), np.asarray(ci, np.int64),
                       np.asarray(cj, np.int64), PINV_RCOND)

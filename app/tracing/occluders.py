@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from radiosity.core.geometry import element_triangles
+from radiosity.core.geometry import element_triangles, tangent_basis
 
 #: Faces of at least this many elements are merged: below it the triangles are few anyway.
 MIN_ELEMENTS = 8
@@ -102,10 +102,8 @@ def _convex_union(verts, nverts, normal, area: float, tol: float) -> np.ndarray 
     off = pts @ normal
     if off.max() - off.min() > tol:
         return None
-    u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(normal, u)
-    uv = np.column_stack([pts @ u, pts @ v])
+    u, v = tangent_basis(np.asarray(normal, np.float64)[None])
+    uv = np.column_stack([pts @ u[0], pts @ v[0]])
     try:
         hull = ConvexHull(uv)
     except QhullError:

@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from radiosity.core.camera import hit_points, ray_directions32
-from radiosity.core.geometry import element_triangles, polygon_properties
+from radiosity.core.geometry import element_triangles, on_hull_planes, polygon_properties
 from radiosity.tracing.occluders import merged_faces
 
 BATCH = 1 << 20  # rays per Embree call: bounds the temporary float32 buffers
@@ -69,8 +69,6 @@ class RayCaster:
             return self._inner
         with self._inner_lock:
             if self._inner is None:
-                from radiosity.core.geometry import on_hull_planes
-
                 verts = np.asarray(self._verts, float)
                 nverts = np.asarray(self._nverts)
                 keep = np.nonzero(~on_hull_planes(verts, nverts, self.normal))[0]

@@ -303,7 +303,8 @@ def test_the_cells_fits_are_the_pseudo_inverse_least_squares():
     weighted least squares by numpy.linalg.pinv: cells with neighbours all round, a strip cell
     whose neighbours lie on one line (the minimum-norm gradient), one with a single neighbour,
     and one with none (flat, its own range); a linear field's in-plane gradient is exact."""
-    from radiosity.stages.smooth import PINV_RCOND, _cell_models, _tangent_basis
+    from radiosity.core.geometry import tangent_basis
+    from radiosity.stages.smooth import PINV_RCOND, _cell_models
 
     rng = np.random.default_rng(5)
     k = 40
@@ -317,7 +318,7 @@ def test_the_cells_fits_are_the_pseudo_inverse_least_squares():
             if j != i:
                 ci.append(i)
                 cj.append(j)
-    t1, t2 = _tangent_basis(n)
+    t1, t2 = tangent_basis(n)
     strip = k - 3  # its neighbours on the line through it along t1
     for s in (-1.0, 1.0, 2.0):
         c = np.vstack([c, c[strip] + s * t1[strip]])
@@ -329,7 +330,7 @@ def test_the_cells_fits_are_the_pseudo_inverse_least_squares():
     cj.append(0)
     ci, cj = np.array(ci), np.array(cj)
     grad, lo, hi = _cell_models(c, n, L, ci, cj)
-    t1, t2 = _tangent_basis(n)
+    t1, t2 = tangent_basis(n)
     for i in range(len(L)):
         sel = ci == i
         d = c[cj[sel]] - c[i]

@@ -38,27 +38,17 @@ class ClusterLinks:
 
 
 #: The cluster links are gathered in this many parts, each into its own buffer, summed in a
-#: fixed order (threads share the parts; the same bits on any number of cores).
+#: fixed order (threads share the parts; the same bits on any number of cores: ClusterGather).
 GATHER_PARTS = 2
 
 
-def cluster_gather(Lroot, parent, leaf_orig, area, p, q, g, G, threads=None) -> int:
-    """G (C, n) += the cluster links' transfer into the originals' roots (front side), from
-    Lroot (C, n) the originals' area-weighted mean radiance: pull up the cluster tree (the
-    nodes' mean radiance), gather over the links (node a receives g Lbar_b / A_a), push down to
-    the leaves' originals. The links go in GATHER_PARTS parts, mapped by `threads` (a function
-    (fn, items) -> [fn(x) for x in items], in threads; None: one after another). Returns the
-    link terms."""
-    cg = ClusterGather(Lroot, parent, leaf_orig, area, p, q, g)
-    (threads or (lambda fn, items: [fn(x) for x in items]))(cg.part, list(range(GATHER_PARTS)))
-    return cg.push(G)
-
-
 class ClusterGather:
-    """One pass of cluster_gather in three steps, so that a caller can run the parts in threads
-    beside other work: the nodes' means (here), part(k) for k in range(GATHER_PARTS) (any
-    thread, any order: each into its own buffer), push(G) once all are done (the buffers summed
-    in a fixed order: the same bits whoever ran them)."""
+    """One pass of the cluster links' transfer into the originals' roots (front side), from
+    Lroot (C, n) the originals' area-weighted mean radiance: pull up the cluster tree (the
+    nodes' mean radiance, here), gather over the links (node a receives g Lbar_b / A_a) in
+    part(k) for k in range(GATHER_PARTS) (any thread, any order: each into its own buffer, so
+    a caller can run them beside other work), push down to the leaves' originals in push(G)
+    once all are done (the buffers summed in a fixed order: the same bits whoever ran them)."""
 
     def __init__(self, Lroot, parent, leaf_orig, area, p, q, g):
         self.S, self.inv = _pull_means(Lroot, parent, leaf_orig, area)

@@ -201,7 +201,7 @@ def end_table(caster, e) -> tuple[np.ndarray, np.ndarray]:
     """(4 n, 3) the four ray ends of each of the originals `e` (_ends; row 4 i + s: point s of
     element i) and (4 n,) the element of each row, made once per caster and process: the rays
     index it (RayCaster.occluded_pairs) instead of copying two points a ray."""
-    with _SOLIDS_LOCK:
+    with _PER_CASTER_LOCK:
         t = _TABLES.get(caster)
         if t is None or len(t[1]) != 4 * len(e.area):
             n = len(e.area)
@@ -212,16 +212,17 @@ def end_table(caster, e) -> tuple[np.ndarray, np.ndarray]:
         return t
 
 
+#: end_table's and solid_ends' per caster (and so per process), behind one lock
 _TABLES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLIDS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-_SOLIDS_LOCK = threading.Lock()
+_PER_CASTER_LOCK = threading.Lock()
 
 
 def solid_ends(caster, e) -> SolidEnds:
     """The process's SolidEnds of the originals `e` that `caster` was built from (one per
     caster: every cluster task of a run shares what the others found; on the tessellated
     Cornell box each ray end was otherwise tested in about 4.6 tasks)."""
-    with _SOLIDS_LOCK:
+    with _PER_CASTER_LOCK:
         s = _SOLIDS.get(caster)
         if s is None or len(s.flags) != len(e.area):
             s = _SOLIDS[caster] = SolidEnds(caster, e)

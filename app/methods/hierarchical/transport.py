@@ -195,7 +195,7 @@ def task_apply(inp: LinkSolveInputs, task_ids, L: np.ndarray, use_need: bool = T
     Lbar = _pull(inp, cap, L, S)
     terms = _gather_tasks(inp, cap, task_ids, Lbar, G)
     if clusters:
-        terms += _cluster_gather(inp, cap, Lbar, G)
+        terms += _cluster_gather(inp, Lbar, G)
     return _push(inp, cap, G, L, use_need), terms
 
 
@@ -214,14 +214,15 @@ def _gather_tasks(inp: LinkSolveInputs, cap, task_ids, Lbar, G) -> int:
     return terms
 
 
-def _cluster_gather(inp: LinkSolveInputs, cap, Lbar, G, threads=None) -> int:
+def _cluster_gather(inp: LinkSolveInputs, Lbar, G) -> int:
     """G += the cluster links' transfer (front sides) into the originals' roots, from the node
-    means Lbar (clusterlinks.cluster_gather, its parts mapped by `threads`; cap:
-    inp.cap_args()). Returns the link terms."""
+    means Lbar, its parts one after another (clusterlinks.ClusterGather). Returns the link
+    terms."""
     cg = _cluster_pass(inp, Lbar)
     if cg is None:
         return 0
-    (threads or (lambda fn, items: [fn(x) for x in items]))(cg.part, list(range(GATHER_PARTS)))
+    for k in range(GATHER_PARTS):
+        cg.part(k)
     return _cluster_push(inp, cg, G)
 
 
@@ -237,10 +238,11 @@ def _cluster_pass(inp: LinkSolveInputs, Lbar):
 
 
 def _cluster_push(inp: LinkSolveInputs, cg, G) -> int:
-    """G += a cluster pass's gathered light at the originals' roots (front sides); returns the
-    link terms. Not capped: the row caps tame the point kernel near contact; cluster links are
-    far field (boxes apart, error below epsilon), and the min of the caps over a whole cluster
-    would darken all of its light (the tessellated Cornell box: 3 %)."""
+    """G += a cluster pass's gathered light at the originals' roots (front sides), its parts
+    done; returns the link terms. Not capped: the row caps tame the point kernel near
+    contact; cluster links are far field (boxes apart, error below epsilon), and the min of
+    the caps over a whole cluster would darken all of its light (the tessellated Cornell box:
+    3 %)."""
     roots = inp.noff[:-1]
     Gc = np.zeros((G.shape[1], len(roots)))
     terms = cg.push(Gc)

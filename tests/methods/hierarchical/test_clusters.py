@@ -192,6 +192,16 @@ def test_cluster_links_grow_like_n_log_n_on_a_closed_sphere():
     assert counts[ns[-1]] < 0.05 * ns[-1] ** 2 / 2
 
 
+def _plates_and_sphere():
+    """The cluster tree of two facing grids of triangles and a small sphere between them:
+    flat nodes, mixed ones, and links both ways of _all_face."""
+    v1, n1 = _grid(10, 0.0, True)
+    v2, n2 = _grid(10, 3.0, False, x0=0.5)
+    v3, n3 = _sphere(8, 16, inward=False)
+    v = np.concatenate([v1, v2, v3 * 0.3 + [0.5, 0.5, 1.5]])
+    return _tree(_elements(v, np.concatenate([n1, n2, n3])))
+
+
 def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
     """For every kept cluster link: its form factors (clamped cosines, centroids) stay below the
     bound on the light it carries (areas, cone-bounded cosines, box distance), and its error
@@ -199,12 +209,7 @@ def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
     from radiosity.methods.hierarchical.clusters import (_box_distance2, _cos_bound, _error_bound,
                                                          _error_estimate)
 
-    v1, n1 = _grid(10, 0.0, True)
-    v2, n2 = _grid(10, 3.0, False, x0=0.5)
-    v3, n3 = _sphere(8, 16, inward=False)
-    v = np.concatenate([v1, v2, v3 * 0.3 + [0.5, 0.5, 1.5]])
-    el = _elements(v, np.concatenate([n1, n2, n3]))
-    ct = _tree(el)
+    ct = _plates_and_sphere()
     eps = 2e-3
     links, _, _ = refine_all(ct, eps, 64)
     assert len(links) > 10
@@ -228,12 +233,7 @@ def test_the_estimate_stops_once_it_reaches_epsilon_and_decides_as_the_whole_sum
     from radiosity.methods.hierarchical.clusters import (_all_face, _box_distance2,
                                                          _error_estimate)
 
-    v1, n1 = _grid(10, 0.0, True)
-    v2, n2 = _grid(10, 3.0, False, x0=0.5)
-    v3, n3 = _sphere(8, 16, inward=False)
-    v = np.concatenate([v1, v2, v3 * 0.3 + [0.5, 0.5, 1.5]])
-    el = _elements(v, np.concatenate([n1, n2, n3]))
-    ct = _tree(el)
+    ct = _plates_and_sphere()
     t = ct.tree
     rng = np.random.default_rng(3)
     pairs = rng.integers(0, ct.nodes, (4000, 2))
@@ -869,8 +869,8 @@ def test_the_cluster_final_gather_follows_the_light_over_each_receiver_and_conse
     is shared out per triangle."""
     from radiosity.core.exact import _point_ff
     from radiosity.methods.hierarchical import clusterlinks
-    from radiosity.methods.hierarchical.clusterlinks import (cluster_final_gather, cluster_gather,
-                                                             final_layout)
+    from radiosity.methods.hierarchical.clusterlinks import (GATHER_PARTS, ClusterGather,
+                                                             cluster_final_gather, final_layout)
 
     if flat is not None:
         monkeypatch.setattr(clusterlinks, "FLAT", flat)
@@ -887,7 +887,10 @@ def test_the_cluster_final_gather_follows_the_light_over_each_receiver_and_conse
 
     value, grad = gathered()
     uniform = np.zeros((1, len(el)))
-    cluster_gather(*args, uniform)
+    cg = ClusterGather(*args)
+    for k in reversed(range(GATHER_PARTS)):  # any order
+        cg.part(k)
+    cg.push(uniform)
     assert (el.area * value[0]).sum() == pytest.approx((el.area * uniform[0]).sum(), rel=1e-12)
     halves = [gathered((i, 2)) for i in range(2)]
     assert np.allclose(halves[0][0] + halves[1][0], value, rtol=1e-12, atol=0)

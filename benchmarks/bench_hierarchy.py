@@ -59,7 +59,7 @@ def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dic
 
     from radiosity import config
     from radiosity.scene.splittrees import seen_originals, tree_nodes
-    from radiosity.methods.hierarchical.links import LinkInputs, refine_pairs
+    from radiosity.methods.hierarchical.links.master import LinkInputs, refine_pairs
     from radiosity.methods.hierarchical.params import resolve_params
     from radiosity.core.geometry import element_triangles
     from radiosity.tracing.rays import RayCaster

@@ -1,4 +1,4 @@
-"""Refinement by the solved radiance (hierarchy.rounds, methods/hierarchical/rounds.py; issue
+"""Refinement by the solved radiance (hierarchy.rounds, methods/hierarchical/views/rounds.py; issue
 26): what rounds fix and what they cost.
 
     python benchmarks/bench_rounds.py [--res 64] [--rounds 1] [--set key=value ...]

@@ -22,7 +22,7 @@
     (from the ladder's top rung: time is linear in spp) renders the frames at its spp in one
     process, after untimed warm-up renders that compile its kernels (--mitsuba-frames N:
     N frames evenly spread over the path, the time scaled to all). Ratio ours / Mitsuba.
-Also the lattice's spacing (methods/hierarchical/views.LATTICE_PIXELS) on the middle frame:
+Also the lattice's spacing (methods/hierarchical/views/points.LATTICE_PIXELS) on the middle frame:
 error, time and rays of a fresh view at 0 (one gather per pixel and leaf: the first version),
 2 and 4 pixels, with 4 rays for every link not proven visible (ray_far inf) or one beyond 6
 source sizes (RAY_FAR).
@@ -244,7 +244,7 @@ def main():
     np.save(os.path.join(d, f"reference-frame{mid + 1}.npy"), ref)
     ours = pixel_error(frames[mid], ref)
     # the lattice's spacing on this frame (fresh Viewer each: nothing reused)
-    from radiosity.methods.hierarchical.views import PointGather
+    from radiosity.methods.hierarchical.views.points import PointGather
 
     lattice = []
     v = Viewer(run)

@@ -199,8 +199,8 @@ def link_power_balance(run_dir: str) -> tuple[float, float, float]:
     consistently."""
     import numpy as np
 
-    from radiosity.methods.hierarchical.leaves import leaf_vectors
-    from radiosity.methods.hierarchical.transport import open_link_operator, task_link_arrays
+    from radiosity.methods.hierarchical.solve.leaves import leaf_vectors
+    from radiosity.methods.hierarchical.solve.transport import open_link_operator, task_link_arrays
     from radiosity.runtime.store import RunStore
 
     rs = RunStore(run_dir)

@@ -411,7 +411,7 @@ def plan(scene, resolution, subpixel, tol):
     n = len(sc.elements)
     clustered = st.hierarchy.clustered(n)[0] or "(clustered)" in why
     if method == "hierarchical" and clustered:
-        from radiosity.methods.hierarchical.clustertasks import LINKS_PER_ORIGINAL, LINKS_PER_THREAD_S
+        from radiosity.methods.hierarchical.clusters.tasks import LINKS_PER_ORIGINAL, LINKS_PER_THREAD_S
 
         lo, hi = (k * n for k in LINKS_PER_ORIGINAL)
         threads = os.cpu_count() or 1

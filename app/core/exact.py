@@ -84,7 +84,7 @@ _NG = 12                                   # Gauss-Legendre nodes per panel
 _GX, _GW = (tuple(float(x) for x in a) for a in np.polynomial.legendre.leggauss(_NG))
 # A coarser rule for callers that need far less than the reference's accuracy: 8 nodes a
 # panel, about 1e-7 relative on touching polygons in about two thirds of the time (the
-# refinement's near links, methods/hierarchical/formfactors.near_ff; docs/src/design/core-exact.md).
+# refinement's near links, methods/hierarchical/links/formfactors.near_ff; docs/src/design/core-exact.md).
 FAST_GX, FAST_GW = (tuple(float(x) for x in a) for a in np.polynomial.legendre.leggauss(8))
 # The fast rule's innermost panel toward a singularity, relative to the interval: below 1e-4 the
 # panels change nothing at its accuracy (random touching triangles: the same 1e-5 worst and

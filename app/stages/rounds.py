@@ -1,5 +1,5 @@
 """The solve stage with refinement rounds (hierarchy.rounds): run_solve, then on a hierarchical
-run the rounds of refinement by the solved radiance (methods/hierarchical/rounds.py: the rule,
+run the rounds of refinement by the solved radiance (methods/hierarchical/views/rounds.py: the rule,
 the weights, the link tasks made again and the warm start), each followed by a warm-started
 solve. With rounds off it is run_solve, unchanged.
 """
@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import time
 
-from radiosity.methods.hierarchical.rounds import (AUTO, Rounds, auto_rounds, previous_solution,
+from radiosity.methods.hierarchical.views.rounds import (AUTO, Rounds, auto_rounds, previous_solution,
                                                    rounds_of, warm_start)
 
 
 def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: bool = True,
                       progress: bool = True, echo=None, **solve_kw):
     """run_solve (stages/solve.py), then with hierarchy.rounds > 0 the rounds of refinement by
-    the solved radiance (methods/hierarchical/rounds.py) on a hierarchical run; returns the last
+    the solved radiance (methods/hierarchical/views/rounds.py) on a hierarchical run; returns the last
     solve's figures. hierarchy.rounds auto: the first solve is the plain one, and auto_rounds
     decides from its answer before the final gather; where it says none, that solve goes on as
     the answer (final gather and all: nothing else runs), else it skips the final gather.

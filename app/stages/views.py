@@ -1,7 +1,7 @@
 """New views of a solved run (issue 28): another camera's image from the stored solution, with no
 re-solve. Each pixel averages K x K rays over its area; every ray's hit point asks the run's method
 for the radiance leaving that point (the hierarchical method gathers at the point over its
-leaf's links: methods/hierarchical/views.py; the pairs method looks up its sub-element). A view
+leaf's links: methods/hierarchical/views/points.py; the pairs method looks up its sub-element). A view
 goes to its own folder, RUN/views/NAME/ (image.exr, image.png, view.json); the run's own image
 and files stay as they are."""
 

@@ -173,7 +173,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
     from radiosity.stages.preprocess import preprocess
     from radiosity.stages.image import read_exr, render_outputs
     from radiosity.scene.load import load_scene
-    from radiosity.methods.hierarchical.links import compute_links
+    from radiosity.methods.hierarchical.links.master import compute_links
     from radiosity.stages.solve import run_solve
     from radiosity.runtime.store import RunStore
     from radiosity.methods.pairs.visibility import compute_visibility

@@ -358,7 +358,7 @@ def test_a_broadcast_reaches_every_local_worker_straight_and_by_attributes(clien
     from distributed.protocol import deserialize, serialize
 
     from radiosity.runtime.cluster import _direct, scatter
-    from radiosity.methods.hierarchical.links import LinkInputs
+    from radiosity.methods.hierarchical.links.master import LinkInputs
 
     rng = np.random.default_rng(7)
     inp = LinkInputs.__new__(LinkInputs)

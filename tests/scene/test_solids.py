@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from radiosity.methods.hierarchical.sampling import SolidPoints, link_fractions
+from radiosity.methods.hierarchical.links.sampling import SolidPoints, link_fractions
 from radiosity.scene.contact import inside_solid
 from radiosity.tracing.rays import RayCaster
 
@@ -90,7 +90,7 @@ def test_a_cluster_link_leaves_out_the_rays_of_elements_under_a_block():
     before."""
     from types import SimpleNamespace
 
-    from radiosity.methods.hierarchical.clusterweights import SolidEnds, _visible, solid_ends
+    from radiosity.methods.hierarchical.clusters.weights import SolidEnds, _visible, solid_ends
 
     V, nv, two = _block_scene()
 
@@ -141,9 +141,9 @@ def test_the_floor_under_the_cornell_boxs_blocks_takes_no_part(client, tmp_path)
 
     from helpers import prepared, scene_path
     from radiosity.core.geometry import polygon_properties
-    from radiosity.methods.hierarchical.links import compute_links
-    from radiosity.methods.hierarchical.leaves import live_leaves
-    from radiosity.methods.hierarchical.transport import open_link_operator
+    from radiosity.methods.hierarchical.links.master import compute_links
+    from radiosity.methods.hierarchical.solve.leaves import live_leaves
+    from radiosity.methods.hierarchical.solve.transport import open_link_operator
     from radiosity.runtime.store import RunStore
     from radiosity.stages.solve import run_solve
 

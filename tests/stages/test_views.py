@@ -1,4 +1,4 @@
-"""New views of a solved run (stages/views.py, methods/hierarchical/views.py): another camera's
+"""New views of a solved run (stages/views.py, methods/hierarchical/views/points.py): another camera's
 image from the stored solution, no re-solve. Against a fresh render from that camera (the
 Cornell box seen from above, where the run's camera saw the floor at a grazing angle and not
 at all behind the blocks), and from the run's own camera against its own image."""

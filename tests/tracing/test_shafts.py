@@ -15,7 +15,7 @@ from helpers import ROOT, scene_path
 
 @pytest.mark.parametrize("which", ["cornell-box", "terrain"])
 def test_tree_candidates_equal_the_linear_scan(tmp_path, which, rng):
-    from radiosity.methods.hierarchical.links import occluder_tree
+    from radiosity.methods.hierarchical.links.master import occluder_tree
     from radiosity.scene.load import load_scene
     from radiosity.tracing.shafts import (block_candidates, occluders, same_side_polys,
                                           tree_candidates)

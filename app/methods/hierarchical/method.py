@@ -21,13 +21,13 @@ class HierarchicalMethod:
 
     def build(self, run_dir, client, settings, *, resume=False, progress=True, occlusion=True,
               unit=None, on_done=None):
-        from radiosity.methods.hierarchical.links import compute_links
+        from radiosity.methods.hierarchical.links.master import compute_links
 
         return compute_links(run_dir, client, settings, unit=unit, resume=resume,
                              progress=progress, occlusion=occlusion, on_done=on_done)
 
     def rows(self, fig) -> list:
-        from radiosity.methods.hierarchical.links import links_rows
+        from radiosity.methods.hierarchical.links.master import links_rows
 
         return links_rows(fig)
 
@@ -42,8 +42,8 @@ class HierarchicalMethod:
         LinkStore(rs).require()
 
     def open(self, rs, client, settings, where: str = "auto", **options) -> Opened:
-        from radiosity.methods.hierarchical.leaves import leaf_vectors, live_leaves, to_sub_elements
-        from radiosity.methods.hierarchical.transport import open_link_operator
+        from radiosity.methods.hierarchical.solve.leaves import leaf_vectors, live_leaves, to_sub_elements
+        from radiosity.methods.hierarchical.solve.transport import open_link_operator
         from radiosity.settings import resolve
 
         op, table, el, part = open_link_operator(rs, client, where, settings)
@@ -63,7 +63,7 @@ class HierarchicalMethod:
         solution/leaf_rows (M, 2) the leaves' rows of F v before any scaling (rounds.py)."""
         import time
 
-        from radiosity.methods.hierarchical.transport import LocalLinkOperator
+        from radiosity.methods.hierarchical.solve.transport import LocalLinkOperator
 
         op, Le, rho = opened.op, opened.Le[:, :L.shape[1]], opened.rho[:, :L.shape[1]]
         M = L.shape[2]
@@ -106,14 +106,14 @@ class HierarchicalMethod:
     def radiance_at(self, rs, settings, pts, porig, side, pixel, footprint):
         """Radiance (K, 3) leaving points on originals `porig`, side `side`: leaves coarser
         than the view's pixels gathered at the points over their links (views.radiance_at)."""
-        from radiosity.methods.hierarchical.views import radiance_at
+        from radiosity.methods.hierarchical.views.points import radiance_at
 
         return radiance_at(rs, settings, pts, porig, side, pixel, footprint)
 
     def open_views(self, rs, settings):
         """The run's links opened once for many views (views.PointGather): its
         radiance_at(pts, porig, side, pixel, footprint) is radiance_at's, without the opening."""
-        from radiosity.methods.hierarchical.views import PointGather
+        from radiosity.methods.hierarchical.views.points import PointGather
 
         return PointGather(rs, settings)
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from radiosity.core.geometry import COS_TOL
 from radiosity.errors import RadiosityError
-from radiosity.methods.hierarchical.refine import RefineParams
+from radiosity.methods.hierarchical.links.refine import RefineParams
 
 WEIGHTS = ("none", "bf")
 ORACLES = ("ff", "gradient", "spread")

@@ -9,9 +9,9 @@ import pytest
 
 from radiosity.core.bundles import Elements
 from radiosity.core.geometry import polygon_properties
-from radiosity.methods.hierarchical.clusters import cluster_tree
-from radiosity.methods.hierarchical.clusterweights import link_form_factors
-from radiosity.methods.hierarchical.clustertasks import refine_all
+from radiosity.methods.hierarchical.clusters.refine import cluster_tree
+from radiosity.methods.hierarchical.clusters.weights import link_form_factors
+from radiosity.methods.hierarchical.clusters.tasks import refine_all
 from radiosity.scene.originals import facing_pairs, tree_of
 
 
@@ -206,7 +206,7 @@ def test_the_carried_light_bound_holds_and_kept_links_meet_epsilon():
     """For every kept cluster link: its form factors (clamped cosines, centroids) stay below the
     bound on the light it carries (areas, cone-bounded cosines, box distance), and its error
     bound or, where the bound is too coarse, its error estimate is below epsilon."""
-    from radiosity.methods.hierarchical.clusters import (_box_distance2, _cos_bound, _error_bound,
+    from radiosity.methods.hierarchical.clusters.refine import (_box_distance2, _cos_bound, _error_bound,
                                                          _error_estimate)
 
     ct = _plates_and_sphere()
@@ -230,7 +230,7 @@ def test_the_estimate_stops_once_it_reaches_epsilon_and_decides_as_the_whole_sum
     """The estimate's element sums only grow, so it may stop at epsilon: below epsilon it is
     the whole estimate to the bit, at or above it a lower bound of the whole one that is at
     least epsilon, on flat nodes, mixed ones (a sphere's), and both branches of _all_face."""
-    from radiosity.methods.hierarchical.clusters import (_all_face, _box_distance2,
+    from radiosity.methods.hierarchical.clusters.refine import (_all_face, _box_distance2,
                                                          _error_estimate)
 
     ct = _plates_and_sphere()
@@ -261,7 +261,7 @@ def test_a_link_between_two_originals_sees_a_shadow_that_misses_their_centroids(
     of each triangle (the centroids of its midpoint sub-triangles, whose mean is the centroid):
     the link sees the shadow, within one of its four rays of the fraction that 40 000 rays
     between uniform points give."""
-    from radiosity.methods.hierarchical.clusterweights import _ends, link_weights
+    from radiosity.methods.hierarchical.clusters.weights import _ends, link_weights
     from radiosity.tracing.rays import RayCaster
 
     floor = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 1, 0)]
@@ -299,7 +299,7 @@ def test_faint_cluster_links_take_one_ray_and_the_others_all_of_theirs():
     """link_weights' `faint`: a link that carries at most that much light (the oracle's weights)
     casts one ray, one of its k, and every other link its k; the form factors do not change,
     and the one-ray links' fractions are what that ray alone gives."""
-    from radiosity.methods.hierarchical.clusterweights import clear_links, link_weights
+    from radiosity.methods.hierarchical.clusters.weights import clear_links, link_weights
     from radiosity.tracing.rays import RayCaster
 
     v1, n1 = _sphere(16, 32)
@@ -352,7 +352,7 @@ def test_one_ray_links_are_not_biased_toward_any_part_of_their_nodes():
     within 0.4 % in all and 3 % over the partly visible links. One fixed column of the k for
     every link put all those rays' ends at the same place of each node (in the tree's order,
     low on the walls, near the block): 0.991 and 0.86."""
-    from radiosity.methods.hierarchical.clusterweights import clear_links, link_weights
+    from radiosity.methods.hierarchical.clusters.weights import clear_links, link_weights
     from radiosity.methods.hierarchical.params import oracle_weights
     from radiosity.tracing.rays import RayCaster
 
@@ -388,7 +388,7 @@ def test_links_clear_of_every_occluder_box_cast_no_ray_and_see_the_same():
     cluster links and the element-level ray links whose ends' box is apart from them cast no
     ray; the visible fractions, links and form factors are the same as with every ray cast,
     and rays through the block still find it."""
-    from radiosity.methods.hierarchical.clusterweights import clear_links, link_weights
+    from radiosity.methods.hierarchical.clusters.weights import clear_links, link_weights
     from radiosity.methods.hierarchical.params import oracle_weights
     from radiosity.tracing.rays import RayCaster
 
@@ -409,7 +409,7 @@ def test_links_clear_of_every_occluder_box_cast_no_ray_and_see_the_same():
     assert np.array_equal(F, F0) and np.array_equal(v, v0) and (v0[clear] == 1).all()
     assert r0 == 4 * len(links) and r == 4 * (~clear).sum()
     # the element level's ray links (nodes here: the originals themselves)
-    from radiosity.methods.hierarchical.sampling import clear_pairs, link_fractions
+    from radiosity.methods.hierarchical.links.sampling import clear_pairs, link_fractions
 
     rng = np.random.default_rng(3)
     p, q = rng.integers(0, len(el.verts), (2, 4000))
@@ -466,7 +466,7 @@ def test_small_unseen_clusters_stay_whole_and_the_links_still_cover_every_facing
     facing pair of triangles once; every kept link meets epsilon unless neither of its ends
     can split; fewer links reach below the stopped nodes; epsilon 0 still lists exactly the
     facing pairs of originals."""
-    from radiosity.methods.hierarchical.clusters import (_box_distance2, _error_bound,
+    from radiosity.methods.hierarchical.clusters.refine import (_box_distance2, _error_bound,
                                                          _error_estimate)
     from radiosity.methods.hierarchical.params import oracle_weights
 
@@ -549,7 +549,7 @@ def test_partly_visible_cluster_links_are_split_and_cover_the_same_pairs():
     link that carries more than the shadow threshold is partly visible, some were split, and
     the kept links and the pairs handed down cover every pair of facing triangles that the
     links before covered, each once."""
-    from radiosity.methods.hierarchical.clustertasks import _shadows
+    from radiosity.methods.hierarchical.clusters.tasks import _shadows
     from radiosity.methods.hierarchical.params import oracle_weights
     from radiosity.tracing.rays import RayCaster
 
@@ -622,7 +622,7 @@ def _plates_scene(tmp_path, n: int = 8) -> str:
 def _links_and_solve(client, tmp_path, scene, res, name, **overrides):
     from helpers import prepared, radiance
 
-    from radiosity.methods.hierarchical.links import compute_links
+    from radiosity.methods.hierarchical.links.master import compute_links
     from radiosity.settings import resolve
     from radiosity.stages.solve import run_solve
 
@@ -678,8 +678,8 @@ def test_clusters_mixing_faces_do_not_darken_the_elements_that_face_the_light(cl
 def test_energy_is_conserved_with_cluster_links(client, tmp_path):
     """An open scene with cluster links: emitted = absorbed + escaped to 1e-9, with the
     operator's own row sums (diag(A) K symmetric, the solution exact to the tolerance)."""
-    from radiosity.methods.hierarchical.leaves import leaf_vectors
-    from radiosity.methods.hierarchical.transport import open_link_operator
+    from radiosity.methods.hierarchical.solve.leaves import leaf_vectors
+    from radiosity.methods.hierarchical.solve.transport import open_link_operator
     from radiosity.runtime.store import RunStore
     from radiosity.settings import resolve
 
@@ -714,7 +714,7 @@ def test_the_solve_takes_the_cluster_links_the_link_stage_wrote_without_reading_
 
     from radiosity.errors import StoreError
     from radiosity.methods.hierarchical import store
-    from radiosity.methods.hierarchical.links import compute_links
+    from radiosity.methods.hierarchical.links.master import compute_links
     from radiosity.runtime.store import RunStore
     from radiosity.settings import resolve
 
@@ -794,7 +794,7 @@ def test_the_cluster_layer_is_the_same_in_tasks_and_in_one_process(client):
     one's subtree a task with its form factors and rays) gives the same links, pairs and
     weights as the whole refinement in one process: the result does not depend on the cut or
     the workers."""
-    from radiosity.methods.hierarchical import clustertasks as clusters
+    from radiosity.methods.hierarchical.clusters import tasks as clusters
     from radiosity.methods.hierarchical.params import oracle_weights
 
     v, n = _sphere(40, 64)
@@ -820,7 +820,7 @@ def test_the_cluster_layer_is_the_same_in_tasks_and_in_one_process(client):
 def test_the_driver_merges_sorted_runs_bucket_by_bucket_into_one_order():
     """clustertasks._Runs: sorted runs of unique keys p K + q added in any order (as tasks
     finish) merge into the links sorted by (p, q), with their weights, whatever the buckets."""
-    from radiosity.methods.hierarchical.clustertasks import _Runs
+    from radiosity.methods.hierarchical.clusters.tasks import _Runs
 
     rng = np.random.default_rng(3)
     K = np.int64(1000)
@@ -868,8 +868,8 @@ def test_the_cluster_final_gather_follows_the_light_over_each_receiver_and_conse
     default FLAT the floor's clusters take one linear field each; with FLAT 2 every receiver
     is shared out per triangle."""
     from radiosity.core.exact import _point_ff
-    from radiosity.methods.hierarchical import clusterlinks
-    from radiosity.methods.hierarchical.clusterlinks import (GATHER_PARTS, ClusterGather,
+    from radiosity.methods.hierarchical.clusters import transport as clusterlinks
+    from radiosity.methods.hierarchical.clusters.transport import (GATHER_PARTS, ClusterGather,
                                                              cluster_final_gather, final_layout)
 
     if flat is not None:
@@ -921,7 +921,7 @@ def test_the_end_table_holds_every_elements_four_ray_ends_once_per_caster():
     mean the centroid), the element of each row beside it, made once per caster."""
     from types import SimpleNamespace
 
-    from radiosity.methods.hierarchical.clusterweights import _ends, end_table
+    from radiosity.methods.hierarchical.clusters.weights import _ends, end_table
     from radiosity.tracing.rays import RayCaster
 
     verts = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 1, 0]],

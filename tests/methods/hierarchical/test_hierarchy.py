@@ -12,9 +12,9 @@ import pytest
 
 from radiosity.core.exact import differential_to_rectangle, pair_form_factors_exact
 from radiosity.scene.splittrees import decode, node_table, seen_originals, tree_nodes
-from radiosity.methods.hierarchical.links import COUNTERS, LinkInputs, compute_links, refine_pairs
+from radiosity.methods.hierarchical.links.master import COUNTERS, LinkInputs, compute_links, refine_pairs
 from radiosity.methods.hierarchical.params import resolve_params
-from radiosity.methods.hierarchical.transport import (LinkOperator, LocalLinkOperator,
+from radiosity.methods.hierarchical.solve.transport import (LinkOperator, LocalLinkOperator,
                                                       open_link_operator)
 from radiosity.tracing.rays import RayCaster
 from radiosity.scene.load import load_scene
@@ -68,7 +68,7 @@ def test_epsilon_zero_with_one_ray_per_leaf_pair_equals_the_pairs_method(client,
     Then F L and the solver's solution equal --method pairs with the same kernel (near field
     and row caps included: with the pairs' min(cap_a, cap_b), which at leaf links is what the
     hierarchical operator's CAP_MIN does; its default caps leaf by leaf, transport.leaf_caps)."""
-    from radiosity.methods.hierarchical import transport
+    from radiosity.methods.hierarchical.solve import transport as transport
     from radiosity.methods.pairs.transport import open_operator
     from radiosity.stages.solve import run_solve
 
@@ -403,7 +403,7 @@ def test_a_pair_of_originals_with_few_leaves_leaves_visibility_to_rays(tmp_path,
     search, every link takes its rays (with no occluder box proving them clear, which here,
     where nothing can block, leaves them none); the squares that may split finely are proven
     visible by the shafts (the test above)."""
-    from radiosity.methods.hierarchical.links import SHAFT_MIN_LEAVES
+    from radiosity.methods.hierarchical.links.master import SHAFT_MIN_LEAVES
 
     path = write_scene(tmp_path, TWO_SQUARES, MATERIALS, camera=CAMERA_AWAY)
     sc, part, tree, inp = in_process(path, epsilon=1e-3, rays=4, cfg={"min-node-size": min_size})
@@ -542,7 +542,7 @@ def test_method_auto_takes_hierarchical_above_the_threshold_and_says_why(tmp_pat
     assert len(line) == 1 and "hierarchical: auto" in line[0] and "links" in line[0], r.output
     # clustered: the tree over the originals, the links and the link stage's time estimated
     # per original (clusters.LINKS_PER_ORIGINAL, LINKS_PER_THREAD_S)
-    from radiosity.methods.hierarchical.clustertasks import LINKS_PER_ORIGINAL
+    from radiosity.methods.hierarchical.clusters.tasks import LINKS_PER_ORIGINAL
 
     with dask.config.set({"radiosity.hierarchy.clusters": "on"}):
         r = CliRunner().invoke(main, ["plan", scene_path("three-rectangles"), "--resolution", "64"])
@@ -606,7 +606,7 @@ def test_far_links_gradient_in_the_final_gather_matches_exact_evaluation(client,
     polygon evaluations. Against the exact evaluations everywhere (FG_FAR = 0) on the Cornell
     box: far fewer evaluations, the same sub-element radiance to 0.05 % on average and 1.5 % at
     worst (the error of the method against Mitsuba is about 1 % on average)."""
-    import radiosity.methods.hierarchical.transport as ls
+    import radiosity.methods.hierarchical.solve.transport as ls
     from radiosity.pipeline import render_scene
 
     out = str(tmp_path / "cb")

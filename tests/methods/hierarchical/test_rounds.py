@@ -1,4 +1,4 @@
-"""Refinement by the solved radiance (hierarchy.rounds, methods/hierarchical/rounds.py; issue
+"""Refinement by the solved radiance (hierarchy.rounds, methods/hierarchical/views/rounds.py; issue
 26): warm starts of the solvers, the oracle's per-node weights, rounds off unchanged, rounds on
 the indirectly lit Cornell box, exact answers kept, and views of a run with rounds."""
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from radiosity.core.solvers import cg, jacobi, progressive
-from radiosity.methods.hierarchical.links import refine_pairs
+from radiosity.methods.hierarchical.links.master import refine_pairs
 from radiosity.runtime.store import RunStore
 from helpers import link_power_balance, prepared, radiance, scene_path
 
@@ -155,7 +155,7 @@ def _surface_means(out):
 def test_rounds_off_is_the_plain_solve(client, tmp_path):
     """hierarchy.rounds 0 (the default): solve_with_rounds is run_solve, bit for bit, and the
     report has no rounds."""
-    from radiosity.methods.hierarchical.links import compute_links
+    from radiosity.methods.hierarchical.links.master import compute_links
     from radiosity.stages.rounds import solve_with_rounds
     from radiosity.settings import resolve
     from radiosity.stages.solve import run_solve
@@ -178,7 +178,7 @@ def test_rounds_auto_runs_one_round_where_the_a_priori_weights_were_wrong(client
     estimate, so one round runs and the summary says why; on the Cornell box almost none does,
     no round runs, and the answer is that of rounds 0 to the bit (the first solve is the
     plain one); a stricter share turns the indirect box's round off."""
-    from radiosity.methods.hierarchical.rounds import hot_share
+    from radiosity.methods.hierarchical.views.rounds import hot_share
 
     runs = {}
     for name, scene, cfg in (("indirect", "cornell-box-indirect", {}),

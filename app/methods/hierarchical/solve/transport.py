@@ -16,8 +16,8 @@ import numpy as np
 
 from radiosity.errors import RadiosityError, StoreError
 from radiosity.methods.base import CAP_MIN, CAP_PRODUCT, GroupExecutor
-from radiosity.methods.hierarchical.clusterlinks import GATHER_PARTS, ClusterGather
-from radiosity.methods.hierarchical.passes import (Ends, Geometry, LinkArrays, Nodes, _count_ends,
+from radiosity.methods.hierarchical.clusters.transport import GATHER_PARTS, ClusterGather
+from radiosity.methods.hierarchical.solve.passes import (Ends, Geometry, LinkArrays, Nodes, _count_ends,
                                                    _fill_ends, _sum_up, final_gather, gather,
                                                    gs_sweep, linear_gather, linear_push, node_min,
                                                    pull, push)
@@ -293,7 +293,7 @@ def cluster_final(inp: LinkSolveInputs, Lbar: np.ndarray, d: np.ndarray, y: np.n
     (M,) leaf scaling (closed balancing), empty for none. Nothing without cluster links."""
     if inp.clusters is None or not inp.clusters.links:
         return
-    from radiosity.methods.hierarchical.clusterlinks import cluster_final_gather, push_to_leaves
+    from radiosity.methods.hierarchical.clusters.transport import cluster_final_gather, push_to_leaves
 
     cl = inp.clusters
     roots = inp.noff[:-1]
@@ -308,7 +308,7 @@ def final_layout_of(inp: LinkSolveInputs):
     """The cluster tree's clusterlinks.FinalLayout, built once per inputs (the final gather's
     parts share it)."""
     if inp._final_layout is None:
-        from radiosity.methods.hierarchical.clusterlinks import final_layout
+        from radiosity.methods.hierarchical.clusters.transport import final_layout
 
         cl = inp.clusters
         roots = inp.noff[:-1]
@@ -554,7 +554,7 @@ def solve_inputs(rs, elements, cache_bytes: int) -> tuple:
     inp.cache_bytes = int(cache_bytes)
     arrays = ls.read_clusters(token)
     if arrays is not None:
-        from radiosity.methods.hierarchical.clusterlinks import ClusterLinks
+        from radiosity.methods.hierarchical.clusters.transport import ClusterLinks
 
         inp.clusters = ClusterLinks(**arrays)
     return inp, table, ls.attrs().get("kernel")

@@ -12,8 +12,8 @@ from collections import namedtuple
 import numba
 import numpy as np
 
-from radiosity.methods.hierarchical.formfactors import _spread, centroid_to_polygon, near_ff
-from radiosity.methods.hierarchical.localnodes import (NodeTable, _copy_tree_node, _forced, _grow,
+from radiosity.methods.hierarchical.links.formfactors import _spread, centroid_to_polygon, near_ff
+from radiosity.methods.hierarchical.links.nodes import (NodeTable, _copy_tree_node, _forced, _grow,
                                                        _grown, _new_node, part_of)
 from radiosity.scene.splittrees import MAX_DEPTH, _bit, split_one
 from radiosity.tracing.shafts import _faces, _shaft_excludes, same_side_polys, tree_candidates

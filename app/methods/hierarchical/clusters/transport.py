@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from radiosity.methods.hierarchical.passes import kernel_gradient
+from radiosity.methods.hierarchical.solve.passes import kernel_gradient
 
 
 @dataclass(frozen=True)

@@ -17,14 +17,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from radiosity.core.arrays import unique
-from radiosity.methods.hierarchical.localnodes import new_table
+from radiosity.methods.hierarchical.links.nodes import new_table
 from radiosity.methods.hierarchical.params import (LinkParams, choose_epsilon, cluster_weights,
                                                    oracle_weights, resolve_params)
-from radiosity.methods.hierarchical.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
+from radiosity.methods.hierarchical.links.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
                                                    Tree, refine, roots)
-from radiosity.methods.hierarchical.clustertasks import plan_clusters
-from radiosity.methods.hierarchical.sampling import SolidPoints, clear_pairs, link_fractions
+from radiosity.methods.hierarchical.clusters.tasks import plan_clusters
+from radiosity.methods.hierarchical.links.sampling import SolidPoints, clear_pairs, link_fractions
 from radiosity.runtime.cluster import Scattered, scatterable
 from radiosity.runtime.monitor import Monitor, worker_address
 from radiosity.runtime.packing import capped_starts, choose_unit

@@ -14,9 +14,9 @@ import numba
 import numpy as np
 
 from radiosity.core.arrays import radix_order
-from radiosity.methods.hierarchical.clusterlinks import ClusterLinks
-from radiosity.methods.hierarchical.clusters import ClusterTree, cluster_tree, refine_clusters
-from radiosity.methods.hierarchical.clusterweights import link_weights, solid_ends
+from radiosity.methods.hierarchical.clusters.transport import ClusterLinks
+from radiosity.methods.hierarchical.clusters.refine import ClusterTree, cluster_tree, refine_clusters
+from radiosity.methods.hierarchical.clusters.weights import link_weights, solid_ends
 
 # What a clustered scene costs, as measured (benchmarks/bench_clusters.py, results/clusters.json:
 # terrains of 2 x 10^4 and 2 x 10^5 triangles and the Cornell box cut into 2 000 a face, 128^2,

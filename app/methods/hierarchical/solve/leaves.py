@@ -22,7 +22,7 @@ def live_leaves(table: dict, elements, epsilon: float) -> np.ndarray:
     The solve leaves the leaves at 0 out of the transport, as contact sides
     (stages/solve.RowTargets), and weighs the others' light in their nodes by it
     (LinkSolveInputs.pull_area); two-sided leaves are 1."""
-    from radiosity.methods.hierarchical.sampling import link_points, ray_pairing, triangle_strata
+    from radiosity.methods.hierarchical.links.sampling import link_points, ray_pairing, triangle_strata
     from radiosity.scene.contact import inside_solid
     from radiosity.tracing.rays import caster_of
 

@@ -200,8 +200,8 @@ class PointGather:
                  ray_far: float = RAY_FAR):
         import time
 
-        from radiosity.methods.hierarchical.passes import pull
-        from radiosity.methods.hierarchical.transport import (_directed, cluster_final,
+        from radiosity.methods.hierarchical.solve.passes import pull
+        from radiosity.methods.hierarchical.solve.transport import (_directed, cluster_final,
                                                              open_link_operator, scratch)
         from radiosity.tracing.rays import RayCaster
 

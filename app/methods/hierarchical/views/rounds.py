@@ -38,7 +38,7 @@ import numba
 import numpy as np
 
 from radiosity.errors import RadiosityError
-from radiosity.methods.hierarchical.formfactors import _spread
+from radiosity.methods.hierarchical.links.formfactors import _spread
 
 
 #: rounds_of's count for hierarchy.rounds auto (auto_rounds decides after the first solve)
@@ -230,7 +230,7 @@ class Rounds:
     node (k, 2), the a-priori ones, and the figures of each round."""
 
     def __init__(self, run_dir: str, settings, unit=None, occlusion: bool = True):
-        from radiosity.methods.hierarchical.links import LinkInputs, plan_links
+        from radiosity.methods.hierarchical.links.master import LinkInputs, plan_links
         from radiosity.runtime.store import RunStore
         from radiosity.scene.splittrees import tree_nodes
 
@@ -371,8 +371,8 @@ class Rounds:
         nothing to refine)."""
         from dask.base import tokenize
 
-        from radiosity.methods.hierarchical.links import link_figures, node_table_of, task_links
-        from radiosity.methods.hierarchical.refine import COUNTERS
+        from radiosity.methods.hierarchical.links.master import link_figures, node_table_of, task_links
+        from radiosity.methods.hierarchical.links.refine import COUNTERS
         from radiosity.methods.hierarchical.store import LinkStore
         from radiosity.runtime.cluster import Scattered
         from radiosity.runtime.stage import StagePlan, run_stage

@@ -14,7 +14,7 @@ import weakref
 import numba
 import numpy as np
 
-from radiosity.methods.hierarchical.clusters import HI, LO, ClusterTree
+from radiosity.methods.hierarchical.clusters.refine import HI, LO, ClusterTree
 from radiosity.tracing.shafts import clear_of
 
 

@@ -145,13 +145,14 @@ def check_scene(scene, settings) -> dict:
     settings.Settings; its subdivide.subpixel sets the raster). Returns {"hits": rays that
     hit, "facing_pairs_estimate": originals.estimate_facing_pairs with the pairs method
     stated, else None, "orientation": check_orientation's figures}."""
+    from radiosity.scene.emitters import AreaEmitters
     from radiosity.tracing.rays import caster_of
 
     el, cam = scene.elements, scene.camera
-    if not (el.emission > 0).any():
-        warnings.warn(f"{scene.path}: no element emits light (every emission is 0): the image "
-                      "will be black; give a material an emission ([material.NAME] emission = "
-                      "[r, g, b])", stacklevel=2)
+    emitters = AreaEmitters(el)
+    if not emitters.any():
+        warnings.warn(f"{scene.path}: {emitters.describe()}: the image will be black; give a "
+                      "material an emission ([material.NAME] emission = [r, g, b])", stacklevel=2)
     # the pairs method's work grows as the facing pairs of originals: refused up front when it
     # is stated and would not fit (the hierarchical method clusters such scenes, SPEC §9)
     from radiosity.scene.originals import check_budget, tree_of
@@ -230,6 +231,7 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
 
     Returns {"camera_rays", "camera_lit": rays that see a lit side, "emitters": [{source,
     material, rays, reached, backs, escaped}]}."""
+    from radiosity.scene.emitters import AreaEmitters
     from radiosity.scene.orientation import (OrientationError, emitter_reach, facing,
                                              outward_enclosures)
 
@@ -260,7 +262,7 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
     emitters = emitter_reach(el, caster)
     dark = [g for g in emitters if g.reached == 0]
     if emitters and len(dark) == len(emitters):
-        sees_light = bool((lit & (el.emission[seen].max(axis=(1, 2)) > 0)).any())
+        sees_light = bool((lit & AreaEmitters(el).emitting()[seen]).any())
         g = max(dark, key=lambda g: g.elements)
         what = (f"{g.backs} of {g.rays} of its rays meet the backs of one-sided elements, "
                 f"{g.escaped} meet nothing")
@@ -272,7 +274,7 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
                 f"facing away? Move or turn it (its front is counter-clockwise), or for the "
                 f"mesh it faces, {_FIX}")
     # a scene of emitters alone (a geometry check) has nothing to light: nothing to say
-    others = bool((el.emission.max(axis=(1, 2)) <= 0).any())
+    others = bool((~AreaEmitters(el).emitting()).any())
     for g in dark if others else [g for g in dark if g.backs]:
         warnings.warn(f"{where}: the light of material '{el.material_names[g.material]}' of "
                       f"{mesh(g.source)} reaches no element ({g.backs} of {g.rays} rays meet "

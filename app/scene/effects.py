@@ -13,6 +13,7 @@ import numpy as np
 from radiosity.scene.originals import (LEAF, TOL, FacingPairsError, behind_any,
                                        pairs_within_budget, tree_of)
 from radiosity.core.bundles import Elements
+from radiosity.scene.emitters import AreaEmitters
 
 
 @dataclass(frozen=True)
@@ -90,7 +91,7 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
     not listed: their number is estimated and every element gathers (no dead-row search)."""
     n = len(elements)
     rho = elements.reflectance          # (n, 2, 3)
-    Le = elements.emission
+    emitters = AreaEmitters(elements)
     ts = elements.two_sided
     s = np.ones(n) if sizes is None else np.asarray(sizes, float)
     tree = tree_of(elements, leaf)
@@ -136,7 +137,7 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
         reasons["interreflection"] = (f"on: largest reflectance {rho_max:.3g}; Jacobi needs at most "
                                       f"{passes} passes to reach {tol:g} (CG far fewer)")
 
-    grey = bool(np.all(rho == rho[..., :1]) and np.all(Le == Le[..., :1]))
+    grey = bool(np.all(rho == rho[..., :1]) and emitters.grey())
     colour = full or not grey
     reasons["colour"] = ("off: every material is grey: one channel is solved and broadcast"
                          if not colour else "on: some material has colour" if not grey else
@@ -151,7 +152,7 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
     reasons["two_sided"] = (f"{int(eff_two.sum())} of {int(ts.sum())} two-sided elements are reached "
                             f"from both sides" + (f"; {dropped} solved as one-sided" if dropped else ""))
 
-    emitter = Le.max(axis=(1, 2)) > 0
+    emitter = emitters.emitting()
     reach = _reachable(bi, bj, emitter, reflect) if bi is not None else np.ones(n, bool)
     gather = np.ones(n, bool) if full else (reflect & reach)
     # three disjoint kinds that add up to the rows dropped: ~(reflect & reach)

@@ -116,8 +116,8 @@ class AreaEmitters:
         return np.ascontiguousarray(np.transpose(self.Le[index], (1, 2, 0)))
 
     def peak(self) -> np.ndarray:
-        """(n, 2) float64: the largest channel of Le per element and side."""
-        return np.asarray(self.Le, np.float64).max(axis=2)
+        """(n, 2): the largest channel of Le per element and side."""
+        return self.Le.max(axis=2)
 
     def emitting(self) -> np.ndarray:
         """(n,) bool: elements with some side emitting in some channel."""
@@ -125,7 +125,7 @@ class AreaEmitters:
 
     def emitting_sides(self) -> np.ndarray:
         """(n, 2) bool: [front, back] emits in some channel."""
-        return np.asarray(self.Le, np.float64).max(axis=2) > 0.0
+        return self.Le.max(axis=2) > 0.0
 
     def any(self) -> bool:
         return bool((self.Le > 0).any())

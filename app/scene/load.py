@@ -18,6 +18,7 @@ import numpy as np
 from radiosity.errors import SceneError
 from radiosity.core.geometry import polygon_properties
 from radiosity.core.bundles import Camera, Elements, Scene
+from radiosity.scene.emitters import area_emission
 from radiosity.scene.orientation import orient_polygons
 from radiosity.scene.meshes import (MAX_COORD, MESH_FORMATS, RawMesh, SceneWarning, _warn,
                                     load_obj, merge_parallelograms, polygons_from_raw)
@@ -311,9 +312,8 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
             mat_two_set[i] = True
     two_sided = np.where(mat_two_set[material], mat_two[material], np.array(two_default, bool))
     reflectance = refl[material].copy()
-    emission = emis[material].copy()
     reflectance[~two_sided, 1] = 0.0
-    emission[~two_sided, 1] = 0.0
+    emission = area_emission(emis, material, two_sided)
 
     area, normal, center = polygon_properties(verts, nverts)
     elements = Elements(verts=verts, nverts=nverts, normal=normal, center=center, area=area,

@@ -60,7 +60,9 @@ def is_mesh_path(path: str) -> bool:
 
 def require_emitter(el: Elements, path: str) -> None:
     """A mesh scene must emit light: SceneError in one line saying what to add otherwise."""
-    if (el.emission > 0).any():
+    from radiosity.scene.emitters import AreaEmitters
+
+    if AreaEmitters(el).any():
         return
     ext = os.path.splitext(path)[1].lower()
     name = os.path.basename(path)

@@ -157,7 +157,7 @@ def facing(elements: Elements, elem: np.ndarray, origin: np.ndarray) -> np.ndarr
 # ----------------------------------------------------------------------------- the emitters
 
 @dataclass(frozen=True)
-class Emitter:
+class EmitterReach:
     """The emitting elements of one material in one [[mesh]] entry and where their rays went."""
 
     source: int          # index into Elements.sources
@@ -174,12 +174,12 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
                   max_rays: int = MAX_EMITTER_RAYS, seed: int = 0) -> list:
     """Where the light of each emitter goes: cosine-distributed rays from area-uniform points
     on the emitting sides of each group (one material of one [[mesh]] entry), against the
-    scene (`caster`: a tracing.rays.RayCaster of `elements`). Returns [Emitter]; empty when
+    scene (`caster`: a tracing.rays.RayCaster of `elements`). Returns [EmitterReach]; empty when
     nothing emits."""
     from radiosity.scene.closure import _directions, _frame
+    from radiosity.scene.emitters import AreaEmitters
 
-    em = np.asarray(elements.emission, np.float64)
-    side_emits = em.max(axis=2) > 0.0                     # (n, 2): front, back
+    side_emits = AreaEmitters(elements).emitting_sides()  # (n, 2): front, back
     if not side_emits.any():
         return []
     rng = np.random.default_rng(seed)
@@ -218,7 +218,7 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
         escaped = int((hit < 0).sum())
         backs = int(((hit >= 0) & ~lit & ~own).sum())
         big = ids[np.argmax(elements.area[ids])]
-        out.append(Emitter(src, mat, len(ids), int(big), int(per - own.sum()), reached, backs,
+        out.append(EmitterReach(src, mat, len(ids), int(big), int(per - own.sum()), reached, backs,
                            escaped))
     return out
 

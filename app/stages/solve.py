@@ -270,10 +270,13 @@ def normalise_rows(op, mode="cap", rows: RowTargets | None = None, sums=None):
 
 def write_direct_solution(run_dir: str) -> SolveFigures:
     """No interreflection (reflectance 0 everywhere, effects.py): L = Le, without a pass."""
+    from radiosity.scene.emitters import AreaEmitters
+
     rs = RunStore(run_dir, "r+")
     part, el = rs.load_partition(), rs.load_elements()
     rs.drop_after("nearfield")
-    rs.write_arrays("solution", {"radiance": el.emission[part.orig]}, {"solver": "direct"})
+    rs.write_arrays("solution", {"radiance": AreaEmitters(el).radiance(part.orig)},
+                    {"solver": "direct"})
     fig = SolveFigures(solver="direct (L = Le)", kernel="-", iterations=0, converged=True,
                        residuals=[], final_residual=0.0, passes=0, pair_terms=0,
                        pair_terms_per_s=0.0, time_s=0.0, sub_elements=len(part), channels=0)

@@ -144,6 +144,8 @@ def light_tables(part, elements, radiance: np.ndarray, efficacy: float = EFFICAC
     radiance (m, 2, 3) float64, linear RGB radiance per sub-element and side (0 front, 1 back),
     as solution/radiance. Returns LightTables.
     """
+    from radiosity.scene.emitters import AreaEmitters
+
     radiance = np.asarray(radiance, np.float64)
     m = len(part)
     if radiance.shape != (m, 2, 3):
@@ -155,7 +157,7 @@ def light_tables(part, elements, radiance: np.ndarray, efficacy: float = EFFICAC
     o = orig[sub]
     sign = np.where(side == 0, 1.0, -1.0)[:, None]
     L = radiance[sub, side]
-    Le = np.asarray(elements.emission, np.float64)[o, side]
+    Le = np.asarray(AreaEmitters(elements).radiance(), np.float64)[o, side]
     rho = np.asarray(elements.reflectance, np.float64)[o, side]
     area = np.asarray(part.area, np.float64)[sub]
     names = np.array(list(elements.material_names) or ["?"], dtype=str)

@@ -19,6 +19,7 @@ import numpy as np
 
 from radiosity.errors import RadiosityError
 from radiosity.core.bundles import Camera, Scene
+from radiosity.scene.emitters import AreaEmitters
 from radiosity.settings import Settings, resolve
 
 INSTALL = "pip install -e '.[reference]'"
@@ -265,6 +266,7 @@ def mitsuba_scene(scene: Scene, depth: int, spp: int = 1, meters=(), mi=None):
     if mi is None:
         mi, _ = load_mitsuba()
     el = scene.elements
+    Le = AreaEmitters(el).radiance()  # (n, 2, 3): the area emitters Mitsuba gets
     bsdfs: dict = {}
 
     def bsdf(i):
@@ -292,7 +294,7 @@ def mitsuba_scene(scene: Scene, depth: int, spp: int = 1, meters=(), mi=None):
         n = int(el.nverts[i])
         props = mi.Properties()
         props["bsdf"] = bsdf(i)
-        front, back = el.emission[i]
+        front, back = Le[i]
         if el.two_sided[i] and np.any(back > 0):
             props["emitter"] = mi.load_dict(
                 {"type": TWOSIDED_EMITTER, **{f"front_{c}": float(front[k]) for k, c in enumerate("rgb")},
@@ -461,11 +463,12 @@ def form_factor(scene: Scene, frm: str, to: str, spp: int, passes: int, seed: in
     el = scene.elements
     names = np.array(el.material_names)[el.material]
     src, dst = np.nonzero(names == frm)[0], np.nonzero(names == to)[0]
-    le = el.emission[src, 0]
+    Le = AreaEmitters(el).radiance()
+    le = Le[src, 0]
     others = np.ones(len(el), bool)
     others[src] = False
     if (not len(src) or not len(dst) or np.ptp(le) > 0 or le.min() <= 0
-            or np.any(el.emission[others] > 0) or np.any(el.reflectance > 0)):
+            or np.any(Le[others] > 0) or np.any(el.reflectance > 0)):
         raise ReferenceError(f"{scene.path}: a form factor needs emitters {frm!r} of one grey radiance, "
                              f"receivers {to!r}, no other emitter and no reflection")
     depth, _ = path_depth(scene, s.reference.truncation)

@@ -13,6 +13,7 @@ import numpy as np
 from radiosity.core.geometry import COS_TOL
 from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.links.refine import RefineParams
+from radiosity.scene.emitters import AreaEmitters
 
 WEIGHTS = ("none", "bf")
 ORACLES = ("ff", "gradient", "spread")
@@ -86,7 +87,7 @@ def oracle_weights(elements, weight: str):
                              f"got {weight!r}")
     A = elements.area
     rho = elements.reflectance.max(axis=2)   # (n, 2)
-    em = elements.emission.max(axis=2)
+    em = AreaEmitters(elements).peak()
     E = float((A * em.sum(axis=1)).sum() / A.sum())
     r = float(min((A * rho[:, 0]).sum() / A.sum(), 0.99))
     La = E * r / (1.0 - r)

@@ -7,11 +7,12 @@ from __future__ import annotations
 import numpy as np
 
 from radiosity.methods.base import Opened
+from radiosity.scene.emitters import AreaEmitters
 
 
 def side_vectors(part, elements):
     """Le, rho (2, 3, m) float64 and area (m,) of the sub-elements, per side."""
-    Le = np.ascontiguousarray(np.transpose(elements.emission[part.orig], (1, 2, 0)))
+    Le = AreaEmitters(elements).side_vectors(part.orig)
     rho = np.ascontiguousarray(np.transpose(elements.reflectance[part.orig], (1, 2, 0)))
     return Le, rho, part.area
 

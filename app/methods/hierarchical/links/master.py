@@ -292,6 +292,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
     with a `client`, the cluster layer runs as tasks on it (clustertasks.plan_clusters)."""
     from dask.base import tokenize
 
+    from radiosity.scene.emitters import AreaEmitters
     from radiosity.scene.originals import FacingPairsError, pairs_within_budget, tree_of
     from radiosity.scene.splittrees import seen_originals
 
@@ -339,7 +340,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
         hit = np.zeros(len(part), bool)
         hit[sub[sub >= 0]] = True
     token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,
-                     el.emission, seen, hit, prm.to_dict(), weight, s.rays.epsilon,
+                     AreaEmitters(el).radiance(), seen, hit, prm.to_dict(), weight, s.rays.epsilon,
                      *cl_inputs)
     return LinkPlan(pairs, first, cost, unit, prm, weight, why, seen, hit, token, cl, cfig)
 

@@ -1,23 +1,26 @@
-"""Per-leaf vectors of a run's link table for the solve: the leaves' emission, reflectance and
-area, the part of each leaf outside solids, and the leaves' radiance back on the partition's
-sub-elements (the link transport itself: transport.py)."""
+"""Per-leaf vectors of a run's link table for the solve: the leaves' emission (from the scene's
+emitters, scene/emitters.py), reflectance and area, the part of each leaf outside solids, and the
+leaves' radiance back on the partition's sub-elements (the link transport itself:
+solve/transport.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from radiosity.scene.emitters import AreaEmitters
+
 
 def leaf_vectors(table: dict, elements):
     """Le, rho (2, 3, M) and area (M,) of the leaves, per side."""
     o = table["orig"][table["leaf_node"]]
-    Le = np.ascontiguousarray(np.transpose(elements.emission[o], (1, 2, 0)))
+    Le = AreaEmitters(elements).side_vectors(o)
     rho = np.ascontiguousarray(np.transpose(elements.reflectance[o], (1, 2, 0)))
     return Le, rho, table["leaf_area"]
 
 
 def live_leaves(table: dict, elements, epsilon: float) -> np.ndarray:
     """(M,) the part of each leaf outside solids: 1 minus the share of its four stratified
-    points (sampling.link_points) that lie inside a solid (scene/contact.inside_solid: a
+    points (links/sampling.link_points) that lie inside a solid (scene/contact.inside_solid: a
     floor's leaves under a block standing on it are 0, those across the block's edge between).
     The solve leaves the leaves at 0 out of the transport, as contact sides
     (stages/solve.RowTargets), and weighs the others' light in their nodes by it

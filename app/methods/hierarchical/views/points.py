@@ -1,10 +1,10 @@
 """Radiance at any point of a solved run, for views the solution was not refined for (issue 28):
 each point is located in the leaves of the union tree and gathers over the links into its leaf
 and the leaf's ancestors, with the exact point-to-polygon form factor from the point itself (the
-exact final gather of passes.final_gather, at points instead of leaf centroids). A region the
-first camera left coarse thus gets the light that reaches each of its points, not its leaf's
-mean: no re-solve, no new links; cluster links add their final gather at each leaf's centroid
-(as the render's image).
+exact final gather of solve/passes.final_gather, at points instead of leaf centroids). A region
+the first camera left coarse thus gets the light that reaches each of its points, not its
+leaf's mean: no re-solve, no new links; cluster links add their final gather at each leaf's
+centroid (as the render's image).
 The points gathered at are the nodes of a lattice on each original's plane (about
 LATTICE_PIXELS pixels apart, dyadic levels that nest), interpolated bilinearly at the view's
 points: a PointGather keeps them, so the frames of a walkthrough gather each node once.
@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from radiosity.core.exact import point_ff
+from radiosity.scene.emitters import AreaEmitters
 
 
 @numba.njit(cache=True, nogil=True)
@@ -209,6 +210,7 @@ class PointGather:
         op, table, el, part = open_link_operator(rs, None, "driver", settings)
         inp = self.inp = op.inp
         self.table, self.el = table, el
+        self.Le = AreaEmitters(el).radiance()  # (n, 2, 3): what the originals emit
         sol = rs.read_arrays("solution")
         self.radiance = sol["radiance"]
         self.M = len(inp.leaf_node)
@@ -227,7 +229,7 @@ class PointGather:
         self.nodes, self.geo = inp.nodes(), inp.geometry()
         self.caster = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
         # cluster links add their final gather at each leaf's centroid, as the render's image
-        # (transport.cluster_final), once per leaf here (and their share of the rows, for
+        # (solve/transport.cluster_final), once per leaf here (and their share of the rows, for
         # balancing)
         self.yc = self.rc = None
         if inp.clusters is not None and inp.clusters.links:
@@ -359,7 +361,7 @@ class PointGather:
             y = y / np.where(r > 0, r, 1.0)[:, None]
         o = inp.leaf_orig[lo_]
         val = np.zeros((G, 3))
-        val[order] = self.el.emission[o, So] + self.el.reflectance[o, So] * y
+        val[order] = self.Le[o, So] + self.el.reflectance[o, So] * y
         return val, evals, rays
 
 

@@ -7,7 +7,7 @@ where indirect light goes. After a first solve, rounds weigh the links by the so
    mean of its sub-elements, largest channel) divided by hierarchy.rounds-epsilon (the solved
    test's target as a multiple of epsilon), and never below the a-priori weight nor below the
    weight already used: the oracle's weights only rise, so the refinement of a pair only
-   deepens (refine._refine_loop takes them as nhat); with them the spread of that radiance
+   deepens (links/refine._refine_loop takes them as nhat); with them the spread of that radiance
    over each node (nvar: a source splits while rho F dL exceeds epsilon) and the nodes above
    leaves whose rows of F v summed past 1 + hierarchy.rounds-row-excess (force: their
    visibility was taken too coarsely, and the solve's cap of those rows loses light);
@@ -39,6 +39,7 @@ import numpy as np
 
 from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.links.formfactors import _spread
+from radiosity.scene.emitters import AreaEmitters
 
 
 #: rounds_of's count for hierarchy.rounds auto (auto_rounds decides after the first solve)
@@ -85,7 +86,7 @@ def hot_share(rs, weight: str, ratio: float, radiance: np.ndarray | None = None)
         radiance = rs.read_arrays("solution")["radiance"]
     o = np.asarray(part["orig"], np.int64)
     _, lhat, _ = oracle_weights(el, weight)
-    em = np.asarray(el.emission, np.float64).max(axis=2)
+    em = np.asarray(AreaEmitters(el).peak(), np.float64)
     refl = np.maximum(np.asarray(radiance).max(axis=2) - em[o], 0.0)  # (m, 2)
     power = np.asarray(part["area"], np.float64)[:, None] * refl
     total = power.sum()

@@ -56,6 +56,8 @@ class Emitter(Protocol):
       normal n is then sum_k intensity cos_x / r^2 V (`irradiance`), H1(x) of issue 50.
     - `irradiance_bound(lo, hi)` (3,): an upper bound on the irradiance any point of the box
       [lo, hi] can receive from it, whatever its normal and occlusion (the refinement oracle).
+
+    A type is built by its registry entry's `of_scene(elements, entries)` (EMITTER_TYPES).
     """
 
     kind: str
@@ -104,6 +106,8 @@ class AreaEmitters:
 
     @classmethod
     def of_scene(cls, elements, entries=()) -> "AreaEmitters":
+        """The registry's constructor: a type builds itself from the scene's elements and its
+        entries of that type (area emitters need none: their materials say it)."""
         return cls(elements)
 
     # ---------------------------------------------------------------- per element, for the solve
@@ -143,7 +147,8 @@ class AreaEmitters:
 
     # ---------------------------------------------------------------- the Emitter protocol
     def power(self) -> np.ndarray:
-        """(3,) W: sum over elements and sides of Le pi A (a Lambertian side's exitance is pi Le)."""
+        """(3,) W: the sum over elements and sides of Le pi A (a Lambertian side's exitance
+        is pi Le)."""
         return math.pi * np.einsum("isc,i->c", np.asarray(self.Le, np.float64),
                                    np.asarray(self.elements.area, np.float64))
 

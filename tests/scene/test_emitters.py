@@ -93,7 +93,8 @@ def test_stratified_samples_give_the_exact_irradiance(quad):
         assert len(s) == 2 * k * k  # two triangles either way
         np.testing.assert_allclose(s.weight.sum(), 1.0, rtol=1e-14)  # the strata tile the area
         E = irradiance(em, s, pts, nrm)
-        np.testing.assert_allclose(E / LE, np.repeat(exact[:, None], 3, axis=1), rtol=2e-2 if k == 8 else 2e-3)
+        np.testing.assert_allclose(E / LE, np.repeat(exact[:, None], 3, axis=1),
+                                   rtol=2e-2 if k == 8 else 2e-3)
         err.append(np.abs(E[:, 0] / LE[0] - exact).max())
     assert err[1] < err[0] / 4
     # jittered strata: unbiased, close too

@@ -218,8 +218,8 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
         escaped = int((hit < 0).sum())
         backs = int(((hit >= 0) & ~lit & ~own).sum())
         big = ids[np.argmax(elements.area[ids])]
-        out.append(EmitterReach(src, mat, len(ids), int(big), int(per - own.sum()), reached, backs,
-                           escaped))
+        out.append(EmitterReach(src, mat, len(ids), int(big), int(per - own.sum()), reached,
+                                backs, escaped))
     return out
 
 

@@ -48,12 +48,13 @@ EMISSION_HOWTO = {
              "radiance above 1)",
     ".obj": "give one material of its MTL file a Ke line (emitted radiance, e.g. Ke 10 10 10)",
     ".ply": "a PLY file holds no emission",
+    ".stl": "an STL file holds no emission",
 }
 
 
 def is_mesh_path(path: str) -> bool:
-    """Whether `path` names a mesh file (OBJ, glTF, GLB, PLY) rather than a scene file."""
-    from radiosity.scene.meshes import MESH_FORMATS
+    """Whether `path` names a mesh file (formats.load.MESH_FORMATS) rather than a scene file."""
+    from radiosity.formats.load import MESH_FORMATS
 
     return os.path.splitext(path)[1].lower() in MESH_FORMATS and not os.path.isdir(path)
 

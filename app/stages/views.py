@@ -19,8 +19,9 @@ from radiosity.core.bundles import Camera
 from radiosity.errors import RadiosityError
 from radiosity.methods.base import method_of_run
 from radiosity.runtime.store import RunStore, update_report
-from radiosity.stages.pixels import (area_offsets, sample_directions, tonemap, write_exr,
-                                     write_png)
+from radiosity.core.colour import tonemap
+from radiosity.formats.images import write_exr, write_png
+from radiosity.stages.pixels import area_offsets, sample_directions
 from radiosity.tracing.rays import RayCaster
 
 #: Rays per pixel side of a view (K x K per pixel on the image stage's sheared lattice,

@@ -9,6 +9,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from radiosity.core.tolerances import TOL
+
 
 def tri_cross(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """(b - a) x (c - a), row-wise; (n, 3)."""
@@ -93,10 +95,8 @@ def _diameter(verts):
     return out
 
 
-# |cos| below this (relative to the segment length) counts as coplanar: exactly zero, not noise.
-# One value for every stage that asks "do these two elements face each other?" (visibility,
-# shafts, near field), so that they all agree on which pairs exist.
-COS_TOL = 1e-9
+# |cos| below this (relative to the segment length) counts as coplanar (core.tolerances: cos)
+COS_TOL = TOL.cos
 
 
 def on_hull_planes(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray,

@@ -13,12 +13,11 @@ import numpy as np
 from radiosity.core.kernels import Sampling, sample_points
 from radiosity.tracing.rays import caster_of
 from radiosity.core.bundles import Elements
+from radiosity.core.tolerances import TOL
 
 POINTS = 16       # stratified points per element (nxm cells)
 DIRECTIONS = 16   # cosine-weighted directions per point and side
 LEAK = 1e-4       # fraction of rays that may escape through cracks in a closed scene
-STEP = 1e-5       # the rays' offset off the surface, relative to the scene's size (at the
-                  # default rays.epsilon 1e-6; it scales with it): below contact.WINDOW
 SIDE_LEAK = 0.02  # a side that loses at most this fraction of its rays has target 1
 VOID = 0.98       # ... at least this fraction: it sees only the void, target 0
 MAX_RAYS = 1 << 22  # beyond this many, fewer points per element (a square: 9, 4, 1); a mesh of
@@ -75,10 +74,10 @@ def _frame(n: np.ndarray):
     return t, np.cross(n, t)
 
 
-def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
+def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
                    directions: int = DIRECTIONS, leak: float = LEAK, seed: int = 0,
                    contact: bool = True, threads: int = 2) -> Closure:
-    """The closure test above, per element side; epsilon: the ray offset (rays.epsilon).
+    """The closure test above, per element side; ray_offset: rays.epsilon.
     contact: find contact sides first (contact.py) and leave their covered points out; the
     rays go in batches of about 256 k on `threads` threads (the driver's, before any link
     task runs)."""
@@ -87,17 +86,18 @@ def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
     n = len(elements)
     while points > 1 and n * points * directions > MAX_RAYS:
         points = (int(round(np.sqrt(points))) - 1) ** 2
-    rc = caster_of(elements.verts, elements.nverts, epsilon)
+    rc = caster_of(elements.verts, elements.nverts, ray_offset)
     pts, _ = sample_points(elements.verts, elements.nverts, Sampling("nxm", points))
     P = pts.shape[1]
-    covered = (contact_points(elements, pts, epsilon) if contact and n
+    covered = (contact_points(elements, pts, ray_offset) if contact and n
                else np.zeros((n, P, 2), bool))
     rng = np.random.default_rng(seed)
     lost = np.zeros((n, 2))
     cast = np.zeros((n, 2))
     # off the surface, beyond float32 rounding, and well inside the contact window: a point
     # nearer than that to another surface is covered (contact.py), never stepped through it
-    step = STEP * max(1.0, epsilon / 1e-6) * scene_scale(elements) if n else 0.0
+    step = (TOL.closure_step * max(1.0, ray_offset / TOL.ray_offset_unit) * scene_scale(elements)
+            if n else 0.0)
     jobs = []
     for side in (1.0, -1.0):
         k = 0 if side > 0 else 1

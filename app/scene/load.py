@@ -19,6 +19,7 @@ import numpy as np
 from radiosity.errors import SceneError
 from radiosity.core.geometry import polygon_properties
 from radiosity.core.bundles import Camera, Elements, Scene
+from radiosity.core.tolerances import TOL
 from radiosity.scene.orientation import orient_polygons
 from radiosity.formats.load import MESH_FORMATS, load_mesh
 from radiosity.formats.obj import load_obj
@@ -29,15 +30,13 @@ from radiosity.scene.meshscene import (DEFAULT_RESOLUTION, DOCS as MESH_DOCS, ca
                                        default_camera, is_mesh_path, require_emitter)
 from radiosity.settings import Settings, resolve
 
-__all__ = ["MAX_COORD", "MAX_RESOLUTION", "MESH_FORMATS", "TINY", "DEFAULT_REFLECTANCE", "RawMesh",
+__all__ = ["MAX_COORD", "MAX_RESOLUTION", "MESH_FORMATS", "DEFAULT_REFLECTANCE", "RawMesh",
            "SceneWarning", "load_mesh", "load_obj", "load_trimesh", "merge_parallelograms",
            "polygons_from_raw", "parse_resolution", "parse_camera", "parse_cameras",
            "load_scene"]
 
 #: Largest camera resolution a side (a raster of 65536^2 int32 is 16 GiB already).
 MAX_RESOLUTION = 65536
-#: Smallest length taken for a direction (camera vectors): below it squares underflow to 0.
-TINY = 1e-150
 DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
 
 _MESH_KEYS = {"path", "material", "two_sided", "orient"}
@@ -165,10 +164,10 @@ def parse_camera(cam: dict, fn: str, resolution=None) -> Camera:
         if not 0 < fov < 180:
             raise SceneError(f"{fn}: camera.fov_y must be in (0, 180) degrees, got {fov}")
         z = at - pos
-        if not np.linalg.norm(z) > TINY:
+        if not np.linalg.norm(z) > TOL.tiny_length:
             raise SceneError(f"{fn}: camera.look_at equals camera.position")
         z /= np.linalg.norm(z)
-        if not np.linalg.norm(up) > TINY:
+        if not np.linalg.norm(up) > TOL.tiny_length:
             raise SceneError(f"{fn}: camera.up must be a non-zero vector, got {cam.get('up')!r}")
         up = up / np.linalg.norm(up)
         x = np.cross(z, up)
@@ -333,7 +332,7 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
     overrides and camera. A bare mesh file (any of formats.load.MESH_FORMATS) is a scene too:
     its own materials, which must include an emitter, and a default camera
     (scene/meshscene.py; the Scene's `chosen` says which, as a [camera] table to copy).
-    settings: the scene.* tolerances and the rays' epsilon (None: resolved here)."""
+    settings: the scene.* tolerances and the ray offset, rays.epsilon (None: resolved here)."""
     s = resolve(base=settings)
     path, doc, mesh_scene = _scene_document(path)
     meshes = doc.get("mesh", [])

@@ -191,7 +191,7 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
     lo = elements.verts.reshape(-1, 3).min(0)
     hi = elements.verts.reshape(-1, 3).max(0)
     # off the surface beyond Embree's float32 rounding (rays.epsilon is relative to the scene)
-    step = 64.0 * caster.epsilon * float(np.linalg.norm(hi - lo) or 1.0)
+    step = 64.0 * caster.ray_offset * float(np.linalg.norm(hi - lo) or 1.0)
     out = []
     for (src, mat), ids in groups.items():
         ids = np.asarray(ids)

@@ -17,6 +17,7 @@ import numpy as np
 
 from radiosity.errors import RenderError, StoreError
 from radiosity.core.bundles import Camera, Elements, Partition
+from radiosity.core.tolerances import TOL
 
 #: What a fine pixel shows (render.sampling): the mean over its area, or its centre's element.
 SAMPLINGS = ("area", "point")
@@ -131,7 +132,7 @@ def _through(camera: Camera, subpixel: int, x: np.ndarray, y: np.ndarray) -> np.
 
 
 def sample_raster(part: Partition, elements: Elements, camera: Camera, subpixel: int, k: int,
-                  epsilon: float, caster=None) -> np.ndarray:
+                  ray_offset: float, caster=None) -> np.ndarray:
     """Sub-element seen by each of the k x k `area_offsets` rays of every fine pixel:
     (H*K, W*K, k*k) int32 (K = subpixel), -1 where a ray hits nothing.
 
@@ -139,11 +140,11 @@ def sample_raster(part: Partition, elements: Elements, camera: Camera, subpixel:
     elements: subdividing never changes the geometry), the hit point is recomputed in float64
     on that element's plane, and the split tree gives the sub-element under it (seed §3.2, the
     two-level lookup): any sub-element, also one that no pixel centre hits. caster: a
-    RayCaster of the original elements (None: built here with the ray offset `epsilon`).
+    RayCaster of the original elements (None: built here with `ray_offset`).
     """
     from radiosity.tracing.rays import RayCaster
 
-    rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, epsilon)
+    rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, ray_offset)
     offsets = area_offsets(k)
     s = len(offsets)
     w, h = camera.width * subpixel, camera.height * subpixel
@@ -181,15 +182,16 @@ def _seen(part: Partition, elements: Elements, camera: Camera, rc, d: np.ndarray
 
 def plane_ids(elements: Elements) -> np.ndarray:
     """(n,) int64: one id per plane and material of the original elements (normal and offset
-    rounded to 1e-6, the offset relative to the scene's size): a surface cut into many
-    elements is one, so edge pixels do not depend on how it was cut; a lamp in its ceiling's
-    plane is another."""
+    rounded to TOL.plane_digits decimals, the offset relative to the scene's size): a surface
+    cut into many elements is one, so edge pixels do not depend on how it was cut; a lamp in
+    its ceiling's plane is another."""
     from radiosity.scene.contact import scene_scale
 
     n = np.asarray(elements.normal, np.float64)
     off = np.einsum("ij,ij->i", n, np.asarray(elements.center, np.float64)) / \
         (scene_scale(elements) or 1.0)
-    key = np.column_stack([np.round(np.column_stack([n, off]) * 1e6).astype(np.int64),
+    scale = 10.0 ** TOL.plane_digits
+    key = np.column_stack([np.round(np.column_stack([n, off]) * scale).astype(np.int64),
                            np.asarray(elements.material, np.int64)])
     return np.unique(key, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
 

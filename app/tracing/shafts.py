@@ -16,18 +16,18 @@ import numba
 import numpy as np
 
 from radiosity.core.geometry import COS_TOL
+from radiosity.core.tolerances import TOL
 
-BOX_PAD = 1e-6   # occluder boxes grow by this fraction of the scene size (conservative)
 LEAF = 64        # range pairs with at most this many pairs are tested pair by pair
 
 
 def occluders(elements):
     """Padded occluder boxes and planes of the original elements: elo, ehi (n, 3), enormal
-    (n, 3), eoffset (n,), and the plane-test tolerance pad (BOX_PAD of the scene size plus the
+    (n, 3), eoffset (n,), and the plane-test tolerance pad (TOL.box_pad of the scene size plus the
     elements' own deviation from their planes; non-planar input was split, so that is rounding)."""
     ev = elements.verts
     lo, hi = ev.min(axis=1), ev.max(axis=1)
-    pad = BOX_PAD * float(np.linalg.norm(ev.reshape(-1, 3).max(0) - ev.reshape(-1, 3).min(0)))
+    pad = TOL.box_pad * float(np.linalg.norm(ev.reshape(-1, 3).max(0) - ev.reshape(-1, 3).min(0)))
     eoffset = np.einsum("ic,ic->i", elements.normal, elements.center)
     dev = np.abs(np.einsum("ic,ikc->ik", elements.normal, ev) - eoffset[:, None]).max(1)
     return lo - pad, hi + pad, elements.normal, eoffset, pad + float(dev.max(initial=0.0))

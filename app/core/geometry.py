@@ -37,8 +37,8 @@ def polygon_properties(verts: np.ndarray, nverts: np.ndarray):
     """Area (n,), unit normal (n, 3) and area centroid (n, 3) of triangles and convex quads.
 
     A quad is the two triangles (0, 1, 2) and (0, 2, 3); for a triangle the second is empty.
-    One numba loop: numpy's dozen (n, 3) temporaries were fresh pages on first touch, 1.0-2.4 s
-    for 677 k polygons (a 512^2 node table) against 0.03 s, the same values to the bit.
+    One numba loop: numpy's dozen (n, 3) temporaries were fresh pages on first touch, many
+    times slower for the same values to the bit (docs/src/measurements/choices.md).
     """
     verts = np.ascontiguousarray(verts, np.float64)
     n = len(verts)

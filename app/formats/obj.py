@@ -69,7 +69,7 @@ def _load_mtl(fn: str) -> dict:
     return mats
 
 
-# OBJ texts up to this many characters are read line by line (about 2 000 lines, a few ms)
+#: OBJ texts up to this many characters (about 2 000 lines) are read line by line
 SMALL_OBJ = 1 << 16
 
 
@@ -80,8 +80,8 @@ def load_obj(fn: str) -> RawMesh:
     (`v x y z`, `f i j k ...`, comments, unknown statements) are read in bulk
     (formats.objscan.scan_obj); a file with anything else in a `v` or `f` line, or any error, is
     read line by line (`_load_obj_lines`), which says what is wrong and where. So is a file of
-    at most SMALL_OBJ characters: the same result in a few milliseconds, without compiling
-    the bulk scanner on a first run (2-3 s).
+    at most SMALL_OBJ characters: the same result, without compiling the bulk scanner on a
+    first run (docs/src/measurements/choices.md).
     """
     text = _read_whole(fn)
     raw = _load_obj_bulk(fn, text) if len(text) > SMALL_OBJ else None

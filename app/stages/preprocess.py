@@ -144,7 +144,8 @@ def subscene_args(el, ranges, points, point_elem, max_depth, group=None):
 
 def _scattered(client, args: list):
     """args_of for run_tasks: task i's arguments with its arrays scattered when it is submitted
-    (again on a retry), not sent inside the task graph (10^6 triangles made a 38 MiB graph)."""
+    (again on a retry), not sent inside the task graph, which large scenes made tens of MiB
+    (docs/src/measurements/choices.md)."""
     from radiosity.runtime.cluster import scatter
 
     def args_of(i):

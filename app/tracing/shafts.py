@@ -37,7 +37,8 @@ def occluders(elements):
 def _faces(N, i, ts, dx, dy, dz, length):
     """Does element i with normal N[i] (two-sided if ts) face along d? cos beyond +-tol.
     (Hot-loop helpers here take an array and an index, not a row: a row is a view, and each
-    view costs two atomic reference-count updates; MEASURED: 30 % of the link stage's time.)"""
+    view costs two atomic reference-count updates, a large share of the link stage's time:
+    docs/src/measurements/choices.md.)"""
     c = N[i, 0] * dx + N[i, 1] * dy + N[i, 2] * dz
     t = COS_TOL * length
     return c > t or (ts and c < -t)

@@ -399,7 +399,8 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
     split and is returned. Returns (tab, cnt, the kept links (Kept), the links waiting for rays
     (Waiting)). The loop itself is the kernel _refine_loop; this driver of it is plain Python
     (it only allocates, and grows the arrays the few times the loop stops because one is full:
-    a kernel here cost 4 s of compile on a first run, for nothing measurable per call)."""
+    a kernel here cost compile time on a first run, for nothing measurable per call:
+    docs/src/measurements/choices.md)."""
     e_p, e_q, e_c0, e_c1, e_frac = entries
     Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab
     # kept links

@@ -55,7 +55,7 @@ class Closure:
         return out
 
 
-def _directions(k: int, rng) -> np.ndarray:
+def stratified_directions(k: int, rng) -> np.ndarray:
     """k cosine-weighted unit directions around +z, stratified in sqrt(k) x sqrt(k) cells."""
     s = int(np.ceil(np.sqrt(k)))
     i, j = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
@@ -66,7 +66,7 @@ def _directions(k: int, rng) -> np.ndarray:
     return d[:k]
 
 
-def _frame(n: np.ndarray):
+def tangent_frame(n: np.ndarray):
     """Two unit tangents (k, 3) orthogonal to unit normals n (k, 3)."""
     a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
     t = np.cross(n, a)
@@ -104,7 +104,7 @@ def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
         ids = np.arange(n) if side > 0 else np.nonzero(elements.two_sided)[0]
         if not len(ids):
             continue
-        loc = _directions(directions, rng)                           # (D, 3)
+        loc = stratified_directions(directions, rng)                           # (D, 3)
         # elements in batches of about 256 k rays: memory stays bounded however many there are
         batch = max(1, (1 << 18) // (P * directions))
         jobs += [(ids[s0:s0 + batch], k, side, loc) for s0 in range(0, len(ids), batch)]
@@ -112,7 +112,7 @@ def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
     def run(job):  # the batches hold disjoint elements: each writes its own rows
         sub, k, side, loc = job
         nrm = side * elements.normal[sub]
-        t1, t2 = _frame(nrm)
+        t1, t2 = tangent_frame(nrm)
         dirs = (loc[None, :, :1] * t1[:, None] + loc[None, :, 1:2] * t2[:, None]
                 + loc[None, :, 2:] * nrm[:, None])                  # (k, D, 3)
         o = pts[sub][:, :, None, :] + step * nrm[:, None, None, :]  # (k, P, 1, 3)

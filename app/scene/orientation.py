@@ -176,7 +176,7 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
     on the emitting sides of each group (one material of one [[mesh]] entry), against the
     scene (`caster`: a tracing.rays.RayCaster of `elements`). Returns [Emitter]; empty when
     nothing emits."""
-    from radiosity.scene.closure import _directions, _frame
+    from radiosity.scene.closure import stratified_directions, tangent_frame
 
     em = np.asarray(elements.emission, np.float64)
     side_emits = em.max(axis=2) > 0.0                     # (n, 2): front, back
@@ -207,8 +207,8 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
         e, sg = el[pick], sign[pick]
         pts = _points_on(elements.verts[e], elements.nverts[e], rng)
         nrm = sg[:, None] * elements.normal[e]
-        t1, t2 = _frame(nrm)
-        loc = _directions(per, rng)
+        t1, t2 = tangent_frame(nrm)
+        loc = stratified_directions(per, rng)
         d = loc[:, :1] * t1 + loc[:, 1:2] * t2 + loc[:, 2:] * nrm
         hit = caster.first_hit(pts + step * nrm, d)
         lit = facing(elements, hit, pts)

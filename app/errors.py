@@ -11,3 +11,7 @@ class SceneError(RadiosityError, ValueError):
 
 class StoreError(RadiosityError):
     """A run store that is missing, from another version, or corrupted."""
+
+
+class RenderError(RadiosityError):
+    """Bad render input: an unreadable image file, an unknown filter, a bad parameter."""

@@ -302,7 +302,8 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
     from radiosity.runtime.checks import check_new_run_dir, check_scene, check_solve
     from radiosity.runtime.cluster import local_mode, open_client
     from radiosity.scene.load import load_scene
-    from radiosity.stages.pixels import read_exr, tonemap
+    from radiosity.core.colour import tonemap
+    from radiosity.formats.images import read_exr
 
     unknown = sorted(set(options) - set(_RENDER_KEYWORDS))
     if unknown:

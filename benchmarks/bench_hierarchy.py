@@ -89,12 +89,12 @@ def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dic
     a1 = (a - rc.origin) / rc.scale
     dv = (b - rc.origin) / rc.scale - a1
     L = np.linalg.norm(dv, axis=1)
-    ok = L > 2 * rc.epsilon
+    ok = L > 2 * rc.ray_offset
     a1, dv, L = a1[ok], dv[ok], L[ok]
     dv /= L[:, None]
-    o32 = (a1 + rc.epsilon * dv).astype(np.float32)
+    o32 = (a1 + rc.ray_offset * dv).astype(np.float32)
     d32 = dv.astype(np.float32)
-    f32 = (L - 2 * rc.epsilon).astype(np.float32)
+    f32 = (L - 2 * rc.ray_offset).astype(np.float32)
     t_raw = best_of(lambda: raw.run(o32, d32, dists=f32, query="OCCLUDED"), 3)
     raw_rate = len(o32) / t_raw
 

@@ -74,7 +74,7 @@ def render(out: str, env: dict, args: list, then: str | None = None) -> float:
 
 def errors(out: str, ref: np.ndarray, se: np.ndarray, raster: np.ndarray, mask: np.ndarray,
            names: dict) -> list[dict]:
-    from radiosity.stages.pixels import read_exr
+    from radiosity.formats.images import read_exr
 
     img = read_exr(os.path.join(out, "image.exr")).astype(np.float64).sum(-1)
     rows = []
@@ -101,7 +101,7 @@ def main() -> None:
     ap.add_argument("--name", default="indirect")
     a = ap.parse_args()
     from radiosity.scene.load import load_scene
-    from radiosity.stages.pixels import read_exr
+    from radiosity.formats.images import read_exr
     from radiosity.validation.compare import element_raster, interior
 
     sc = load_scene(SCENE)

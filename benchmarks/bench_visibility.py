@@ -76,9 +76,9 @@ def ray_throughput(scene, res):
     dv = (q - rc.origin) / rc.scale - a
     L = np.linalg.norm(dv, axis=1)
     dv /= L[:, None]
-    o32 = (a + rc.epsilon * dv).astype(np.float32)
+    o32 = (a + rc.ray_offset * dv).astype(np.float32)
     d32 = dv.astype(np.float32)
-    f32 = (L - 2 * rc.epsilon).astype(np.float32)
+    f32 = (L - 2 * rc.ray_offset).astype(np.float32)
     t_raw = best_of(lambda: raw.run(o32, d32, dists=f32, query="OCCLUDED"), 5)
     t_ours = best_of(lambda: rc.occluded_pairs(part.center, ia, ib, part.orig), 5)
     return {"rays": len(need), "raw_Mrays_s": len(need) / t_raw / 1e6,

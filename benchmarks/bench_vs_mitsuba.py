@@ -39,7 +39,7 @@ MITSUBA_PROCESS = """
 import sys, numpy as np
 from radiosity.scene.load import load_scene
 from radiosity.validation.reference import load_mitsuba, mitsuba_scene, path_depth
-from radiosity.stages.pixels import write_exr
+from radiosity.formats.images import write_exr
 scene, res, spp, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 mi, _ = load_mitsuba()
 sc = load_scene(scene, resolution=res)
@@ -61,7 +61,7 @@ def main():
     args = ap.parse_args()
 
     from radiosity.scene.load import load_scene
-    from radiosity.stages.pixels import read_exr
+    from radiosity.formats.images import read_exr
     from radiosity.validation.reference import (load_mitsuba, mitsuba_scene, mitsuba_version,
                                                 path_depth)
 

@@ -50,8 +50,8 @@ def test_the_ray_module_default_offset_is_the_shipped_setting():
     import yaml
 
     import radiosity
-    from radiosity.tracing.rays import DEFAULT_EPSILON
+    from radiosity.tracing.rays import DEFAULT_RAY_OFFSET
 
     with open(os.path.join(os.path.dirname(radiosity.__file__), "radiosity.yaml")) as f:
         shipped = yaml.safe_load(f)["radiosity"]["rays"]["epsilon"]
-    assert DEFAULT_EPSILON == shipped
+    assert DEFAULT_RAY_OFFSET == shipped

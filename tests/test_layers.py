@@ -23,11 +23,13 @@ LAYERS = [
     {"scene"},
     {"tracing"},
     {"settings"},
+    {"formats"},
     {"core"},
     {"config", "errors"},
 ]
-# folders whose code runs on workers (or is pure): no configuration, no Client
-WORKER_SIDE = ("core", "scene", "tracing")
+# folders whose code runs on workers (or is pure, or reads and writes files given their values):
+# no configuration, no Client
+WORKER_SIDE = ("core", "formats", "scene", "tracing")
 TOP_LEVEL_MAX = 5  # app/*.py, __init__ included
 
 

@@ -358,7 +358,7 @@ def _record_kernels():
     import tempfile
 
     from radiosity.pipeline import render as render_api
-    from radiosity.runtime.precompile import KERNELS, recording_order, write_entries
+    from radiosity.runtime.precompile import SIGNATURES_PATH, recording_order, write_entries
 
     cache = os.environ.get("NUMBA_CACHE_DIR")
     if not cache or any(files for _, _, files in os.walk(cache)):  # (folders: made at import)
@@ -367,7 +367,7 @@ def _record_kernels():
     os.environ["RADIOSITY_NO_PRECOMPILE"] = "1"  # no helper: this process compiles them all
     with recording_order() as order, tempfile.TemporaryDirectory() as tmp:
         render_api(_builtin_cornell(), os.path.join(tmp, "run"))
-    click.echo(f"wrote {write_entries(order)} kernel signatures into {KERNELS}")
+    click.echo(f"wrote {write_entries(order)} kernel signatures into {SIGNATURES_PATH}")
 
 
 def _builtin_cornell() -> str:

@@ -1,7 +1,6 @@
 """Array helpers where numpy is slow on large arrays: `unique` by one sort (numpy 2's np.unique
-of plain values hashes them: 34 s against 2.7 s for sorting 3e7 scattered int64 keys on this
-machine) and `unique_rows` by one lexsort (np.unique(axis=0) sorts structured records: 3.1 s
-against 0.7 s for 1e6 rows of 4 int64); `radix_order`, the stable order of non-negative int64
+of plain values hashes them) and `unique_rows` by one lexsort (np.unique(axis=0) sorts
+structured records), each several times faster (docs/src/measurements/choices.md); `radix_order`, the stable order of non-negative int64
 keys of few bits in a few linear passes (faster than np.argsort, in the same memory)."""
 
 from __future__ import annotations

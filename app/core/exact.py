@@ -332,14 +332,14 @@ def polygon_ff_rule(P, nP, Q, nQ, two_sided, gx, gw, floor):
 
 
 @numba.njit(cache=True, nogil=True)
-def _point_ff(p, n, Q, nQ):
+def point_to_polygon_ff(p, n, Q, nQ):
     """Differential element at p (normal n, unit) to the polygon Q[:nQ], clipped to n's side."""
     return point_ff(p[0], p[1], p[2], n[0], n[1], n[2], Q, nQ, np.empty((2 * nQ + 2, 3)))
 
 
 @numba.njit(cache=True, nogil=True)
 def point_ff(px, py, pz, nx, ny, nz, Q, nQ, Qc):
-    """_point_ff with the point and normal as scalars and the clipped polygon in the caller's
+    """point_to_polygon_ff with the point and normal as scalars and the clipped polygon in the caller's
     scratch Qc (at least (2 nQ + 2, 3)): no allocation, for loops over millions of links."""
     scale = 0.0
     for k in range(nQ):
@@ -396,7 +396,7 @@ def polygon_point_form_factor(p, n, Q) -> float:
     part of Q behind the element's plane is clipped off)."""
     n = np.asarray(n, float)
     n = np.ascontiguousarray(n / np.linalg.norm(n))
-    return float(_point_ff(np.ascontiguousarray(p, dtype=np.float64), n, _poly(Q), len(Q)))
+    return float(point_to_polygon_ff(np.ascontiguousarray(p, dtype=np.float64), n, _poly(Q), len(Q)))
 
 
 def pair_form_factors_exact(Pverts, Pnv, Qverts, Qnv, two_sided: bool = True) -> np.ndarray:

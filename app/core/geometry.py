@@ -9,6 +9,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from radiosity.core.tolerances import TOL
+
 
 def tri_cross(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """(b - a) x (c - a), row-wise; (n, 3)."""
@@ -35,8 +37,8 @@ def polygon_properties(verts: np.ndarray, nverts: np.ndarray):
     """Area (n,), unit normal (n, 3) and area centroid (n, 3) of triangles and convex quads.
 
     A quad is the two triangles (0, 1, 2) and (0, 2, 3); for a triangle the second is empty.
-    One numba loop: numpy's dozen (n, 3) temporaries were fresh pages on first touch, 1.0-2.4 s
-    for 677 k polygons (a 512^2 node table) against 0.03 s, the same values to the bit.
+    One numba loop: numpy's dozen (n, 3) temporaries were fresh pages on first touch, many
+    times slower for the same values to the bit (docs/src/measurements/choices.md).
     """
     verts = np.ascontiguousarray(verts, np.float64)
     n = len(verts)
@@ -93,10 +95,8 @@ def _diameter(verts):
     return out
 
 
-# |cos| below this (relative to the segment length) counts as coplanar: exactly zero, not noise.
-# One value for every stage that asks "do these two elements face each other?" (visibility,
-# shafts, near field), so that they all agree on which pairs exist.
-COS_TOL = 1e-9
+# |cos| below this (relative to the segment length) counts as coplanar (core.tolerances: cos)
+COS_TOL = TOL.cos
 
 
 def on_hull_planes(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray,

@@ -151,7 +151,7 @@ def _term(p, q, nax, nay, naz, nbx, nby, nbz):
 
 
 @numba.njit(cache=True, nogil=True, inline="always", error_model="numpy", fastmath=True)
-def _sampled(kid, pa, wa, pb, wb, nax, nay, naz, nbx, nby, nbz):
+def sampled_sum(kid, pa, wa, pb, wb, nax, nay, naz, nbx, nby, nbz):
     """sum over the sample pairs of w c_a c_b / r^4 / pi (unoccluded), the normals already
     turned to the sides that face (see the module docstring)."""
     acc = 0.0
@@ -168,7 +168,7 @@ def _sampled(kid, pa, wa, pb, wb, nax, nay, naz, nbx, nby, nbz):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _facing_signs(cx, cy, cz, nx, ny, nz, a, b):
+def facing_signs(cx, cy, cz, nx, ny, nz, a, b):
     """+1 / -1: the side of a that b's centre lies on, and of b that a's lies on."""
     dx = cx[b] - cx[a]
     dy = cy[b] - cy[a]
@@ -191,7 +191,7 @@ def kernel_id(name: str) -> int:
 
 
 @numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _f(kid, g, r2, area):
+def kernel_ff(kid, g, r2, area):
     """Form factor towards an element of `area`, from g = |ca cb| (unnormalised cosines)."""
     if kid == 0:
         return area * g / (np.pi * r2 * r2)
@@ -199,11 +199,11 @@ def _f(kid, g, r2, area):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _pair_sampled(kid, a, b, cx, cy, cz, nx, ny, nz, pts, w):
+def pair_sampled(kid, a, b, cx, cy, cz, nx, ny, nz, pts, w):
     """The unoccluded sampled kernel of pair (a, b) without the area (F_ab = A_b acc, F_ba =
     A_a acc) and the sides (0 front, 1 back) the centres face."""
-    sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
-    acc = _sampled(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
+    sa, sb = facing_signs(cx, cy, cz, nx, ny, nz, a, b)
+    acc = sampled_sum(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
                    sb * nx[b], sb * ny[b], sb * nz[b])
     return acc, 0 if sa > 0 else 1, 0 if sb > 0 else 1
 
@@ -216,7 +216,7 @@ def sampled_pairs(kid, pts, w, cx, cy, cz, nx, ny, nz, ia, ib):
     sa = np.empty(ia.shape[0], np.int8)
     sb = np.empty(ia.shape[0], np.int8)
     for k in range(ia.shape[0]):
-        acc[k], sa[k], sb[k] = _pair_sampled(kid, ia[k], ib[k], cx, cy, cz, nx, ny, nz, pts, w)
+        acc[k], sa[k], sb[k] = pair_sampled(kid, ia[k], ib[k], cx, cy, cz, nx, ny, nz, pts, w)
     return acc, sa, sb
 
 
@@ -235,7 +235,7 @@ def sample_rays(kid, pts, w, center, normal, ia, ib):
     nx, ny, nz = normal[:, 0], normal[:, 1], normal[:, 2]
     for q in range(k):
         a, b = ia[q], ib[q]
-        sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
+        sa, sb = facing_signs(cx, cy, cz, nx, ny, nz, a, b)
         for p in range(P):
             ka = p // S if kid == NXM else p
             kb = p % S if kid == NXM else p

@@ -144,9 +144,9 @@ def tune_malloc() -> dict:
     """This process's glibc malloc thresholds from radiosity.cluster.malloc-* (as the local
     workers get them by variable), unless the process started with the variable: the driver
     runs the solve's passes, its final gather and the node table, whose large arrays would
-    otherwise be fresh mappings that page-fault on first touch. MEASURED (Cornell box 512^2,
-    solve in the driver, 8.7 M links): 24.3 -> 20.9 s cold, 9.7 -> 6.2 s warm. Returns
-    {variable: value} of what was set (empty without glibc's mallopt)."""
+    otherwise be fresh mappings that page-fault on first touch (measured:
+    docs/src/measurements/choices.md). Returns {variable: value} of what was set (empty
+    without glibc's mallopt)."""
     import ctypes
 
     params = {"MALLOC_TRIM_THRESHOLD_": -1, "MALLOC_MMAP_THRESHOLD_": -3}  # M_TRIM_, M_MMAP_
@@ -191,8 +191,7 @@ def _libc():
 def scatterable(cls):
     """Class decorator: distributed serializes an instance by its attributes, each array as a
     buffer of its own, instead of pickling the whole object into one message (its fallback for
-    classes it does not know). MEASURED: a 512^2 link stage's LinkInputs (145 MiB) broadcast
-    to 2 local workers (cluster.scatter) in 1.6 s pickled, 0.6 s by attributes."""
+    classes it does not know), which is faster for large arrays (docs/src/measurements/choices.md)."""
     from distributed.protocol import dask_deserialize, dask_serialize, deserialize, serialize
 
     @dask_serialize.register(cls)
@@ -228,8 +227,7 @@ def scatter(client, items: list, broadcast: bool = False) -> list:
     """client.scatter(items) (futures, unhashed). Where _direct says so, straight to the
     workers, and a broadcast as the same keys sent to each worker in turn: distributed sends
     the bytes through the scheduler, or with direct=True to one worker and then from worker to
-    worker; MEASURED on this VM, a 512^2 link stage's LinkInputs (145 MiB) to 2 local workers:
-    through the scheduler 3.0-7.2 s, direct and replicated 1.6-3.6 s, to each in turn 0.6 s."""
+    worker, both slower for local workers than each in turn (docs/src/measurements/choices.md)."""
     if not _direct(client):
         return client.scatter(items, broadcast=broadcast, hash=False)
     if not broadcast:

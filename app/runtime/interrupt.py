@@ -101,8 +101,7 @@ def drop_workers(cluster) -> None:
     are not in any ledger: a resume computes them again). A worker process is killed, its
     nanny told first not to start another; an in-process worker is closed without waiting for
     its threads, which finish their kernel call in the background (the CLI then exits without
-    waiting for them). MEASURED, two workers each 30 s into a task: 4.1 s from Ctrl-C to the
-    end of open_client with _retire_workers, 0.06 s with processes killed, 0.6 s in-process."""
+    waiting for them). Retiring them waited for their tasks (docs/src/measurements/choices.md)."""
     import signal
 
     from distributed import Nanny

@@ -16,7 +16,8 @@ import os
 import subprocess
 import sys
 
-KERNELS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "kernels.txt")
+#: The recorded numba signatures (kernels.txt): module, function and argument types a line.
+SIGNATURES_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "kernels.txt")
 
 
 # ----------------------------------------------------------------------------- signatures as text
@@ -87,7 +88,7 @@ def _split_top(s: str) -> list[str]:
     return out
 
 
-def read_entries(path: str = KERNELS) -> list[tuple[str, str, str]]:
+def read_entries(path: str = SIGNATURES_PATH) -> list[tuple[str, str, str]]:
     """(module, function, argument types as text) per line of kernels.txt, in compile order."""
     out = []
     with open(path) as f:
@@ -125,7 +126,7 @@ def cache_is_warm(entries=None) -> bool:
 def start_helper() -> subprocess.Popen | None:
     """Start the helper when the cache is cold (the first run on a machine); None otherwise.
     The caller stops it with stop_helper when its own run ends."""
-    if os.environ.get("RADIOSITY_NO_PRECOMPILE") or not os.path.isfile(KERNELS):
+    if os.environ.get("RADIOSITY_NO_PRECOMPILE") or not os.path.isfile(SIGNATURES_PATH):
         return None
     if cache_is_warm():
         return None
@@ -229,7 +230,7 @@ def recording_order():
         yield order
 
 
-def write_entries(order, path: str = KERNELS) -> int:
+def write_entries(order, path: str = SIGNATURES_PATH) -> int:
     """Write kernels.txt (every line checked to read back first). Returns the line count."""
     for line in order:
         resolve(line)

@@ -43,10 +43,8 @@ COMPRESSORS = ({"name": "zstd", "configuration": {"level": 1, "checksum": False}
 
 def record_compressors(itemsize: int) -> tuple:
     """The compressor of records stored as bytes (link tasks): Blosc's byte shuffle by the
-    record size, then lz4. MEASURED on the 18 link tasks of the Cornell box at 128^2 (45 MB),
-    against zstd level 1 on the raw bytes: write_links 0.63-0.73 s against 0.79-0.90 s (most of
-    it zarr's own work per array and this VM's slow fresh file pages), read back as fast,
-    2.85x smaller against 2.51x."""
+    record size, then lz4: faster to write and smaller than zstd on the raw bytes, read back
+    as fast (docs/src/measurements/choices.md)."""
     from zarr.codecs import BloscCodec
 
     return (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle", typesize=int(itemsize)),)
@@ -152,9 +150,7 @@ class RunStore:
 
     def _in_group(self, group: str, work):
         """work(async group) run to completion on zarr's event loop: every array of a group read
-        or written concurrently (zarr costs a few ms per array, mostly waiting: the partition's
-        13 arrays read in 26-33 ms against 35-58 ms one after another, the node table's 15
-        written in 86-115 against 135-169 ms)."""
+        or written concurrently (zarr's cost per array is mostly waiting; docs/src/measurements/choices.md)."""
         import zarr.api.asynchronous as za
         from zarr.core.sync import sync
 

@@ -13,12 +13,11 @@ import numpy as np
 from radiosity.core.kernels import Sampling, sample_points
 from radiosity.tracing.rays import caster_of
 from radiosity.core.bundles import Elements
+from radiosity.core.tolerances import TOL
 
 POINTS = 16       # stratified points per element (nxm cells)
 DIRECTIONS = 16   # cosine-weighted directions per point and side
 LEAK = 1e-4       # fraction of rays that may escape through cracks in a closed scene
-STEP = 1e-5       # the rays' offset off the surface, relative to the scene's size (at the
-                  # default rays.epsilon 1e-6; it scales with it): below contact.WINDOW
 SIDE_LEAK = 0.02  # a side that loses at most this fraction of its rays has target 1
 VOID = 0.98       # ... at least this fraction: it sees only the void, target 0
 MAX_RAYS = 1 << 22  # beyond this many, fewer points per element (a square: 9, 4, 1); a mesh of
@@ -56,7 +55,7 @@ class Closure:
         return out
 
 
-def _directions(k: int, rng) -> np.ndarray:
+def stratified_directions(k: int, rng) -> np.ndarray:
     """k cosine-weighted unit directions around +z, stratified in sqrt(k) x sqrt(k) cells."""
     s = int(np.ceil(np.sqrt(k)))
     i, j = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
@@ -67,7 +66,7 @@ def _directions(k: int, rng) -> np.ndarray:
     return d[:k]
 
 
-def _frame(n: np.ndarray):
+def tangent_frame(n: np.ndarray):
     """Two unit tangents (k, 3) orthogonal to unit normals n (k, 3)."""
     a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
     t = np.cross(n, a)
@@ -75,10 +74,10 @@ def _frame(n: np.ndarray):
     return t, np.cross(n, t)
 
 
-def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
+def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
                    directions: int = DIRECTIONS, leak: float = LEAK, seed: int = 0,
                    contact: bool = True, threads: int = 2) -> Closure:
-    """The closure test above, per element side; epsilon: the ray offset (rays.epsilon).
+    """The closure test above, per element side; ray_offset: rays.epsilon.
     contact: find contact sides first (contact.py) and leave their covered points out; the
     rays go in batches of about 256 k on `threads` threads (the driver's, before any link
     task runs)."""
@@ -87,24 +86,25 @@ def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
     n = len(elements)
     while points > 1 and n * points * directions > MAX_RAYS:
         points = (int(round(np.sqrt(points))) - 1) ** 2
-    rc = caster_of(elements.verts, elements.nverts, epsilon)
+    rc = caster_of(elements.verts, elements.nverts, ray_offset)
     pts, _ = sample_points(elements.verts, elements.nverts, Sampling("nxm", points))
     P = pts.shape[1]
-    covered = (contact_points(elements, pts, epsilon) if contact and n
+    covered = (contact_points(elements, pts, ray_offset) if contact and n
                else np.zeros((n, P, 2), bool))
     rng = np.random.default_rng(seed)
     lost = np.zeros((n, 2))
     cast = np.zeros((n, 2))
     # off the surface, beyond float32 rounding, and well inside the contact window: a point
     # nearer than that to another surface is covered (contact.py), never stepped through it
-    step = STEP * max(1.0, epsilon / 1e-6) * scene_scale(elements) if n else 0.0
+    step = (TOL.closure_step * max(1.0, ray_offset / TOL.ray_offset_unit) * scene_scale(elements)
+            if n else 0.0)
     jobs = []
     for side in (1.0, -1.0):
         k = 0 if side > 0 else 1
         ids = np.arange(n) if side > 0 else np.nonzero(elements.two_sided)[0]
         if not len(ids):
             continue
-        loc = _directions(directions, rng)                           # (D, 3)
+        loc = stratified_directions(directions, rng)                           # (D, 3)
         # elements in batches of about 256 k rays: memory stays bounded however many there are
         batch = max(1, (1 << 18) // (P * directions))
         jobs += [(ids[s0:s0 + batch], k, side, loc) for s0 in range(0, len(ids), batch)]
@@ -112,7 +112,7 @@ def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
     def run(job):  # the batches hold disjoint elements: each writes its own rows
         sub, k, side, loc = job
         nrm = side * elements.normal[sub]
-        t1, t2 = _frame(nrm)
+        t1, t2 = tangent_frame(nrm)
         dirs = (loc[None, :, :1] * t1[:, None] + loc[None, :, 1:2] * t2[:, None]
                 + loc[None, :, 2:] * nrm[:, None])                  # (k, D, 3)
         o = pts[sub][:, :, None, :] + step * nrm[:, None, None, :]  # (k, P, 1, 3)

@@ -19,11 +19,11 @@ from __future__ import annotations
 import numpy as np
 
 from radiosity.core.bundles import Elements
+from radiosity.core.tolerances import TOL
 from radiosity.tracing.rays import RayCaster
 
 #: A generic direction: no axis-aligned or 45-degree normal is perpendicular to it.
 _G = np.array([0.5773502, 0.6123724, 0.5400617])
-WINDOW = 5e-5       # the contact window w, relative to the scene's bounding-box diagonal
 FACING = -0.5       # a cover's normal against the side's: at most this (roughly opposite)
 COVERED = 0.999     # a side is a contact side when this fraction of its points is covered
 
@@ -34,8 +34,8 @@ def scene_scale(elements: Elements) -> float:
     return float(np.linalg.norm(v.max(0) - v.min(0))) if len(v) else 1.0
 
 
-def contact_points(elements: Elements, pts: np.ndarray, epsilon: float,
-                   window: float = WINDOW) -> np.ndarray:
+def contact_points(elements: Elements, pts: np.ndarray, ray_offset: float,
+                   window: float = TOL.contact_window) -> np.ndarray:
     """Which sample points are covered, (n, P, 2) bool [element, point, side]: pts (n, P, 3)
     on the elements; side 0 the front, 1 the back (two-sided elements only; one-sided backs
     are never covered: they take no part anyway). window: relative to the scene's size."""
@@ -51,7 +51,8 @@ def contact_points(elements: Elements, pts: np.ndarray, epsilon: float,
     for key, members in ((True, pos | ts), (False, ~pos | ts)):
         ids = np.nonzero(members)[0]
         if len(ids):
-            groups[key] = (ids, RayCaster(elements.verts[ids], elements.nverts[ids], epsilon))
+            groups[key] = (ids, RayCaster(elements.verts[ids], elements.nverts[ids],
+                                          ray_offset))
     for side in (0, 1):
         els = np.arange(n) if side == 0 else np.nonzero(ts)[0]
         if not len(els):
@@ -76,21 +77,18 @@ def contact_points(elements: Elements, pts: np.ndarray, epsilon: float,
     return out
 
 
-def find_contacts(elements: Elements, epsilon: float, points: int = 16,
-                  window: float = WINDOW) -> np.ndarray:
+def find_contacts(elements: Elements, ray_offset: float, points: int = 16,
+                  window: float = TOL.contact_window) -> np.ndarray:
     """Contact sides (n, 2) bool [front, back]: sides of which at least COVERED of `points`
     stratified sample points are covered (contact_points)."""
     from radiosity.core.kernels import Sampling, sample_points
 
     pts, _ = sample_points(elements.verts, elements.nverts, Sampling("nxm", points))
-    return contact_points(elements, pts, epsilon, window).mean(axis=1) >= COVERED
+    return contact_points(elements, pts, ray_offset, window).mean(axis=1) >= COVERED
 
 
 #: Hemisphere rays per point of the inside-a-solid test (inside_solid), stratified.
 SOLID_RAYS = 8
-#: The test's rays start this far off the surface, relative to the scene's size (as the
-#: closure's, closure.STEP: beyond float32 rounding, inside the contact window).
-SOLID_STEP = 1e-5
 
 
 #: and this many grazing ones, GRAZING degrees off the normal: a thin gap (a one-sided panel
@@ -117,7 +115,7 @@ def inside_solid(caster: RayCaster, pts: np.ndarray, normal: np.ndarray, two_sid
                  rays: int = SOLID_RAYS) -> np.ndarray:
     """Which points (n, 3) on one-sided surfaces with front normals `normal` (n, 3) lie inside
     a solid, (n,) bool: every one of `rays` hemisphere rays and SOLID_GRAZING grazing ones from
-    the point (SOLID_STEP of the scene's size off the surface) first meets the back of a
+    the point (TOL.solid_step of the scene's size off the surface) first meets the back of a
     one-sided element (the part of a floor under a block standing on it, without a bottom
     face): the closure's test (closure.py) for single points. One ray along the normal first,
     the others only where it met a back. The links leave such points out of their visible
@@ -127,7 +125,7 @@ def inside_solid(caster: RayCaster, pts: np.ndarray, normal: np.ndarray, two_sid
     n = len(pts)
     if not n:
         return np.zeros(0, bool)
-    step = SOLID_STEP * max(1.0, caster.epsilon / 1e-6) * caster.scale
+    step = TOL.solid_step * max(1.0, caster.ray_offset / TOL.ray_offset_unit) * caster.scale
     o = pts + step * normal
     out = _backs(caster, o, normal, two_sided)  # first along the normal: most points end here
     c = np.nonzero(out)[0]

@@ -86,7 +86,7 @@ def camera_sees(x: np.ndarray, e: np.ndarray, side: np.ndarray, elements, camera
         d = x[g] - camera.center
         dist = np.linalg.norm(d, axis=1)
         first, t = caster.first_hit(camera.center, d / dist[:, None], distances=True, unit=True)
-        ok[g] = (first == e[g]) | (t >= dist - 8 * caster.epsilon * caster.scale)
+        ok[g] = (first == e[g]) | (t >= dist - 8 * caster.ray_offset * caster.scale)
     return ok
 
 
@@ -117,7 +117,7 @@ def nearest_seen(verts, nverts, orig, elements, camera, caster, reach, rays: int
     start = samples[:, np.arange(rays) % samples.shape[1], :]           # (q, rays, 3)
     side = np.sign(np.einsum("qkc,qc->qk", dirs, n_node))
     # leave the node's plane on the side the ray goes, by the ray module's offset (world units)
-    lift = caster.epsilon * caster.scale
+    lift = caster.ray_offset * caster.scale
     o = (start + (side * lift)[:, :, None] * n_node[:, None, :]).reshape(-1, 3)
     d = dirs.reshape(-1, 3)
     e, t = caster.first_hit(o, d.astype(np.float32), distances=True, unit=True)

@@ -1,7 +1,8 @@
 """Scene files (TOML), or a bare mesh file (scene/meshscene.py) -> original elements,
 materials and camera (`load_scene`).
 
-The mesh files a scene names are read by scene.meshes (re-exported here). Every problem with user
+The mesh files a scene names are read by formats.load's readers and validated by scene.meshes
+(their names re-exported here). Every problem with user
 input raises `SceneError` naming the file and the face, material or option, so the CLI can print
 one clear line.
 """
@@ -18,24 +19,25 @@ import numpy as np
 from radiosity.errors import SceneError
 from radiosity.core.geometry import polygon_properties
 from radiosity.core.bundles import Camera, Elements, Scene
+from radiosity.core.tolerances import TOL
 from radiosity.scene.emitters import area_emission
 from radiosity.scene.orientation import orient_polygons
-from radiosity.scene.meshes import (MAX_COORD, MESH_FORMATS, RawMesh, SceneWarning, _warn,
-                                    load_obj, merge_parallelograms, polygons_from_raw)
-from radiosity.scene.trimeshes import load_mesh, load_trimesh
+from radiosity.formats.load import MESH_FORMATS, load_mesh
+from radiosity.formats.obj import load_obj
+from radiosity.formats.raw import RawMesh, SceneWarning, warn
+from radiosity.formats.trimeshes import load_trimesh
+from radiosity.scene.meshes import MAX_COORD, merge_parallelograms, polygons_from_raw
 from radiosity.scene.meshscene import (DEFAULT_RESOLUTION, DOCS as MESH_DOCS, camera_toml,
                                        default_camera, is_mesh_path, require_emitter)
 from radiosity.settings import Settings, resolve
 
-__all__ = ["MAX_COORD", "MAX_RESOLUTION", "MESH_FORMATS", "TINY", "DEFAULT_REFLECTANCE", "RawMesh",
+__all__ = ["MAX_COORD", "MAX_RESOLUTION", "MESH_FORMATS", "DEFAULT_REFLECTANCE", "RawMesh",
            "SceneWarning", "load_mesh", "load_obj", "load_trimesh", "merge_parallelograms",
            "polygons_from_raw", "parse_resolution", "parse_camera", "parse_cameras",
            "load_scene"]
 
 #: Largest camera resolution a side (a raster of 65536^2 int32 is 16 GiB already).
 MAX_RESOLUTION = 65536
-#: Smallest length taken for a direction (camera vectors): below it squares underflow to 0.
-TINY = 1e-150
 DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
 
 _MESH_KEYS = {"path", "material", "two_sided", "orient"}
@@ -163,10 +165,10 @@ def parse_camera(cam: dict, fn: str, resolution=None) -> Camera:
         if not 0 < fov < 180:
             raise SceneError(f"{fn}: camera.fov_y must be in (0, 180) degrees, got {fov}")
         z = at - pos
-        if not np.linalg.norm(z) > TINY:
+        if not np.linalg.norm(z) > TOL.tiny_length:
             raise SceneError(f"{fn}: camera.look_at equals camera.position")
         z /= np.linalg.norm(z)
-        if not np.linalg.norm(up) > TINY:
+        if not np.linalg.norm(up) > TOL.tiny_length:
             raise SceneError(f"{fn}: camera.up must be a non-zero vector, got {cam.get('up')!r}")
         up = up / np.linalg.norm(up)
         x = np.cross(z, up)
@@ -213,20 +215,16 @@ def _rgb(val, what, fn) -> np.ndarray:
     return _vec(val, what, fn, 3)
 
 
-def load_scene(path: str, resolution=None, settings: Settings | None = None) -> Scene:
-    """Read a scene TOML (or a folder holding scene.toml) into a Scene: its meshes, material
-    overrides and camera. A bare mesh file (OBJ, glTF, GLB, PLY) is a scene too: its own
-    materials, which must include an emitter, and a default camera (scene/meshscene.py; the
-    Scene's `chosen` says which, as a [camera] table to copy). settings: the scene.*
-    tolerances and the rays' epsilon (None: resolved here)."""
-    s = resolve(base=settings)
+def _scene_document(path: str) -> tuple[str, dict, bool]:
+    """The scene file's absolute path, its TOML document (a bare mesh file: one [[mesh]] entry,
+    nothing overridden) and whether it is a bare mesh file."""
     path = os.path.abspath(path)
     if os.path.isdir(path) and os.path.exists(os.path.join(path, "scene.toml")):
         path = os.path.join(path, "scene.toml")
     if not os.path.exists(path):
         raise SceneError(f"scene file not found: {path}")
     mesh_scene = is_mesh_path(path)
-    if mesh_scene:  # one [[mesh]] entry, nothing overridden, the camera chosen below
+    if mesh_scene:  # one [[mesh]] entry, nothing overridden, the camera chosen by load_scene
         stem, _ = os.path.splitext(os.path.basename(path))
         doc = {"name": stem, "mesh": [{"path": os.path.basename(path)}]}
     else:
@@ -234,12 +232,15 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
     unknown = set(doc) - _TOP_KEYS
     if unknown:
         raise SceneError(f"{path}: unknown key(s) {sorted(unknown)}; a scene file has {sorted(_TOP_KEYS)}")
-    meshes = doc.get("mesh", [])
-    if not isinstance(meshes, list) or not meshes:
-        raise SceneError(f"{path}: no [[mesh]] entries: the scene is empty")
-    overrides = doc.get("material", {})
-    base = os.path.dirname(path)
+    return path, doc, mesh_scene
 
+
+def _read_meshes(meshes: list, path: str, s: Settings):
+    """The [[mesh]] entries' polygons, in entry order: verts (n, 4, 3), nverts (n,), face (n,),
+    source (n,) int32 (the entry), the material name per polygon, each polygon's two_sided
+    default, the materials the files give (name -> (file, properties), the first file's
+    wins) and the files' paths."""
+    base = os.path.dirname(path)
     all_v, all_n, all_f, all_src, mat_of, two_default = [], [], [], [], [], []
     file_mats: dict = {}
     sources = []
@@ -267,14 +268,14 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
     verts = np.concatenate(all_v)
     if len(verts) == 0:
         raise SceneError(f"{path}: the meshes hold no faces: the scene is empty")
-    nverts = np.concatenate(all_n)
-    names = sorted(set(mat_of))
-    for name in overrides:
-        if name not in names:
-            _warn(f"{path}: [material.{name}] matches no face (materials in the meshes: {names})")
-    index = {name: i for i, name in enumerate(names)}
-    material = np.array([index[m] for m in mat_of], np.int32)
+    return (verts, np.concatenate(all_n), np.concatenate(all_f), np.concatenate(all_src), mat_of,
+            two_default, file_mats, sources)
 
+
+def _materials(names: list, file_mats: dict, overrides: dict, path: str, mesh_scene: bool):
+    """Per material (in `names` order): reflectance and emission (nm, 2, 3) [front, back], its
+    two_sided and whether the file or the scene set that (nm,) bool; the scene's
+    [material.NAME] tables override what the mesh files give."""
     nm = len(names)
     refl = np.zeros((nm, 2, 3))
     emis = np.zeros((nm, 2, 3))
@@ -310,6 +311,45 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
         if "two_sided" in over or "two_sided" in props:
             mat_two[i] = bool(over.get("two_sided", props.get("two_sided", False)))
             mat_two_set[i] = True
+    return refl, emis, mat_two, mat_two_set
+
+
+def _validation(doc: dict, path: str, names: list) -> dict:
+    """The scene's [validation] table, its keys and the materials it names checked."""
+    validation = doc.get("validation", {})
+    unknown = set(validation) - _VALIDATION_KEYS
+    if unknown:
+        raise SceneError(f"{path}: [validation] has unknown key(s) {sorted(unknown)}; allowed: "
+                         f"{sorted(_VALIDATION_KEYS)}")
+    for k in ("from", "to", "emitter", "receiver"):
+        if k in validation and validation[k] not in names:
+            raise SceneError(f"{path}: [validation] {k} = {validation[k]!r} is not a material of "
+                             f"the scene ({names})")
+    return dict(validation)
+
+
+def load_scene(path: str, resolution=None, settings: Settings | None = None) -> Scene:
+    """Read a scene TOML (or a folder holding scene.toml) into a Scene: its meshes, material
+    overrides and camera. A bare mesh file (any of formats.load.MESH_FORMATS) is a scene too:
+    its own materials, which must include an emitter, and a default camera
+    (scene/meshscene.py; the Scene's `chosen` says which, as a [camera] table to copy).
+    settings: the scene.* tolerances and the ray offset, rays.epsilon (None: resolved here)."""
+    s = resolve(base=settings)
+    path, doc, mesh_scene = _scene_document(path)
+    meshes = doc.get("mesh", [])
+    if not isinstance(meshes, list) or not meshes:
+        raise SceneError(f"{path}: no [[mesh]] entries: the scene is empty")
+    overrides = doc.get("material", {})
+    verts, nverts, face, source, mat_of, two_default, file_mats, sources = \
+        _read_meshes(meshes, path, s)
+    names = sorted(set(mat_of))
+    for name in overrides:
+        if name not in names:
+            warn(f"{path}: [material.{name}] matches no face (materials in the meshes: {names})")
+    index = {name: i for i, name in enumerate(names)}
+    material = np.array([index[m] for m in mat_of], np.int32)
+
+    refl, emis, mat_two, mat_two_set = _materials(names, file_mats, overrides, path, mesh_scene)
     two_sided = np.where(mat_two_set[material], mat_two[material], np.array(two_default, bool))
     reflectance = refl[material].copy()
     reflectance[~two_sided, 1] = 0.0
@@ -318,10 +358,10 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
     area, normal, center = polygon_properties(verts, nverts)
     elements = Elements(verts=verts, nverts=nverts, normal=normal, center=center, area=area,
                         reflectance=reflectance, emission=emission, two_sided=two_sided,
-                        material=material, source=np.concatenate(all_src),
-                        face=np.concatenate(all_f), material_names=tuple(names),
-                        sources=tuple(sources))
+                        material=material, source=source, face=face,
+                        material_names=tuple(names), sources=tuple(sources))
     chosen = ""
+    views = ()
     if mesh_scene:
         require_emitter(elements, path)
         res = (DEFAULT_RESOLUTION,) * 2 if resolution is None else \
@@ -332,15 +372,6 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
                   f"in a scene file (see {MESH_DOCS}):\n{camera_toml(table)}")
     else:
         camera, views = parse_cameras(doc.get("camera"), path, resolution)
-    name = doc.get("name", os.path.basename(base))
-    validation = doc.get("validation", {})
-    unknown = set(validation) - _VALIDATION_KEYS
-    if unknown:
-        raise SceneError(f"{path}: [validation] has unknown key(s) {sorted(unknown)}; allowed: "
-                         f"{sorted(_VALIDATION_KEYS)}")
-    for k in ("from", "to", "emitter", "receiver"):
-        if k in validation and validation[k] not in names:
-            raise SceneError(f"{path}: [validation] {k} = {validation[k]!r} is not a material of "
-                             f"the scene ({names})")
+    name = doc.get("name", os.path.basename(os.path.dirname(path)))
     return Scene(name=str(name), path=path, elements=elements, camera=camera,
-                 validation=dict(validation), chosen=chosen, views=views if not mesh_scene else ())
+                 validation=_validation(doc, path, names), chosen=chosen, views=views)

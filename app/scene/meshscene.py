@@ -48,12 +48,13 @@ EMISSION_HOWTO = {
              "radiance above 1)",
     ".obj": "give one material of its MTL file a Ke line (emitted radiance, e.g. Ke 10 10 10)",
     ".ply": "a PLY file holds no emission",
+    ".stl": "an STL file holds no emission",
 }
 
 
 def is_mesh_path(path: str) -> bool:
-    """Whether `path` names a mesh file (OBJ, glTF, GLB, PLY) rather than a scene file."""
-    from radiosity.scene.meshes import MESH_FORMATS
+    """Whether `path` names a mesh file (formats.load.MESH_FORMATS) rather than a scene file."""
+    from radiosity.formats.load import MESH_FORMATS
 
     return os.path.splitext(path)[1].lower() in MESH_FORMATS and not os.path.isdir(path)
 
@@ -110,10 +111,10 @@ def _score(rc, el: Elements, cam: Camera) -> int:
     return int(_front(el, hit, d).sum())
 
 
-def default_camera(el: Elements, resolution: tuple[int, int], epsilon: float, where: str,
+def default_camera(el: Elements, resolution: tuple[int, int], ray_offset: float, where: str,
                    parse_camera):
     """The default camera of a mesh scene (the rule in the module docstring): (Camera, its
-    [camera] table as a dict, why in a few words). epsilon: radiosity.rays.epsilon; where: the
+    [camera] table as a dict, why in a few words). ray_offset: radiosity.rays.epsilon; where: the
     file, for errors; parse_camera: scene.load's reader of [camera] tables (passed in: the
     camera used is the table read as a scene file's would be, so the printed table gives the
     same camera to the bit)."""
@@ -125,7 +126,7 @@ def default_camera(el: Elements, resolution: tuple[int, int], epsilon: float, wh
     center = (lo + hi) / 2
     w, h = resolution
     aspect = w / h
-    rc = RayCaster(el.verts, el.nverts, float(epsilon))
+    rc = RayCaster(el.verts, el.nverts, float(ray_offset))
 
     # inside: near one end of the longest horizontal axis, looking at the far wall
     a = 0 if size[0] >= size[2] else 2

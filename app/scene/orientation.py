@@ -176,7 +176,7 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
     on the emitting sides of each group (one material of one [[mesh]] entry), against the
     scene (`caster`: a tracing.rays.RayCaster of `elements`). Returns [EmitterReach]; empty when
     nothing emits."""
-    from radiosity.scene.closure import _directions, _frame
+    from radiosity.scene.closure import stratified_directions, tangent_frame
     from radiosity.scene.emitters import AreaEmitters
 
     side_emits = AreaEmitters(elements).emitting_sides()  # (n, 2): front, back
@@ -191,7 +191,7 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
     lo = elements.verts.reshape(-1, 3).min(0)
     hi = elements.verts.reshape(-1, 3).max(0)
     # off the surface beyond Embree's float32 rounding (rays.epsilon is relative to the scene)
-    step = 64.0 * caster.epsilon * float(np.linalg.norm(hi - lo) or 1.0)
+    step = 64.0 * caster.ray_offset * float(np.linalg.norm(hi - lo) or 1.0)
     out = []
     for (src, mat), ids in groups.items():
         ids = np.asarray(ids)
@@ -207,8 +207,8 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
         e, sg = el[pick], sign[pick]
         pts = _points_on(elements.verts[e], elements.nverts[e], rng)
         nrm = sg[:, None] * elements.normal[e]
-        t1, t2 = _frame(nrm)
-        loc = _directions(per, rng)
+        t1, t2 = tangent_frame(nrm)
+        loc = stratified_directions(per, rng)
         d = loc[:, :1] * t1 + loc[:, 1:2] * t2 + loc[:, 2:] * nrm
         hit = caster.first_hit(pts + step * nrm, d)
         lit = facing(elements, hit, pts)

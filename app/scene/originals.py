@@ -12,13 +12,13 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from radiosity.core import tolerances
 from radiosity.errors import RadiosityError
 
 # Facing and behind tests: distances below TOL times the scene's diagonal count as 0 (as in
-# plan.facing_blocks and effects). Meshes come in float32 (OBJ text, glTF, PLY): the triangles
-# of one flat face lie on one plane only to about 1e-7 of the diagonal, and at 1e-9 they faced
-# each other (docs/src/design/methods-hierarchical-clusters.md, "Flat faces").
-TOL = 1e-6
+# plan.facing_blocks and effects; core.tolerances: facing, and
+# docs/src/design/methods-hierarchical-clusters.md, "Flat faces").
+TOL = tolerances.TOL.facing
 LEAF = 16             # elements per leaf
 BATCH = 1 << 14       # node pairs classified per batch
 ESTIMATE_NODE_PAIRS = 1 << 16  # node pairs counted before the budget check samples the rest

@@ -40,13 +40,13 @@ def decode(code: np.ndarray):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _bit(depth):
+def depth_bit(depth):
     return np.uint64(1) << np.uint64(63 - depth)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _code(path, depth):
-    return path | _bit(depth)
+    return path | depth_bit(depth)
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -173,7 +173,7 @@ def _tree_walk(root_verts, root_nverts, root, child, leaf, verts, nverts, orig, 
             depth[x] = depth[i] + 1
             parent[x] = i
         path[a] = path[i]
-        path[b] = path[i] | _bit(depth[i])
+        path[b] = path[i] | depth_bit(depth[i])
     for i in range(k - 1, -1, -1):  # leaf ranges, bottom-up
         if leaf[i] >= 0:
             lo[i] = leaf[i]
@@ -321,7 +321,7 @@ def _table_walk(orig, depth, path, noff, verts, nverts, parent, lo, hi, is_leaf)
         if nverts[i] == 0:
             p = parent[i]
             split_one(verts[p], nverts[p], c0, c1)
-            second = (path[i] & _bit(depth[p])) != 0
+            second = (path[i] & depth_bit(depth[p])) != 0
             verts[i] = c1 if second else c0
             nverts[i] = nverts[p]
     nleaf = 0

@@ -12,8 +12,9 @@ import numpy as np
 
 from radiosity.core.geometry import diameter, polygon_properties
 from radiosity.core.bundles import Partition
+from radiosity.core.tolerances import TOL
 
-TIE = 1e-9  # lengths within this relative difference count as equal: keeps splits scale-free
+TIE = TOL.tie  # lengths within this relative difference count as equal (core.tolerances)
 
 
 class DepthGuardWarning(UserWarning):

@@ -5,7 +5,8 @@ dashboard's live preview while the solver runs (`previewer`).
 Inputs (a run store): the partition, the elements, the camera, the fine ID raster `raster/sub`
 (H*K, W*K) and the solution `solution/radiance` (m, 2, 3) float64, linear RGB radiance
 (W sr^-1 m^-2) per sub-element and side (0 front, 1 back). The pixels are made in
-stages.pixels, the mesh and the viewer in stages.export; their names are re-exported here.
+stages.pixels and coloured by core.colour; the files are formats/'s (images, meshexport,
+viewer); their names are re-exported here.
 """
 
 from __future__ import annotations
@@ -19,18 +20,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radiosity.errors import StoreError
+from radiosity.core.colour import AUTO_KEY, AUTO_PERCENTILE, LUMA, auto_exposure, srgb_encode, tonemap
+from radiosity.core.smooth import smooth_mesh
+from radiosity.errors import RenderError, StoreError
+from radiosity.formats.images import read_exr, write_exr, write_png
+from radiosity.formats.meshexport import export_mesh, triangles
+from radiosity.formats.viewer import VIEWER_GROW_PX, VIEWER_MAX_TRIANGLES, write_viewer
 from radiosity.runtime.store import StageFigures
 from radiosity.settings import Settings, resolve
-from radiosity.stages.export import (VIEWER_GROW_PX, VIEWER_MAX_TRIANGLES, export_mesh, triangles,
-                                     write_viewer)
-from radiosity.stages.smooth import smooth_mesh
 from radiosity.stages.tables import light_tables, write_light_tables
-from radiosity.stages.pixels import (AUTO_KEY, AUTO_PERCENTILE, LUMA, SAMPLINGS, RenderError,
-                                     auto_exposure, downsample, edge_pixels, facing_side,
-                                     pixel_radiance, plane_ids, read_exr, sample_pixels,
-                                     sample_raster, samples_radiance, seen_radiance,
-                                     srgb_encode, tonemap, write_exr, write_png)
+from radiosity.stages.pixels import (SAMPLINGS, downsample, edge_pixels, facing_side,
+                                     pixel_radiance, plane_ids, sample_pixels, sample_raster,
+                                     samples_radiance, seen_radiance)
 
 __all__ = ["ImageFigures", "render_outputs", "previewer",
            "AUTO_KEY", "AUTO_PERCENTILE", "LUMA", "SAMPLINGS", "RenderError", "sample_raster",

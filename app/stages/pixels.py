@@ -1,5 +1,5 @@
-"""The image itself: the radiance each fine pixel sees, its reconstruction to the camera's grid
-(box or Gaussian), tone mapping to 8-bit sRGB, and the EXR and PNG files.
+"""The image itself: the radiance each fine pixel sees and its reconstruction to the camera's
+grid (box or Gaussian); the tone mapping is core.colour's, the EXR and PNG files formats.images'.
 
 What a fine pixel sees (render.sampling): `area` (the default) averages k x k rays spread over
 the pixel's area, each looking up the solved radiance of the sub-element where it lands (the
@@ -7,36 +7,22 @@ seed's two-level lookup, seed §3.2), as a camera and a path tracer's box filter
 the sub-element of the ray through the pixel's centre, the preprocessing's ID raster (seed §3),
 as the seed does. They differ only where a pixel straddles an edge; measured in
 docs/src/how-to/checks-and-images.md.
-
-Colour pipeline: linear radiance x exposure, clipped to [0, 1], encoded with the sRGB transfer
-curve (IEC 61966-2-1), rounded to 8 bits; the image stage (stages.image) and the exports
-(stages.export) use the same exposure, so all of them show the same colours.
 """
 
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
-from radiosity.errors import RadiosityError, StoreError
+from radiosity.errors import RenderError, StoreError
 from radiosity.core.bundles import Camera, Elements, Partition
+from radiosity.core.tolerances import TOL
 
 #: What a fine pixel shows (render.sampling): the mean over its area, or its centre's element.
 SAMPLINGS = ("area", "point")
 #: Sample rays per Embree batch of the pixel-area image (about 60 bytes a ray in flight).
 AREA_BATCH = 1 << 20
-
-#: Rec. 709 / sRGB luminance weights of linear RGB.
-LUMA = np.array([0.2126, 0.7152, 0.0722])
-#: Automatic exposure maps the 99th percentile of the non-zero luminances to this linear value.
-AUTO_KEY = 0.9
-AUTO_PERCENTILE = 99.0
-
-
-class RenderError(RadiosityError):
-    """Bad render input: an unreadable image file, an unknown filter, a bad parameter."""
 
 
 # ----------------------------------------------------------------------------- the fine image
@@ -146,7 +132,7 @@ def _through(camera: Camera, subpixel: int, x: np.ndarray, y: np.ndarray) -> np.
 
 
 def sample_raster(part: Partition, elements: Elements, camera: Camera, subpixel: int, k: int,
-                  epsilon: float, caster=None) -> np.ndarray:
+                  ray_offset: float, caster=None) -> np.ndarray:
     """Sub-element seen by each of the k x k `area_offsets` rays of every fine pixel:
     (H*K, W*K, k*k) int32 (K = subpixel), -1 where a ray hits nothing.
 
@@ -154,11 +140,11 @@ def sample_raster(part: Partition, elements: Elements, camera: Camera, subpixel:
     elements: subdividing never changes the geometry), the hit point is recomputed in float64
     on that element's plane, and the split tree gives the sub-element under it (seed §3.2, the
     two-level lookup): any sub-element, also one that no pixel centre hits. caster: a
-    RayCaster of the original elements (None: built here with the ray offset `epsilon`).
+    RayCaster of the original elements (None: built here with `ray_offset`).
     """
     from radiosity.tracing.rays import RayCaster
 
-    rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, epsilon)
+    rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, ray_offset)
     offsets = area_offsets(k)
     s = len(offsets)
     w, h = camera.width * subpixel, camera.height * subpixel
@@ -196,15 +182,16 @@ def _seen(part: Partition, elements: Elements, camera: Camera, rc, d: np.ndarray
 
 def plane_ids(elements: Elements) -> np.ndarray:
     """(n,) int64: one id per plane and material of the original elements (normal and offset
-    rounded to 1e-6, the offset relative to the scene's size): a surface cut into many
-    elements is one, so edge pixels do not depend on how it was cut; a lamp in its ceiling's
-    plane is another."""
+    rounded to TOL.plane_digits decimals, the offset relative to the scene's size): a surface
+    cut into many elements is one, so edge pixels do not depend on how it was cut; a lamp in
+    its ceiling's plane is another."""
     from radiosity.scene.contact import scene_scale
 
     n = np.asarray(elements.normal, np.float64)
     off = np.einsum("ij,ij->i", n, np.asarray(elements.center, np.float64)) / \
         (scene_scale(elements) or 1.0)
-    key = np.column_stack([np.round(np.column_stack([n, off]) * 1e6).astype(np.int64),
+    scale = 10.0 ** TOL.plane_digits
+    key = np.column_stack([np.round(np.column_stack([n, off]) * scale).astype(np.int64),
                            np.asarray(elements.material, np.int64)])
     return np.unique(key, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
 
@@ -291,98 +278,3 @@ def downsample(fine: np.ndarray, K: int, filter: str = "box", sigma: float = 1.5
     return out
 
 
-# ----------------------------------------------------------------------------- tone mapping
-
-def srgb_encode(x: np.ndarray) -> np.ndarray:
-    """The sRGB transfer curve (IEC 61966-2-1) of linear values in [0, 1] (clipped first)."""
-    x = np.clip(np.asarray(x, np.float64), 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
-
-
-def auto_exposure(img: np.ndarray) -> float:
-    """Exposure that maps the 99th percentile of the luminance of the non-zero pixels to 0.9.
-
-    img (..., 3) linear RGB. 0.9 is linear (before the sRGB curve: 0.955 encoded), so about 1 %
-    of the lit pixels clip. 1.0 when no pixel is lit.
-    """
-    y = np.asarray(img, np.float64).reshape(-1, 3) @ LUMA
-    y = y[y > 0.0]
-    if y.size == 0:
-        return 1.0
-    p = float(np.percentile(y, AUTO_PERCENTILE))
-    return AUTO_KEY / p if p > 0.0 and math.isfinite(p) else 1.0
-
-
-def tonemap(img: np.ndarray, exposure: float | None = None) -> np.ndarray:
-    """Linear RGB (..., 3) -> 8-bit sRGB uint8 (..., 3): round(255 srgb(clip(exposure * img))).
-
-    exposure None: `auto_exposure(img)`.
-    """
-    img = np.asarray(img, np.float64)
-    e = auto_exposure(img) if exposure is None else float(exposure)
-    return np.rint(srgb_encode(img * e) * 255.0).astype(np.uint8)
-
-
-# ----------------------------------------------------------------------------- image files
-
-def temp_path(path: str) -> str:
-    """A name next to `path` to write to first and os.replace onto it (no half-written file)."""
-    root, ext = os.path.splitext(path)
-    return f"{root}.tmp{os.getpid()}{ext}"
-
-
-def write_exr(path: str, img: np.ndarray) -> None:
-    """Linear RGB (H, W, 3) -> OpenEXR scanline file, float32 channels R, G, B, ZIP (lossless)."""
-    import OpenEXR
-
-    a = np.ascontiguousarray(np.asarray(img, np.float32))
-    if a.ndim != 3 or a.shape[2] != 3:
-        raise RenderError(f"write_exr needs an (H, W, 3) image, got shape {a.shape}")
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    tmp = temp_path(path)
-    with OpenEXR.File(header, {"RGB": a}) as f:
-        f.write(tmp)
-    os.replace(tmp, path)
-
-
-def read_exr(path: str) -> np.ndarray:
-    """An OpenEXR file's RGB (its data window) as (H, W, 3) float32, linear.
-
-    Reads R, G, B (also 'layer.R' names of the first layer); a grey file (Y only) is repeated
-    into three channels; half and uint channels are converted to float32.
-    """
-    import OpenEXR
-
-    if not os.path.isfile(path):
-        raise RenderError(f"{path}: no such EXR file")
-    try:
-        with OpenEXR.File(path, separate_channels=True) as f:
-            ch = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
-    except Exception as e:
-        raise RenderError(f"{path}: cannot read as OpenEXR ({e})") from None
-
-    def find(c):
-        if c in ch:
-            return ch[c]
-        named = sorted(k for k in ch if k.endswith("." + c))
-        return ch[named[0]] if named else None
-
-    rgb = [find(c) for c in "RGB"]
-    if any(x is None for x in rgb):
-        y = find("Y")
-        if y is None:
-            raise RenderError(f"{path}: no R, G, B (or Y) channels, only {sorted(ch)}")
-        rgb = [y, y, y]
-    return np.stack([np.asarray(x, np.float32) for x in rgb], axis=-1)
-
-
-def write_png(path: str, img8: np.ndarray) -> None:
-    """8-bit sRGB (H, W, 3) uint8 -> PNG (no timestamp: identical input, identical bytes)."""
-    from PIL import Image
-
-    a = np.ascontiguousarray(img8)
-    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 3:
-        raise RenderError(f"write_png needs an (H, W, 3) uint8 image, got {a.dtype} {a.shape}")
-    tmp = temp_path(path)
-    Image.fromarray(a, "RGB").save(tmp, format="PNG")
-    os.replace(tmp, path)

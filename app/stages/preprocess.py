@@ -30,14 +30,14 @@ from radiosity.core.bundles import Scene
 @dataclass(frozen=True)
 class RasterInputs:
     """What every preprocessing task needs (scattered once): the original elements, the cameras
-    (the run's own first), the sub-pixel factor, the Embree cache key and the ray epsilon
+    (the run's own first), the sub-pixel factor, the Embree cache key and the ray offset
     (resolved on the driver)."""
 
     elements: object
     cameras: tuple
     subpixel: int
     key: str
-    epsilon: float
+    ray_offset: float
 
     @property
     def camera(self):
@@ -97,7 +97,7 @@ class PreprocessFigures(StageFigures):
 def task_raster(inp: RasterInputs, c: int, r0: int, r1: int):
     """Rays of camera c's fine-raster rows r0:r1 against the whole scene -> (orig, points)."""
     el = inp.elements
-    rc = caster_for(inp.key, el.verts, el.nverts, inp.epsilon)
+    rc = caster_for(inp.key, el.verts, el.nverts, inp.ray_offset)
     return raster_band(rc, el.normal, el.center, inp.cameras[c], inp.subpixel, slice(r0, r1))
 
 
@@ -112,7 +112,7 @@ def task_seed_subscene(inp: RasterInputs, start, stop, max_depth, rows_per_batch
     """The seed's variant (seed §4.2): render only this subscene on a full-size screen, then split."""
     el, camera, subpixel = inp.elements, inp.camera, inp.subpixel
     sl = slice(start, stop)
-    rc = RayCaster(el.verts[sl], el.nverts[sl], inp.epsilon)
+    rc = RayCaster(el.verts[sl], el.nverts[sl], inp.ray_offset)
     h = camera.height * subpixel
     e_all, p_all = [], []
     for r0 in range(0, h, rows_per_batch):
@@ -144,7 +144,8 @@ def subscene_args(el, ranges, points, point_elem, max_depth, group=None):
 
 def _scattered(client, args: list):
     """args_of for run_tasks: task i's arguments with its arrays scattered when it is submitted
-    (again on a retry), not sent inside the task graph (10^6 triangles made a 38 MiB graph)."""
+    (again on a retry), not sent inside the task graph, which large scenes made tens of MiB
+    (docs/src/measurements/choices.md)."""
     from radiosity.runtime.cluster import scatter
 
     def args_of(i):
@@ -155,6 +156,167 @@ def _scattered(client, args: list):
         return a
 
     return args_of
+
+
+@dataclass(frozen=True)
+class _Tasks:
+    """How this stage runs its tasks: run_tasks' arguments that every step shares."""
+
+    client: object
+    token: str
+    window: int
+    retries: int
+    progress: bool
+    repair: str
+
+    def run(self, fn, ids, args_of, name: str, on_result) -> None:
+        run_tasks(self.client, fn, ids, args_of, name=name, token=self.token,
+                  window=self.window, retries=self.retries, on_result=on_result,
+                  progress=self.progress, repair=self.repair)
+
+
+def _check_options(subpixel: int, variant: str, sd) -> None:
+    """One line for a subdivide setting out of range (sd: the settings' subdivide section)."""
+    if subpixel < 1:
+        raise SceneError(f"--subpixel must be 1 or more, got {subpixel}")
+    if variant not in ("exact", "seed", "none"):
+        raise SceneError(f"unknown subdivision variant {variant!r}: use exact, seed or none")
+    for key_, mode in (("unseen", sd.unseen), ("hidden", sd.hidden)):
+        if mode not in ("refine", "keep"):
+            raise SceneError(f"radiosity.subdivide.{key_} must be refine or keep, got {mode!r}")
+
+
+def _rasters(tasks: _Tasks, shared, scene: Scene, subpixel: int, rays_per_task: int):
+    """Step 1: the ID raster of the original scene (row bands of every camera), needed by
+    every variant for the image. Returns per camera (hit original (h w,) int32, -1 for none;
+    hit points (h w, 3); raster width) and the number of band tasks."""
+    cams = scene.cameras
+    bands, rasters = [], []
+    for c, cm in enumerate(cams):
+        hc, wc = cm.height * subpixel, cm.width * subpixel
+        rpt = max(1, rays_per_task // wc)
+        bands += [(c, r0, min(hc, r0 + rpt)) for r0 in range(0, hc, rpt)]
+        rasters.append((np.full(hc * wc, -1, np.int32), np.zeros((hc * wc, 3)), wc))
+
+    def got_band(i, res):
+        c, a, b = bands[i]
+        e_c, p_c, wc = rasters[c]
+        e_c[a * wc:b * wc], p_c[a * wc:b * wc] = res
+
+    tasks.run(task_raster, range(len(bands)), lambda i: (shared.future(), *bands[i]), "raster",
+              got_band)
+    for (e_c, _, _), cm, name in zip(rasters, cams, ("", *(n for n, _ in scene.views))):
+        if not (e_c >= 0).any():
+            raise SceneError(f"{scene.path}: the camera{f' {name!r}' if name else ''} sees no "
+                             f"element (at {cm.center.tolist()}, looking along {cm.z.tolist()}): "
+                             "check [camera]")
+    return rasters, len(bands)
+
+
+@dataclass(frozen=True)
+class _Points:
+    """What the split follows: every camera's hit points (seen_e originals (k,), seen_p (k, 3),
+    seen_g camera (k,)), the originals they hit (seen (n,) bool), the sub-elements no pixel
+    hits may add (budget), a seen pixel's size, and for the exact variant the points it
+    splits by (p_all, e_all, g_all: the seen ones and the unseen rule's, ue_count of those)."""
+
+    seen_e: np.ndarray
+    seen_p: np.ndarray
+    seen_g: np.ndarray
+    seen: np.ndarray
+    budget: int
+    pixel: float
+    p_all: np.ndarray | None
+    e_all: np.ndarray | None
+    g_all: np.ndarray | None
+    ue_count: int
+
+
+def _split_points(el, rasters, sd, variant: str, max_depth: int, ncams: int) -> _Points:
+    """The points the subdivision follows: every camera's hit points, and the unseen
+    originals' importance points of their own (subdivide.importance_points)."""
+    seen_e = np.concatenate([e_c[e_c >= 0] for e_c, _, _ in rasters])
+    seen_p = np.concatenate([p_c[e_c >= 0] for e_c, p_c, _ in rasters])
+    seen_g = np.concatenate([np.full(int((e_c >= 0).sum()), c, np.int64)
+                             for c, (e_c, _, _) in enumerate(rasters)])
+    seen = np.zeros(len(el), bool)
+    seen[seen_e] = True
+    up, ue = np.zeros((0, 3)), np.zeros(0, np.int64)
+    budget = int(float(sd.unseen_budget) * len(seen_e))  # sub-elements no pixel hits may add
+    pixel = 0.0  # a seen pixel's size: where the two rules stop splitting
+    if variant == "exact" and ((sd.unseen == "refine" and (~seen).any()) or sd.hidden == "refine"):
+        pixel = pixel_size(seen_p)
+    if sd.unseen == "refine" and variant == "exact" and (~seen).any():
+        up, ue = importance_points(el.verts, el.nverts, el.normal, el.two_sided,
+                                   np.nonzero(~seen)[0], seen_p, el.normal[seen_e],
+                                   float(sd.unseen_factor), pixel,
+                                   budget + int((~seen).sum()), max_depth)
+    p_all = e_all = g_all = None
+    if variant == "exact":
+        # the unseen rule's points join the run's own camera's (group 0), where its hidden
+        # rule's points go too: the rules make leaves of one point per group (hidden.py)
+        e_all = np.concatenate([seen_e, ue]).astype(np.int64)
+        p_all = np.concatenate([seen_p, up])
+        g_all = np.concatenate([seen_g, np.zeros(len(ue), np.int64)]) if ncams > 1 else None
+    return _Points(seen_e, seen_p, seen_g, seen, budget, pixel, p_all, e_all, g_all, len(ue))
+
+
+def _subdivide(tasks: _Tasks, shared, el, variant: str, max_depth: int, ntasks: int,
+               rows_per_task: int, pts: _Points):
+    """Step 2: the subdivision, one task per subscene (contiguous ranges of original ids).
+    Returns the ranges and each task's (partition, figures)."""
+    client = tasks.client
+    if variant == "none":  # no preprocessing: every original is one element (seed §6, image 1)
+        ranges = [(0, len(el))]
+        args = [(el.verts, el.nverts, el.normal, np.zeros((0, 3)), np.zeros(0, np.int64),
+                 max_depth, np.arange(len(el)))]
+        fn, args_of = task_subdivide, _scattered(client, args)
+    elif variant == "exact":
+        ranges = subscene_ranges(np.bincount(pts.e_all, minlength=len(el)) + 1.0, ntasks)
+        args = subscene_args(el, ranges, pts.p_all, pts.e_all, max_depth, pts.g_all)
+        fn, args_of = task_subdivide, _scattered(client, args)
+    else:
+        ranges = subscene_ranges(np.ones(len(el)), ntasks)
+        fn = task_seed_subscene
+
+        def args_of(i):
+            return (shared.future(), *ranges[i], max_depth, rows_per_task)
+    pieces = [None] * len(ranges)
+    tasks.run(fn, range(len(ranges)), args_of, "subdivide", pieces.__setitem__)
+    return ranges, pieces
+
+
+def _split_hidden(tasks: _Tasks, el, cams, part, pieces: list, ranges, pts: _Points, sd,
+                  rc, max_depth: int, subpixel: int):
+    """Step 2b: the sub-elements no pixel hits that seen surfaces see at close range
+    (scene/hidden.py), unseen originals' only with subdivide.unseen: refine; the subscenes
+    they lie in run again (their pieces replaced). Returns the partition and the counts."""
+    hfig = {"split": 0, "added": 0, "rays": 0}
+    room = pts.budget - max(0, pts.ue_count - int((~pts.seen).sum()))
+    hps, hes, hgs = [], [], []
+    for c, cm in enumerate(cams):  # each camera's own points and hidden parts
+        mine = (pts.g_all == c) if pts.g_all is not None else slice(None)
+        count, anchor = anchors(part, pts.p_all[mine], pts.e_all[mine])
+        if sd.unseen != "refine":  # the seed's rule for unseen originals: they stay whole
+            count[np.isin(part.orig, np.nonzero(~pts.seen)[0])] = 2  # (as if made by two points)
+        hp_c, he_c, f_c = split_hidden(part, count, anchor, el, cm, rc,
+                                       float(sd.hidden_factor), pts.pixel, room, max_depth,
+                                       int(sd.hidden_rays), subpixel)
+        room -= int(f_c["added"])
+        hps.append(hp_c)
+        hes.append(he_c)
+        hgs.append(np.full(len(he_c), c, np.int64))
+        hfig = {k: hfig[k] + int(f_c.get(k, 0)) for k in hfig}
+    hp, he = np.concatenate(hps), np.concatenate(hes)
+    if len(hp):
+        args = subscene_args(el, ranges, np.concatenate([pts.p_all, hp]),
+                             np.concatenate([pts.e_all, he]), max_depth,
+                             None if pts.g_all is None else np.concatenate([pts.g_all, *hgs]))
+        again = [i for i, (a, b) in enumerate(ranges) if np.any((he >= a) & (he < b))]
+        tasks.run(task_subdivide, again, _scattered(tasks.client, args), "subdivide-hidden",
+                  pieces.__setitem__)
+        part = merge_partitions([p for p, _ in pieces], ranges, len(el))
+    return part, hfig
 
 
 def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
@@ -172,15 +334,10 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     sd = st.subdivide
     t0 = time.perf_counter()
     subpixel, variant, max_depth = int(sd.subpixel), sd.variant, int(sd.max_depth)
-    if subpixel < 1:
-        raise SceneError(f"--subpixel must be 1 or more, got {subpixel}")
-    if variant not in ("exact", "seed", "none"):
-        raise SceneError(f"unknown subdivision variant {variant!r}: use exact, seed or none")
+    _check_options(subpixel, variant, sd)
     el, cam, cams = scene.elements, scene.camera, scene.cameras
     threads = sum(client.nthreads().values()) or 1
     ntasks = int(sd.subscenes or 2 * threads)
-    window = max(1, int(st.visibility.window_per_worker) * threads)
-    retries = int(st.visibility.retries)
     h, w = cam.height * subpixel, cam.width * subpixel
     rows_per_task = max(1, int(sd.rays_per_task) // w)
 
@@ -194,118 +351,27 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     shared = Scattered(client, inp)
     # task keys: deterministic per run directory and inputs (never shared between two runs)
     token = tokenize(key, [c.to_dict() for c in cams], subpixel, variant, max_depth, ntasks,
-                     rows_per_task, inp.epsilon, store.path, sd.unseen, sd.unseen_factor,
+                     rows_per_task, inp.ray_offset, store.path, sd.unseen, sd.unseen_factor,
                      sd.unseen_budget, sd.hidden, sd.hidden_factor, sd.hidden_rays)
-    repair = f"run radiosity preprocess again into {out}"
+    tasks = _Tasks(client, token, max(1, int(st.visibility.window_per_worker) * threads),
+                   int(st.visibility.retries), progress, f"run radiosity preprocess again into {out}")
 
-    # 1. the ID raster of the original scene (row bands of every camera), needed by both
-    # variants for the image; the other cameras' hit points join the exact variant's split
-    bands, rasters = [], []
-    for c, cm in enumerate(cams):
-        hc, wc = cm.height * subpixel, cm.width * subpixel
-        rpt = max(1, int(sd.rays_per_task) // wc)
-        bands += [(c, r0, min(hc, r0 + rpt)) for r0 in range(0, hc, rpt)]
-        rasters.append((np.full(hc * wc, -1, np.int32), np.zeros((hc * wc, 3)), wc))
-
-    def got_band(i, res):
-        c, a, b = bands[i]
-        e_c, p_c, wc = rasters[c]
-        e_c[a * wc:b * wc], p_c[a * wc:b * wc] = res
-
-    run_tasks(client, task_raster, range(len(bands)), lambda i: (shared.future(), *bands[i]),
-              name="raster", token=token, window=window, retries=retries, on_result=got_band,
-              progress=progress, repair=repair)
+    rasters, nbands = _rasters(tasks, shared, scene, subpixel, int(sd.rays_per_task))
     t_raster = time.perf_counter() - t0
-    for (e_c, _, _), cm, name in zip(rasters, cams, ("", *(n for n, _ in scene.views))):
-        if not (e_c >= 0).any():
-            raise SceneError(f"{scene.path}: the camera{f' {name!r}' if name else ''} sees no "
-                             f"element (at {cm.center.tolist()}, looking along {cm.z.tolist()}): "
-                             "check [camera]")
     elem, pts = rasters[0][0], rasters[0][1]
     hit = elem >= 0
-    # every camera's hit points, and the camera of each (group), for the exact variant
-    seen_e = np.concatenate([e_c[e_c >= 0] for e_c, _, _ in rasters])
-    seen_p = np.concatenate([p_c[e_c >= 0] for e_c, p_c, _ in rasters])
-    seen_g = np.concatenate([np.full(int((e_c >= 0).sum()), c, np.int64)
-                             for c, (e_c, _, _) in enumerate(rasters)])
 
-    # 2. subdivision, one task per subscene (contiguous ranges of original ids); the unseen
-    # originals get importance points of their own (subdivide.importance_points)
     t1 = time.perf_counter()
-    seen = np.zeros(len(el), bool)
-    seen[seen_e] = True
-    unseen_mode, hidden_mode = sd.unseen, sd.hidden
-    for key_, mode in (("unseen", unseen_mode), ("hidden", hidden_mode)):
-        if mode not in ("refine", "keep"):
-            raise SceneError(f"radiosity.subdivide.{key_} must be refine or keep, got {mode!r}")
-    up, ue = np.zeros((0, 3)), np.zeros(0, np.int64)
-    budget = int(float(sd.unseen_budget) * len(seen_e))  # sub-elements no pixel hits may add
-    pixel = 0.0  # a seen pixel's size: where the two rules stop splitting
-    if variant == "exact" and ((unseen_mode == "refine" and (~seen).any()) or hidden_mode == "refine"):
-        pixel = pixel_size(seen_p)
-    if unseen_mode == "refine" and variant == "exact" and (~seen).any():
-        up, ue = importance_points(el.verts, el.nverts, el.normal, el.two_sided,
-                                   np.nonzero(~seen)[0], seen_p, el.normal[seen_e],
-                                   float(sd.unseen_factor), pixel,
-                                   budget + int((~seen).sum()), max_depth)
-    if variant == "none":  # no preprocessing: every original is one element (seed §6, image 1)
-        ranges = [(0, len(el))]
-        args = [(el.verts, el.nverts, el.normal, np.zeros((0, 3)), np.zeros(0, np.int64),
-                 max_depth, np.arange(len(el)))]
-        fn, args_of = task_subdivide, _scattered(client, args)
-    elif variant == "exact":
-        # the unseen rule's points join the run's own camera's (group 0), where its hidden
-        # rule's points go too: the rules make leaves of one point per group (hidden.py)
-        e_all = np.concatenate([seen_e, ue]).astype(np.int64)
-        p_all = np.concatenate([seen_p, up])
-        g_all = np.concatenate([seen_g, np.zeros(len(ue), np.int64)]) if len(cams) > 1 else None
-        ranges = subscene_ranges(np.bincount(e_all, minlength=len(el)) + 1.0, ntasks)
-        args = subscene_args(el, ranges, p_all, e_all, max_depth, g_all)
-        fn, args_of = task_subdivide, _scattered(client, args)
-    else:
-        ranges = subscene_ranges(np.ones(len(el)), ntasks)
-        fn = task_seed_subscene
-
-        def args_of(i):
-            return (shared.future(), *ranges[i], max_depth, rows_per_task)
-    pieces = [None] * len(ranges)
-    run_tasks(client, fn, range(len(ranges)), args_of, name="subdivide", token=token,
-              window=window, retries=retries, on_result=pieces.__setitem__, progress=progress,
-              repair=repair)
+    points = _split_points(el, rasters, sd, variant, max_depth, len(cams))
+    ranges, pieces = _subdivide(tasks, shared, el, variant, max_depth, ntasks, rows_per_task,
+                                points)
     part = merge_partitions([p for p, _ in pieces], ranges, len(el))
-
-    # 2b. the sub-elements no pixel hits that seen surfaces see at close range (scene/hidden.py),
-    # unseen originals' only with subdivide.unseen: refine; the subscenes they lie in run again
     hfig = {"split": 0, "added": 0, "rays": 0}
     t_hidden = time.perf_counter()
-    if hidden_mode == "refine" and variant == "exact":
-        rc = caster_for(key, el.verts, el.nverts, inp.epsilon)
-        room = budget - max(0, len(ue) - int((~seen).sum()))
-        hps, hes, hgs = [], [], []
-        for c, cm in enumerate(cams):  # each camera's own points and hidden parts
-            mine = (g_all == c) if g_all is not None else slice(None)
-            count, anchor = anchors(part, p_all[mine], e_all[mine])
-            if unseen_mode != "refine":  # the seed's rule for unseen originals: they stay whole
-                count[np.isin(part.orig, np.nonzero(~seen)[0])] = 2  # (as if made by two points)
-            hp_c, he_c, f_c = split_hidden(part, count, anchor, el, cm, rc,
-                                           float(sd.hidden_factor), pixel, room, max_depth,
-                                           int(sd.hidden_rays), subpixel)
-            room -= int(f_c["added"])
-            hps.append(hp_c)
-            hes.append(he_c)
-            hgs.append(np.full(len(he_c), c, np.int64))
-            hfig = {k: hfig[k] + int(f_c.get(k, 0)) for k in hfig}
-        hp, he = np.concatenate(hps), np.concatenate(hes)
-        if len(hp):
-            args = subscene_args(el, ranges, np.concatenate([p_all, hp]),
-                                 np.concatenate([e_all, he]), max_depth,
-                                 None if g_all is None else np.concatenate([g_all, *hgs]))
-            again = [i for i, (a, b) in enumerate(ranges) if np.any((he >= a) & (he < b))]
-            run_tasks(client, task_subdivide, again, _scattered(client, args),
-                      name="subdivide-hidden",
-                      token=token, window=window, retries=retries,
-                      on_result=pieces.__setitem__, progress=progress, repair=repair)
-            part = merge_partitions([p for p, _ in pieces], ranges, len(el))
+    if sd.hidden == "refine" and variant == "exact":
+        part, hfig = _split_hidden(tasks, el, cams, part, pieces, ranges, points, sd,
+                                   caster_for(key, el.verts, el.nverts, inp.ray_offset),
+                                   max_depth, subpixel)
     t_hidden = time.perf_counter() - t_hidden
     guarded = sum(f["guarded"] for _, f in pieces)
     firsts = [f["guarded_first"] for _, f in pieces if f["guarded"]]
@@ -314,6 +380,7 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
 
     # 3. the sub-element raster (two-level lookup) and the store
     sub = lookup(part, pts, elem)
+    seen = points.seen
     per_sub = np.bincount(sub[sub >= 0], minlength=len(part))
     unseen_subs = int(np.diff(part.offsets)[~seen].sum())
     refined = int((np.diff(part.offsets)[~seen] > 1).sum())
@@ -322,12 +389,12 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
         "original_elements": len(el), "sub_elements": len(part),
         "max_depth": int(part.depth.max(initial=0)), "levels": max(f["levels"] for _, f in pieces),
         "unseen_unsplit": int((~seen).sum()) - refined, "unseen_refined": refined,
-        "unseen_sub_elements": unseen_subs, "unseen_mode": unseen_mode, "pixels_hit": int(hit.sum()),
+        "unseen_sub_elements": unseen_subs, "unseen_mode": sd.unseen, "pixels_hit": int(hit.sum()),
         "max_pixels_per_sub_element": int(per_sub.max(initial=0)), "depth_guarded": guarded,
         "sub_elements_per_pixel": len(part) / max(1, int(hit.sum())),
-        "subscene_tasks": len(ranges), "raster_tasks": len(bands), "cameras": len(cams),
+        "subscene_tasks": len(ranges), "raster_tasks": nbands, "cameras": len(cams),
         "time_raster_s": round(t_raster, 4), "time_subdivide_s": round(t_sub, 4),
-        "hidden_mode": hidden_mode, "hidden_split": int(hfig["split"]),
+        "hidden_mode": sd.hidden, "hidden_split": int(hfig["split"]),
         "hidden_added": int(hfig["added"]), "hidden_rays": int(hfig["rays"]),
         "time_hidden_s": round(t_hidden, 4),
     }
@@ -342,7 +409,8 @@ def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
     # seen: the originals any camera's pixel hits (the cluster layer's importance, links.py);
     # footprint: those a pixel may show (the cluster layer keeps the others coarse)
     eyes = np.array([cm.center for cm in cams])
-    foot = footprint_originals(el, seen_e, seen_p, seen_g, eyes, pixel or pixel_size(seen_p))
+    foot = footprint_originals(el, points.seen_e, points.seen_p, points.seen_g, eyes,
+                               points.pixel or pixel_size(points.seen_p))
     store.write_arrays("raster", {"orig": elem.reshape(h, w), "sub": sub.reshape(h, w),
                                   "seen": seen, "footprint": foot})
     fig = PreprocessFigures(**figures, time_total_s=round(time.perf_counter() - t0, 4),

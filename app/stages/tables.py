@@ -1,6 +1,6 @@
 """Numbers for engineers: radiance, exitance, irradiance and illuminance of the solution per
 sub-element, per original surface and per material, as numpy arrays (a DataFrame when pandas
-is there), CSV files (Parquet too when pyarrow is there) and a summary in report.json.
+is there), CSV files (Parquet too when pyarrow is there; formats/ writes them) and a summary in report.json.
 
 Units and the photometric conversion (docs/how-to/exports.md says the same):
 - radiance L, emitted radiance Le: W sr^-1 m^-2 per RGB channel (SPEC §1); exitance
@@ -27,8 +27,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radiosity.core.arrays import unique_rows
+from radiosity.core.colour import LUMA
+from radiosity.formats.csvtext import write_csv
+from radiosity.formats.parquet import write_parquet
 from radiosity.runtime.store import StageFigures
-from radiosity.stages.pixels import LUMA, temp_path
 
 #: Luminous efficacy of "1 W of Y", lm/W: 683 is the definition of the candela (555 nm).
 EFFICACY = 683.0
@@ -210,41 +212,6 @@ def read_light_tables(run_dir: str, efficacy: float = EFFICACY) -> LightTables:
 
 
 # ----------------------------------------------------------------------------- files
-
-def _csv_cell(v) -> str:
-    s = str(v)
-    if any(ch in s for ch in ',"\n\r'):
-        s = '"' + s.replace('"', '""') + '"'
-    return s
-
-
-def write_csv(path: str, table: dict) -> None:
-    """One table as CSV: a header of the column names, numbers with 7 significant digits
-    ("nan" where undefined), names quoted where they need it (stages/csvtext.py writes the
-    rows). Written whole, then renamed."""
-    from radiosity.stages.csvtext import csv_chunks
-
-    cols = list(table)
-    tmp = temp_path(path)
-    with open(tmp, "wb") as f:
-        f.write((",".join(_csv_cell(c) for c in cols) + "\n").encode("utf-8"))
-        for chunk in csv_chunks([table[k] for k in cols], _csv_cell):
-            f.write(chunk)
-    os.replace(tmp, path)
-
-
-def write_parquet(path: str, table: dict) -> bool:
-    """One table as Parquet if pyarrow is importable; returns whether it was written."""
-    try:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-    except ImportError:
-        return False
-    tmp = temp_path(path)
-    pq.write_table(pa.table({k: v for k, v in table.items()}), tmp)
-    os.replace(tmp, path)
-    return True
-
 
 def _finite(x) -> float | None:
     x = float(x)

@@ -19,8 +19,9 @@ from radiosity.core.bundles import Camera
 from radiosity.errors import RadiosityError
 from radiosity.methods.base import method_of_run
 from radiosity.runtime.store import RunStore, update_report
-from radiosity.stages.pixels import (area_offsets, sample_directions, tonemap, write_exr,
-                                     write_png)
+from radiosity.core.colour import tonemap
+from radiosity.formats.images import write_exr, write_png
+from radiosity.stages.pixels import area_offsets, sample_directions
 from radiosity.tracing.rays import RayCaster
 
 #: Rays per pixel side of a view (K x K per pixel on the image stage's sheared lattice,
@@ -82,14 +83,14 @@ def view_name(name: str | None, run_dir: str) -> str:
     return f"view-{k}"
 
 
-def hit_points(elements, camera: Camera, samples: int, epsilon: float, caster=None):
+def hit_points(elements, camera: Camera, samples: int, ray_offset: float, caster=None):
     """First hits of the camera's `samples` x `samples` rays per pixel, on the image stage's
     sheared lattice (pixels.area_offsets): (orig (P,) int, points (P, 3), pixel (P,)) in
     pixel-major order (the S = samples^2 rays of pixel 0, then of pixel 1, ...). caster: a
     RayCaster of `elements` to reuse (None: built here)."""
     offsets = area_offsets(samples)
     S = len(offsets)
-    rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, epsilon)
+    rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, ray_offset)
     origin = np.asarray(camera.center, np.float64)
     band = max(1, ROWS_PER_BATCH * 64 // (camera.width * S))
     orig, pts = [], []
@@ -141,8 +142,8 @@ class Viewer:
                                  "first")
         self.method = method_of_run(rs)
         self.elements = el = rs.load_elements()
-        self.epsilon = float(s.rays.epsilon)
-        self.caster = RayCaster(el.verts, el.nverts, self.epsilon)
+        self.ray_offset = float(s.rays.epsilon)
+        self.caster = RayCaster(el.verts, el.nverts, self.ray_offset)
         self.two_sided = np.asarray(el.two_sided, bool)
         self.source = self.method.open_views(rs, s)
         # the run's own exposure, so that views of one run compare
@@ -154,7 +155,7 @@ class Viewer:
         pixel, box-averaged) and its figures; no files written."""
         t0 = time.perf_counter()
         el = self.elements
-        orig, pts, pixel = hit_points(el, camera, samples, self.epsilon, self.caster)
+        orig, pts, pixel = hit_points(el, camera, samples, self.ray_offset, self.caster)
         hit = orig >= 0
         o = np.maximum(orig, 0)
         side = (np.einsum("ij,ij->i", el.normal[o], camera.center[None, :] - pts) <= 0.0

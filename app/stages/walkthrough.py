@@ -323,7 +323,8 @@ def render_walkthrough(run_dir: str, path, out: str | None = None, name: str | N
     run_dir to reuse; on_frame(k, image (H, W, 3) float64 linear, figures): called per frame."""
     from radiosity.runtime.monitor import progress_bar
     from radiosity.runtime.store import update_report
-    from radiosity.stages.pixels import tonemap, write_png
+    from radiosity.core.colour import tonemap
+    from radiosity.formats.images import write_png
     from radiosity.stages.views import VIEW_SAMPLES, Viewer, view_name
 
     t0 = time.perf_counter()
@@ -352,7 +353,7 @@ def render_walkthrough(run_dir: str, path, out: str | None = None, name: str | N
         for k, cam in enumerate(cams):
             img, fig = v.image(cam, samples)
             if exposure is None:  # a run without a recorded exposure: the first frame's
-                from radiosity.stages.pixels import auto_exposure
+                from radiosity.core.colour import auto_exposure
 
                 exposure = auto_exposure(img)
             img8 = tonemap(img, exposure)

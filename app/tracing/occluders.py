@@ -11,17 +11,11 @@ from __future__ import annotations
 import numpy as np
 
 from radiosity.core.geometry import element_triangles, tangent_basis
+from radiosity.core.tolerances import TOL
 
 #: Faces of at least this many elements are merged: below it the triangles are few anyway.
 MIN_ELEMENTS = 8
-#: A face's elements whose areas sum to more than their convex hull's by this share overlap:
-#: the face is kept as it is.
-AREA_TOL = 1e-9
-#: Neighbours whose unit normals' dot product is within this of 1 may be one face (a small
-#: triangle of a flat face stored in float32 turns its normal by about 1e-6); a face is one
-#: polygon only where all its vertices lie within PLANE_TOL of the scene's size of one plane.
-NORMAL_TOL = 1e-9
-PLANE_TOL = 1e-6
+# Its tolerances: core.tolerances' occluder_area, occluder_normal and occluder_plane.
 
 
 def merged_faces(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, area: np.ndarray,
@@ -38,7 +32,7 @@ def merged_faces(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, area
     fans, fan_group = [], []
     for members in faces:
         hull = _convex_union(verts[members], nverts[members], normal[members[0]],
-                             float(area[members].sum()), PLANE_TOL * scale)
+                             float(area[members].sum()), TOL.occluder_plane * scale)
         if hull is None:
             continue
         merged[members] = True
@@ -54,7 +48,7 @@ def merged_faces(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, area
 
 def _faces(verts, nverts, normal, scale) -> list[np.ndarray]:
     """The sets of at least MIN_ELEMENTS polygons connected through shared edges (the same two
-    vertices) between polygons whose normals agree within NORMAL_TOL."""
+    vertices) between polygons whose normals agree within TOL.occluder_normal."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -64,7 +58,7 @@ def _faces(verts, nverts, normal, scale) -> list[np.ndarray]:
     lo, hi, poly = lo[order], hi[order], poly[order]
     same = (lo[1:] == lo[:-1]) & (hi[1:] == hi[:-1])
     i, j = poly[:-1][same], poly[1:][same]
-    flat = np.einsum("ij,ij->i", normal[i], normal[j]) >= 1.0 - NORMAL_TOL
+    flat = np.einsum("ij,ij->i", normal[i], normal[j]) >= 1.0 - TOL.occluder_normal
     i, j = i[flat], j[flat]
     graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
     _, comp = connected_components(graph, directed=False)
@@ -108,7 +102,7 @@ def _convex_union(verts, nverts, normal, area: float, tol: float) -> np.ndarray 
         hull = ConvexHull(uv)
     except QhullError:
         return None
-    if area > hull.volume * (1.0 + AREA_TOL):  # in two dimensions, its volume is its area
+    if area > hull.volume * (1.0 + TOL.occluder_area):  # in two dimensions, its volume is its area
         return None
     key = lo * len(pts) + hi
     uniq, count = np.unique(key, return_counts=True)

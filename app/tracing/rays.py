@@ -2,7 +2,7 @@
 
 The accelerator is built once from the original elements (a quad is two triangles that map back
 to it). Embree works in float32, so geometry is moved to a normalised frame (centred on the
-bounding box, divided by its diagonal) and every epsilon is relative to the scene's size:
+bounding box, divided by its diagonal) and every ray offset is relative to the scene's size:
 results do not change when the whole scene is scaled.
 """
 
@@ -30,22 +30,23 @@ def _embree():
 
 
 #: The ray offset where a caller gives none: radiosity.yaml's rays.epsilon as shipped (a test
-#: keeps the two equal; why 1e-6 is said there).
-DEFAULT_EPSILON = 1e-6
+#: keeps the two equal; why 1e-6 is said there). rays.epsilon is the user's name for it; in code
+#: it is `ray_offset`, and epsilon is the links' refinement threshold (hierarchy.epsilon).
+DEFAULT_RAY_OFFSET = 1e-6
 
 
 class RayCaster:
     """Embree scene of a set of polygons (verts (n, 4, 3), nverts (n,)), queried in world units."""
 
-    def __init__(self, verts: np.ndarray, nverts: np.ndarray, epsilon: float | None = None):
-        """epsilon: ray offset in the normalised frame, resolved by the caller (the stage
-        masters pass the rays.epsilon setting); None takes DEFAULT_EPSILON."""
+    def __init__(self, verts: np.ndarray, nverts: np.ndarray, ray_offset: float | None = None):
+        """ray_offset: in the normalised frame, resolved by the caller (the stage masters pass
+        the rays.epsilon setting); None takes DEFAULT_RAY_OFFSET."""
         rtcore_scene, mesh_construction = _embree()
         tris, self.owner = element_triangles(np.asarray(verts, float), np.asarray(nverts))
         lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
         self.origin = 0.5 * (lo + hi)
         self.scale = float(np.linalg.norm(hi - lo)) or 1.0
-        self.epsilon = float(DEFAULT_EPSILON if epsilon is None else epsilon)
+        self.ray_offset = float(DEFAULT_RAY_OFFSET if ray_offset is None else ray_offset)
         self._local = threading.local()
         self.normal = polygon_properties(np.asarray(verts, float), np.asarray(nverts))[1]
         self._scene = rtcore_scene.EmbreeScene()
@@ -176,8 +177,8 @@ class RayCaster:
         starts or ends on, so when it leaves one at a grazing angle (where float32 rounding can
         report such a hit) a reported occlusion is re-checked and hits on those two elements are
         stepped over. The query is symmetric (it always runs from the lexicographically smaller
-        endpoint); the segment is shortened by epsilon at both ends, and segments shorter than
-        2 epsilon are never occluded. With `elem` (every end on an element, so inside the
+        endpoint); the segment is shortened by the ray offset at both ends, and segments shorter than
+        twice it are never occluded. With `elem` (every end on an element, so inside the
         scene's convex hull) the elements in the hull's supporting planes are left out: they
         cannot block such a segment (_inner_scene).
         """
@@ -198,7 +199,7 @@ class RayCaster:
             sl = slice(s, min(n, s + BATCH))
             k = sl.stop - sl.start
             o32, d32, far, graze = (b[:k] for b in buf)
-            _segments(points, ia[sl], ib[sl], self.origin, self.scale, self.epsilon, self.normal,
+            _segments(points, ia[sl], ib[sl], self.origin, self.scale, self.ray_offset, self.normal,
                       elem, has_e, GRAZING, o32, d32, far, graze)
             occ = np.asarray(scene.run(o32, d32, dists=far, query="OCCLUDED")) != -1
             occ &= far > 0
@@ -229,7 +230,7 @@ class RayCaster:
     def _beyond_own(self, a, d, length, ea, eb, scene, owner, rounds: int = 8) -> np.ndarray:
         """For segments reported occluded in `scene` (owner: its triangles' elements, or their
         groups: merged faces): is the first hit on another element (group) than ea, eb?"""
-        eps = self.epsilon
+        eps = self.ray_offset
         t0 = np.full(len(a), eps)
         result = np.zeros(len(a), bool)
         live = np.arange(len(a))
@@ -315,25 +316,25 @@ _CACHE: "OrderedDict[tuple, RayCaster]" = OrderedDict()
 _CACHE_LOCK = threading.Lock()
 
 
-def caster_of(verts: np.ndarray, nverts: np.ndarray, epsilon: float) -> RayCaster:
+def caster_of(verts: np.ndarray, nverts: np.ndarray, ray_offset: float) -> RayCaster:
     """caster_for keyed by the polygons themselves (dask's tokenize of verts, nverts): the
-    driver's checks, closure test, preprocess, solve and image share one Embree scene (each
-    built its own: about 0.1 s apiece for 37 000 triangles)."""
+    driver's checks, closure test, preprocess, solve and image share one Embree scene instead
+    of building one each (docs/src/measurements/choices.md)."""
     from dask.base import tokenize
 
-    return caster_for(tokenize(verts, nverts), verts, nverts, epsilon)
+    return caster_for(tokenize(verts, nverts), verts, nverts, ray_offset)
 
 
-def caster_for(key: str, verts: np.ndarray, nverts: np.ndarray, epsilon: float) -> RayCaster:
-    """A RayCaster memoised per process by (key, epsilon) (built once per worker, then reused;
+def caster_for(key: str, verts: np.ndarray, nverts: np.ndarray, ray_offset: float) -> RayCaster:
+    """A RayCaster memoised per process by (key, ray_offset) (built once per worker, then reused;
     safe when a worker runs several tasks in threads)."""
-    k = (key, float(epsilon))
+    k = (key, float(ray_offset))
     with _CACHE_LOCK:
         rc = _CACHE.get(k)
         if rc is not None:
             _CACHE.move_to_end(k)
             return rc
-    rc = RayCaster(verts, nverts, epsilon)
+    rc = RayCaster(verts, nverts, ray_offset)
     with _CACHE_LOCK:
         _CACHE[k] = rc
         while len(_CACHE) > 4:

@@ -16,28 +16,29 @@ import numba
 import numpy as np
 
 from radiosity.core.geometry import COS_TOL
+from radiosity.core.tolerances import TOL
 
-BOX_PAD = 1e-6   # occluder boxes grow by this fraction of the scene size (conservative)
 LEAF = 64        # range pairs with at most this many pairs are tested pair by pair
 
 
 def occluders(elements):
     """Padded occluder boxes and planes of the original elements: elo, ehi (n, 3), enormal
-    (n, 3), eoffset (n,), and the plane-test tolerance pad (BOX_PAD of the scene size plus the
+    (n, 3), eoffset (n,), and the plane-test tolerance pad (TOL.box_pad of the scene size plus the
     elements' own deviation from their planes; non-planar input was split, so that is rounding)."""
     ev = elements.verts
     lo, hi = ev.min(axis=1), ev.max(axis=1)
-    pad = BOX_PAD * float(np.linalg.norm(ev.reshape(-1, 3).max(0) - ev.reshape(-1, 3).min(0)))
+    pad = TOL.box_pad * float(np.linalg.norm(ev.reshape(-1, 3).max(0) - ev.reshape(-1, 3).min(0)))
     eoffset = np.einsum("ic,ic->i", elements.normal, elements.center)
     dev = np.abs(np.einsum("ic,ikc->ik", elements.normal, ev) - eoffset[:, None]).max(1)
     return lo - pad, hi + pad, elements.normal, eoffset, pad + float(dev.max(initial=0.0))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _faces(N, i, ts, dx, dy, dz, length):
+def faces_along(N, i, ts, dx, dy, dz, length):
     """Does element i with normal N[i] (two-sided if ts) face along d? cos beyond +-tol.
     (Hot-loop helpers here take an array and an index, not a row: a row is a view, and each
-    view costs two atomic reference-count updates; MEASURED: 30 % of the link stage's time.)"""
+    view costs two atomic reference-count updates, a large share of the link stage's time:
+    docs/src/measurements/choices.md.)"""
     c = N[i, 0] * dx + N[i, 1] * dy + N[i, 2] * dz
     t = COS_TOL * length
     return c > t or (ts and c < -t)
@@ -152,7 +153,7 @@ def _range_box(lo, hi, a0, a1, out):
 @numba.njit(cache=True, nogil=True, inline="always")
 def box_apart(A, B, LO, HI, o):
     """Does some axis separate occluder o's box [LO[o], HI[o]] from the bounding box of boxes A
-    and B ((2, 3): lo, hi)? Then no segment between A and B meets it (_shaft_excludes' first
+    and B ((2, 3): lo, hi)? Then no segment between A and B meets it (shaft_excludes' first
     test)."""
     for k in range(3):
         if HI[o, k] < min(A[0, k], B[0, k]) or LO[o, k] > max(A[1, k], B[1, k]):
@@ -164,7 +165,7 @@ def box_apart(A, B, LO, HI, o):
 def clear_of(A, B, LO, HI):
     """box_apart for every occluder box (LO, HI (b, 3)): no segment between boxes A and B can
     meet an occluder that lies in them (RayCaster.occluder_boxes). The shaft's planes
-    (_shaft_excludes) are left out: the rays they would save cost less than testing them
+    (shaft_excludes) are left out: the rays they would save cost less than testing them
     (docs/src/design/methods-hierarchical-clusters.md, "Rays only where an occluder can be")."""
     for o in range(LO.shape[0]):
         if not box_apart(A, B, LO, HI, o):
@@ -173,7 +174,7 @@ def clear_of(A, B, LO, HI):
 
 
 @numba.njit(cache=True, nogil=True)
-def _shaft_excludes(A, B, LO, HI, o):
+def shaft_excludes(A, B, LO, HI, o):
     """Is occluder o's box C = [LO[o], HI[o]] outside the shaft (convex hull) of boxes A and B? (A[0]=lo, A[1]=hi)
 
     Haines & Wallace: the union's bounding box, cut by the planes through box edges where one
@@ -252,7 +253,7 @@ def classify(rows, cols, occ, cand, sampled):
         for c in range(c0, c1):
             o = pool[c]
             tests += 1
-            if not (_same_side(A, B, on, od, o, pad) or _shaft_excludes(A, B, olo, ohi, o)):
+            if not (_same_side(A, B, on, od, o, pad) or shaft_excludes(A, B, olo, ohi, o)):
                 pool[k] = o
                 k += 1
         n0, n1 = top, k
@@ -264,8 +265,8 @@ def classify(rows, cols, occ, cand, sampled):
                     dy = cb[b, 1] - ca[a, 1]
                     dz = cb[b, 2] - ca[a, 2]
                     length = np.sqrt(dx * dx + dy * dy + dz * dz)
-                    if not (_faces(na, a, tsa[a], dx, dy, dz, length)
-                            and _faces(nb, b, tsb[b], -dx, -dy, -dz, length)):
+                    if not (faces_along(na, a, tsa[a], dx, dy, dz, length)
+                            and faces_along(nb, b, tsb[b], -dx, -dy, -dz, length)):
                         continue
                     hit = False
                     if sampled:
@@ -276,7 +277,7 @@ def classify(rows, cols, occ, cand, sampled):
                         if sampled:
                             tests += 1
                             if not (_same_side(A, B, on, od, o, pad)
-                                    or _shaft_excludes(A, B, olo, ohi, o)):
+                                    or shaft_excludes(A, B, olo, ohi, o)):
                                 hit = True
                                 break
                             continue
@@ -313,7 +314,7 @@ def block_candidates(A, B, olo, ohi, on, od, pad, skip_a, skip_b):
     for o in range(olo.shape[0]):
         if o == skip_a or o == skip_b:
             continue
-        if not (_same_side(A, B, on, od, o, pad) or _shaft_excludes(A, B, olo, ohi, o)):
+        if not (_same_side(A, B, on, od, o, pad) or shaft_excludes(A, B, olo, ohi, o)):
             out[k] = o
             k += 1
     return out[:k]
@@ -364,7 +365,7 @@ def tree_candidates(A, B, V, a, na, b, nb, tree, olo, ohi, on, od, pad, skip_a, 
     while ns > 0:
         ns -= 1
         x = stack[ns]
-        if _shaft_excludes(A, B, tree.lo, tree.hi, x):
+        if shaft_excludes(A, B, tree.lo, tree.hi, x):
             continue
         if tree.left[x] >= 0:
             if ns + 2 > stack.shape[0]:
@@ -380,7 +381,7 @@ def tree_candidates(A, B, V, a, na, b, nb, tree, olo, ohi, on, od, pad, skip_a, 
             if o == skip_a or o == skip_b:
                 continue
             if not (same_side_polys(V, a, na, b, nb, on, od, o, pad)
-                    or _shaft_excludes(A, B, olo, ohi, o)):
+                    or shaft_excludes(A, B, olo, ohi, o)):
                 if k == out.shape[0]:
                     grown = np.empty(2 * k, np.int64)
                     grown[:k] = out
@@ -415,8 +416,8 @@ def small_tile_pairs(tiles, offsets, center, normal, two_sided, base):
                 dy = center[b, 1] - center[a, 1]
                 dz = center[b, 2] - center[a, 2]
                 length = np.sqrt(dx * dx + dy * dy + dz * dz)
-                if _faces(normal, a, two_sided[a], dx, dy, dz, length) and \
-                        _faces(normal, b, two_sided[b], -dx, -dy, -dz, length):
+                if faces_along(normal, a, two_sided[a], dx, dy, dz, length) and \
+                        faces_along(normal, b, two_sided[b], -dx, -dy, -dz, length):
                     ia[k] = a
                     ib[k] = b
                     bit[k] = first + r * nj + c

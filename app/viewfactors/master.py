@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from radiosity.core.tolerances import TOL
 from radiosity.errors import RadiosityError
 from radiosity.settings import Settings, ViewFactorSettings, resolve
 from radiosity.viewfactors.facets import Facets, load_facets
@@ -20,7 +21,7 @@ from radiosity.viewfactors.task import COUNTERS, STAGES, Inputs, Params, task_vi
 VERSION = 1   # of the stored task format and method (part of the resume token)
 ENCLOSURE_MODES = ("auto", "on", "off")
 FORMATS = ("npz", "csv")
-PLANE_TOL = 1e-9   # facing and plane tests: lengths below this fraction of the scene size are 0
+PLANE_TOL = TOL.facet_plane   # facing and plane tests (core.tolerances)
 
 
 def resolve_params(accuracy=None, cutoff=None, settings: Settings | None = None) -> Params:

@@ -115,7 +115,7 @@ def test_out_into_a_folder_of_the_users_is_refused_in_one_line(tmp_path, command
 def test_force_writes_into_a_folder_of_the_users(tmp_path):
     import numpy as np
 
-    from radiosity.stages.pixels import write_exr
+    from radiosity.formats.images import write_exr
 
     a, b = tmp_path / "a.exr", tmp_path / "b.exr"
     write_exr(str(a), np.full((4, 4, 3), 1.0, np.float32))

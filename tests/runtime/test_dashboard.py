@@ -150,7 +150,7 @@ async def _browse(port: int, url: str, publish_later) -> tuple[dict, dict, bytes
         ws.close()
 
 
-@pytest.mark.filterwarnings("ignore::radiosity.scene.meshes.SceneWarning")  # the published red wall
+@pytest.mark.filterwarnings("ignore::radiosity.formats.raw.SceneWarning")  # the published red wall
 @pytest.mark.needs("chromium")
 def test_dashboard_page_in_chromium(tmp_path):
     import dask

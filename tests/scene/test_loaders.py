@@ -226,7 +226,7 @@ def test_bulk_obj_reader_reads_what_the_line_reader_reads(tmp_path):
     """The bulk reader (numba scan of v/f lines, Clinger's exact fast path for numbers, the
     rest left to float()) gives the line reader's RawMesh to the bit; with outputs that start
     tiny and grow, the same scan."""
-    from radiosity.scene import meshes, meshkernels
+    from radiosity.formats import obj as meshes, objscan
 
     (tmp_path / "mesh.mtl").write_text("newmtl a\nKd 0.1 0.2 0.3\nnewmtl a b\nKe 1 1 1\n")
     rng = np.random.default_rng(3)
@@ -241,7 +241,7 @@ def test_bulk_obj_reader_reads_what_the_line_reader_reads(tmp_path):
         _same_raw(bulk, meshes._load_obj_lines(fn, open(fn, encoding="utf-8").read().splitlines()))
         _same_raw(meshes.load_obj(fn), bulk)
         b = np.frombuffer(text.replace("\r\n", "\n").encode(), np.uint8)
-        big, small = meshkernels.scan_obj(b), meshkernels.scan_obj(b, room=1)
+        big, small = objscan.scan_obj(b), objscan.scan_obj(b, room=1)
         for x in (big, small):
             x[0][x[1]] = 0.0  # the slots float() fills
         assert all(np.array_equal(x, y) for x, y in zip(big, small))
@@ -256,7 +256,7 @@ def test_obj_lines_the_bulk_reader_leaves_read_as_before(tmp_path, bad):
     """A line the bulk reader does not take (or an error anywhere) sends the whole file to the
     line reader: the same mesh or the same error line, naming the first bad line."""
     from radiosity.errors import SceneError
-    from radiosity.scene import meshes
+    from radiosity.formats import obj as meshes
 
     text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nusemtl a\n" + bad + "f 2 3 4\nv 1 1 1\n"
     fn = str(tmp_path / "mesh.obj")
@@ -273,3 +273,87 @@ def test_obj_lines_the_bulk_reader_leaves_read_as_before(tmp_path, bad):
     assert got_err == err
     if want is not None:
         _same_raw(got, want)
+
+
+# ----------------------------------------------------------------------------- STL
+
+def _stl_box(tmp_path, name: str, ascii: bool, extents=(2.0, 1.0, 3.0), centre=(0.0, 0.5, 1.5),
+             inward: bool = False) -> str:
+    """A box as an STL file (12 triangles, 3 vertices each as STL stores them), ASCII or
+    binary; inward: the faces turned to point into the box (a room)."""
+    b = trimesh.creation.box(extents=list(extents))
+    b.apply_translation(centre)
+    if inward:
+        b.invert()
+    data = b.export(file_type="stl_ascii" if ascii else "stl")
+    (tmp_path / name).write_bytes(data.encode() if isinstance(data, str) else data)
+    return str(tmp_path / name)
+
+
+@pytest.mark.parametrize("ascii", [True, False], ids=["ascii", "binary"])
+def test_stl_is_read_as_the_same_triangles_in_obj(tmp_path, ascii):
+    """An STL box (ASCII and binary) in a scene: its 12 triangles merged back into 6 quads, of
+    the [[mesh]]'s material, to the bit the elements of the same triangles written as an OBJ."""
+    from radiosity.formats.load import MESH_FORMATS
+
+    assert ".stl" in MESH_FORMATS
+    fn = _stl_box(tmp_path, "box.stl", ascii)
+    tris = trimesh.load(fn, force="mesh", process=False)
+    assert len(tris.faces) == 12
+    v = np.asarray(tris.vertices)[np.asarray(tris.faces)].reshape(-1, 3)
+    (tmp_path / "box.obj").write_text(
+        "".join("v %r %r %r\n" % tuple(map(float, p)) for p in v)
+        + "".join(f"f {3 * k + 1} {3 * k + 2} {3 * k + 3}\n" for k in range(12)))
+    got, want = (load_scene(str(tmp_path / f"{s}.toml")).elements for s in ("stl", "obj")
+                 if (tmp_path / f"{s}.toml").write_text(
+                     f'[[mesh]]\npath = "box.{s}"\nmaterial = "grey"\n'
+                     '[material.grey]\nreflectance = [0.3, 0.4, 0.5]\n' + CAMERA) or True)
+    assert len(got) == 6 and np.all(got.nverts == 4)
+    assert got.material_names == ("grey",)
+    np.testing.assert_array_equal(got.reflectance[:, 0], np.tile([0.3, 0.4, 0.5], (6, 1)))
+    for k in ("verts", "nverts", "normal", "area", "face"):
+        np.testing.assert_array_equal(getattr(got, k), getattr(want, k))
+
+
+def test_a_bare_stl_is_refused_in_one_line_it_has_no_emission(tmp_path):
+    from click.testing import CliRunner
+
+    from radiosity.cli.commands import main
+
+    fn = _stl_box(tmp_path, "part.stl", ascii=False)
+    r = CliRunner().invoke(main, ["render", fn, "--out", str(tmp_path / "run")])
+    assert r.exit_code == 2, r.output
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "an STL file holds no emission" in lines[0], r.output
+
+
+@pytest.mark.cluster
+def test_radiosity_render_of_a_scene_of_stl_files(tmp_path):
+    """`radiosity render` of a scene whose room is a binary STL and whose lamp an ASCII one:
+    the lamp's emission comes from the scene's [material] table, the run converges and the
+    room is lit."""
+    import json
+
+    from click.testing import CliRunner
+
+    from radiosity.cli.commands import main
+
+    _stl_box(tmp_path, "room.stl", ascii=False, extents=(4.0, 2.5, 3.0), centre=(2.0, 1.25, 1.5),
+             inward=True)
+    _stl_box(tmp_path, "lamp.stl", ascii=True, extents=(1.0, 0.02, 1.0), centre=(2.0, 2.3, 1.5))
+    (tmp_path / "scene.toml").write_text(
+        '[[mesh]]\npath = "room.stl"\nmaterial = "walls"\n'
+        '[[mesh]]\npath = "lamp.stl"\nmaterial = "lamp"\n'
+        '[material.walls]\nreflectance = [0.6, 0.6, 0.6]\n'
+        '[material.lamp]\nreflectance = [0.5, 0.5, 0.5]\nemission = [5, 5, 5]\n'
+        '[camera]\nposition = [2.0, 1.25, 0.2]\nlook_at = [2.0, 1.25, 3.0]\nup = [0, 1, 0]\n'
+        'fov_y = 70\nresolution = 16\n')
+    out = tmp_path / "run"
+    r = CliRunner().invoke(main, ["render", str(tmp_path / "scene.toml"), "--out", str(out),
+                                  "--workers", "1", "--no-preview"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["solve"]["converged"]
+    assert radiance(str(out))[:, 0].max() > 0
+    mats = {m["material"]: m for m in rep["light"]["materials"]}
+    assert mats["walls"]["illuminance"] > 0

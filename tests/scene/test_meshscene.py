@@ -13,7 +13,7 @@ import trimesh
 
 from radiosity.errors import SceneError
 from radiosity.scene.load import load_scene, parse_camera
-from radiosity.scene.trimeshes import srgb_to_linear
+from radiosity.core.colour import srgb_to_linear
 from radiosity.scene.meshscene import DEFAULT_RESOLUTION
 
 from helpers import edit_glb, glb_room  # noqa: E402

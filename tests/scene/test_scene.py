@@ -193,9 +193,10 @@ def test_missing_unreadable_and_unknown_files(tmp_path):
     (tmp_path / "a.toml").write_text('[[mesh]]\npath = "gone.obj"\n' + CAM)
     with pytest.raises(SceneError, match=r"mesh file not found: .*gone.obj"):
         load_scene(str(tmp_path / "a.toml"))
-    (tmp_path / "b.toml").write_text('[[mesh]]\npath = "m.stl"\n' + CAM)
-    (tmp_path / "m.stl").write_text("solid x\n")
-    with pytest.raises(SceneError, match=r"unknown mesh format '.stl' of .*m.stl"):
+    (tmp_path / "b.toml").write_text('[[mesh]]\npath = "m.step"\n' + CAM)
+    (tmp_path / "m.step").write_text("ISO-10303-21;\n")
+    with pytest.raises(SceneError, match=r"unknown mesh format '.step' of .*m.step: use one of "
+                                         r"\.obj, .*\.stl"):
         load_scene(str(tmp_path / "b.toml"))
     os.mkdir(tmp_path / "dir.obj")
     (tmp_path / "c.toml").write_text('[[mesh]]\npath = "dir.obj"\n' + CAM)

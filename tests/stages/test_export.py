@@ -1,4 +1,4 @@
-"""Smooth exports (stages/smooth.py, stages/export.py): radiance at shared vertices, no step
+"""Smooth exports (core/smooth.py, formats/meshexport.py, formats/viewer.py): radiance at shared vertices, no step
 across any edge (T-junctions of the adaptive subdivision included), nothing blended across a
 crease, linear fields reproduced exactly, and on a floor lit by a small lamp (conftest.py) the
 exported mesh.glb is continuous and within 2 % of the exact radiance where the flat export
@@ -18,9 +18,10 @@ from scipy.spatial import cKDTree
 from helpers import prepared, scene_path
 from radiosity.core.exact import polygon_point_form_factor
 from radiosity.runtime.store import RunStore
-from radiosity.stages.export import export_mesh, triangles, write_viewer
-from radiosity.stages.pixels import tonemap
-from radiosity.stages.smooth import smooth_mesh, smoothing_surfaces
+from radiosity.core.colour import tonemap
+from radiosity.core.smooth import smooth_mesh, smoothing_surfaces
+from radiosity.formats.meshexport import export_mesh, triangles
+from radiosity.formats.viewer import write_viewer
 
 Y = np.array([0.2126, 0.7152, 0.0722])
 
@@ -304,7 +305,7 @@ def test_the_cells_fits_are_the_pseudo_inverse_least_squares():
     whose neighbours lie on one line (the minimum-norm gradient), one with a single neighbour,
     and one with none (flat, its own range); a linear field's in-plane gradient is exact."""
     from radiosity.core.geometry import tangent_basis
-    from radiosity.stages.smooth import PINV_RCOND, _cell_models
+    from radiosity.core.smooth import PINV_RCOND, _cell_models
 
     rng = np.random.default_rng(5)
     k = 40

@@ -456,7 +456,7 @@ def test_viewer_has_no_blocks_where_the_camera_did_not_look(solved_cornell, tmp_
     coarse. With the smooth vertex radiance (the page render_outputs writes) fewer than 1 % of
     the drawn pixels sit on a step between flat blocks, and at most a fifth of what the same
     page with flat colours per sub-element shows (about 5 % there)."""
-    from radiosity.stages.smooth import smooth_mesh
+    from radiosity.core.smooth import smooth_mesh
 
     rs, part, el, cam, raster, L = _load(solved_cornell)
     two = np.asarray(el.two_sided, bool)[part.orig]

@@ -15,7 +15,7 @@ from collections import namedtuple
 import numba
 import numpy as np
 
-from radiosity.core.kernels import NXM, _f, _facing_signs, _pair_sampled, _sampled
+from radiosity.core.kernels import NXM, kernel_ff, facing_signs, pair_sampled, sampled_sum
 
 from radiosity.methods.base import CAP_MIN, CAP_PRODUCT  # noqa: F401  (CAP_PRODUCT: re-exported)
 
@@ -65,8 +65,8 @@ def _row_fast(kid, mask, row, la, C, cols, cap, cmode, L, y, mode):
             fab = w * area[c]
             fba = w * aa
         else:
-            fab = _f(kid, g, r2, area[c])
-            fba = _f(kid, g, r2, aa)
+            fab = kernel_ff(kid, g, r2, area[c])
+            fba = kernel_ff(kid, g, r2, aa)
         if mode != COLS:
             s0 += fab * L0[c]
             s1 += fab * L1[c]
@@ -92,9 +92,9 @@ def _row_fast1(kid, mask, row, la0, C, cols, cap, cmode, L0, y0, mode):
         g = -mask[c] * (anx * dx + any_ * dy + anz * dz) * (nx[c] * dx + ny[c] * dy + nz[c] * dz)
         g *= _scale(cmode, capa, cap[c])
         if mode != COLS:
-            s0 += _f(kid, g, r2, area[c]) * L0[c]
+            s0 += kernel_ff(kid, g, r2, area[c]) * L0[c]
         if mode != ROWS:
-            y0[c] += _f(kid, g, r2, aa) * la0
+            y0[c] += kernel_ff(kid, g, r2, aa) * la0
     return s0
 
 
@@ -117,11 +117,11 @@ def _row_sided(kid, mask, a, b0, C, geo, caps, L, y, mode):
         sb = 0 if cb > 0 else 1
         g = abs(ca * cb) * _scale(cmode, cap[a], cap[b])
         if mode != COLS:
-            fab = _f(kid, g, r2, area[b])
+            fab = kernel_ff(kid, g, r2, area[b])
             for k in range(L.shape[1]):
                 y[sa, k, a] += fab * L[sb, k, b]
         if mode != ROWS:
-            fba = _f(kid, g, r2, area[a])
+            fba = kernel_ff(kid, g, r2, area[a])
             for k in range(L.shape[1]):
                 y[sb, k, b] += fba * L[sa, k, a]
 
@@ -132,7 +132,7 @@ def _add_pair_sampled(kid, a, b, f, to_a, to_b, geo, caps, smp, L, y):
     cx, cy, cz, nx, ny, nz, area = geo
     cap, cmode = caps
     pts, w = smp
-    acc, ia, ib = _pair_sampled(kid, a, b, cx, cy, cz, nx, ny, nz, pts, w)
+    acc, ia, ib = pair_sampled(kid, a, b, cx, cy, cz, nx, ny, nz, pts, w)
     acc *= f * _scale(cmode, cap[a], cap[b])
     if to_a:
         for k in range(L.shape[1]):
@@ -146,7 +146,7 @@ def _add_pair_sampled(kid, a, b, f, to_a, to_b, geo, caps, smp, L, y):
 def _row_sampled(kid, mask, a, b0, C, geo, caps, smp, L, y, mode):
     """One row of a tile for the sampled kernels (nxm, mc): S or S^2 point kernels per pair.
     Written out rather than through _add_pair_sampled: this is the hot loop, and the shared
-    helper measured 19 % slower here (14.0 against 17.2 M pair terms/s, nxm, one core)."""
+    helper was slower (docs/src/measurements/choices.md)."""
     cx, cy, cz, nx, ny, nz, area = geo
     cap, cmode = caps
     pts, w = smp
@@ -154,8 +154,8 @@ def _row_sampled(kid, mask, a, b0, C, geo, caps, smp, L, y, mode):
         if mask[c] == 0.0:
             continue
         b = b0 + c
-        sa, sb = _facing_signs(cx, cy, cz, nx, ny, nz, a, b)
-        acc = _sampled(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
+        sa, sb = facing_signs(cx, cy, cz, nx, ny, nz, a, b)
+        acc = sampled_sum(kid, pts[a], w[a], pts[b], w[b], sa * nx[a], sa * ny[a], sa * nz[a],
                        sb * nx[b], sb * ny[b], sb * nz[b])
         acc *= _scale(cmode, cap[a], cap[b])
         ia = 0 if sa > 0 else 1

@@ -867,7 +867,7 @@ def test_the_cluster_final_gather_follows_the_light_over_each_receiver_and_conse
     point-to-polygon form factors, where the uniform spread is off by 26 % at most. With the
     default FLAT the floor's clusters take one linear field each; with FLAT 2 every receiver
     is shared out per triangle."""
-    from radiosity.core.exact import _point_ff
+    from radiosity.core.exact import point_to_polygon_ff
     from radiosity.methods.hierarchical.clusters import transport as clusterlinks
     from radiosity.methods.hierarchical.clusters.transport import (GATHER_PARTS, ClusterGather,
                                                              cluster_final_gather, final_layout)
@@ -897,7 +897,7 @@ def test_the_cluster_final_gather_follows_the_light_over_each_receiver_and_conse
     assert np.allclose(halves[0][1] + halves[1][1], grad, rtol=1e-12, atol=1e-12)
 
     def exact(x):
-        return sum(_point_ff(x, np.array([0.0, 0.0, 1.0]), el.verts[j], 3)
+        return sum(point_to_polygon_ff(x, np.array([0.0, 0.0, 1.0]), el.verts[j], 3)
                    for j in range(n1, len(el)))
 
     rng = np.random.default_rng(5)

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from radiosity.core.tolerances import TOL
+
 from radiosity.scene.originals import faces
 
 # A link is near when its ends' box diagonals summed exceed this many times the distance
@@ -351,9 +353,8 @@ def _cosine_toward(rec, ona, k, y, d2):
 
 
 #: A node's normal cone at most this wide (rec's SPREAD) counts as one normal in the estimate
-#: (its exposure A_x max(0, a . u) to within A_x times the spread): the triangles of a flat face
-#: in float32 differ by about 1e-7.
-FLAT_SPREAD = 1e-6
+#: (its exposure A_x max(0, a . u) to within A_x times the spread; core.tolerances: flat_spread).
+FLAT_SPREAD = TOL.flat_spread
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

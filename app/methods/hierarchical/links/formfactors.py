@@ -1,5 +1,5 @@
 """Form factors of a link's two nodes: the oracle's disc estimate spread over a node's vertices
-(_spread), the exact-to-quadrature near-field pair (near_ff) and the far link's centroid-to-polygon
+(disc_spread), the exact-to-quadrature near-field pair (near_ff) and the far link's centroid-to-polygon
 form factor (centroid_to_polygon). Numba kernels called by the refinement (refine.py)."""
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from radiosity.core.exact import FAST_FLOOR, FAST_GW, FAST_GX, _point_ff, point_ff, polygon_ff_rule
+from radiosity.core.exact import FAST_FLOOR, FAST_GW, FAST_GX, point_to_polygon_ff, point_ff, polygon_ff_rule
 
 @numba.njit(cache=True, nogil=True)
-def _spread(V, x, nv, nx, ny, nz, C, y, mx, my, mz, As, fc):
+def disc_spread(V, x, nv, nx, ny, nz, C, y, mx, my, mz, As, fc):
     """The disc estimate F(v -> c) between the point c = C[y] (normal m, area As) and the
     vertices v of polygon V[x, :nv] (normal n), against its value fc at the polygon's centroid:
     (largest change, change of the mean). The first is how much a receiver's irradiance varies
@@ -76,7 +76,7 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
             for c in range(3):
                 x[c] = S[0, c] + u * (S[1, c] - S[0, c]) + v * (S[2, c] - S[0, c])
             if m[0] * x[0] + m[1] * x[1] + m[2] * x[2] > m0:
-                acc += _point_ff(x, n, L, nL)
+                acc += point_to_polygon_ff(x, n, L, nL)
             wsum += 1.0
     else:
         for j in range(4):
@@ -91,7 +91,7 @@ def near_ff(P, nP, Ap, gp, Q, nQ, Aq, gq, npx, npy, npz, nqx, nqy, nqz, gap_fact
                 x[c] = ((1 - u) * (1 - v) * S[0, c] + u * (1 - v) * S[1, c] + u * v * S[2, c]
                         + (1 - u) * v * S[3, c])
             if m[0] * x[0] + m[1] * x[1] + m[2] * x[2] > m0:
-                acc += w * _point_ff(x, n, L, nL)
+                acc += w * point_to_polygon_ff(x, n, L, nL)
             wsum += w
     fs = acc / wsum if wsum > 0 else 0.0  # F from the smaller to the larger
     if small_is_p:

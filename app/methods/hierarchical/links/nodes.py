@@ -28,14 +28,14 @@ def new_table(cap: int) -> NodeTable:
 
 
 @numba.njit(cache=True, nogil=True)
-def _grow(a, n):
+def grow_rows(a, n):
     out = np.zeros((n,) + a.shape[1:], a.dtype)
     out[:a.shape[0]] = a
     return out
 
 
-def _grown(a: np.ndarray, n: int) -> np.ndarray:
-    """_grow outside the kernels: a copy of `a` with n rows, the new ones zero."""
+def grown_copy(a: np.ndarray, n: int) -> np.ndarray:
+    """grow_rows outside the kernels: a copy of `a` with n rows, the new ones zero."""
     out = np.zeros((n,) + a.shape[1:], a.dtype)
     out[:a.shape[0]] = a
     return out
@@ -48,12 +48,12 @@ def part_of(pnode):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _forced(force, pnode, side):
+def is_forced(force, pnode, side):
     return force.shape[0] > 0 and force[part_of(pnode), side]
 
 
 @numba.njit(cache=True, nogil=True)
-def _new_node(x, verts, nv, orig, path, depth, pnode, can, tab, c):
+def new_node(x, verts, nv, orig, path, depth, pnode, can, tab, c):
     """Node x of the local table `tab`: polygon verts[:nv], its name (orig, path, depth), the
     partition node pnode, whether it can split; c (3,): scratch."""
     Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab
@@ -81,7 +81,7 @@ def _new_node(x, verts, nv, orig, path, depth, pnode, can, tab, c):
 
 
 @numba.njit(cache=True, nogil=True)
-def _copy_tree_node(x, t, tree, min_size, tab):
+def copy_tree_node(x, t, tree, min_size, tab):
     """Node x of the local table `tab`: partition node t of `tree`."""
     t_verts, t_nverts, t_area, t_center, t_lo, t_hi, t_child, t_orig, t_depth, t_path, ext = tree
     Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab

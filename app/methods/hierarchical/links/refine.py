@@ -12,11 +12,11 @@ from collections import namedtuple
 import numba
 import numpy as np
 
-from radiosity.methods.hierarchical.links.formfactors import _spread, centroid_to_polygon, near_ff
-from radiosity.methods.hierarchical.links.nodes import (NodeTable, _copy_tree_node, _forced, _grow,
-                                                       _grown, _new_node, part_of)
-from radiosity.scene.splittrees import MAX_DEPTH, _bit, split_one
-from radiosity.tracing.shafts import _faces, _shaft_excludes, same_side_polys, tree_candidates
+from radiosity.methods.hierarchical.links.formfactors import disc_spread, centroid_to_polygon, near_ff
+from radiosity.methods.hierarchical.links.nodes import (NodeTable, copy_tree_node, is_forced, grow_rows,
+                                                       grown_copy, new_node, part_of)
+from radiosity.scene.splittrees import MAX_DEPTH, depth_bit, split_one
+from radiosity.tracing.shafts import faces_along, shaft_excludes, same_side_polys, tree_candidates
 
 # The partition's node table (splittrees.TreeNodes, k nodes): verts (k, 4, 3), nverts, area,
 # center, lo / hi (node boxes), child (k, 2), orig, depth, path (uint64); ext (k,): leaves that
@@ -66,7 +66,7 @@ def _blocks(o, V, p, nP, q, nQ, everts, envert, enormal, eoffset, pad, sp, sq):
     plane must separate them strictly (beyond pad), and every crossing point of a segment
     between a vertex of P and one of Q must lie inside o (beyond pad): those points span the
     crossing set of all segments (it is conv(P u Q) cut by the plane), and o is convex.
-    sp, sq: scratch (4,). Arrays and indices, no rows (shafts._faces: views cost)."""
+    sp, sq: scratch (4,). Arrays and indices, no rows (shafts.faces_along: views cost)."""
     n0, n1, n2 = enormal[o, 0], enormal[o, 1], enormal[o, 2]
     d0 = eoffset[o]
     pmin, pmax, qmin, qmax = np.inf, -np.inf, np.inf, -np.inf
@@ -236,7 +236,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                 for c in range(l0, l1):
                     o = stk_pool[c]
                     if same_side_polys(Lv, p, Ln[p], q, Ln[q], enormal, eoffset, o, pad) or \
-                            _shaft_excludes(A, B, elo, ehi, o):
+                            shaft_excludes(A, B, elo, ehi, o):
                         continue
                     if _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal, eoffset, pad,
                                s4p, s4q):
@@ -268,13 +268,13 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                     # (first order; what the centroids miss at grazing angles); as a source
                     # approximated at its centroid: the centroid rule's error (second order)
                     if can_p:
-                        big, curv = _spread(Lv, p, Ln[p], gp * npx, gp * npy, gp * npz, Lc, q,
+                        big, curv = disc_spread(Lv, p, Ln[p], gp * npx, gp * npy, gp * npz, Lc, q,
                                             gq * nqx, gq * nqy, gq * nqz, Aq, fpq)
                         ep = wpq * big
                         if Ap <= Aq or not far_polygon:
                             ep += max(wpq, wqp) * curv
                     if can_q:
-                        big, curv = _spread(Lv, q, Ln[q], gq * nqx, gq * nqy, gq * nqz, Lc, p,
+                        big, curv = disc_spread(Lv, q, Ln[q], gq * nqx, gq * nqy, gq * nqz, Lc, p,
                                             gp * npx, gp * npy, gp * npz, Ap, fqp)
                         eq = wqp * big
                         if Aq < Ap or not far_polygon:
@@ -298,8 +298,8 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
             if split < 0 and (l1 > l0 or l0 < 0):
                 # a link to keep with occluders in its shaft at a forced node: split that node,
                 # so that the link's visibility is sampled finer there
-                fp_ = can_p and _forced(force, Lpn[p], sp)
-                fq_ = can_q and _forced(force, Lpn[q], sq)
+                fp_ = can_p and is_forced(force, Lpn[p], sp)
+                fq_ = can_q and is_forced(force, Lpn[q], sq)
                 if fp_ or fq_:
                     split = 0 if fp_ and (Ap >= Aq or not fq_) else 1
         elif 0.0 < frac < 1.0 and amount > shadow:
@@ -316,7 +316,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                         tc = t_child[t, h]
                         if pmap[tc] < 0:
                             pmap[tc] = cnt
-                            _copy_tree_node(cnt, tc, tree, min_size, tab)
+                            copy_tree_node(cnt, tc, tree, min_size, tab)
                             cnt += 1
                         Lch[x, h] = pmap[tc]
                 else:
@@ -324,9 +324,9 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                     d1 = Ld[x] + 1
                     below = -2 - part_of(Lpn[x])
                     for h in range(2):
-                        path = Lp[x] | _bit(Ld[x]) if h == 1 else Lp[x]
+                        path = Lp[x] | depth_bit(Ld[x]) if h == 1 else Lp[x]
                         cv = c1 if h == 1 else c0
-                        _new_node(cnt, cv, Ln[x], Lo[x], path, d1, below, False, tab, cc)
+                        new_node(cnt, cv, Ln[x], Lo[x], path, d1, below, False, tab, cc)
                         Lcan[cnt] = np.sqrt(La[cnt]) > min_size and d1 < MAX_DEPTH
                         Lch[x, h] = cnt
                         cnt += 1
@@ -341,8 +341,8 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
             continue
         # keep the link: the leaf test of the visibility stage (centroids face each other)
         length = np.sqrt(r2)
-        if not (_faces(normal, op, two_sided[op], dx, dy, dz, length)
-                and _faces(normal, oq, two_sided[oq], -dx, -dy, -dz, length)):
+        if not (faces_along(normal, op, two_sided[op], dx, dy, dz, length)
+                and faces_along(normal, oq, two_sided[oq], -dx, -dy, -dz, length)):
             counts[C_ORIENT] += 1
             continue
         if frac < 0.0 and (l1 > l0 or l0 < 0):  # wait for rays, with the filtered occluders
@@ -399,7 +399,8 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
     split and is returned. Returns (tab, cnt, the kept links (Kept), the links waiting for rays
     (Waiting)). The loop itself is the kernel _refine_loop; this driver of it is plain Python
     (it only allocates, and grows the arrays the few times the loop stops because one is full:
-    a kernel here cost 4 s of compile on a first run, for nothing measurable per call)."""
+    a kernel here cost compile time on a first run, for nothing measurable per call:
+    docs/src/measurements/choices.md)."""
     e_p, e_q, e_c0, e_c1, e_frac = entries
     Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan = tab
     # kept links
@@ -444,22 +445,22 @@ def refine(entries, pool, base_end, tab, cnt, pmap, tree, elem, occ, prm, counts
             break
         if cnt + 4 > Lo.shape[0]:
             cap = 2 * Lo.shape[0]
-            Lv, Ln, La, Lc = _grown(Lv, cap), _grown(Ln, cap), _grown(La, cap), _grown(Lc, cap)
-            Llo, Lhi, Lo, Lp = _grown(Llo, cap), _grown(Lhi, cap), _grown(Lo, cap), _grown(Lp, cap)
-            Ld, Lch, Lpn, Lcan = _grown(Ld, cap), _grown(Lch, cap), _grown(Lpn, cap), _grown(Lcan, cap)
+            Lv, Ln, La, Lc = grown_copy(Lv, cap), grown_copy(Ln, cap), grown_copy(La, cap), grown_copy(Lc, cap)
+            Llo, Lhi, Lo, Lp = grown_copy(Llo, cap), grown_copy(Lhi, cap), grown_copy(Lo, cap), grown_copy(Lp, cap)
+            Ld, Lch, Lpn, Lcan = grown_copy(Ld, cap), grown_copy(Lch, cap), grown_copy(Lpn, cap), grown_copy(Lcan, cap)
         if ns + 4 > sp_.shape[0]:
             scap = 2 * sp_.shape[0]
-            sp_, sq_, sc0, sc1, sfr = (_grown(sp_, scap), _grown(sq_, scap), _grown(sc0, scap),
-                                       _grown(sc1, scap), _grown(sfr, scap))
+            sp_, sq_, sc0, sc1, sfr = (grown_copy(sp_, scap), grown_copy(sq_, scap), grown_copy(sc0, scap),
+                                       grown_copy(sc1, scap), grown_copy(sfr, scap))
         if nk >= kp.shape[0]:
             kcap = 2 * kp.shape[0]
-            kp, kq, kf, kv, ks, kx = (_grown(kp, kcap), _grown(kq, kcap), _grown(kf, kcap),
-                                      _grown(kv, kcap), _grown(ks, kcap), _grown(kx, kcap))
+            kp, kq, kf, kv, ks, kx = (grown_copy(kp, kcap), grown_copy(kq, kcap), grown_copy(kf, kcap),
+                                      grown_copy(kv, kcap), grown_copy(ks, kcap), grown_copy(kx, kcap))
         if nw >= wp.shape[0]:
             wcap = 2 * wp.shape[0]
-            wp, wq, wc = _grown(wp, wcap), _grown(wq, wcap), _grown(wc, wcap)
+            wp, wq, wc = grown_copy(wp, wcap), grown_copy(wq, wcap), grown_copy(wc, wcap)
         while npool + (sc1[ns - 1] - sc0[ns - 1]) > wpool.shape[0]:
-            wpool = _grown(wpool, 2 * wpool.shape[0])
+            wpool = grown_copy(wpool, 2 * wpool.shape[0])
     return (NodeTable(Lv, Ln, La, Lc, Llo, Lhi, Lo, Lp, Ld, Lch, Lpn, Lcan), cnt,
             Kept(kp[:nk], kq[:nk], kf[:nk], kv[:nk], ks[:nk], kx[:nk]),
             Waiting(wp[:nw], wq[:nw], wc[:nw], wpool[:npool]))
@@ -490,7 +491,7 @@ def roots(pairs, rays_only, root, pmap, tree, tab, cnt, occ, prm):
             r = root[pairs[k, h]]
             if pmap[r] < 0:
                 pmap[r] = cnt
-                _copy_tree_node(cnt, r, tree, prm.min_size, tab)
+                copy_tree_node(cnt, r, tree, prm.min_size, tab)
                 cnt += 1
             ends[h] = pmap[r]
         e_p[k], e_q[k] = ends[0], ends[1]
@@ -510,7 +511,7 @@ def roots(pairs, rays_only, root, pmap, tree, tab, cnt, occ, prm):
             e_c0[k], e_c1[k] = -1, -1
             continue
         while npool + cand.shape[0] > pool.shape[0]:
-            pool = _grow(pool, 2 * pool.shape[0])
+            pool = grow_rows(pool, 2 * pool.shape[0])
         e_c0[k] = npool
         pool[npool:npool + cand.shape[0]] = cand
         npool += cand.shape[0]

@@ -15,7 +15,7 @@ from collections import namedtuple
 import numba
 import numpy as np
 
-from radiosity.core.exact import _point_ff, point_ff
+from radiosity.core.exact import point_to_polygon_ff, point_ff
 
 # The linear final gather's far links are those seen from the receiver's centroid at cosines
 # above sqrt(FG_FAR_COS2) both ways (and farther than transport.FG_FAR times both sizes).
@@ -223,7 +223,7 @@ def final_gather(Lbar, ends, origs, nodes, geo, levels, ncap, mode, d, y):
                 for c in range(C):
                     acc[c] = 0.0
                 for i in range(ns):
-                    f = _point_ff(x, n, verts[src[i]], nverts[src[i]])
+                    f = point_to_polygon_ff(x, n, verts[src[i]], nverts[src[i]])
                     evals += 1
                     tot += f
                     for c in range(C):
@@ -271,7 +271,7 @@ def linear_gather(Lbar, links, sel, nodes, geo, ncap, mode, S0, S1, far):
     C = Lbar.shape[1]
     evals = 0
     S = np.empty((4, 3))   # the source's polygon, and its clipped copy: scratch, no allocation
-    Sc = np.empty((10, 3))  # per evaluation and no row views (shafts._faces)
+    Sc = np.empty((10, 3))  # per evaluation and no row views (shafts.faces_along)
     for k in range(p.shape[0]):
         for h in range(2):
             t, s = (p[k], q[k]) if h == 0 else (q[k], p[k])
@@ -398,7 +398,7 @@ def node_min(leaf_value, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True)
-def _sum_up(s, parent):
+def sum_up(s, parent):
     for i in range(parent.shape[0] - 1, 0, -1):
         if parent[i] >= 0:
             s[parent[i]] += s[i]
@@ -407,14 +407,14 @@ def _sum_up(s, parent):
 
 
 @numba.njit(cache=True, nogil=True)
-def _count_ends(p, q, orig, cnt):
+def count_ends(p, q, orig, cnt):
     for k in range(p.shape[0]):
         cnt[orig[p[k]]] += 1
         cnt[orig[q[k]]] += 1
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill_ends(p, q, wpq, wqp, sp, sq, v, orig, cur, tp, ts, sn, ss, w, vv):
+def fill_ends(p, q, wpq, wqp, sp, sq, v, orig, cur, tp, ts, sn, ss, w, vv):
     """Both ends of links (p, q) into their target originals' slots (cur: next free slot)."""
     for k in range(p.shape[0]):
         a, b = p[k], q[k]

@@ -17,8 +17,8 @@ import numpy as np
 from radiosity.errors import RadiosityError, StoreError
 from radiosity.methods.base import CAP_MIN, CAP_PRODUCT, GroupExecutor
 from radiosity.methods.hierarchical.clusters.transport import GATHER_PARTS, ClusterGather
-from radiosity.methods.hierarchical.solve.passes import (Ends, Geometry, LinkArrays, Nodes, _count_ends,
-                                                   _fill_ends, _sum_up, final_gather, gather,
+from radiosity.methods.hierarchical.solve.passes import (Ends, Geometry, LinkArrays, Nodes, count_ends,
+                                                   fill_ends, sum_up, final_gather, gather,
                                                    gs_sweep, linear_gather, linear_push, node_min,
                                                    pull, push)
 from radiosity.runtime.packing import pack_groups
@@ -136,7 +136,7 @@ def _node_sums(leaf_value, leaf_node, parent):
     """Sum of leaf_value (M,) over each node's leaves, (N,)."""
     s = np.zeros(len(parent))
     s[leaf_node] = leaf_value
-    return _sum_up(s, parent)
+    return sum_up(s, parent)
 
 
 def task_link_arrays(inp: LinkSolveInputs, task: int):
@@ -259,7 +259,7 @@ def _push(inp: LinkSolveInputs, cap, G, L, use_need: bool):
     return y
 
 
-def _directed(inp: LinkSolveInputs):
+def directed_ends(inp: LinkSolveInputs):
     """Every link end as a directed entry grouped by the original of its target (for
     Gauss-Seidel and the final gather), from all link tasks, by a counting sort (no
     concatenated copies: each costs page faults); cached on the worker. Returns passes.Ends:
@@ -270,7 +270,7 @@ def _directed(inp: LinkSolveInputs):
         cnt = np.zeros(n + 1, np.int64)
         for t in range(len(inp.entries)):
             p, q = task_link_arrays(inp, t)[:2]
-            _count_ends(p, q, inp.orig, cnt)
+            count_ends(p, q, inp.orig, cnt)
         ptr = np.zeros(n + 1, np.int64)
         np.cumsum(cnt[:n], out=ptr[1:])
         total = int(ptr[-1])
@@ -279,7 +279,7 @@ def _directed(inp: LinkSolveInputs):
         w, v = np.empty(total), np.empty(total)
         cur = ptr[:-1].copy()
         for t in range(len(inp.entries)):
-            _fill_ends(*task_link_arrays(inp, t), inp.orig, cur, tp, ts, sn, ss, w, v)
+            fill_ends(*task_link_arrays(inp, t), inp.orig, cur, tp, ts, sn, ss, w, v)
         return Ends(tp, ts, sn, ss, w, ptr, v)
 
     return CACHE.get((inp.store_path, inp.token, LINK_CACHE_KEY, "directed"), load,
@@ -325,7 +325,7 @@ def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray,
     """The final gather into the leaves of originals `origs`, from the solved L (2, C, M):
     (y (2, C, M), evaluations). linear (linear_gather): link by link from the link tasks as the
     passes hold them; exact (final_gather): over the link ends grouped by target original
-    (_directed). The cluster links' part `part` (i of k, split by links: the k groups' y add
+    (directed_ends). The cluster links' part `part` (i of k, split by links: the k groups' y add
     up to every cluster link once) goes to the leaves of every original
     (clusterlinks.cluster_final_gather)."""
     mode, ncap, d = inp.cap_args()
@@ -346,7 +346,7 @@ def task_final_gather(inp: LinkSolveInputs, origs: np.ndarray, L: np.ndarray,
         linear_push(G, S1, origs, inp.noff, inp.parent, inp.node_leaf, inp.leaf_center, d, y)
         del S1
     else:
-        evals = final_gather(Lbar, _directed(inp), origs, inp.nodes(), inp.geometry(),
+        evals = final_gather(Lbar, directed_ends(inp), origs, inp.nodes(), inp.geometry(),
                              inp.fg_levels, ncap, mode, d, y)
     cluster_final(inp, Lbar, d, y, part)
     if len(inp.need):
@@ -360,7 +360,7 @@ def task_gs_sweep(inp: LinkSolveInputs, L, Le, rho):
         raise RadiosityError("gauss-seidel sweeps original by original and cannot take cluster "
                              "links: use --solver cg (the default) or jacobi, or "
                              "radiosity.hierarchy.clusters: off")
-    ends = _directed(inp)
+    ends = directed_ends(inp)
     mode, ncap, d = inp.cap_args()
     if mode == 1:
         ends = ends._replace(w=ends.w * np.minimum(ncap[ends.tp], ncap[ends.sn]))
@@ -463,7 +463,7 @@ class LocalLinkOperator(_Base):
         on this machine's cores, as threads of dask's local scheduler (the kernels release the
         GIL; the workers sit idle meanwhile)."""
         if self.inp.fg_mode != "linear":
-            _directed(self.inp)  # built once, before the threads share it
+            directed_ends(self.inp)  # built once, before the threads share it
         if self.inp.clusters is not None and self.inp.clusters.links:
             final_layout_of(self.inp)  # the same
         # every group's links read (in its thread) before the threads share them

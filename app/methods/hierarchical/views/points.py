@@ -202,7 +202,7 @@ class PointGather:
         import time
 
         from radiosity.methods.hierarchical.solve.passes import pull
-        from radiosity.methods.hierarchical.solve.transport import (_directed, cluster_final,
+        from radiosity.methods.hierarchical.solve.transport import (directed_ends, cluster_final,
                                                              open_link_operator, scratch)
         from radiosity.tracing.rays import RayCaster
 
@@ -225,7 +225,7 @@ class PointGather:
         Sbuf, _ = scratch((L.shape[0], L.shape[1], len(inp.parent)))
         self.Lbar = pull(L, inp.leaf_node, inp.leaf_area, inp.parent, inp.node_area,
                          np.zeros(0), Sbuf).copy()
-        self.ends = _directed(inp)
+        self.ends = directed_ends(inp)
         self.nodes, self.geo = inp.nodes(), inp.geometry()
         self.caster = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
         # cluster links add their final gather at each leaf's centroid, as the render's image

@@ -38,7 +38,7 @@ import numba
 import numpy as np
 
 from radiosity.errors import RadiosityError
-from radiosity.methods.hierarchical.links.formfactors import _spread
+from radiosity.methods.hierarchical.links.formfactors import disc_spread
 from radiosity.scene.emitters import AreaEmitters
 
 
@@ -186,13 +186,13 @@ def _weighted(a, b, sa, sb, V, NV, A, C, orig, normal, wrho, wnode, vnode, can, 
                                  + (np.sqrt(Aq) if can[b] else 0.0)) / np.sqrt(r2)
     ep = eq = 0.0
     if can[a]:
-        big, curv = _spread(V, a, NV[a], gp * npx, gp * npy, gp * npz, C, b, gq * nqx,
+        big, curv = disc_spread(V, a, NV[a], gp * npx, gp * npy, gp * npz, C, b, gq * nqx,
                             gq * nqy, gq * nqz, Aq, fpq)
         ep = wpq * big
         if Ap <= Aq or not far_polygon:
             ep += max(wpq, wqp) * curv
     if can[b]:
-        big, curv = _spread(V, b, NV[b], gq * nqx, gq * nqy, gq * nqz, C, a, gp * npx,
+        big, curv = disc_spread(V, b, NV[b], gq * nqx, gq * nqy, gq * nqz, C, a, gp * npx,
                             gp * npy, gp * npz, Ap, fqp)
         eq = wqp * big
         if Aq < Ap or not far_polygon:
@@ -330,7 +330,7 @@ class Rounds:
         V, NV = t["verts"], t["nverts"].astype(np.int64)
         A, _, C = polygon_properties(V, t["nverts"])
         inp, prm = self.inp, self.lp.prm
-        # can a node split (localnodes._copy_tree_node, and split-off nodes)?
+        # can a node split (localnodes.copy_tree_node, and split-off nodes)?
         pn = np.maximum(pnode, 0)
         can = np.where(pnode >= 0,
                        (inp.t_child[pn, 0] >= 0) | (inp.ext[pn] & (np.sqrt(inp.t_area[pn])

@@ -6,12 +6,11 @@ import math
 
 import numpy as np
 
-from radiosity.stages.csvtext import csv_chunks
-from radiosity.stages.tables import _csv_cell
+from radiosity.formats.csvtext import csv_cell, csv_chunks
 
 
 def csv_body(columns) -> bytes:
-    return b"".join(bytes(c) for c in csv_chunks(columns, _csv_cell))
+    return b"".join(bytes(c) for c in csv_chunks(columns, csv_cell))
 
 
 def _tie(x: float) -> bool:
@@ -54,11 +53,11 @@ def test_rows_mix_numbers_and_quoted_names():
 
 
 def test_chunks_join_to_the_same_text(monkeypatch):
-    import radiosity.stages.csvtext as ct
+    import radiosity.formats.csvtext as ct
 
     rng = np.random.default_rng(2)
     cols = [rng.uniform(0, 1, 1000), rng.integers(0, 9, 1000), np.array(["a", "b,c"] * 500)]
     whole = csv_body(cols)
     monkeypatch.setattr(ct, "ROWS_PER_CALL", 7)
     assert csv_body(cols) == whole
-    assert len(list(ct.csv_chunks(cols, _csv_cell))) == -(-1000 // 7)
+    assert len(list(ct.csv_chunks(cols, csv_cell))) == -(-1000 // 7)

@@ -1,17 +1,18 @@
-"""Mesh files read through trimesh (glTF/GLB, PLY) -> RawMesh, with their materials: glTF's PBR
-base colour and emission (with KHR_materials_emissive_strength and texture means), PLY's face or
-vertex colours; and `load_mesh`, which picks the reader by extension (OBJ: meshes.load_obj)."""
+"""Mesh files read through trimesh (glTF/GLB, PLY, STL) -> RawMesh, with their materials: glTF's
+PBR base colour and emission (with KHR_materials_emissive_strength and texture means), PLY's
+face or vertex colours; STL (the common CAD export) has none: its faces take the mesh's
+material (`default` unless the scene names one)."""
 
 from __future__ import annotations
 
 import json
-import os
 import struct
 
 import numpy as np
 
+from radiosity.core.colour import srgb_to_linear
 from radiosity.errors import SceneError
-from radiosity.scene.meshes import MESH_FORMATS, RawMesh, _warn, load_obj
+from radiosity.formats.raw import RawMesh, warn
 
 
 def _gltf_json(fn: str) -> dict:
@@ -25,7 +26,7 @@ def _gltf_json(fn: str) -> dict:
 
 
 def load_trimesh(fn: str, default_material: str) -> RawMesh:
-    """glTF/GLB and PLY through trimesh (node transforms applied). Materials: glTF's by name
+    """glTF/GLB, PLY and STL through trimesh (node transforms applied). Materials: glTF's by name
     (baseColorFactor, and its texture's mean, as reflectance; emissiveFactor x
     KHR_materials_emissive_strength, and its texture's mean, as emission; doubleSided); a PLY's
     face or vertex colours as materials `colour-RRGGBB` unless `default_material` names one."""
@@ -88,13 +89,6 @@ def load_trimesh(fn: str, default_material: str) -> RawMesh:
     return RawMesh(v, faces, fmat, gmats)
 
 
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] -> linear ones (IEC 61966-2-1), as glTF textures and 8-bit
-    colours are encoded."""
-    c = np.asarray(c, float)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
 def _image_mean(img) -> np.ndarray | None:
     """The mean linear RGB (3,) of an sRGB texture image (PIL), from at most 256 x 256 pixels;
     None if it cannot be read."""
@@ -154,7 +148,7 @@ def _gltf_material_names(gltf: list, fn: str) -> list[str]:
         props = {k: v for k, v in m.items() if k != "name"}
         if name in first and first[name] != props:
             new = f"{name}#{i}"
-            _warn(f"{fn}: glTF material {i} reuses the name '{name}' with other properties; "
+            warn(f"{fn}: glTF material {i} reuses the name '{name}' with other properties; "
                   f"it is called '{new}' here (override it as [material.\"{new}\"])")
             name = new
         first.setdefault(name, props)
@@ -192,15 +186,5 @@ def _gltf_material_of(mat, gltf: list, fn: str) -> int | None:
     return tied[0]
 
 
-def load_mesh(fn: str, default_material: str = "default") -> RawMesh:
-    ext = os.path.splitext(fn)[1].lower()
-    if ext not in MESH_FORMATS:
-        raise SceneError(f"unknown mesh format {ext!r} of {fn}: use one of {', '.join(MESH_FORMATS)}")
-    if not os.path.exists(fn):
-        raise SceneError(f"mesh file not found: {fn}")
-    if ext == ".obj":
-        raw = load_obj(fn)
-        if default_material != "default":
-            raw.face_material = [default_material if m == "default" else m for m in raw.face_material]
-        return raw
-    return load_trimesh(fn, default_material)
+#: The readers of this module, by file extension (merged in formats.load).
+loaders = {".gltf": load_trimesh, ".glb": load_trimesh, ".ply": load_trimesh, ".stl": load_trimesh}

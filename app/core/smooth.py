@@ -7,7 +7,7 @@ The reconstruction, in four steps:
 1. Smoothing surfaces: original elements that share a corner are joined when they have the
    same material and sidedness and their normals differ by less than `CREASE_DEG`; nothing
    is blended across a crease, a change of material or between the two sides of an element.
-   Corners of sub-elements are welded by position (to `WELD_TOL` of the scene's diagonal)
+   Corners of sub-elements are welded by position (to `TOL.weld` of the scene's diagonal)
    within one surface and side.
 2. A linear model per cell (sub-element side): its gradient is the weighted least-squares fit
    (weights 1 / distance^2, in the cell's plane) to the values of the cells that share a
@@ -40,13 +40,11 @@ import numpy as np
 
 from radiosity.core.arrays import unique, unique_rows
 from radiosity.core.geometry import tangent_basis
+from radiosity.core.tolerances import TOL
 #: Originals whose normals differ by more than this (degrees) are never blended: 30 degrees is
 #: the usual auto-smooth angle; walls meeting at a corner (90) stay apart, the facets of a
 #: finely tessellated curved surface (a few degrees) are blended.
 CREASE_DEG = 30.0
-#: Corners closer than this, relative to the scene's bounding-box diagonal, are one vertex:
-#: far above float64 rounding of the split midpoints, far below any element's size.
-WELD_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -130,7 +128,7 @@ def smoothing_surfaces(elements, crease_deg: float = CREASE_DEG,
     V = np.asarray(elements.verts, np.float64)
     nv = np.asarray(elements.nverts, np.int64)
     lo = V.reshape(-1, 3).min(0)
-    tol = WELD_TOL * _diagonal(V.reshape(-1, 3)) if tol is None else tol
+    tol = TOL.weld * _diagonal(V.reshape(-1, 3)) if tol is None else tol
     has = np.arange(4)[None, :] < nv[:, None]
     orig = np.broadcast_to(np.arange(n)[:, None], (n, 4))[has]
     q = _quantise(V[has], lo, tol)
@@ -374,7 +372,7 @@ def smooth_mesh(part, elements, radiance: np.ndarray, crease_deg: float = CREASE
     Vs = np.asarray(part.verts, np.float64)
     pts = Vs.reshape(-1, 3)
     lo = pts.min(0) if m else np.zeros(3)
-    tol = WELD_TOL * _diagonal(pts)
+    tol = TOL.weld * _diagonal(pts)
 
     # geometry vertices: (surface, quantised position)
     has = np.arange(4)[None, :] < nv[:, None]

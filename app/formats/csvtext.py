@@ -1,6 +1,6 @@
-"""CSV text of numeric tables in compiled code: a table of 10^6 rows is about 15 million
-numbers, which Python's `%` formatting wrote at 0.3-1.4 us each
-(docs/src/measurements/hierarchical.md#clusters). Numbers are written as C's printf writes
+"""CSV files of tables (`write_csv`), their text made in compiled code: a table of 10^6 rows is
+about 15 million numbers, too many for Python's `%` formatting (timed in
+docs/src/measurements/hierarchical.md#clusters). Numbers are written as C's printf writes
 them: integers as %d, floats as %.7g (7 significant digits, trailing zeros removed, exponent
 form below 1e-4 and from 1e7 on, "nan", "inf", "-inf"); the 7 digits are the value rounded
 once from its product with an exact power of ten, which can differ from printf's exact
@@ -13,8 +13,12 @@ Columns (one kernel call per ROWS_PER_CALL rows): kinds[c] 0 float (floats[idx[c
 
 from __future__ import annotations
 
+import os
+
 import numba
 import numpy as np
+
+from radiosity.formats.files import temp_path
 
 FLOAT, INT, TEXT = 0, 1, 2
 _NUM_WIDTH = 24  # the widest number: "-1.234567e-308" and int64's 20 digits fit
@@ -202,3 +206,25 @@ def csv_chunks(columns: list, quote):
         end = _rows(kinds, idx, rows(fl, np.float64), rows(it, np.int64), rows(cd, np.int64),
                     text, toff, buf)
         yield memoryview(buf)[:end]
+
+
+def csv_cell(v) -> str:
+    """One CSV cell: the text of v, quoted (with doubled quotes) where it holds a comma, a
+    quote or a line break."""
+    s = str(v)
+    if any(ch in s for ch in ',"\n\r'):
+        s = '"' + s.replace('"', '""') + '"'
+    return s
+
+
+def write_csv(path: str, table: dict) -> None:
+    """One table (dict column name -> (rows,) array) as CSV: a header of the column names,
+    numbers with 7 significant digits ("nan" where undefined), names quoted where they need
+    it (`csv_chunks` writes the rows). Written whole, then renamed."""
+    cols = list(table)
+    tmp = temp_path(path)
+    with open(tmp, "wb") as f:
+        f.write((",".join(csv_cell(c) for c in cols) + "\n").encode("utf-8"))
+        for chunk in csv_chunks([table[k] for k in cols], csv_cell):
+            f.write(chunk)
+    os.replace(tmp, path)

@@ -209,7 +209,7 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
     if effects.interreflection:
         from radiosity.stages.rounds import solve_with_rounds
 
-        # hierarchy.rounds: refinement by the solved radiance after the first solve (rounds.py)
+        # hierarchy.rounds: refinement by the solved radiance after the first solve (stages/rounds.py)
         solve_with_rounds(out, client, s, unit=unit, occlusion=effects.occlusion,
                           progress=progress, echo=echo, effects=effects, preview=previewer(out),
                           closure=planned.closure, keep_unconverged=keep_unconverged, method=name)

@@ -106,7 +106,7 @@ class TransportMethod(ABC):
     name: str            # its METHODS key
     section: str         # the report.json section its build stage writes
     store_groups: tuple  # its groups of the run store, written by its stage (runtime/store.py)
-    all_pairs: bool      # every pair of unknowns, no refinement: the preview's and the kernels' method
+    all_pairs: bool      # every pair of unknowns as it is: the preview's and the kernels' method
     refinement: Refinement | None = None  # rounds by the solved radiance, or None
 
     @abstractmethod

@@ -299,7 +299,7 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     (2, C, m) radiance per sub-element -> (h, w, 3) uint8 image for the dashboard
     (image.previewer), or None. closure: a closure.Closure already decided (the plan's), else
     solve.closure. where: the hierarchical method's driver / cluster choice. x0: a warm start,
-    a function of the opened method (methods.base.Opened) -> (2, C, M) (hierarchical/rounds.py).
+    a function of the opened method (methods.base.Opened) -> (2, C, M) (Refinement.warm_start).
     gather_if: a function (opened, solved L) -> False where the method's final gather is to be
     skipped (stages/rounds.py: a round follows)."""
     from radiosity.methods.base import get_method, method_of_run
@@ -335,7 +335,7 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
         rho = np.where(buried, 0.0, rho)  # known (L = Le): no weight to divide by
     if targets is not None and (targets.sided != sided).any():
         op.configure(sided=targets.sided)  # contact backs: those elements solved one-sided
-    sums = op.row_sums()  # (2, M), before any scaling: the methods may keep them (rounds.py)
+    sums = op.row_sums()  # (2, M), before any scaling: the methods may keep them (Opened.row_sums)
     opened.row_sums = sums
     rows, changes = normalise_rows(op, row_mode(mode, closure), targets, sums)
     channels = 3

@@ -126,7 +126,7 @@ class HierarchicalMethod(TransportMethod):
         node above the leaves at each of its leaves (the uniform push leaves a saw-tooth over
         coarse receivers): solution/radiance per sub-element comes from it, and
         solution/leaf_radiance (M, 2, 3) keeps the solver's fixed point L = Le + rho K L;
-        solution/leaf_rows (M, 2) the leaves' rows of F v before any scaling (rounds.py)."""
+        solution/leaf_rows (M, 2) the leaves' rows of F v before any scaling (views/rounds.py)."""
         import time
 
         from radiosity.methods.hierarchical.solve.transport import LocalLinkOperator
@@ -170,13 +170,13 @@ class HierarchicalMethod(TransportMethod):
 
     def radiance_at(self, rs, settings, pts, porig, side, pixel, footprint):
         """Radiance (K, 3) leaving points on originals `porig`, side `side`: leaves coarser
-        than the view's pixels gathered at the points over their links (views.radiance_at)."""
+        than the view's pixels gathered at the points over their links (views/points.radiance_at)."""
         from radiosity.methods.hierarchical.views.points import radiance_at
 
         return radiance_at(rs, settings, pts, porig, side, pixel, footprint)
 
     def open_views(self, rs, settings):
-        """The run's links opened once for many views (views.PointGather): its
+        """The run's links opened once for many views (views/points.PointGather): its
         radiance_at(pts, porig, side, pixel, footprint) is radiance_at's, without the opening."""
         from radiosity.methods.hierarchical.views.points import PointGather
 

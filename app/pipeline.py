@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radiosity.core.bundles import Scene
-from radiosity.methods.base import choose_method, get_method
+from radiosity.methods.base import all_pairs_method, choose_method, get_method, stated_method
 from radiosity.runtime.monitor import peak_rss_mb
 from radiosity.runtime.precompile import with_helper
 from radiosity.runtime.store import RunStore, StageFigures, update_report
@@ -53,7 +53,9 @@ class RenderFigures(StageFigures):
         st = self.stages
         return [
             ("sub-elements", f"{pre['sub_elements']} (from {pre['original_elements']} originals)"),
-            get_method(sol.get("method", "pairs")).summary_row(self.report),
+            (("visibility", "skipped (no interreflection)")
+             if (self.report.get("visibility") or {}).get("skipped")
+             else get_method(sol["method"]).summary_row(self.report)),
             ("solve", f"{sol['solver']}/{sol['kernel']}: {sol['iterations']} passes, residual "
                       f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"
                       + ("" if sol.get("converged", True) else f", NOT converged: solution "
@@ -207,7 +209,7 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
     if effects.interreflection:
         from radiosity.stages.rounds import solve_with_rounds
 
-        # hierarchy.rounds: refinement by the solved radiance after the first solve (rounds.py)
+        # hierarchy.rounds: refinement by the solved radiance after the first solve (stages/rounds.py)
         solve_with_rounds(out, client, s, unit=unit, occlusion=effects.occlusion,
                           progress=progress, echo=echo, effects=effects, preview=previewer(out),
                           closure=planned.closure, keep_unconverged=keep_unconverged, method=name)
@@ -239,9 +241,10 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
 
 def render_preview(scene: Scene, out: str, client, settings=None, exposure=None) -> str:
     """The same scene solved on its original elements only (no preprocessing), as the seed's
-    first image: writes OUT/preview.png (and keeps its run in OUT/preview/). Large originals
-    close together make the point kernel's rows sum past 1, so the preview uses the bounded
-    disc kernel and at most 200 passes."""
+    first image: writes OUT/preview.png (and keeps its run in OUT/preview/), by the method that
+    takes every pair as it is (methods/base.all_pairs_method). Large originals close together
+    make the point kernel's rows sum past 1, so the preview uses the bounded disc kernel and at
+    most 200 passes."""
     s = resolve({"subdivide.subpixel": 1, "subdivide.variant": "none", "solve.solver": "jacobi",
                  "solve.kernel": "disc", "solve.max-iterations": 200,
                  "render.exposure": exposure}, base=settings)
@@ -249,8 +252,9 @@ def render_preview(scene: Scene, out: str, client, settings=None, exposure=None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         preprocess(scene, sub, client, progress=False, settings=s)
-        get_method("pairs").build(sub, client, s, progress=False)
-        run_solve(sub, client, s, progress=False, method="pairs")
+        exact = all_pairs_method()
+        exact.build(sub, client, s, progress=False)
+        run_solve(sub, client, s, progress=False, method=exact.name)
         render_outputs(sub, settings=s)
     dst = os.path.join(out, "preview.png")
     shutil.copyfile(os.path.join(sub, "image.png"), dst)
@@ -316,7 +320,7 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
     sc = load_scene(scene, resolution=resolution, settings=st) if isinstance(scene, (str, os.PathLike)) \
         else scene
     check_solve(st)
-    check_scene(sc, st)
+    check_scene(sc, st, stated_method(st))
     say = echo or (lambda *a, **k: None)
     if sc.chosen:
         say(sc.chosen)

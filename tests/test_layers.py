@@ -195,3 +195,59 @@ def test_tests_mirror_the_folders():
     rooms = {_room(m) for m in _modules() if "." in m}
     missing = sorted(r for r in rooms if not os.path.isdir(os.path.join(root, r)))
     assert not missing, f"tests/ has no folder for {missing}"
+
+
+def _method_names() -> set:
+    """The METHODS registry's keys, read from methods/base.py's source."""
+    tree = ast.parse(open(os.path.join(APP, "methods", "base.py")).read())
+    for node in tree.body:
+        targets = node.targets if isinstance(node, ast.Assign) else \
+            [node.target] if isinstance(node, ast.AnnAssign) else []
+        if any(isinstance(t, ast.Name) and t.id == "METHODS" for t in targets):
+            return {k.value for k in node.value.keys}
+    raise AssertionError("methods/base.py has no METHODS registry")
+
+
+def _named_methods(node, names: set) -> list:
+    """The method names (string constants, alone or in a tuple, list or set) that a comparison
+    `node` compares with."""
+    out = []
+    for side in [node.left, *node.comparators]:
+        items = side.elts if isinstance(side, (ast.Tuple, ast.List, ast.Set)) else [side]
+        out += [i.value for i in items if isinstance(i, ast.Constant) and i.value in names]
+    return out
+
+
+def test_no_method_module_imported_outside_methods():
+    """Outside methods/, a method is reached through methods/base.py (its registry and
+    protocol), never by importing a method's own modules: a new method is one folder and one
+    registry line."""
+    mods = _modules()
+    bad = [f"{m} imports {d}" for m, path in mods.items() if _room(m) != "methods"
+           for d in _imports(m, path, mods) if d.startswith("methods.") and d != "methods.base"]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_method_name_compared_outside_methods():
+    """Outside methods/, no code compares a value with a method's name (a METHODS key, alone
+    or in a tuple): it asks the method for a capability instead (methods/base.py)."""
+    names = _method_names()
+    assert names >= {"pairs", "hierarchical"}
+    bad = []
+    for m, path in _modules().items():
+        if _room(m) == "methods":
+            continue
+        for node in ast.walk(ast.parse(open(path).read())):
+            if isinstance(node, ast.Compare) and _named_methods(node, names):
+                bad.append(f"app/{path[len(APP) + 1:]}:{node.lineno} compares with "
+                           f"{_named_methods(node, names)}")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_method_name_check_finds_a_comparison():
+    """The check above can fail: it finds `x == "pairs"` and `m in ("a", "hierarchical")`."""
+    names = _method_names()
+    found = [_named_methods(n, names) for src in ('x == "pairs"', 'm not in (None, "hierarchical")',
+                                                  'y == "other"')
+             for n in ast.walk(ast.parse(src)) if isinstance(n, ast.Compare)]
+    assert found == [["pairs"], ["hierarchical"], []]

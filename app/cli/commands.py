@@ -111,6 +111,7 @@ def main():
 def preprocess(scene, out, resolution, subpixel, variant, subscenes, force, workers, scheduler,
                cluster_kind):
     """Camera-driven subdivision of SCENE (seed §3) into the run directory OUT."""
+    from radiosity.methods.base import stated_method
     from radiosity.runtime.checks import check_new_run_dir, check_scene
     from radiosity.runtime.runlock import run_lock
     from radiosity.stages.preprocess import preprocess as run
@@ -118,7 +119,7 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, force, work
     st = settings_from_flags(subdivide__subpixel=subpixel, subdivide__variant=variant,
                              subdivide__subscenes=subscenes)
     sc = _load_scene(scene, resolution, st)
-    check_scene(sc, st)
+    check_scene(sc, st, stated_method(st))
     check_new_run_dir(out, force)
     _started(out, resume=False)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
@@ -175,7 +176,7 @@ def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, worker
           cluster_kind):
     """Solve the radiosity system of RUN_DIR (after visibility): form factors on the fly;
     with --method hierarchical, over its links (the kernel was fixed by the link stage)."""
-    from radiosity.methods.base import get_method, method_of_run
+    from radiosity.methods.base import method_of_run, stated_method
     from radiosity.runtime.checks import check_run_dir, check_solve
     from radiosity.runtime.runlock import run_lock
     from radiosity.runtime.store import RunStore
@@ -188,8 +189,7 @@ def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, worker
     check_run_dir(run_dir)
     rs = RunStore(run_dir)
     rs.load_partition()
-    stated = st.visibility.method
-    method = get_method(stated) if stated != "auto" else method_of_run(rs)
+    method = stated_method(st) or method_of_run(rs)
     method.require(rs)
     _started(run_dir, resume=False)
     with run_lock(run_dir, _command_line()), _client(workers, scheduler, cluster_kind, st,
@@ -388,45 +388,26 @@ def _builtin_cornell() -> str:
 @_friendly
 def plan(scene, resolution, subpixel, tol):
     """Print which effects SCENE calls for, which are skipped and why, before any heavy work."""
+    from radiosity.methods.base import choose_method, get_method, stated_method
     from radiosity.pipeline import scene_plan
     from radiosity.scene.effects import describe
     from radiosity.runtime.checks import check_scene
 
     st = settings_from_flags(subdivide__subpixel=subpixel, solve__tol=tol)
     sc = _load_scene(scene, resolution, st)
-    check_scene(sc, st)
+    check_scene(sc, st, stated_method(st))
     planned = scene_plan(sc, settings=st)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
     click.echo(describe(planned.effects, planned.unseen_unsplit, planned.sub_elements,
                         planned.closure))
-    from radiosity.methods.base import choose_method
-    from radiosity.methods.hierarchical.store import LINK_DTYPE
-    from radiosity.scene.splittrees import LINKS_PER_LEAF
-
     est = planned.effects.estimates
     method, why = choose_method(planned.sub_elements, st, originals=len(sc.elements),
                                 facing_pairs=est.get("facing_original_pairs",
                                                      est.get("facing_original_pairs_estimate")))
-    n = len(sc.elements)
-    clustered = st.hierarchy.clustered(n)[0] or "(clustered)" in why
-    if method == "hierarchical" and clustered:
-        from radiosity.methods.hierarchical.clusters.tasks import LINKS_PER_ORIGINAL, LINKS_PER_THREAD_S
-
-        lo, hi = (k * n for k in LINKS_PER_ORIGINAL)
-        threads = os.cpu_count() or 1
-        click.echo(f"method: {why}")
-        click.echo(f"clusters: a tree of {2 * n - 1} clusters over the {n} originals; links start "
-                   f"at its root (SPEC §9): about {lo:.2g} to {hi:.2g} links "
-                   f"({LINKS_PER_ORIGINAL[0]:g}-{LINKS_PER_ORIGINAL[1]:g} per original as measured "
-                   f"on a terrain and a tessellated box), a link stage of about "
-                   f"{lo / (LINKS_PER_THREAD_S[1] * threads):.2g} to "
-                   f"{hi / (LINKS_PER_THREAD_S[0] * threads):.2g} s on {threads} local thread(s)")
-        return
-    lo, hi = (k * planned.sub_elements for k in LINKS_PER_LEAF)
-    click.echo(f"method: {why}; the hierarchical method would keep {lo:.2g} to {hi:.2g} links "
-               f"({LINKS_PER_LEAF[0]:g}-{LINKS_PER_LEAF[1]:g} per sub-element as measured, "
-               f"{LINK_DTYPE.itemsize} bytes each), where pairs needs one bit per facing pair")
+    click.echo(f"method: {why}")
+    for line in get_method(method).plan_lines(st, planned.sub_elements, len(sc.elements), why):
+        click.echo(line)
 
 
 @main.command()
@@ -451,6 +432,7 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
            tol, max_iterations, keep_unconverged, filter_, sigma, exposure, workers, scheduler,
            cluster_kind):
     """Preprocess, visibility, solve and image of SCENE into the run directory OUT."""
+    from radiosity.methods.base import stated_method
     from radiosity.pipeline import render_scene
     from radiosity.runtime.checks import check_new_run_dir, check_scene, check_solve
     from radiosity.runtime.runlock import run_lock
@@ -460,7 +442,7 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
                              solve__max_iterations=max_iterations)
     sc = _load_scene(scene, resolution, st)
     check_solve(st)
-    check_scene(sc, st)
+    check_scene(sc, st, stated_method(st))
     check_new_run_dir(out, force)
     _started(out)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "

@@ -1,20 +1,22 @@
-"""The seam between the pipeline and the transport methods: what a method is (`TransportMethod`),
-what the solvers apply (`Operator`), what every Dask operator shares (`GroupExecutor`: pinned
-groups, data lost with a worker sent again), the `METHODS` registry and the per-scene choice.
-The pipeline, the stages and the CLI pick a method by name here and never compare names.
+"""The seam between the pipeline and the transport methods: what a method is and can do
+(`TransportMethod`, an abstract base that tests/methods/test_protocol.py checks every method
+against; `Refinement`, its rounds), what the solvers apply (`Operator`), what the solve gets
+(`Opened`), the `METHODS` registry and the per-scene choice. Code outside methods/ picks a
+method here (by a setting's value, by the run it holds, or by a capability such as
+`all_pairs`) and never compares names nor imports a method's modules (tests/test_layers.py).
 """
 
 from __future__ import annotations
 
 import importlib
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
 import numpy as np
 
 from radiosity.errors import RadiosityError
-from radiosity.runtime.cluster import Scattered
-from radiosity.runtime.runner import gather_retrying
+from radiosity.runtime.store import register_method_groups
 
 # How a pair's form factor is scaled by the row normalisation (stages/solve.normalise_rows):
 # CAP_MIN by min(cap_a, cap_b) (rows capped at 1; 1 = none), CAP_PRODUCT by cap_a * cap_b
@@ -44,59 +46,15 @@ class Operator(Protocol):
         """Replace input arrays (cap and cmode, sided, need, ...)."""
 
 
-class GroupExecutor:
-    """Task groups on a Dask cluster, each pinned to one worker (its cache stays warm across
-    passes), resubmitted anywhere when it fails; a pass whose scattered data died with a worker
-    scatters its inputs again and reruns. Operators of every method run their passes here."""
-
-    def __init__(self, client, inputs, ngroups: int, retries: int):
-        self.client = client
-        self.inputs = inputs
-        self.ngroups = ngroups
-        self.retries = retries
-        self._pin()
-        self.shared = Scattered(client, inputs)
-
-    def _pin(self) -> None:
-        alive = sorted(self.client.scheduler_info()["workers"])
-        self.workers = [alive[g % len(alive)] if alive else None for g in range(self.ngroups)]
-
-    def replace_inputs(self, inputs) -> None:
-        """New inputs for every later pass (one scatter)."""
-        self.inputs = inputs
-        self.shared = Scattered(self.client, inputs)
-
-    def run(self, fn, args_of: Callable, vectors: tuple, name: str, count: int | None = None) -> list:
-        """[fn(inputs, *args_of(i, *vector_futures)) for each group i], in group order.
-        `vectors` are scattered once per pass (sent again when their only copy dies)."""
-        from concurrent.futures import CancelledError
-
-        count = self.ngroups if count is None else count
-        for attempt in range(self.retries + 1):
-            try:
-                vf = self.client.scatter(list(vectors), broadcast=False, hash=False)
-
-                def submit(i, again):
-                    if again and any(f.status != "finished" for f in vf):
-                        vf[:] = self.client.scatter(list(vectors), broadcast=False, hash=False)
-                    w = self.workers[i % len(self.workers)] if self.workers else None
-                    return self.client.submit(fn, self.shared.future(), *args_of(i, *vf), pure=False,
-                                              workers=[w] if w else None,
-                                              allow_other_workers=bool(w))
-
-                return gather_retrying(self.client, submit, count, self.retries, name=name)
-            except (CancelledError, OSError) as e:  # FutureCancelledError, CommClosedError
-                if attempt == self.retries:
-                    raise RadiosityError(f"a solver pass failed {attempt + 1} times: workers were "
-                                         f"lost ({type(e).__name__}: {e})") from None
-                self._pin()
-
-
 @dataclass
 class Opened:
     """A solved run's unknowns as a method opened them: the operator, Le and rho (2, 3, M) and
     area (M,) per unknown and side, the original element of each unknown (M,), and the number
-    of sub-elements the solution is written for."""
+    of sub-elements the solution is written for. What the solve reads besides: `originals`, the
+    scene's original elements (the gathering count when all gather); `live` (M,) float, the
+    part of each unknown outside solids, or None (the solve leaves those at 0 out of the
+    transport and weighs the others' light by it). The solve sets `row_sums` (2, M), the rows
+    of F before any scaling, for the method's finish (hierarchical: views/rounds.py)."""
 
     op: Operator
     Le: np.ndarray
@@ -105,46 +63,119 @@ class Opened:
     orig: np.ndarray
     sub_elements: int
     to_sub: Callable[[np.ndarray], np.ndarray]  # (2, C, M) -> (m, 2, C) per sub-element
-    # the method's own (node table, ...; "live" (M,) the part of each unknown outside solids:
-    # the solve leaves those at 0 out of the transport and weighs the others' light by it), and
-    # the solve's rows of F before any scaling
-    # ("row_sums" (2, M): stages/solve.py puts them there for the method's finish)
-    state: dict = field(default_factory=dict)
+    originals: int = 0
+    live: np.ndarray | None = None
+    row_sums: np.ndarray | None = None
+    state: dict = field(default_factory=dict)  # the method's own (its node table, ...)
 
 
-class TransportMethod(Protocol):
+class Refinement(ABC):
+    """A method's rounds of refinement by the solved radiance, after a first solve
+    (stages/rounds.py runs them: solve, refine, solve from the last answer, ...)."""
+
+    @abstractmethod
+    def count(self, settings) -> int | None:
+        """The rounds the settings ask for (0: none), None where decide() says after the first
+        solve; bad values are a RadiosityError."""
+
+    @abstractmethod
+    def decide(self, rs, settings, radiance: np.ndarray) -> tuple[int, str]:
+        """(rounds, why) from the first solve's radiance (m, 2, C) per sub-element."""
+
+    @abstractmethod
+    def previous(self, rs) -> dict:
+        """The run's last solution, read once for a round and the warm start after it."""
+
+    @abstractmethod
+    def warm_start(self, prev: dict) -> Callable:
+        """x0 for run_solve from `prev` (previous()): a function Opened -> (2, C, M)."""
+
+    @abstractmethod
+    def start(self, run_dir: str, settings, unit, occlusion: bool):
+        """The rounds of one run: an object with refine(client, prev, progress) -> the round's
+        figures ({"tasks": 0}: nothing refined), and `figures`, `factor`, `change` for the
+        report's "rounds" section."""
+
+
+class TransportMethod(ABC):
     """One transport method: its stage after preprocessing (visibility bits, links), its
-    operator, and what it adds after the solve (a final gather, or nothing)."""
+    operator, and what it adds after the solve (a final gather, rounds, or nothing). Every
+    caller outside methods/ goes through these members; tests/methods/test_protocol.py checks
+    each METHODS entry against them."""
 
-    name: str
-    section: str  # the report.json section its build stage writes
+    name: str            # its METHODS key
+    section: str         # the report.json section its build stage writes
+    store_groups: tuple  # its groups of the run store, written by its stage (runtime/store.py)
+    all_pairs: bool      # every pair of unknowns as it is: the preview's and the kernels' method
+    refinement: Refinement | None = None  # rounds by the solved radiance, or None
 
-    def build(self, run_dir: str, client, settings, *, resume: bool, progress: bool,
-              occlusion: bool, unit: str | None = None, on_done=None): ...
+    @abstractmethod
+    def check(self, rs, settings) -> None:
+        """Settings that would fail the stage on this run, failed before any cluster starts."""
 
-    def built(self, rs) -> bool: ...
+    @abstractmethod
+    def check_scene(self, scene, settings) -> dict | None:
+        """A scene the stage would refuse, refused before any cluster starts (a RadiosityError
+        naming the scene and the option); returns the estimates it made, or None."""
 
-    def open(self, rs, client, settings, **options) -> Opened: ...
+    @abstractmethod
+    def plan_lines(self, settings, sub_elements: int, originals: int, why: str) -> list[str]:
+        """What `radiosity plan` says of this method's stage for a scene of this size (after
+        the line "method: WHY")."""
 
+    @abstractmethod
+    def build(self, run_dir: str, client, settings, *, resume: bool = False,
+              progress: bool = True, occlusion: bool = True, unit: str | None = None,
+              on_done=None):
+        """Run the method's stage on a preprocessed run; returns its figures."""
+
+    @abstractmethod
+    def rows(self, fig) -> list:
+        """The CLI summary rows of build's figures."""
+
+    @abstractmethod
+    def built(self, rs) -> bool:
+        """Whether the run store holds this method's stage."""
+
+    @abstractmethod
+    def require(self, rs) -> None:
+        """A StoreError saying what to run where the run's stage is missing or incomplete."""
+
+    @abstractmethod
+    def open(self, rs, client, settings, **options) -> Opened:
+        """The run's unknowns and operator for the solve (options: where, the hierarchical
+        method's driver or cluster choice)."""
+
+    @abstractmethod
+    def gathers(self, settings) -> bool:
+        """Whether finish() runs a final gather under these settings (a stage of its own)."""
+
+    @abstractmethod
     def finish(self, opened: Opened, L: np.ndarray, rows: dict, settings) -> tuple[dict, dict]:
         """(arrays for solution/, extra SolveFigures fields) from the solved L (2, C, M)."""
 
+    @abstractmethod
     def radiance_at(self, rs, settings, pts: np.ndarray, porig: np.ndarray, side: np.ndarray,
                     pixel: np.ndarray, footprint: np.ndarray) -> tuple[np.ndarray, dict]:
         """Radiance (K, 3) leaving points `pts` on originals `porig` (-1: none) on side `side`
         (0 front, 1 back), seen through pixel `pixel` whose footprint there is `footprint`
         (m^2), from the stored solution: for views the run was not refined for."""
 
+    @abstractmethod
     def open_views(self, rs, settings):
         """The run opened once for many views (a walkthrough's frames): an object whose
         radiance_at(pts, porig, side, pixel, footprint) answers as radiance_at does."""
 
+    @abstractmethod
     def kept(self, rs) -> str | None:
         """What a rerun reuses of this method's stage ("14 of 18 link tasks"), or None."""
 
-    def summary_row(self, report: dict) -> tuple[str, str]: ...
+    @abstractmethod
+    def summary_row(self, report: dict) -> tuple[str, str]:
+        """The render summary's row of this method's stage, from report.json."""
 
 
+#: name -> "module:attribute" of its TransportMethod; a new method is one folder and one line
 METHODS = {"pairs": "radiosity.methods.pairs.method:PAIRS",
            "hierarchical": "radiosity.methods.hierarchical.method:HIERARCHICAL"}
 
@@ -165,6 +196,26 @@ def method_of_run(rs) -> TransportMethod:
             return m
     raise RadiosityError(f"{rs.run_dir} has no visibility matrix or links yet: run radiosity "
                          f"visibility {rs.run_dir}")
+
+
+def stated_method(settings) -> TransportMethod | None:
+    """The method visibility.method states, None for auto (chosen later, by the scene)."""
+    method = settings.visibility.method
+    return None if method == "auto" else get_method(method)
+
+
+def all_pairs_method() -> TransportMethod:
+    """The registered method that takes every pair of unknowns as it is (no refinement): the
+    preview on the original elements, and the accuracy study's kernels, solve with it."""
+    return next(m for m in map(get_method, METHODS) if m.all_pairs)
+
+
+def store_groups() -> tuple[str, ...]:
+    """Every registered method's groups of the run store, in registry order."""
+    return tuple(g for name in METHODS for g in get_method(name).store_groups)
+
+
+register_method_groups(store_groups)  # the run store's drop_after deletes them after a raster
 
 
 def choose_method(sub_elements: int, settings, originals: int = 1,

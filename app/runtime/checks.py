@@ -136,15 +136,16 @@ def check_run_dir(run_dir: str, write: bool = True) -> None:
 
 # ----------------------------------------------------------------------------- the scene
 
-def check_scene(scene, settings) -> dict:
+def check_scene(scene, settings, method=None) -> dict:
     """Light and camera of a scene, before any cluster starts. A camera that sees no element is
     an error (the image would be empty); a scene without an emitter is a warning (it renders
     black, which is what it is, e.g. for a geometry check); faces that point the wrong way are
-    errors or warnings as `check_orientation` says; with the pairs method stated, a scene whose
-    pairs of facing originals (estimated) exceed plan.max-facing-pairs is refused (settings: a
-    settings.Settings; its subdivide.subpixel sets the raster). Returns {"hits": rays that
-    hit, "facing_pairs_estimate": originals.estimate_facing_pairs with the pairs method
-    stated, else None, "orientation": check_orientation's figures}."""
+    errors or warnings as `check_orientation` says; with a method stated (`method`: a
+    methods.base.TransportMethod, methods.base.stated_method), what its stage would refuse is
+    refused (its check_scene: the pairs method's facing pairs of originals past
+    plan.max-facing-pairs) (settings: a settings.Settings; its subdivide.subpixel sets the
+    raster). Returns {"hits": rays that hit, "facing_pairs_estimate": the stated method's
+    check_scene estimates (None: none), "orientation": check_orientation's figures}."""
     from radiosity.scene.emitters import AreaEmitters
     from radiosity.tracing.rays import caster_of
 
@@ -153,14 +154,7 @@ def check_scene(scene, settings) -> dict:
     if not emitters.any():
         warnings.warn(f"{scene.path}: {emitters.describe()}: the image will be black; give a "
                       "material an emission ([material.NAME] emission = [r, g, b])", stacklevel=2)
-    # the pairs method's work grows as the facing pairs of originals: refused up front when it
-    # is stated and would not fit (the hierarchical method clusters such scenes, SPEC §9)
-    from radiosity.scene.originals import check_budget, tree_of
-
-    est = None
-    if settings.visibility.method == "pairs":
-        est = check_budget(tree_of(el, int(settings.plan.leaf_size)),
-                           int(settings.plan.max_facing_pairs), scene.path)
+    est = method.check_scene(scene, settings) if method is not None else None
     subpixel = int(settings.subdivide.subpixel)
     rc = caster_of(el.verts, el.nverts, float(settings.rays.epsilon))
     seen = _camera_hits(scene, rc, cam, subpixel)

@@ -1,10 +1,11 @@
 """The run directory: one Zarr 3 store (the only module that imports zarr for the whole run; each
 method's own groups live in its folder's store module, through the helpers here) plus report.json.
 
-Groups of `RUN_DIR/store.zarr`: elements/, partition/, raster/ (here); visibility/ and
-nearfield/ (methods/pairs/store.py), links/ and hierarchy/ (methods/hierarchical/store.py),
-viewfactors/ (viewfactors/store.py), solution/ (stages/solve.py). A stage that is re-run deletes
-the groups of the stages after it, so a store never mixes results of different inputs.
+Groups of `RUN_DIR/store.zarr`: elements/, partition/, raster/ (here); the transport method's
+own (each method's `store_groups`, registered from the methods' registry, methods/base.py:
+visibility/ and nearfield/, or links/, clusters/ and hierarchy/), viewfactors/
+(viewfactors/store.py), solution/ (stages/solve.py). A stage that is re-run deletes the groups
+of the stages after it, so a store never mixes results of different inputs.
 """
 
 from __future__ import annotations
@@ -24,8 +25,24 @@ from radiosity.core.bundles import Camera, Elements, Partition
 FORMAT = "radiosity-run/1"
 STORE = "store.zarr"
 REPORT = "report.json"
-STAGES = ("elements", "partition", "raster", "visibility", "links", "clusters", "hierarchy",
-          "nearfield", "solution")
+#: The groups before the transport method's and after it, in stage order; drop_after takes the
+#: method's groups (any method's: a run holds one) as one stage between the two.
+BEFORE_METHOD = ("elements", "partition", "raster")
+AFTER_METHOD = ("solution",)
+_method_groups = tuple  # () -> every registered method's groups (register_method_groups)
+
+
+def register_method_groups(source) -> None:
+    """Where the run store learns the transport methods' groups: `source`, a function () ->
+    tuple of group names (methods/base.store_groups, registered when radiosity.methods is
+    imported: this layer does not import the methods)."""
+    global _method_groups
+    _method_groups = source
+
+
+def stages() -> list[tuple[str, ...]]:
+    """The run's groups by stage, in order: each preprocessing group, the method's, solution."""
+    return [(g,) for g in BEFORE_METHOD] + [tuple(_method_groups())] + [(g,) for g in AFTER_METHOD]
 
 
 def zarr_module():
@@ -133,10 +150,9 @@ class RunStore:
 
     def read_arrays(self, group: str) -> dict:
         if group not in self.root:
-            make = {"solution": f"radiosity solve {self.run_dir}",
-                    "visibility": f"radiosity visibility {self.run_dir}",
-                    "nearfield": f"radiosity solve {self.run_dir}"}.get(
-                group, f"radiosity preprocess SCENE --out {self.run_dir}")
+            make = (f"radiosity solve {self.run_dir}" if group in AFTER_METHOD else
+                    f"radiosity preprocess SCENE --out {self.run_dir}" if group in BEFORE_METHOD
+                    else f"radiosity visibility {self.run_dir}")
             raise StoreError(f"{self.run_dir} has no {group} yet: run {make} first")
 
         async def read(g):
@@ -164,10 +180,17 @@ class RunStore:
         return dict(self.root[group].attrs)
 
     def drop_after(self, stage: str) -> None:
-        """Delete the groups of every stage after `stage` (their inputs changed)."""
-        for later in STAGES[STAGES.index(stage) + 1:]:
-            if later in self.root:
-                del self.root[later]
+        """Delete the groups of every stage after the one that writes group `stage` (their
+        inputs changed); a method's groups are one stage (stages())."""
+        order = stages()
+        at = next((i for i, groups in enumerate(order) if stage in groups), None)
+        if at is None:
+            raise StoreError(f"{stage!r} is no group of the run store (groups: "
+                             f"{', '.join(g for groups in order for g in groups)})")
+        for groups in order[at + 1:]:
+            for later in groups:
+                if later in self.root:
+                    del self.root[later]
 
     # ---- typed helpers
     def save_elements(self, el: Elements) -> None:

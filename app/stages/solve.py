@@ -49,7 +49,7 @@ class SolveFigures(StageFigures):
     ambient: list | None = None      # progressive refinement's ambient term
     closure: dict | None = None      # closure.Closure: closed or open, and why
     solution: str = "written"        # written | kept previous (not converged) | written unconverged
-    method: str = "pairs"            # pairs (the visibility matrix) | hierarchical (links)
+    method: str = "-"                # the transport method (methods/base.py METHODS); "-": none
     hierarchy: dict | None = None    # --method hierarchical: leaves, link terms, final gather
 
     def rows(self):
@@ -150,7 +150,7 @@ class RowTargets:
     def burying(cls, targets: "RowTargets | None", buried: np.ndarray,
                 sided: np.ndarray) -> "RowTargets":
         """`targets` with the unknowns `buried` (M,) dead as well: sub-elements inside a solid
-        (the methods' Opened.state["live"] at 0) take no part, as contact sides."""
+        (the methods' Opened.live at 0) take no part, as contact sides."""
         if targets is None:
             return cls(np.ones(len(buried)), ~buried, buried.copy(), np.asarray(sided, bool))
         return cls(targets.target, targets.balance & ~buried, targets.dead | buried,
@@ -302,7 +302,7 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     (2, C, m) radiance per sub-element -> (h, w, 3) uint8 image for the dashboard
     (image.previewer), or None. closure: a closure.Closure already decided (the plan's), else
     solve.closure. where: the hierarchical method's driver / cluster choice. x0: a warm start,
-    a function of the opened method (methods.base.Opened) -> (2, C, M) (hierarchical/rounds.py).
+    a function of the opened method (methods.base.Opened) -> (2, C, M) (Refinement.warm_start).
     gather_if: a function (opened, solved L) -> False where the method's final gather is to be
     skipped (stages/rounds.py: a round follows)."""
     from radiosity.methods.base import get_method, method_of_run
@@ -329,7 +329,7 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     sided = (effects.two_sided if effects is not None
              else rs.load_elements().two_sided.astype(bool))[opened.orig]
     targets = RowTargets.of(closure, opened.orig, sided)
-    live = opened.state.get("live")
+    live = opened.live
     if live is not None and (live < 1.0).any():  # sub-elements inside solids, wholly or partly
         buried = live <= 0.0
         targets = RowTargets.burying(targets, buried, sided)
@@ -338,8 +338,8 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
         rho = np.where(buried, 0.0, rho)  # known (L = Le): no weight to divide by
     if targets is not None and (targets.sided != sided).any():
         op.configure(sided=targets.sided)  # contact backs: those elements solved one-sided
-    sums = op.row_sums()  # (2, M), before any scaling: the methods may keep them (rounds.py)
-    opened.state["row_sums"] = sums
+    sums = op.row_sums()  # (2, M), before any scaling: the methods may keep them (Opened.row_sums)
+    opened.row_sums = sums
     rows, changes = normalise_rows(op, row_mode(mode, closure), targets, sums)
     channels = 3
     if effects is not None:
@@ -386,23 +386,22 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
     fin = s if gather_if is None or gather_if(opened, res.radiance) else \
         resolve({"hierarchy.final-gather": "none"}, base=s)
-    # the hierarchical final gather re-evaluates every link at the leaves: a stage of its own
-    gathers = impl.name == "hierarchical" and \
-        fin.hierarchy.final_gather not in (False, None, "none")
+    # a final gather (the hierarchical method's re-evaluates every link at the leaves): a stage
+    gathers = impl.gathers(fin)
     with progress_bar(1, "final gather", progress and gathers, unit="pass") as fbar:
         arrays, extra = impl.finish(opened, res.radiance, rows, fin)
         fbar.update()
-    need = op.inp.need
+    need = changes.get("need", np.zeros(0, np.bool_))  # the originals that gather (empty: all)
     fig = SolveFigures(**{
         "solver": solver, "kernel": op.kernel, "tol": tol, "iterations": res.iterations,
         "converged": bool(res.converged), "residuals": [float(r) for r in res.residuals],
         "final_residual": final, "passes": op.passes, "pair_terms": int(op.terms),
         "pair_terms_per_s": iter_terms / max(t_iter, 1e-9), "time_s": round(t_solve, 4),
         "sub_elements": opened.sub_elements, "row_sums": rows, "channels": channels,
-        "gathering_elements": int(need.sum()) if len(need) else opened.state["originals"],
+        "gathering_elements": int(need.sum()) if len(need) else opened.originals,
         "channel_terms": int(op.terms) * channels,
         "ambient": None if res.ambient is None else res.ambient.tolist(),
-        "closure": None if closure is None else closure.to_dict(), **extra,
+        "closure": None if closure is None else closure.to_dict(), "method": impl.name, **extra,
     })
     return store_solution(rs, fig, res, arrays, keep_unconverged, max_iter)
 

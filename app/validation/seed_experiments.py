@@ -29,7 +29,9 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
     from radiosity.pipeline import render_preview, render_scene
     from radiosity.stages.preprocess import preprocess
     from radiosity.scene.load import load_scene
-    from radiosity.methods.pairs.visibility import compute_visibility
+    from radiosity.methods.base import all_pairs_method
+
+    compute_visibility = all_pairs_method().build  # the seed's visibility matrix (seed §4.3)
 
     s = resolve(base=settings)
     os.makedirs(out, exist_ok=True)

@@ -122,23 +122,25 @@ def _visibility_key(spec: str, settings: Settings) -> str:
 
 def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str,
                        settings: Settings | None = None) -> float:
-    """F from material `frm` to material `to` as the run's operator computes it (front sides);
-    settings: the operator's (None: resolved by open_operator)."""
-    from radiosity.methods.pairs.transport import open_operator
+    """F from material `frm` to material `to` as the run's operator computes it (front sides),
+    with `kernel`; settings: the operator's (None: resolved here)."""
+    from radiosity.methods.base import method_of_run
     from radiosity.stages.solve import normalise_rows
     from radiosity.runtime.store import RunStore
 
     rs = RunStore(run_dir)
-    op, part, el = open_operator(rs, client, kernel, settings=settings)
+    opened = method_of_run(rs).open(rs, client, resolve({"solve.kernel": kernel}, base=settings))
+    op, orig, area = opened.op, opened.orig, opened.area
     _, scaling = normalise_rows(op)
     if scaling:
         op.configure(**scaling)
-    names = np.array(el.material_names)[el.material[part.orig]]
-    x = np.zeros((2, 1, len(part)))
+    el = rs.load_elements()
+    names = np.array(el.material_names)[el.material[orig]]
+    x = np.zeros((2, 1, len(orig)))
     x[0, 0, names == to] = 1.0
     y = op.apply(x, use_need=False)
     a = names == frm
-    return float((part.area[a] * y[0, 0, a]).sum() / part.area[a].sum())
+    return float((area[a] * y[0, 0, a]).sum() / area[a].sum())
 
 
 def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels, tols,
@@ -149,7 +151,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
     `reference="auto"` also surfaces.csv and the Mitsuba reference(s) in out/reference/).
 
     For each camera resolution x sub-pixel factor x kernel x solver tolerance, the stages are
-    run and timed and the error is measured against a reference:
+    run and timed (_sweep_run) and the error is measured against a reference:
 
     - validation scenes (a `[validation]` table in the scene TOML): `form_factor` is the exact
       form factor between two materials (Howell's catalogue), compared with the one the run's
@@ -170,101 +172,30 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
 
     solver: solve.solver (None: that of `settings`, resolved here when None).
     """
+    from radiosity.methods.base import all_pairs_method
     from radiosity.stages.preprocess import preprocess
-    from radiosity.stages.image import read_exr, render_outputs
+    from radiosity.stages.image import read_exr
     from radiosity.scene.load import load_scene
-    from radiosity.methods.hierarchical.links.master import compute_links
-    from radiosity.stages.solve import run_solve
-    from radiosity.runtime.store import RunStore
-    from radiosity.methods.pairs.visibility import compute_visibility
 
     s = resolve({"solve.solver": solver}, base=settings)
     os.makedirs(out, exist_ok=True)
-    base = load_scene(scene_path, settings=s)
-    val = base.validation
+    val = load_scene(scene_path, settings=s).validation
     if reference == "auto" and val:
         raise RadiosityError(f"{scene_path}: the scene has a [validation] table, whose exact answer is "
                              "the study's reference; --reference auto is for scenes without one")
     rows = []
     images = {}
-    grid = sorted(itertools.product(resolutions, subpixels))
     # warm-up (numba kernels load from cache, Embree and workers start): not timed
     warm = os.path.join(out, "runs", "warm-up")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         preprocess(load_scene(scene_path, resolution=min(resolutions), settings=s), warm, client,
                    progress=False, settings=s)
-    compute_visibility(warm, client, s, progress=False)
-    for res, k in grid:
-        sc = load_scene(scene_path, resolution=res, settings=s)
+    all_pairs_method().build(warm, client, s, progress=False)
+    for res, k in sorted(itertools.product(resolutions, subpixels)):
         run = os.path.join(out, "runs", f"r{res}-k{k}")
-        t = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            pre = preprocess(sc, run, client, subpixel=k, progress=False, settings=s)
-        t_pre = time.perf_counter() - t
-        t_vis = {}  # per sampling: one-ray kernels share one matrix, nxm / mc cast their own
-        current = "none yet"
-        # one matrix per sampling, each made once
-        specs = sorted(kernels, key=lambda spec: _visibility_key(spec, s))
-        for label, tol in itertools.product(specs, tols):
-            kernel, overrides = kernel_setting(label, s)
-            # this row's settings: the sample count of nxm:N / mc:k, hier:EPSILON:RAYS's own
-            row = overridden(s, overrides)
-            hier = label.startswith(HIER + ":")
-            key = _visibility_key(label, s)
-            if key != current:
-                t = time.perf_counter()
-                if hier:
-                    compute_links(run, client, row, progress=False)
-                else:
-                    compute_visibility(run, client, row, progress=False, kernel=kernel)
-                t_vis[key] = time.perf_counter() - t
-                current = key
-            t = time.perf_counter()
-            passes = 0
-            # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
-            solve_with = row.solve.solver
-            if solve_with == "cg" and not get_kernel(kernel).reciprocal:
-                solve_with = "auto"
-            solve_with = choose_solver(solve_with, kernel)
-            if "form_factor" in val and hier:
-                raise RadiosityError(f"{scene_path}: a form-factor validation scene has no "
-                                     "solve to compare; sweep the hierarchical method on a "
-                                     "scene with a radiance answer or an image reference")
-            if "form_factor" in val:
-                f = form_factor_of_run(run, client, kernel, val["from"], val["to"], settings=row)
-                err = abs(f / val["form_factor"] - 1.0)
-                t_solve, t_img = time.perf_counter() - t, 0.0
-            else:
-                fig = (run_solve(run, client, row, solver=solve_with, tol=tol, progress=False,
-                                 method="hierarchical") if hier else
-                       run_solve(run, client, row, solver=solve_with, kernel=kernel, tol=tol,
-                                 progress=False, method="pairs"))
-                passes = fig.iterations
-                t_solve = time.perf_counter() - t
-                t = time.perf_counter()
-                render_outputs(run, exposure="auto", settings=row)
-                t_img = time.perf_counter() - t
-                rs = RunStore(run)
-                if "radiance" in val:
-                    part = rs.load_partition()
-                    L = rs.read_arrays("solution")["radiance"][:, 0, :]
-                    err = float((part.area[:, None] * np.abs(L / val["radiance"] - 1)).sum()
-                                / (3 * part.area.sum()))
-                else:  # keep the image (user's reference) or the solution (finest setting)
-                    images[(res, k, label, tol)] = (read_exr(os.path.join(run, "image.exr")) if reference
-                                                    else (run, rs.read_arrays("solution")["radiance"]))
-                    err = np.nan
-            rows.append({"resolution": res, "subpixel": k, "kernel": label,
-                         "solver": solve_with if "form_factor" not in val else "-", "tol": tol,
-                         "sub_elements": pre["sub_elements"], "passes": passes,
-                         "time_preprocess_s": t_pre, "time_visibility_s": t_vis[key],
-                         "time_solve_s": t_solve, "time_image_s": t_img,
-                         "time_total_s": t_pre + t_vis[key] + t_solve + t_img, "error": err})
-            echo(f"  {res}x{res} K={k} {label} tol={tol:g}: "
-                 f"{'error at the end' if np.isnan(err) else f'error {err:.3g}'}, "
-                 f"{rows[-1]['time_total_s']:.2f} s")
+        rows += _sweep_run(scene_path, run, client, res, k, kernels, tols, reference, images,
+                           echo, s)
     if images and reference == "auto":  # against Mitsuba; the path tracer joins the sweep
         rows += against_mitsuba(scene_path, out, rows, images, resolutions, reference_spp,
                                 path_tracer_spp, echo, settings=s)
@@ -273,28 +204,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         for r in rows:
             r["error"] = image_error(images[(r["resolution"], r["subpixel"], r["kernel"], r["tol"])], ref)
     elif images:  # against the finest setting, at its camera rays' hit points
-        from radiosity.tracing.rays import RayCaster
-        from radiosity.tracing.rays import raster_band
-
-        key = max(images, key=lambda q: (q[0] * q[1], -q[3], q[2] == "point-nf", q[2] == "point"))
-        echo(f"  reference: the finest setting {key[0]}x{key[0]} K={key[1]} {key[2]} tol={key[3]:g}")
-        fine = load_scene(scene_path, resolution=key[0], settings=s)
-        rc = RayCaster(fine.elements.verts, fine.elements.nverts, float(s.rays.epsilon))
-        h = fine.camera.height * key[1]
-        orig, pts = raster_band(rc, fine.elements.normal, fine.elements.center, fine.camera, key[1],
-                                slice(0, h))
-        hit = orig >= 0
-        orig, pts = orig[hit], pts[hit]
-
-        def sample(q):
-            run, L = images[q]
-            return sampled_radiance(RunStore(run).load_partition(), L, orig, pts, fine.camera)
-
-        ref = sample(key)
-        norm = max(float(np.sqrt(np.mean(ref ** 2))), 1e-300)
-        for r in rows:
-            q = (r["resolution"], r["subpixel"], r["kernel"], r["tol"])
-            r["error"] = float(np.sqrt(np.mean((sample(q) - ref) ** 2)) / norm)
+        _against_finest(scene_path, rows, images, echo, s)
     # against Mitsuba, images of one size compete (radiosity at every K and the path tracer at
     # that resolution): a per-pixel error of a 16 x 16 image says nothing of a 64 x 64 one
     group = [r["resolution"] if reference == "auto" else 0 for r in rows]
@@ -307,6 +217,125 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
         r["pareto"] = bool(p)
     write_results(out, rows, os.path.basename(os.path.dirname(os.path.abspath(scene_path))))
     return rows
+
+
+def _row_settings(label: str, settings: Settings):
+    """(kernel, the row's settings, its method) of a sweep label: hier:EPSILON:RAYS states its
+    method in the overrides (kernel_setting); a kernel is solved by the method that takes every
+    pair as it is (methods/base.all_pairs_method)."""
+    from radiosity.methods.base import all_pairs_method, stated_method
+
+    kernel, overrides = kernel_setting(label, settings)
+    # this row's settings: the sample count of nxm:N / mc:k, hier:EPSILON:RAYS's own, the kernel
+    row = overridden(settings, {**overrides, "radiosity.solve.kernel": kernel})
+    stated = "radiosity.visibility.method" in overrides
+    return kernel, row, stated_method(row) if stated else all_pairs_method()
+
+
+def _sweep_run(scene_path: str, run: str, client, res: int, k: int, kernels, tols, reference,
+               images: dict, echo, s: Settings) -> list[dict]:
+    """The rows of one camera resolution x sub-pixel factor (accuracy): the scene preprocessed
+    into `run` once, each sampling's visibility matrix (or link set) made once, every kernel
+    solved at every tolerance, timed, and its error measured where the scene has an exact
+    answer; the others keep their image (a user's reference) or solution (the finest setting)
+    in `images` for accuracy to measure."""
+    from radiosity.stages.preprocess import preprocess
+    from radiosity.stages.image import read_exr, render_outputs
+    from radiosity.scene.load import load_scene
+    from radiosity.stages.solve import run_solve
+    from radiosity.runtime.store import RunStore
+
+    sc = load_scene(scene_path, resolution=res, settings=s)
+    val = sc.validation
+    t = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pre = preprocess(sc, run, client, subpixel=k, progress=False, settings=s)
+    t_pre = time.perf_counter() - t
+    t_vis = {}  # per sampling: one-ray kernels share one matrix, nxm / mc cast their own
+    current = "none yet"
+    rows = []
+    # one matrix per sampling, each made once
+    specs = sorted(kernels, key=lambda spec: _visibility_key(spec, s))
+    for label, tol in itertools.product(specs, tols):
+        kernel, row, method = _row_settings(label, s)
+        key = _visibility_key(label, s)
+        if key != current:
+            t = time.perf_counter()
+            method.build(run, client, row, progress=False)
+            t_vis[key] = time.perf_counter() - t
+            current = key
+        t = time.perf_counter()
+        passes = 0
+        # cg needs a reciprocal kernel: the others are solved by Gauss-Seidel
+        solve_with = row.solve.solver
+        if solve_with == "cg" and not get_kernel(kernel).reciprocal:
+            solve_with = "auto"
+        solve_with = choose_solver(solve_with, kernel)
+        if "form_factor" in val and not method.all_pairs:
+            raise RadiosityError(f"{scene_path}: a form-factor validation scene compares the form "
+                                 f"factors of every pair; sweep the {method.name} method on a "
+                                 "scene with a radiance answer or an image reference")
+        if "form_factor" in val:
+            f = form_factor_of_run(run, client, kernel, val["from"], val["to"], settings=row)
+            err = abs(f / val["form_factor"] - 1.0)
+            t_solve, t_img = time.perf_counter() - t, 0.0
+        else:
+            fig = run_solve(run, client, row, solver=solve_with, tol=tol, progress=False,
+                            method=method.name)
+            passes = fig.iterations
+            t_solve = time.perf_counter() - t
+            t = time.perf_counter()
+            render_outputs(run, exposure="auto", settings=row)
+            t_img = time.perf_counter() - t
+            rs = RunStore(run)
+            if "radiance" in val:
+                part = rs.load_partition()
+                L = rs.read_arrays("solution")["radiance"][:, 0, :]
+                err = float((part.area[:, None] * np.abs(L / val["radiance"] - 1)).sum()
+                            / (3 * part.area.sum()))
+            else:  # keep the image (user's reference) or the solution (finest setting)
+                images[(res, k, label, tol)] = (read_exr(os.path.join(run, "image.exr")) if reference
+                                                else (run, rs.read_arrays("solution")["radiance"]))
+                err = np.nan
+        rows.append({"resolution": res, "subpixel": k, "kernel": label,
+                     "solver": solve_with if "form_factor" not in val else "-", "tol": tol,
+                     "sub_elements": pre["sub_elements"], "passes": passes,
+                     "time_preprocess_s": t_pre, "time_visibility_s": t_vis[key],
+                     "time_solve_s": t_solve, "time_image_s": t_img,
+                     "time_total_s": t_pre + t_vis[key] + t_solve + t_img, "error": err})
+        echo(f"  {res}x{res} K={k} {label} tol={tol:g}: "
+             f"{'error at the end' if np.isnan(err) else f'error {err:.3g}'}, "
+             f"{rows[-1]['time_total_s']:.2f} s")
+    return rows
+
+
+def _against_finest(scene_path: str, rows: list[dict], images: dict, echo, s: Settings) -> None:
+    """Every row's error (in place) against the finest setting's radiance, sampled at its camera
+    rays' hit points (images[(res, K, kernel, tol)]: (run, solution radiance))."""
+    from radiosity.runtime.store import RunStore
+    from radiosity.scene.load import load_scene
+    from radiosity.tracing.rays import RayCaster, raster_band
+
+    key = max(images, key=lambda q: (q[0] * q[1], -q[3], q[2] == "point-nf", q[2] == "point"))
+    echo(f"  reference: the finest setting {key[0]}x{key[0]} K={key[1]} {key[2]} tol={key[3]:g}")
+    fine = load_scene(scene_path, resolution=key[0], settings=s)
+    rc = RayCaster(fine.elements.verts, fine.elements.nverts, float(s.rays.epsilon))
+    h = fine.camera.height * key[1]
+    orig, pts = raster_band(rc, fine.elements.normal, fine.elements.center, fine.camera, key[1],
+                            slice(0, h))
+    hit = orig >= 0
+    orig, pts = orig[hit], pts[hit]
+
+    def sample(q):
+        run, L = images[q]
+        return sampled_radiance(RunStore(run).load_partition(), L, orig, pts, fine.camera)
+
+    ref = sample(key)
+    norm = max(float(np.sqrt(np.mean(ref ** 2))), 1e-300)
+    for r in rows:
+        q = (r["resolution"], r["subpixel"], r["kernel"], r["tol"])
+        r["error"] = float(np.sqrt(np.mean((sample(q) - ref) ** 2)) / norm)
 
 
 def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, resolutions,

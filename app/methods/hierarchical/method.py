@@ -1,17 +1,83 @@
 """The hierarchical method behind the methods' seam (methods/base.py): the link stage, the
-push-pull operator on the leaves, and the final gather after the solve."""
+push-pull operator on the leaves, the final gather after the solve, and rounds of refinement
+by the solved radiance (views/rounds.py, run by stages/rounds.py)."""
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
 from radiosity.errors import RadiosityError
-from radiosity.methods.base import CAP_MIN, Opened
+from radiosity.methods.base import CAP_MIN, Opened, Refinement, TransportMethod
 
 
-class HierarchicalMethod:
+class HierarchicalRounds(Refinement):
+    """hierarchy.rounds through the seam: views/rounds.py's rule, weights and warm start."""
+
+    def count(self, settings) -> int | None:
+        from radiosity.methods.hierarchical.views.rounds import AUTO, rounds_of
+
+        n, _, _ = rounds_of(settings)
+        return None if n == AUTO else n
+
+    def decide(self, rs, settings, radiance):
+        from radiosity.methods.hierarchical.views.rounds import auto_rounds
+
+        return auto_rounds(rs, settings, radiance)
+
+    def previous(self, rs) -> dict:
+        from radiosity.methods.hierarchical.views.rounds import previous_solution
+
+        return previous_solution(rs)
+
+    def warm_start(self, prev: dict):
+        from radiosity.methods.hierarchical.views.rounds import warm_start
+
+        return warm_start(prev)
+
+    def start(self, run_dir, settings, unit, occlusion):
+        from radiosity.methods.hierarchical.views.rounds import Rounds
+
+        return Rounds(run_dir, settings, unit, occlusion)
+
+
+class HierarchicalMethod(TransportMethod):
     name = "hierarchical"
     section = "links"
+    store_groups = ("links", "clusters", "hierarchy")
+    all_pairs = False
+    refinement = HierarchicalRounds()
+
+    def check_scene(self, scene, settings) -> dict | None:
+        """Nothing to refuse: scenes of many originals are clustered (SPEC §9)."""
+        return None
+
+    def plan_lines(self, settings, sub_elements, originals, why) -> list[str]:
+        """The cluster tree and its links (estimated per original) where the originals are
+        clustered, else the links estimated per sub-element."""
+        from radiosity.methods.hierarchical.store import LINK_DTYPE
+        from radiosity.scene.splittrees import LINKS_PER_LEAF
+
+        n = int(originals)
+        if settings.hierarchy.clustered(n)[0] or "(clustered)" in why:
+            from radiosity.methods.hierarchical.clusters.tasks import LINKS_PER_ORIGINAL, LINKS_PER_THREAD_S
+
+            lo, hi = (k * n for k in LINKS_PER_ORIGINAL)
+            threads = os.cpu_count() or 1
+            return [f"clusters: a tree of {2 * n - 1} clusters over the {n} originals; links "
+                    f"start at its root (SPEC §9): about {lo:.2g} to {hi:.2g} links "
+                    f"({LINKS_PER_ORIGINAL[0]:g}-{LINKS_PER_ORIGINAL[1]:g} per original as "
+                    f"measured on a terrain and a tessellated box), a link stage of about "
+                    f"{lo / (LINKS_PER_THREAD_S[1] * threads):.2g} to "
+                    f"{hi / (LINKS_PER_THREAD_S[0] * threads):.2g} s on {threads} local thread(s)"]
+        lo, hi = (k * sub_elements for k in LINKS_PER_LEAF)
+        return [f"links: about {lo:.2g} to {hi:.2g} ({LINKS_PER_LEAF[0]:g}-{LINKS_PER_LEAF[1]:g} "
+                f"per sub-element as measured, {LINK_DTYPE.itemsize} bytes each)"]
+
+    def gathers(self, settings) -> bool:
+        """hierarchy.final-gather other than none."""
+        return settings.hierarchy.final_gather not in (False, None, "none")
 
     def check(self, rs, settings) -> None:
         """Settings that would fail the stage, failed before any cluster starts."""
@@ -52,15 +118,15 @@ class HierarchicalMethod:
         s = settings if settings is not None else resolve()
         live = live_leaves(table, el, s.rays.epsilon) if s.hierarchy.inside_solids else None
         return Opened(op, Le, rho, area, table["orig"][table["leaf_node"]], m,
-                      lambda L: to_sub_elements(L, table, m),
-                      {"table": table, "originals": len(el), "live": live})
+                      lambda L: to_sub_elements(L, table, m), originals=len(el), live=live,
+                      state={"table": table})
 
     def finish(self, opened: Opened, L: np.ndarray, rows: dict, settings) -> tuple[dict, dict]:
         """With hierarchy.final-gather, one final gather that re-evaluates every link into a
         node above the leaves at each of its leaves (the uniform push leaves a saw-tooth over
         coarse receivers): solution/radiance per sub-element comes from it, and
         solution/leaf_radiance (M, 2, 3) keeps the solver's fixed point L = Le + rho K L;
-        solution/leaf_rows (M, 2) the leaves' rows of F v before any scaling (rounds.py)."""
+        solution/leaf_rows (M, 2) the leaves' rows of F v before any scaling (views/rounds.py)."""
         import time
 
         from radiosity.methods.hierarchical.solve.transport import LocalLinkOperator
@@ -69,7 +135,7 @@ class HierarchicalMethod:
         M = L.shape[2]
         t_fg = time.perf_counter()
         fg = settings.hierarchy.final_gather
-        gather_final = fg not in (False, None, "none")
+        gather_final = self.gathers(settings)
         Lf = L
         if gather_final:
             if fg not in ("exact", "linear"):
@@ -92,10 +158,9 @@ class HierarchicalMethod:
         F3 = np.broadcast_to(Lf, (2, 3, M)) if Lf.shape[1] == 1 else Lf
         arrays = {"radiance": opened.to_sub(F3),
                   "leaf_radiance": np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))}
-        if "row_sums" in opened.state:  # the rows of F v per leaf and side, unscaled (M, 2)
-            arrays["leaf_rows"] = np.ascontiguousarray(opened.state["row_sums"].T)
-        figures = {"method": "hierarchical",
-                   "hierarchy": {"leaves": M, "link_terms": int(op.terms),
+        if opened.row_sums is not None:  # the rows of F v per leaf and side, unscaled (M, 2)
+            arrays["leaf_rows"] = np.ascontiguousarray(opened.row_sums.T)
+        figures = {"hierarchy": {"leaves": M, "link_terms": int(op.terms),
                                  "passes_on": "driver" if isinstance(op, LocalLinkOperator)
                                  else "workers",
                                  "final_gather": fg if gather_final else "none",
@@ -105,13 +170,13 @@ class HierarchicalMethod:
 
     def radiance_at(self, rs, settings, pts, porig, side, pixel, footprint):
         """Radiance (K, 3) leaving points on originals `porig`, side `side`: leaves coarser
-        than the view's pixels gathered at the points over their links (views.radiance_at)."""
+        than the view's pixels gathered at the points over their links (views/points.radiance_at)."""
         from radiosity.methods.hierarchical.views.points import radiance_at
 
         return radiance_at(rs, settings, pts, porig, side, pixel, footprint)
 
     def open_views(self, rs, settings):
-        """The run's links opened once for many views (views.PointGather): its
+        """The run's links opened once for many views (views/points.PointGather): its
         radiance_at(pts, porig, side, pixel, footprint) is radiance_at's, without the opening."""
         from radiosity.methods.hierarchical.views.points import PointGather
 

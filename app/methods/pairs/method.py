@@ -1,12 +1,12 @@
 """The pairs method behind the methods' seam (methods/base.py): the visibility stage, the
 operator over the bit-packed matrix, and nothing after the solve (the sub-elements are the
-unknowns)."""
+unknowns: no final gather, no rounds)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from radiosity.methods.base import Opened
+from radiosity.methods.base import Opened, TransportMethod
 from radiosity.scene.emitters import AreaEmitters
 
 
@@ -22,15 +22,32 @@ def per_sub_element(L: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.transpose(L, (2, 0, 1)))
 
 
-class PairsMethod:
+class PairsMethod(TransportMethod):
     name = "pairs"
     section = "visibility"
+    store_groups = ("visibility", "nearfield")
+    all_pairs = True
+    refinement = None
 
     def check(self, rs, settings) -> None:
         """Settings that would fail the stage, failed before any cluster starts."""
         from radiosity.settings import sampling_of
 
         sampling_of(settings.solve)
+
+    def check_scene(self, scene, settings) -> dict | None:
+        """The stage's work grows as the facing pairs of originals: a scene whose pairs
+        (estimated) exceed plan.max-facing-pairs is refused up front (the hierarchical method
+        clusters such scenes, SPEC §9). Returns originals.check_budget's estimate."""
+        from radiosity.scene.originals import check_budget, tree_of
+
+        return check_budget(tree_of(scene.elements, int(settings.plan.leaf_size)),
+                            int(settings.plan.max_facing_pairs), scene.path)
+
+    def plan_lines(self, settings, sub_elements, originals, why) -> list[str]:
+        m = int(sub_elements)
+        return [f"visibility: one bit per facing pair of the {m} sub-elements (at most "
+                f"{m * (m - 1) / 2:.2g} pairs, {m * (m - 1) / 16 / 2 ** 20:.2g} MiB)"]
 
     def build(self, run_dir, client, settings, *, resume=False, progress=True, occlusion=True,
               unit=None, on_done=None):
@@ -57,8 +74,10 @@ class PairsMethod:
 
         op, part, el = open_operator(rs, client, settings.solve.kernel, settings)
         Le, rho, area = side_vectors(part, el)
-        return Opened(op, Le, rho, area, part.orig, len(part), per_sub_element,
-                      {"originals": len(el)})
+        return Opened(op, Le, rho, area, part.orig, len(part), per_sub_element, originals=len(el))
+
+    def gathers(self, settings) -> bool:
+        return False
 
     def finish(self, opened: Opened, L: np.ndarray, rows: dict, settings) -> tuple[dict, dict]:
         from radiosity.settings import sampling_of
@@ -86,7 +105,6 @@ class PairsMethod:
     def summary_row(self, report: dict) -> tuple[str, str]:
         vis = report["visibility"]
         return ("rays cast", f"{vis['rays']} ({vis['rays'] / max(1, vis['pairs_total']):.1%} of pairs)")
-
 
     def radiance_at(self, rs, settings, pts, porig, side, pixel, footprint):
         """Radiance (K, 3) leaving points on originals `porig`, side `side`: the stored radiance

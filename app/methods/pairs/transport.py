@@ -11,7 +11,8 @@ import numpy as np
 
 from radiosity.errors import RadiosityError
 from radiosity.core.kernels import get_kernel, kernel_id, sample_points, sampled_pairs
-from radiosity.methods.base import CAP_MIN, GroupExecutor, Operator  # noqa: F401
+from radiosity.methods.base import CAP_MIN, Operator  # noqa: F401
+from radiosity.runtime.executor import GroupExecutor
 from radiosity.methods.pairs.passes import (BOTH, Caps, Geometry, Samples, gs_sweep, partial_apply,
                                             sparse_by_target, tiles_apply)
 from radiosity.methods.pairs.plan import I, J, TSTART, TBYTES, VisibilityPlan

@@ -15,7 +15,8 @@ import dask
 import numpy as np
 
 from radiosity.errors import RadiosityError, StoreError
-from radiosity.methods.base import CAP_MIN, CAP_PRODUCT, GroupExecutor
+from radiosity.methods.base import CAP_MIN, CAP_PRODUCT
+from radiosity.runtime.executor import GroupExecutor
 from radiosity.methods.hierarchical.clusters.transport import GATHER_PARTS, ClusterGather
 from radiosity.methods.hierarchical.solve.passes import (Ends, Geometry, LinkArrays, Nodes, count_ends,
                                                    fill_ends, sum_up, final_gather, gather,
@@ -483,7 +484,7 @@ class LocalLinkOperator(_Base):
 
 
 class LinkOperator(_Base):
-    """K by Dask tasks over groups of link tasks, run by the methods' GroupExecutor (each group
+    """K by Dask tasks over groups of link tasks, run by runtime.executor.GroupExecutor (each group
     pinned to one worker, so its link cache stays warm across passes; a failed group is
     resubmitted anywhere; data lost with a worker is sent again)."""
 

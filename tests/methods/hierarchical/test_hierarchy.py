@@ -143,7 +143,6 @@ def _naive_polygon(root_verts, nv, path, depth):
     return poly[0]
 
 
-@pytest.mark.slow  # about 35 s of CPU (the fast subset took 135 s of CPU with it)
 def test_two_tasks_split_an_unseen_original_into_the_same_named_nodes(tmp_path):
     """The emitter is unseen: the tasks (emitter, receiver 1) and (emitter, receiver 2) split it
     independently. Nodes with the same name have bit-identical polygons, equal to walking the

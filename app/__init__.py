@@ -1,4 +1,8 @@
-"""Radiosity with simplified form factors (Debelov & Sattarov), as a Dask application."""
+"""Radiosity with simplified form factors (Debelov & Sattarov), as a Dask application.
+
+`radiosity.render(scene, out)` renders a scene, `radiosity.view_factors(mesh)` computes the
+view factors between a mesh's facets; both raise `radiosity.RadiosityError` on bad input.
+"""
 
 import os as _os
 
@@ -9,16 +13,26 @@ __version__ = "0.1.0"
 # It must be set before numba is imported (worker processes inherit it).
 _os.environ.setdefault("NUMBA_OPT", "1")
 
+# name -> (module, attribute): imported on first use, so that `import radiosity` stays cheap
+_LAZY = {
+    "render": ("radiosity.pipeline", "render"),
+    "view_factors": ("radiosity.viewfactors.api", "viewfactors"),
+    "RadiosityError": ("radiosity.errors", "RadiosityError"),
+}
+
+__all__ = ["__version__", *_LAZY]
+
 
 def __getattr__(name):
-    """`render` and `view_factors` are imported on first use, so that `import radiosity` stays
-    cheap."""
-    if name == "view_factors":
-        from radiosity.viewfactors.api import viewfactors
+    """The names of `_LAZY`, imported on first use."""
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
 
-        return viewfactors
-    if name == "render":
-        from radiosity.pipeline import render
+    module, attr = _LAZY[name]
+    return getattr(importlib.import_module(module), attr)
 
-        return render
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+def __dir__():
+    """What `dir(radiosity)` and tab completion show: the public names, lazy ones included."""
+    return sorted(set(__all__) | {k for k in globals() if not k.startswith("_")})

@@ -17,13 +17,6 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # helpers, naive
 from helpers import FLOOR_AND_TRIANGLE, IN_CI, missing, write_scene  # noqa: E402
 
 
-def pytest_configure(config):
-    config.addinivalue_line("markers", "needs(*components): the test drives chromium, slurm or "
-                            "mitsuba; skipped when missing, failed when missing under CI=true")
-    config.addinivalue_line("markers", "cluster: the test starts a Dask cluster, a subprocess or "
-                            "an external component (`pytest -m 'not cluster'`: the fast subset)")
-
-
 # modules whose tests run whole commands (each starts its own cluster) or subprocesses
 CLUSTER_MODULES = {"test_cli.py", "test_faults.py", "test_faults_repair.py", "test_cluster.py",
                    "test_dashboard.py", "test_config.py", "test_harness.py", "test_effects.py",
@@ -32,11 +25,12 @@ CLUSTER_MODULES = {"test_cli.py", "test_faults.py", "test_faults_repair.py", "te
 
 
 def pytest_collection_modifyitems(config, items):
-    """The `cluster` marker: on tests that use the session's cluster (or one of their own), run
-    whole commands, or drive Chromium, Slurm or Mitsuba."""
+    """The `cluster` marker (the markers are described in pyproject.toml): on tests that use the
+    session's cluster (or one of their own), run whole commands, drive Chromium, Slurm or
+    Mitsuba, or are `slow`."""
     for item in items:
         if {"client", "killable"} & set(getattr(item, "fixturenames", ())) \
-                or item.get_closest_marker("needs") \
+                or item.get_closest_marker("needs") or item.get_closest_marker("slow") \
                 or os.path.basename(str(item.fspath)) in CLUSTER_MODULES:
             item.add_marker(pytest.mark.cluster)
 

@@ -20,8 +20,12 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
+import socket
 import subprocess
 import sys
+import time
+import urllib.request
 from dataclasses import dataclass
 
 import pytest
@@ -178,26 +182,89 @@ def test_page_blocks_run(page, tmp_path):
                             f"{(r.stdout + r.stderr)[-4000:]}", pytrace=False)
 
 
+def readme_docs_commands() -> list[str]:
+    """The commands of the README's "Building the docs" block, comments dropped."""
+    readme = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+    part = readme[readme.index("## Building the docs"):]
+    part = part[:part.index("\n## ", 5)]
+    (block,) = re.findall(r"```bash\n(.*?)\n```", part, re.S)
+    return [line.split("#")[0].strip() for line in block.split("\n") if line.split("#")[0].strip()]
+
+
+def clean_env() -> dict:
+    """The environment of a reader's shell after `pip install -e .`: the interpreter's scripts
+    first on PATH and no PYTHONPATH (with one, griffe finds `radiosity` through it, and a
+    console script that cannot find the package would pass)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
+    env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", "")
+    return env
+
+
+def test_the_readme_docs_commands_are_the_ones_tested():
+    """The build and serve lines that the tests below run are the README's, word for word."""
+    assert readme_docs_commands() == ["python3 -m pip install -e '.[test]'",
+                                      "mkdocs serve -f docs/mkdocs.yml",
+                                      "mkdocs build --strict -f docs/mkdocs.yml"]
+
+
 def test_the_site_builds_strictly(tmp_path):
-    """`mkdocs build --strict`: a broken link or anchor, a missing include, a bad API or CLI
-    reference fails the build; and the generated references hold every command and the API."""
+    """The README's `mkdocs build --strict -f docs/mkdocs.yml` (the console script, from the
+    repository, in a clean environment; into a temporary folder, not docs/build/): a broken
+    link or anchor, a missing include, a bad API or CLI reference fails the build; and the
+    generated references hold every command and the API."""
     site = tmp_path / "site"
-    r = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f",
-                        os.path.join(DOCS, "mkdocs.yml"), "-d", str(site)], cwd=ROOT,
-                       capture_output=True, text=True, timeout=300,
-                       env=dict(os.environ, NO_MKDOCS_2_WARNING="1"))
+    command = shlex.split(readme_docs_commands()[2]) + ["-d", str(site)]
+    env = clean_env()
+    r = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
     assert r.returncode == 0, r.stdout + r.stderr
-    from radiosity.cli.commands import main
+    # the commands of the package that mkdocs-click documented (the one installed)
+    commands = subprocess.run([sys.executable, "-c", "from radiosity.cli.commands import main; "
+                               "print(*main.commands)"], cwd=ROOT, env=env, capture_output=True,
+                              text=True, timeout=120, check=True).stdout.split()
 
     cli = (site / "reference" / "cli" / "index.html").read_text()
-    missing = [name for name in main.commands if f'id="radiosity-{name}"' not in cli]
-    assert not missing, f"the CLI reference lacks {missing}"
+    missing = [name for name in commands if f'id="radiosity-{name}"' not in cli]
+    assert commands and not missing, f"the CLI reference lacks {missing}"
     assert "exact|seed|none" in cli  # what `radiosity preprocess --help` offers
     api = (site / "reference" / "python" / "index.html").read_text()
     for name in ("radiosity.pipeline.render", "radiosity.viewfactors.api.viewfactors",
                  "radiosity.settings.Settings", "radiosity.errors.RadiosityError"):
         assert f'id="{name}"' in api, name
     assert (site / "tutorial" / "index.html").exists()
+
+
+@pytest.mark.cluster  # a server subprocess that builds the whole site first
+def test_the_readme_serve_command_serves_the_site(tmp_path):
+    """The README's `mkdocs serve -f docs/mkdocs.yml`, as written but on a free loopback port
+    (`-a`: 8000 may be taken, by another run of this test too): the site answers, the API
+    reference with it."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    command = shlex.split(readme_docs_commands()[1]) + ["-a", f"127.0.0.1:{port}", "--no-livereload"]
+    log = open(tmp_path / "serve.log", "w+")
+    proc = subprocess.Popen(command, cwd=ROOT, env=clean_env(), stdout=log, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 240
+        while True:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/reference/python/",
+                                            timeout=10) as page:
+                    api = page.read().decode()
+                break
+            except OSError:
+                log.seek(0)
+                assert proc.poll() is None, f"mkdocs serve exited {proc.returncode}:\n{log.read()}"
+                assert time.monotonic() < deadline, f"no answer on port {port}:\n{log.read()}"
+                time.sleep(1)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+    assert 'id="radiosity.pipeline.render"' in api
 
 
 def test_ci_runs_the_readme_test_command():

@@ -318,9 +318,10 @@ def walkthrough(run_dir, path_file, out, name, frames, fps, resolution, exposure
 @click.option("--json", "json_path", type=click.Path(), default=None,
               help="Also write the compile time of every kernel to this JSON file.")
 @click.option("--record", is_flag=True,
-              help="Developers: render the Quick start (128x128) with an empty numba cache "
-                   "(NUMBA_CACHE_DIR) and write the kernels it compiles, in order, into "
-                   "runtime/kernels.txt (the first run's compile helper reads it).")
+              help="Developers: render the Quick start (128x128), then the pairs method "
+                   "(16x16), with an empty numba cache (NUMBA_CACHE_DIR) and write the kernels "
+                   "they compile, in order, into runtime/kernels.txt (the first run's compile "
+                   "helper reads it).")
 @_friendly
 def warmup(methods, json_path, record):
     """Compile the kernels of a render into numba's cache now (a tiny render of the built-in
@@ -353,8 +354,9 @@ def warmup(methods, json_path, record):
 
 
 def _record_kernels():
-    """`radiosity warmup --record`: the Quick start in this process, every kernel it compiles
-    written to runtime/kernels.txt in order (runtime/precompile.py)."""
+    """`radiosity warmup --record`: the Quick start in this process, then a pairs render,
+    every kernel they compile written to runtime/kernels.txt in order, the pairs method's own
+    first (runtime/precompile.py)."""
     import tempfile
 
     from radiosity.pipeline import render as render_api
@@ -365,9 +367,12 @@ def _record_kernels():
         raise RadiosityError("warmup --record: set NUMBA_CACHE_DIR to an empty folder (the record "
                              "must see every kernel compiled, not loaded from a warm cache)")
     os.environ["RADIOSITY_NO_PRECOMPILE"] = "1"  # no helper: this process compiles them all
-    with recording_order() as order, tempfile.TemporaryDirectory() as tmp:
-        render_api(_builtin_cornell(), os.path.join(tmp, "run"))
-    click.echo(f"wrote {write_entries(order)} kernel signatures into {SIGNATURES_PATH}")
+    with tempfile.TemporaryDirectory() as tmp:
+        with recording_order() as order:
+            render_api(_builtin_cornell(), os.path.join(tmp, "run"))
+        with recording_order() as pairs:  # what the pairs method compiles beyond those
+            render_api(_builtin_cornell(), os.path.join(tmp, "pairs"), resolution=16, method="pairs")
+    click.echo(f"wrote {write_entries(pairs + order)} kernel signatures into {SIGNATURES_PATH}")
 
 
 def _builtin_cornell() -> str:

@@ -19,6 +19,7 @@ import dask.config
 
 from radiosity import config
 from radiosity.errors import RadiosityError
+from radiosity.runtime.dashboard import dashboard_link
 from radiosity.runtime.interrupt import drop_workers, start_shielded
 
 JOBQUEUE_KINDS = {"slurm": "SLURMCluster", "pbs": "PBSCluster", "sge": "SGECluster",
@@ -365,7 +366,7 @@ def open_client(workers: int | None = None, scheduler: str | None = None, kind: 
             raise RadiosityError(f"cannot reach the Dask scheduler at {scheduler}: {e}") from None
         with client:
             if not quiet:
-                echo(f"dashboard: {client.dashboard_link}")
+                echo(f"dashboard: {dashboard_link(client)}")
             yield client
         return
     n = workers or config.get("cluster.workers") or default_workers()
@@ -398,7 +399,7 @@ def open_client(workers: int | None = None, scheduler: str | None = None, kind: 
                 echo(f"cluster: {n} local worker{'s' if n != 1 else ''} as "
                      f"{'threads in this process' if in_process else 'processes'}"
                      + (f" ({where})" if where else ""))
-            echo(f"dashboard: {client.dashboard_link}")
+            echo(f"dashboard: {dashboard_link(client)}")
             if kind == "local" and config.get("cluster.dashboard-address"):
                 from radiosity.runtime.dashboard import page_url
 

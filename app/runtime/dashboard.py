@@ -70,9 +70,27 @@ def dask_setup(scheduler) -> None:
     register(scheduler)
 
 
+def dashboard_link(client) -> str:
+    """The link to Dask's dashboard (/status) that answers.
+
+    Dask builds `client.dashboard_link` from the scheduler's address. With workers as threads
+    that address is inproc://HOST/..., HOST the machine's network address, while the dashboard
+    listens where `cluster.dashboard-address` says (127.0.0.1): the link was refused. For a
+    scheduler in this process the link takes the host its dashboard is bound to."""
+    from distributed.utils import format_dashboard_link
+
+    link = client.dashboard_link
+    scheduler = getattr(getattr(client, "cluster", None), "scheduler", None)
+    server = getattr(scheduler, "http_server", None)
+    host, port = getattr(server, "address", None), getattr(server, "port", None)
+    if not link or not host or not port or host in ("0.0.0.0", "::"):
+        return link  # not in this process, or on every interface: Dask's host is as good
+    return format_dashboard_link(f"[{host}]" if ":" in host else host, port)
+
+
 def page_url(client) -> str:
-    """URL of the page, from `client.dashboard_link` (which ends in /status)."""
-    parts = urlsplit(client.dashboard_link)
+    """URL of the page, from dashboard_link (which ends in /status)."""
+    parts = urlsplit(dashboard_link(client))
     path = parts.path
     base = path[: -len("/status")] if path.rstrip("/").endswith("/status") else path.rstrip("/")
     return urlunsplit(parts._replace(path=base.rstrip("/") + PATH, query="", fragment=""))

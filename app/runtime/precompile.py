@@ -1,10 +1,12 @@
 """A first run's numba compile on two cores: while the run compiles its kernels in the order it
 needs them, a helper process compiles the same kernels from the other end of that order into the
 same cache (`cache=True`), so the two meet in the middle and the run loads the rest from the
-cache. The order and the signatures are those of a Quick-start render, recorded in
-`kernels.txt` next to this file (`radiosity warmup --record` with an empty cache; a test checks
-that it still covers the kernels a render compiles). Once the cache is warm, nothing is
-started."""
+cache. The order and the signatures are recorded in `kernels.txt` next to this file
+(`radiosity warmup --record` with an empty cache; a test checks that it still covers the
+kernels a render of either method compiles): the pairs method's own kernels first, then a
+Quick-start render's. The helper takes the kernels not in the cache yet: all of them on a
+first run, the pairs method's on a first pairs render after a Quick start. Once every kernel
+is in the cache, nothing is started."""
 
 from __future__ import annotations
 
@@ -109,18 +111,26 @@ def resolve(entry) -> tuple:
 
 # ----------------------------------------------------------------------------- the helper
 
-def cache_is_warm(entries=None) -> bool:
-    """Whether numba's cache has an index for the last kernel of the recorded order (the
-    helper's first). A fresh install has none; after that the run loads its kernels (or
-    recompiles the few whose source changed) and no helper is needed."""
-    entries = read_entries() if entries is None else entries
-    if not entries:
-        return True
+def _in_cache(entry) -> bool:
+    """Whether numba's cache has an index for the entry's kernel (any of its signatures)."""
     try:
-        mod, fn, _ = entries[-1]
+        mod, fn, _ = entry
         return os.path.isfile(_cls(mod, fn)._cache._cache_file._index_path)
     except Exception:
         return True  # never start a helper on a guess
+
+
+def cold_entries(entries=None) -> list:
+    """The entries whose kernel has no cache index yet, in the recorded order: all of them on
+    a fresh install; after a Quick start, the pairs method's own (kernels.txt's first lines)."""
+    entries = read_entries() if entries is None else entries
+    return [e for e in entries if not _in_cache(e)]
+
+
+def cache_is_warm(entries=None) -> bool:
+    """Whether numba's cache has an index for every recorded kernel: then the run loads its
+    kernels (or recompiles the few whose source changed) and no helper is needed."""
+    return not cold_entries(entries)
 
 
 def start_helper() -> subprocess.Popen | None:
@@ -235,8 +245,10 @@ def write_entries(order, path: str = SIGNATURES_PATH) -> int:
     for line in order:
         resolve(line)
     with open(path, "w") as f:
-        f.write("# numba kernels of a Quick-start render, in the order their compilation started\n"
-                "# (radiosity.runtime.precompile); regenerate with an empty cache:\n"
+        f.write("# numba kernels, in the order their compilation started: those a pairs-method "
+                "render adds first,\n# then a Quick-start render's (the helper of a first run "
+                "compiles the cold ones from the end)\n# (radiosity.runtime.precompile); "
+                "regenerate with an empty cache:\n"
                 "# NUMBA_CACHE_DIR=$(mktemp -d) radiosity warmup --record\n")
         for line in order:
             f.write("\t".join(line) + "\n")
@@ -249,7 +261,7 @@ def main(argv=None) -> int:
     ap.add_argument("--last", type=int, default=0, help="compile only the last N entries")
     ap.add_argument("-v", "--verbose", action="store_true")
     a = ap.parse_args(argv)
-    entries = read_entries()
+    entries = cold_entries()  # what is cached already, the run loads: the meeting is elsewhere
     if a.last:
         entries = entries[-a.last:]
     compile_backwards(entries, echo=print if a.verbose else None)

@@ -83,13 +83,16 @@ def _quad_shapes(p: np.ndarray, tol: float):
     return planar, convex & planar, other
 
 
-def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Settings | None = None):
+def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Settings | None = None,
+                      first_face: int = 1):
     """Validate faces and turn them into polygons: (verts (n,4,3), nverts (n,), face (n,), material names).
 
     Non-planar or non-convex quads become two triangles, n-gons a triangle fan; each with a warning
     (the first MAX_FACE_WARNINGS of a file, then one line for the rest). merge=False keeps
     triangle pairs that form parallelograms apart (view factors between the user's own facets).
-    settings: its scene.* tolerances (None: resolved here). Whole-array operations per face size
+    settings: its scene.* tolerances (None: resolved here). first_face: the number the messages
+    give the file's first face, as the command's files count (1: surfaces.csv, OBJ; 0: the
+    view factors' facets.csv). Whole-array operations per face size
     (triangles, quads, n-gons); the first bad face in file order is the one named.
     """
     sc = resolve(base=settings).scene
@@ -126,10 +129,10 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
     for fi in said[:MAX_FACE_WARNINGS].tolist():
         if sizes[fi] == 4:
             what = "non-planar" if not planar[np.searchsorted(quad, fi)] else "non-convex"
-            warn(f"{fn}: face {fi + 1} (material '{fm[fi]}') is a {what} quad; "
-                  "split into two triangles")
+            warn(f"{fn}: face {fi + first_face} (material '{fm[fi]}') is a {what} quad; "
+                 "split into two triangles")
         else:
-            warn(f"{fn}: face {fi + 1} has {sizes[fi]} vertices; triangulated as a fan")
+            warn(f"{fn}: face {fi + first_face} has {sizes[fi]} vertices; triangulated as a fan")
     if len(said) > MAX_FACE_WARNINGS:
         warn(f"{fn}: and {len(said) - MAX_FACE_WARNINGS} more faces split into triangles likewise "
               "(non-planar or non-convex quads, n-gons)")
@@ -139,14 +142,14 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
         idx = raw.faces[fi]
         if e_index[fi]:
             wrong = [k for k in idx if not 0 <= k < nv]
-            raise SceneError(f"{fn}: face {fi + 1} refers to vertex {wrong[0]}, which does not exist "
+            raise SceneError(f"{fn}: face {fi + first_face} refers to vertex {wrong[0]}, which does not exist "
                              f"({nv} vertices)")
         if e_size[fi]:
-            raise SceneError(f"{fn}: face {fi + 1} has {len(idx)} vertices; a face needs at least 3")
+            raise SceneError(f"{fn}: face {fi + first_face} has {len(idx)} vertices; a face needs at least 3")
         p = V[flat[starts[fi]:starts[fi + 1]]]
         if e_finite[fi]:
-            raise SceneError(f"{fn}: face {fi + 1} has a NaN or infinite vertex coordinate")
-        raise SceneError(f"{fn}: face {fi + 1} has a vertex coordinate of {np.abs(p).max():.3g}: "
+            raise SceneError(f"{fn}: face {fi + first_face} has a NaN or infinite vertex coordinate")
+        raise SceneError(f"{fn}: face {fi + first_face} has a vertex coordinate of {np.abs(p).max():.3g}: "
                          f"beyond {MAX_COORD:g}, lengths to the fourth power overflow; "
                          "rescale the mesh")
 
@@ -172,7 +175,7 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
     diam = diameter(verts)
     bad = np.nonzero(~(area > sc.min_relative_area * diam ** 2))[0]
     if len(bad):
-        raise SceneError(f"{fn}: face {face[bad[0]] + 1} (material '{out_m[bad[0]]}') has zero area"
+        raise SceneError(f"{fn}: face {face[bad[0]] + first_face} (material '{out_m[bad[0]]}') has zero area"
                          + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""))
     return verts, nverts, face, out_m
 

@@ -1,6 +1,7 @@
 """Numbers for engineers: radiance, exitance, irradiance and illuminance of the solution per
-sub-element, per original surface and per material, as numpy arrays (a DataFrame when pandas
-is there), CSV files (Parquet too when pyarrow is there; formats/ writes them) and a summary in report.json.
+sub-element, per original surface and per material, as numpy arrays (which
+`pandas.DataFrame(t.table(name))` takes as they are; radiosity does not need pandas), CSV files
+(Parquet too when pyarrow is there; formats/ writes them) and a summary in report.json.
 
 Units and the photometric conversion (docs/how-to/exports.md says the same):
 - radiance L, emitted radiance Le: W sr^-1 m^-2 per RGB channel (SPEC §1); exitance
@@ -79,15 +80,6 @@ class LightTables:
         for k, v in t.items():
             out[k] = v
         return out
-
-    def frame(self, name: str):
-        """The table as a pandas DataFrame (pandas is optional: pip install pandas)."""
-        try:
-            import pandas as pd
-        except ImportError as e:
-            raise ImportError(f"LightTables.frame needs pandas ({e}): pip install pandas, or "
-                              "use .table(name) (numpy arrays) or .records(name)") from None
-        return pd.DataFrame(self.table(name))
 
 
 # ----------------------------------------------------------------------------- computing

@@ -38,7 +38,7 @@ class Facets:
 
     def describe(self, i: int) -> str:
         src = os.path.basename(self.sources[self.source[i]]) if self.sources else "?"
-        return f"facet {i} (face {int(self.face[i]) + 1} of {src})"
+        return f"facet {i} (face {int(self.face[i])} of {src})"
 
 
 def _from_polygons(parts: list, sources: list) -> Facets:
@@ -93,7 +93,7 @@ def load_facets(mesh, settings: Settings | None = None) -> Facets:
     F = [list(map(int, f)) for f in faces]
     for k, f in enumerate(F):
         if len(f) < 3 or min(f) < 0 or max(f) >= len(V):
-            raise SceneError(f"{name}: face {k + 1} {f} refers to vertices that do not exist "
+            raise SceneError(f"{name}: face {k} {f} refers to vertices that do not exist "
                              f"(there are {len(V)})")
     return _from_polygons([_polygons(RawMesh(V, F, ["default"] * len(F)), name, settings)], [name])
 
@@ -133,7 +133,7 @@ def _polygons(raw, fn: str, settings: Settings):
             ok = (area > scene.min_relative_area * diam ** 2) & (~quad | (planar & convex))
             if ok.all():
                 return p, sizes.astype(np.int8), np.arange(len(sizes), dtype=np.int32)
-    v, nv, f, _ = polygons_from_raw(raw, fn, merge=False, settings=settings)
+    v, nv, f, _ = polygons_from_raw(raw, fn, merge=False, settings=settings, first_face=0)
     return v, nv, f
 
 

@@ -215,3 +215,23 @@ def test_dashboard_page_in_chromium(tmp_path):
     assert state["residual_title"].startswith("Solver residual (cg, point-nf kernel), pass ")
     assert "solve" in state["run_html"]
     assert os.path.basename(out) in live["run_html"] and "image" in live["run_html"]
+
+
+def test_printed_links_answer_for_workers_as_threads():
+    """Workers as threads: the scheduler's address is inproc://HOST/..., HOST the machine's
+    network address, and Dask's link named HOST while the dashboard listens on 127.0.0.1 (the
+    link was refused). Both printed links are fetched."""
+    import urllib.request
+
+    from radiosity.runtime.cluster import open_client
+    from radiosity.runtime.dashboard import PATH
+
+    lines: list[str] = []
+    with open_client(1, kind="local", in_process=True, echo=lines.append) as client:
+        assert client.scheduler.address.startswith("inproc://")
+        links = {line.split(": ", 1)[0]: line.split(": ", 1)[1] for line in lines if ": http" in line}
+        assert links["dashboard"].startswith("http://127.0.0.1:"), lines
+        assert links["radiosity page"].endswith(PATH), lines
+        for url in links.values():
+            with urllib.request.urlopen(url, timeout=30) as page:
+                assert page.status == 200 and b"<html" in page.read().lower(), url

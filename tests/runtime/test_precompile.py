@@ -54,14 +54,15 @@ def test_typestr_round_trips_the_kinds_of_argument_kernels_take():
 
 @pytest.mark.cluster
 def test_the_record_covers_every_kernel_a_quick_start_render_uses(tmp_path):
-    """In a fresh process (the cache warm), the Quick start render, then every signature of
-    every radiosity kernel that process holds: each must be in kernels.txt (else regenerate it:
+    """In a fresh process (the cache warm), the Quick start render and a pairs render, then
+    every signature of every radiosity kernel that process holds: each must be in kernels.txt (else regenerate it:
     the helper would not compile that kernel, and a first run would compile it alone)."""
     code = f"""
 import sys, numba
 from radiosity.pipeline import render
 from radiosity.runtime.precompile import typestr
 render({scene_path('cornell-box')!r}, {str(tmp_path / 'run')!r}, resolution=32, method="hierarchical")
+render({scene_path('cornell-box')!r}, {str(tmp_path / 'pairs')!r}, resolution=16, method="pairs")
 for name, mod in list(sys.modules.items()):
     if not name.startswith("radiosity."):
         continue
@@ -84,15 +85,22 @@ for name, mod in list(sys.modules.items()):
 
 
 @pytest.mark.cluster
-def test_the_helper_fills_an_empty_cache_from_the_end_and_stops_where_it_is_full(tmp_path):
+def test_the_helper_fills_an_empty_cache_from_the_end_and_skips_what_is_there(tmp_path):
     env = {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-    check = "from radiosity.runtime.precompile import cache_is_warm; print(cache_is_warm())"
-    assert _run(check, env).strip() == "False"
-    first = _run("from radiosity.runtime.precompile import main; main(['--last', '3', '-v'])", env)
+    check = ("from radiosity.runtime.precompile import cache_is_warm, cold_entries; "
+             "print(cache_is_warm(), len(cold_entries()))")
+    warm, cold = _run(check, env).split()
+    assert warm == "False" and int(cold) == len(P.read_entries())  # a fresh cache: all cold
+    code = "from radiosity.runtime.precompile import main; main(['--last', '3', '-v'])"
+    first = _run(code, env)
     assert first.count("compiled ") >= 1, first
-    assert _run(check, env).strip() == "True"  # a run now starts no helper
-    again = _run("from radiosity.runtime.precompile import main; main(['--last', '3', '-v'])", env)
-    assert "compiled " not in again  # all three loaded from the cache: it stops there
+    assert int(_run(check, env).split()[1]) <= int(cold) - 3
+    # a later helper (a first pairs render after a Quick start) takes the next cold kernels,
+    # none of those compiled before
+    again = _run(code, env)
+    done = {line.split()[1] for line in first.splitlines() if line.startswith("compiled ")}
+    redone = {line.split()[1] for line in again.splitlines() if line.startswith("compiled ")}
+    assert redone and not done & redone, (first, again)
 
 
 def test_no_helper_when_the_cache_is_warm_or_when_turned_off(monkeypatch):

@@ -350,10 +350,20 @@ def test_facets_load_as_the_scene_loader_would(recwarn):
     assert len(load_facets((tri.vertices, tri.faces))) == 2
     bent = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.3], [0, 1, 0]]), [[0, 1, 2, 3]], ["default"])
     assert list(_polygons(bent, "bent.obj", settings)[1]) == [3, 3]
-    assert any("non-planar quad" in str(w.message) for w in recwarn)
+    # faces are numbered from 0 in the messages, as facets.csv numbers them (the render's
+    # loader, like its surfaces.csv, counts from 1)
+    assert any("bent.obj: face 0 (material 'default') is a non-planar quad" in str(w.message)
+               for w in recwarn)
     flat = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.]]), [[0, 1, 2]], ["default"])
-    with pytest.raises(SceneError, match="face 1 .* zero area"):
+    with pytest.raises(SceneError, match="flat.obj: face 0 .* zero area"):
         _polygons(flat, "flat.obj", settings)
+    with pytest.raises(SceneError, match="face 1 .* zero area"):
+        polygons_from_raw(flat, "flat.obj", merge=False, settings=settings)
+    with pytest.raises(SceneError, match=r"face 1 \[0, 1, 5\] refers to vertices"):
+        load_facets((tri.vertices, [[0, 1, 2], [0, 1, 5]]))
+    two = load_facets((tri.vertices, tri.faces))
+    assert [two.describe(i) for i in range(2)] == ["facet 0 (face 0 of (vertices, faces))",
+                                                   "facet 1 (face 1 of (vertices, faces))"]
 
 
 def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):

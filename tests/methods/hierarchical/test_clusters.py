@@ -459,6 +459,7 @@ def test_unseen_receivers_weigh_less_only_where_both_ends_are_unseen():
     assert none4 < none1 and all4 < all1
 
 
+@pytest.mark.slow  # 20 s of CPU with the kernels cached: over half of the rest of the fast subset
 def test_small_unseen_clusters_stay_whole_and_the_links_still_cover_every_facing_pair():
     """cluster_tree's `stop`: nodes wholly unseen and at most min_size across are not split
     where a link to them can be kept (the element level's min-node-size for unseen originals).

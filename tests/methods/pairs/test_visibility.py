@@ -78,6 +78,7 @@ def test_three_rectangles_shadow_is_where_the_geometry_puts_it(client, tmp_path)
     assert got[~umbra].any()
 
 
+@pytest.mark.cluster  # its own LocalCluster of worker processes, one of them killed
 def test_worker_killed_mid_run_gives_the_same_matrix(tmp_path):
     from distributed import Client, LocalCluster
 

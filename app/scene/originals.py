@@ -71,6 +71,15 @@ class OriginalsTree:
     def size(self) -> np.ndarray:
         return self.end - self.start
 
+    def leaves(self) -> np.ndarray:
+        """The leaf node ids in leaf order (their ranges tile 0:n), (l,) int64."""
+        lf = np.nonzero(self.left < 0)[0]
+        return lf[np.argsort(self.start[lf], kind="stable")]
+
+    def node_sums(self, x: np.ndarray) -> np.ndarray:
+        """The sum of x (n,) (per element, in element order) over each node's elements, (K,)."""
+        return _sums(np.asarray(x, np.float64)[self.order][:, None], self.start, self.end)[:, 0]
+
     def nbytes(self) -> int:
         return int(sum(getattr(self, f).nbytes for f in (
             "order", "start", "end", "left", "right", "lo", "hi", "clo", "chi", "axis", "spread",

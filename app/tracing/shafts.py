@@ -109,7 +109,7 @@ def _box_side(X, N, D, o, pad):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _same_side(A, B, N, D, o, pad):
+def same_side_boxes(A, B, N, D, o, pad):
     """Do boxes A and B lie on one closed side of occluder o's plane (N[o], D[o])? Then the
     (planar) occluder cannot block a segment between them (closed_apart); a coplanar
     neighbour of either end is no occluder."""
@@ -131,7 +131,7 @@ def _poly_side(V, x, nv, N, D, o, pad):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def same_side_polys(V, a, na, b, nb, N, D, o, pad):
-    """_same_side for polygons a, b of V (their vertices; a polygon is the convex hull of its
+    """same_side_boxes for polygons a, b of V (their vertices; a polygon is the convex hull of its
     vertices, so the closed half-space test on them holds for every point)."""
     return closed_apart(_poly_side(V, a, na, N, D, o, pad), _poly_side(V, b, nb, N, D, o, pad))
 
@@ -152,7 +152,7 @@ def _range_box(lo, hi, a0, a1, out):
 @numba.njit(cache=True, nogil=True, inline="always")
 def box_apart(A, B, LO, HI, o):
     """Does some axis separate occluder o's box [LO[o], HI[o]] from the bounding box of boxes A
-    and B ((2, 3): lo, hi)? Then no segment between A and B meets it (_shaft_excludes' first
+    and B ((2, 3): lo, hi)? Then no segment between A and B meets it (shaft_excludes' first
     test)."""
     for k in range(3):
         if HI[o, k] < min(A[0, k], B[0, k]) or LO[o, k] > max(A[1, k], B[1, k]):
@@ -164,7 +164,7 @@ def box_apart(A, B, LO, HI, o):
 def clear_of(A, B, LO, HI):
     """box_apart for every occluder box (LO, HI (b, 3)): no segment between boxes A and B can
     meet an occluder that lies in them (RayCaster.occluder_boxes). The shaft's planes
-    (_shaft_excludes) are left out: the rays they would save cost less than testing them
+    (shaft_excludes) are left out: the rays they would save cost less than testing them
     (docs/src/design/methods-hierarchical-clusters.md, "Rays only where an occluder can be")."""
     for o in range(LO.shape[0]):
         if not box_apart(A, B, LO, HI, o):
@@ -173,7 +173,7 @@ def clear_of(A, B, LO, HI):
 
 
 @numba.njit(cache=True, nogil=True)
-def _shaft_excludes(A, B, LO, HI, o):
+def shaft_excludes(A, B, LO, HI, o):
     """Is occluder o's box C = [LO[o], HI[o]] outside the shaft (convex hull) of boxes A and B? (A[0]=lo, A[1]=hi)
 
     Haines & Wallace: the union's bounding box, cut by the planes through box edges where one
@@ -252,7 +252,7 @@ def classify(rows, cols, occ, cand, sampled):
         for c in range(c0, c1):
             o = pool[c]
             tests += 1
-            if not (_same_side(A, B, on, od, o, pad) or _shaft_excludes(A, B, olo, ohi, o)):
+            if not (same_side_boxes(A, B, on, od, o, pad) or shaft_excludes(A, B, olo, ohi, o)):
                 pool[k] = o
                 k += 1
         n0, n1 = top, k
@@ -275,8 +275,8 @@ def classify(rows, cols, occ, cand, sampled):
                         o = pool[c]
                         if sampled:
                             tests += 1
-                            if not (_same_side(A, B, on, od, o, pad)
-                                    or _shaft_excludes(A, B, olo, ohi, o)):
+                            if not (same_side_boxes(A, B, on, od, o, pad)
+                                    or shaft_excludes(A, B, olo, ohi, o)):
                                 hit = True
                                 break
                             continue
@@ -313,7 +313,7 @@ def block_candidates(A, B, olo, ohi, on, od, pad, skip_a, skip_b):
     for o in range(olo.shape[0]):
         if o == skip_a or o == skip_b:
             continue
-        if not (_same_side(A, B, on, od, o, pad) or _shaft_excludes(A, B, olo, ohi, o)):
+        if not (same_side_boxes(A, B, on, od, o, pad) or shaft_excludes(A, B, olo, ohi, o)):
             out[k] = o
             k += 1
     return out[:k]
@@ -364,7 +364,7 @@ def tree_candidates(A, B, V, a, na, b, nb, tree, olo, ohi, on, od, pad, skip_a, 
     while ns > 0:
         ns -= 1
         x = stack[ns]
-        if _shaft_excludes(A, B, tree.lo, tree.hi, x):
+        if shaft_excludes(A, B, tree.lo, tree.hi, x):
             continue
         if tree.left[x] >= 0:
             if ns + 2 > stack.shape[0]:
@@ -380,7 +380,7 @@ def tree_candidates(A, B, V, a, na, b, nb, tree, olo, ohi, on, od, pad, skip_a, 
             if o == skip_a or o == skip_b:
                 continue
             if not (same_side_polys(V, a, na, b, nb, on, od, o, pad)
-                    or _shaft_excludes(A, B, olo, ohi, o)):
+                    or shaft_excludes(A, B, olo, ohi, o)):
                 if k == out.shape[0]:
                     grown = np.empty(2 * k, np.int64)
                     grown[:k] = out

@@ -42,12 +42,13 @@ class Params:
 
 @dataclass(frozen=True)
 class Inputs:
-    """Read-only arrays every task needs, in tree order (scattered to the workers once).
+    """Read-only arrays every task needs, in the tree's leaf order (scattered to the workers once).
 
     verts (n, 4, 3), nv (n,) int64, normal, center (n, 3), area (n,), doff (n,) = n . c,
-    flo, fhi (n, 3) facet boxes, gid (n,) int64 original facet ids, J, R (n,) second moments
-    and radii (loops.second_moments), qn (n, MAXQ, 3), qw (n, MAXQ), qc (n,) quadrature;
-    nodes: the tree's node arrays (bvh.Nodes), n_leaves its leaves; tol: the facing
+    flo, fhi (n, 3) facet boxes, padded as the render pads occluders (tracing/shafts.occluders),
+    gid (n,) int64 original facet ids, J, R (n,) second moments and radii
+    (loops.second_moments), qn (n, MAXQ, 3), qw (n, MAXQ), qc (n,) quadrature;
+    nodes: the tree's node arrays (loops.Nodes), n_leaves its leaves; tol: the facing
     tolerance, pad: the plane tolerance (lengths); key: Embree cache key."""
 
     verts: np.ndarray
@@ -64,7 +65,7 @@ class Inputs:
     qn: np.ndarray
     qw: np.ndarray
     qc: np.ndarray
-    nodes: tuple  # bvh.Nodes
+    nodes: tuple  # loops.Nodes
     n_leaves: int
     tol: float
     pad: float

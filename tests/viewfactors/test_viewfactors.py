@@ -386,29 +386,39 @@ def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
 
 
 def test_tree_and_task_plan_cover_every_facet_once(rng):
-    """The facet tree's leaves tile the facets, node boxes hold their facets, every facet normal
-    lies in its nodes' cones; the task plan takes every leaf once, in order, within the pair
-    budget (a single leaf may exceed it), with at least the requested number of tasks."""
-    from radiosity.viewfactors.bvh import build_tree
-    from radiosity.viewfactors.master import plan_tasks
+    """The facets' tree (the render's, scene/originals.build_tree): its leaves tile the facets,
+    node boxes (padded as the render's occluder boxes) hold their facets, every facet normal
+    lies in its nodes' cones, node areas sum their facets'; the task plan takes every leaf
+    once, in order, within the pair budget (a single leaf may exceed it), with at least the
+    requested number of tasks."""
+    from radiosity.viewfactors.facets import Facets
+    from radiosity.viewfactors.master import make_inputs, plan_tasks
 
     n = 3000
-    center = rng.random((n, 3)) * [100, 100, 20]
-    normal = rng.normal(size=(n, 3))
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    lo, hi = center - rng.random((n, 3)), center + rng.random((n, 3))
-    t = build_tree(lo, hi, center, normal, rng.random(n) + 0.1, 16)
-    assert sorted(t.perm.tolist()) == list(range(n))
-    assert t.start[t.leaves][0] == 0 and t.end[t.leaves][-1] == n
-    assert (t.start[t.leaves][1:] == t.end[t.leaves][:-1]).all()
-    assert (t.end[t.leaves] - t.start[t.leaves]).max() <= 16
-    for v in range(len(t)):
-        idx = t.perm[t.start[v]:t.end[v]]
-        assert (lo[idx] >= t.lo[v]).all() and (hi[idx] <= t.hi[v]).all()
-        assert (np.linalg.norm(normal[idx] - t.axis[v], axis=1) <= t.spread[v] + 1e-12).all()
+    c0 = rng.random((n, 3)) * [100, 100, 20]
+    tri = c0[:, None, :] + rng.normal(size=(n, 3, 3))
+    verts = np.concatenate([tri, tri[:, 2:]], axis=1)
+    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(cr, axis=1)
+    normal = cr / (2 * area[:, None])
+    center = tri.mean(axis=1)
+    fac = Facets(verts, np.full(n, 3, np.int8), normal, center, area, np.arange(n, dtype=np.int32),
+                 np.zeros(n, np.int32), ("random",))
+    t, inp = make_inputs(fac, 16, 1e-6)
+    nodes, perm, leaves = inp.nodes, t.order, t.leaves()
+    assert sorted(perm.tolist()) == list(range(n)) and (inp.gid == perm).all()
+    assert t.start[leaves][0] == 0 and t.end[leaves][-1] == n
+    assert (t.start[leaves][1:] == t.end[leaves][:-1]).all()
+    assert (t.end[leaves] - t.start[leaves]).max() <= 16
+    lo, hi = verts.min(axis=1), verts.max(axis=1)
+    for v in range(len(t.start)):
+        idx = perm[t.start[v]:t.end[v]]
+        assert (lo[idx] >= nodes.lo[v]).all() and (hi[idx] <= nodes.hi[v]).all()
+        assert (np.linalg.norm(normal[idx] - nodes.axis[v], axis=1) <= nodes.spread[v] + 1e-12).all()
+        assert nodes.area[v] == pytest.approx(area[idx].sum(), rel=1e-12)
     for budget, least in ((1, 1), (20000, 4), (10 ** 9, 8)):
         tasks = plan_tasks(t, n, budget, least)
-        assert np.array_equal(np.concatenate(tasks), t.leaves)
+        assert np.array_equal(np.concatenate(tasks), leaves)
         na = t.end - t.start
         for task in tasks:
             c = sum(int(na[a] * (na[a] - 1) // 2 + na[a] * (n - t.end[a])) for a in task)
@@ -503,11 +513,14 @@ def test_concentric_cubes_are_balanced_exactly(client, tmp_path):
 
 
 def test_open_and_outward_meshes_are_not_enclosures(client, tmp_path):
+    """A box with a face missing: open (its rays escape), rows capped, not balanced; stated
+    closed (--enclosure on) it is balanced to 1 with a warning naming the rows that lose the
+    most. An outward box: its fronts see only the void (closure target 0), no factor at all."""
     V, F = box([0, 0, 0], [1, 1, 1], 2)
     open_box = (V, F[:-4])                                       # one face missing
     res = run(client, tmp_path, open_box, "open")
     assert not res.figures["closed"] and not res.figures["balanced"]
-    assert "no neighbour" in res.figures["not_enclosure_because"]
+    assert res.figures["not_enclosure_because"].startswith("open: ")
     assert res.figures["row_sum_max"] < 1
     with pytest.warns(UserWarning) as rec:
         on = run(client, tmp_path, open_box, "on", enclosure="on")
@@ -518,8 +531,8 @@ def test_open_and_outward_meshes_are_not_enclosures(client, tmp_path):
     assert on.figures["balanced"]
     assert np.abs(np.asarray(on.matrix.sum(axis=1)).ravel() - 1).max() < 1e-12
     out = run(client, tmp_path, box([0, 0, 0], [1, 1, 1], 2, inward=False), "outward")
-    assert out.figures["closed"] and not out.figures["enclosure"]
-    assert "point out" in out.figures["not_enclosure_because"] and out.matrix.nnz == 0
+    assert not out.figures["closed"] and out.figures["closure"]["void_sides"] == 24
+    assert out.matrix.nnz == 0
 
 
 # ----------------------------------------------------------------------------- CLI, API, resume

@@ -17,7 +17,7 @@ from radiosity.methods.pairs.plan import END, FIRST, NBYTES, START, TBYTES, TSTA
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore
-from radiosity.tracing.shafts import _shaft_excludes
+from radiosity.tracing.shafts import shaft_excludes
 from radiosity.methods.pairs.visibility import compute_visibility, dense_visibility
 from helpers import scene_path
 
@@ -216,7 +216,7 @@ def test_shaft_never_excludes_a_box_that_a_segment_between_the_boxes_touches(val
     x = p + s * (q - p)
     inside = np.all((x >= C[0]) & (x <= C[1]), axis=1)
     if inside.any():
-        assert not _shaft_excludes(A, B, C[:1], C[1:], 0)
+        assert not shaft_excludes(A, B, C[:1], C[1:], 0)
 
 
 def test_chunk_size_is_a_bounded_power_of_two():

@@ -16,7 +16,7 @@ from radiosity.methods.hierarchical.links.formfactors import _spread, centroid_t
 from radiosity.methods.hierarchical.links.nodes import (NodeTable, _copy_tree_node, _forced, _grow,
                                                        _grown, _new_node, part_of)
 from radiosity.scene.splittrees import MAX_DEPTH, _bit, split_one
-from radiosity.tracing.shafts import _faces, _shaft_excludes, same_side_polys, tree_candidates
+from radiosity.tracing.shafts import _faces, shaft_excludes, same_side_polys, tree_candidates
 
 # The partition's node table (splittrees.TreeNodes, k nodes): verts (k, 4, 3), nverts, area,
 # center, lo / hi (node boxes), child (k, 2), orig, depth, path (uint64); ext (k,): leaves that
@@ -236,7 +236,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                 for c in range(l0, l1):
                     o = stk_pool[c]
                     if same_side_polys(Lv, p, Ln[p], q, Ln[q], enormal, eoffset, o, pad) or \
-                            _shaft_excludes(A, B, elo, ehi, o):
+                            shaft_excludes(A, B, elo, ehi, o):
                         continue
                     if _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal, eoffset, pad,
                                s4p, s4q):

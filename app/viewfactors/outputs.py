@@ -92,6 +92,10 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
     A = fac.area
     cl = facet_closure(fac, epsilon)
     rt = RowTargets.of(cl, np.arange(n), np.zeros(n, bool))
+    # a facet partly inside a solid (under a block whose bottom faces the wrong way) sees less
+    # than its hemisphere, as a partly covered one: capped, not balanced
+    part = (cl.inside[:, 0] > 0) & (cl.inside[:, 0] < 1)
+    rt = RowTargets(rt.target, rt.balance & ~part, rt.dead, rt.sided)
     contact = rt.dead
     if contact.any():  # as in the radiosity path: covered facets neither receive nor send
         keep = sp.diags(np.where(contact, 0.0, 1.0))
@@ -108,6 +112,7 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
                  "closure": cl.to_dict(), "balanced": do_balance, "nonzeros": int(F.nnz),
                  "contact_facets": int(contact.sum()),
                  "partly_covered_facets": int(cl.counts["partly_covered_sides"]),
+                 "partly_inside_facets": int(part.sum()),
                  "row_sum_min": float(rows0.min()), "row_sum_max": float(rows0.max()),
                  "row_sum_histogram": row_histogram(rows0),
                  "obstructed_over_unobstructed": asm.violations,
@@ -164,7 +169,7 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
     write_vf_matrix(rs, F.indptr, F.indices, F.data, scale, {"balanced": do_balance})
     os.makedirs(out, exist_ok=True)
     sp.save_npz(os.path.join(out, "viewfactors.npz"), F, compressed=True)
-    _write_facets_csv(os.path.join(out, "facets.csv"), fac, rows, cl)
+    _write_facets_csv(os.path.join(out, "facets.csv"), fac, rows0, rows, cl)
     files = ["viewfactors.npz", "facets.csv"]
     if fmt == "csv":
         limit = int(vf.csv_max_nonzeros)
@@ -178,19 +183,20 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
     return fig
 
 
-def _write_facets_csv(fn: str, fac: Facets, rows: np.ndarray, cl) -> None:
+def _write_facets_csv(fn: str, fac: Facets, rows0: np.ndarray, rows: np.ndarray, cl) -> None:
     """One line per facet: where it is, its row sum, its view to the environment (1 - row sum:
-    the fraction of its power that reaches no facet) and what the closure found of its front
+    the fraction of its power that reaches no facet), its row sum as computed (before any
+    balancing or capping; contact facets' rows 0) and what the closure found of its front
     (contact, the fraction of its hemisphere that reaches geometry)."""
     with open(fn, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["facet", "source", "face", "area", "cx", "cy", "cz", "nx", "ny", "nz", "row_sum",
-                    "environment", "contact", "closure_target"])
+                    "environment", "row_sum_computed", "contact", "closure_target"])
         for i in range(len(fac)):
             w.writerow([i, os.path.basename(fac.sources[fac.source[i]]), int(fac.face[i]),
                         repr(float(fac.area[i])), *(repr(float(x)) for x in fac.center[i]),
                         *(repr(float(x)) for x in fac.normal[i]), repr(float(rows[i])),
-                        repr(float(1.0 - rows[i])), int(cl.contact[i, 0]),
+                        repr(float(1.0 - rows[i])), repr(float(rows0[i])), int(cl.contact[i, 0]),
                         repr(float(cl.target[i, 0]))])
 
 

@@ -655,25 +655,109 @@ def test_killed_driver_resumes_with_the_same_matrix(client, tmp_path):
     assert (res.matrix != ref.matrix).nnz == 0
 
 
+def _closure_rows(res, tol=1e-12):
+    """The closure's per-facet decisions for a result (outputs.facet_closure is seeded: the
+    same rays as the run's) and the matrix's final row sums."""
+    from radiosity.core.balancing import RowTargets
+    from radiosity.viewfactors.outputs import facet_closure
+
+    n = len(res.facets)
+    cl = facet_closure(res.facets, 1e-6)
+    rt = RowTargets.of(cl, np.arange(n), np.zeros(n, bool))
+    part = (cl.inside[:, 0] > 0) & (cl.inside[:, 0] < 1)
+    return cl, rt.balance & ~part, np.asarray(res.matrix.sum(axis=1)).ravel()
+
+
 def test_furnished_room_with_contact_rows_and_reciprocity(client, tmp_path):
     """The furnished room (legs touching the table top, a shelf on the floor against a wall):
     its 16 contact facets take no part (zero rows and columns), the facets partly covered are
     only capped, every other row is balanced to 1; at the default accuracy every row lies in
     [0, 1 + 1e-3] (before contact handling: up to 1.037, and balancing gave NaN), reciprocity
     to 1e-12 (issue 26)."""
-    from radiosity.viewfactors.outputs import covered_fraction
-
     res = run(client, tmp_path, scene_path("furnished-room"))
     fig, M, A = res.figures, res.matrix, res.area
     assert fig["enclosure"] and fig["balanced"] and fig["balance_converged"]
     assert fig["contact_facets"] == 16 and fig["partly_covered_facets"] > 0
-    rows = np.asarray(M.sum(axis=1)).ravel()
+    cl, bal, rows = _closure_rows(res)
     assert rows.min() >= 0 and rows.max() <= 1 + 1e-3 and np.isfinite(rows).all()
-    cover = covered_fraction(res.facets, 1e-6)
-    contact = cover >= 0.999
+    contact = cl.contact[:, 0]
     assert contact.sum() == 16
     assert rows[contact].max() == 0 and abs(M[:, np.nonzero(contact)[0]]).sum() == 0
-    assert np.abs(rows[cover == 0] - 1).max() < 1e-12
-    assert rows[(cover > 0) & ~contact].max() <= 1 + 1e-12
+    assert bal.sum() > 0.8 * len(rows) and np.abs(rows[bal] - 1).max() < 1e-12
+    assert rows.max() <= 1 + 1e-12
     S = (sp.diags(A) @ M).toarray()
     assert np.abs(S - S.T).max() < 1e-12
+
+
+def _weld(V, F):
+    """(vertices, faces) with coincident vertices merged, as a CAD export or a modeller's
+    'merge by distance' leaves them: edges where objects touch are shared by 3 or 4 facets."""
+    key = np.round(np.asarray(V, float), 9)
+    uniq, inv = np.unique(key, axis=0, return_inverse=True)
+    return uniq, [[int(inv[k]) for k in f] for f in F]
+
+
+def _modelled_room(flip=False):
+    """A 4 x 2.5 x 3.5 room (4 x 4 inward quads a side) furnished as people model rooms, vertices
+    welded: a cabinet on the floor against a wall (on the floor and wall grid: edges shared by
+    four facets), a box on the cabinet (partly covering its top), a shelf board that meets
+    the opposite wall inside its cells (a T-junction). flip: the faces lying on another
+    surface wound the other way (facing into their solid)."""
+    room = box([0, 0, 0], [4, 2.5, 3.5], 4)
+    cab = box([0, 0, 0.875], [1, 0.625, 1.75], 1, inward=False)
+    top = box([0.2, 0.625, 1.0], [0.6, 0.9, 1.4], 1, inward=False)
+    shelf = box([3.4, 1.0, 1.0], [4.0, 1.1, 2.5], 1, inward=False)
+    if flip:  # k = 1 faces: x-lo, x-hi, y-lo, y-hi, z-lo, z-hi
+        for (V, F), faces in ((cab, (0, 2)), (top, (2,)), (shelf, (1,))):
+            for k in faces:
+                F[k] = F[k][::-1]
+    return _weld(*join(room, cab, top, shelf))
+
+
+@pytest.mark.parametrize("flip", [False, True], ids=["as-modelled", "flipped-contact-faces"])
+def test_modelled_room_balances_where_closed(client, tmp_path, flip):
+    """A furnished room as people model it (touching furniture, welded edges shared by four
+    facets, a T-junction, and, flipped, faces wound the other way), which an edge-topology
+    test calls open: the render's closure per facet side by rays finds it closed; raw rows at
+    the contact faces (partly covered, or touching) within 1 + 1e-3 before any balancing, and
+    every raw row within 1 + 10 x the accuracy (1.005 measured; thin occluders, the shelf
+    board, are what sampling misses); no obstructed factor above the unobstructed one; the
+    rows whose side is closed balanced to 1, every other row capped at 1; each row plus its
+    view to the environment (facets.csv) equal to 1; reciprocity to 1e-12."""
+    import csv
+
+    from radiosity.core.kernels import Sampling, sample_points
+    from radiosity.scene.contact import contact_points
+
+    acc = 1e-3
+    res = run(client, tmp_path, _modelled_room(flip), accuracy=acc)
+    fig, M, A, fac = res.figures, res.matrix, res.area, res.facets
+    assert fig["closed"] and fig["balanced"] and fig["balance_converged"], fig["closure"]
+    assert fig["contact_facets"] >= 4 and fig["obstructed_over_unobstructed"] == 0
+    cl, bal, rows = _closure_rows(res)
+    assert bal.sum() > 0.8 * len(rows) and np.abs(rows[bal] - 1).max() < 1e-12
+    assert rows.max() <= 1 + 1e-12 and rows.min() >= 0
+    with open(tmp_path / "run" / "facets.csv") as f:
+        table = list(csv.DictReader(f))
+    row, env, raw = (np.array([float(r[k]) for r in table])
+                     for k in ("row_sum", "environment", "row_sum_computed"))
+    assert np.allclose(row, rows, rtol=0, atol=1e-15) and np.abs(row + env - 1).max() < 1e-15
+    assert raw.max() <= 1 + 10 * acc and fig["row_sum_max"] == raw.max()
+    # contact faces: partly covered facets, and the furniture's faces that touch another
+    el = type("El", (), dict(verts=fac.verts, nverts=fac.nverts, normal=fac.normal,
+                             two_sided=np.zeros(len(fac), bool)))
+    pts, _ = sample_points(fac.verts, fac.nverts, Sampling("nxm", 256))
+    cover = contact_points(el, pts, 1e-6)[:, :, 0].mean(axis=1)
+    touching = (cover > 0) | np.isin(np.arange(len(fac)), _touching_faces(fac))
+    assert touching.sum() >= 8 and raw[touching].max() <= 1 + 1e-3
+    S = (sp.diags(A) @ M).toarray()
+    assert np.abs(S - S.T).max() < 1e-12
+
+
+def _touching_faces(fac):
+    """Facets of the furniture (after the room's 96) with a vertex on another surface: the
+    floor, the walls, the cabinet's top."""
+    v = fac.verts[96:]
+    on = (np.isclose(v[..., 1], 0) | np.isclose(v[..., 0], 0) | np.isclose(v[..., 0], 4)
+          | np.isclose(v[..., 1], 0.625))
+    return 96 + np.nonzero(on.any(axis=1))[0]

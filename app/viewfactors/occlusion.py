@@ -151,7 +151,7 @@ def _bilinear_jacobian(P, u, v):
 
 
 @numba.njit(cache=True, nogil=True)
-def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
+def sample_facets(fids, key, s, seed, verts, nv, center, area, pts, w):
     """Jittered stratified points of facets fids (leaf order): s * s per facet, pts
     (len(fids) * s * s, 3), weights w (same count; each facet's sum to 1 in expectation).
 
@@ -159,8 +159,10 @@ def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
     subdivision, weight 1 / s^2. Quads: one point in each cell of an s x s grid of the bilinear
     map, weight = its Jacobian / (s^2 area) (unbiased for any planar convex quad). s = 1: the
     centroid (measured: one random point instead doubles the rows' errors on the urban scene of
-    benchmarks/bench_viewfactors.py). The jitter depends on (seed, gid[facet], s, cell) only
-    (gid: the facets' original ids), so every task draws the same points."""
+    benchmarks/bench_viewfactors.py). The jitter depends on (seed, key[t], s, cell) only, so
+    every task draws the same points: task.py keys them by the pair (both facets' original
+    ids), so that a facet's points differ from pair to pair and their errors do not add up
+    over its row (docs/src/design/viewfactors-method.md, "Sampled visibility")."""
     S = s * s
     for t in range(fids.shape[0]):
         f = fids[t]
@@ -170,7 +172,7 @@ def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
                 pts[base, k] = center[f, k]
             w[base] = 1.0
             continue
-        g = gid[f]
+        g = key[t]
         if nv[f] == 3:
             c = 0
             for a in range(s):

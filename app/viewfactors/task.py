@@ -254,12 +254,18 @@ def _level(inp: Inputs, prm: Params, caster, fi, fj, s: int, counts) -> np.ndarr
     for c0 in range(0, len(fi), step):
         a, b = fi[c0:c0 + step], fj[c0:c0 + step]
         kk = len(a)
-        U, inv = np.unique(np.concatenate([a, b]), return_inverse=True)
+        # each pair's own points on both facets (sample_facets: errors independent pair by
+        # pair), keyed by the ordered pair of original ids
+        U = np.concatenate([a, b])
+        ga, gb = inp.gid[a].astype(np.int64), inp.gid[b].astype(np.int64)
+        n = np.int64(len(inp.gid))
+        key = np.concatenate([ga * n + gb, gb * n + ga])
         pts, w = np.empty((len(U) * S, 3)), np.empty(len(U) * S)
-        sample_facets(U, inp.gid, s, prm.seed, inp.verts, inp.nv, inp.center, inp.area, pts, w)
+        sample_facets(U, key, s, prm.seed, inp.verts, inp.nv, inp.center, inp.area, pts, w)
         ptr = np.empty(kk + 1, np.int64)
         ra, rb, term = np.empty(kk * per, np.int64), np.empty(kk * per, np.int64), np.empty(kk * per)
-        nr = sample_rays(inv[:kk], inv[kk:], S, pts, w, inp.normal, a, b, ptr, ra, rb, term)
+        own = np.arange(kk, dtype=np.int64)
+        nr = sample_rays(own, own + kk, S, pts, w, inp.normal, a, b, ptr, ra, rb, term)
         vis = ~caster.occluded_pairs(pts, ra[:nr], rb[:nr], np.repeat(U, S))
         ph = np.empty(kk)
         visible_fraction(ptr, term[:nr], vis, ph)

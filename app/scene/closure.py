@@ -37,7 +37,9 @@ class Closure:
     where it was snapped (those rows may be balanced); contact, sides covered by a touching
     surface (contact.py: they take no part in the transport); inside, the fraction of the
     side's sample points that lie inside a solid (every ray meets a back face: a floor under a
-    block whose bottom faces up), left out of the count like covered points."""
+    block whose bottom faces up), left out of the count like covered points; lost, the
+    fraction of the side's counted rays that escaped or met a back face (0: closed on that
+    side, whatever the rest of the scene)."""
 
     closed: bool
     escaped: int
@@ -49,6 +51,7 @@ class Closure:
     exact: np.ndarray | None = field(default=None, repr=False, compare=False)
     contact: np.ndarray | None = field(default=None, repr=False, compare=False)
     inside: np.ndarray | None = field(default=None, repr=False, compare=False)
+    lost: np.ndarray | None = field(default=None, repr=False, compare=False)
     counts: dict | None = None       # contact_sides, void_sides, open_sides (measured only)
 
     def to_dict(self) -> dict:
@@ -180,7 +183,7 @@ def detect_closure(elements: Elements, epsilon: float, points: int = POINTS,
                   f"most from {elements.describe(worst)}, {wf:.0%} of its rays){extra}: rows "
                   "are not balanced, only capped at 1")
     return Closure(closed, escaped, total, worst if escaped else -1, wf, reason,
-                   target=target, exact=exact, contact=touching, inside=inside,
+                   target=target, exact=exact, contact=touching, inside=inside, lost=frac,
                    counts={"contact_sides": int(touching.sum()), "void_sides": int(void.sum()),
                            "partly_covered_sides": int((live & (cover > 0)).sum()),
                            "open_sides": int((counted & (frac > SIDE_LEAK)).sum())})

@@ -76,8 +76,9 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
            epsilon: float = 1e-6) -> dict:
     """Closure test and row handling of the assembled matrix `asm` (master.Assembled), checks
     and warnings against vf.accuracy, outputs (fmt: npz | csv). vf.enclosure: auto balances
-    the rows whose side the closure finds closed to 1 when the facets enclose, and caps every
-    other row at 1; on balances every row to 1 (rows below half of it capped); off leaves the
+    the rows whose side the closure finds closed to 1 (in a closed scene every side it snapped
+    to 1; in an open one, or one with a cavity of wrongly wound faces, the sides that lost no
+    ray) and caps every other row at 1; on balances every row to 1 (rows below half of it capped); off leaves the
     rows as computed. Facets covered by a touching surface take no part in any mode. Returns
     the figures (with the final matrix under "_matrix")."""
     import scipy.sparse as sp
@@ -93,16 +94,23 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
     cl = facet_closure(fac, epsilon)
     rt = RowTargets.of(cl, np.arange(n), np.zeros(n, bool))
     # a facet partly inside a solid (under a block whose bottom faces the wrong way) sees less
-    # than its hemisphere, as a partly covered one: capped, not balanced
+    # than its hemisphere, as a partly covered one: capped, not balanced; one wholly inside
+    # sees nothing, as a covered one
     part = (cl.inside[:, 0] > 0) & (cl.inside[:, 0] < 1)
-    rt = RowTargets(rt.target, rt.balance & ~part, rt.dead, rt.sided)
+    buried = cl.inside[:, 0] >= 1
+    rt = RowTargets(rt.target, rt.balance & ~part & ~buried, rt.dead | buried, rt.sided)
     contact = rt.dead
     if contact.any():  # as in the radiosity path: covered facets neither receive nor send
         keep = sp.diags(np.where(contact, 0.0, 1.0))
         F = sp.csr_matrix(keep @ F @ keep)
         F.eliminate_zeros()
     rows0 = np.asarray(F.sum(axis=1)).ravel()
-    do_balance = mode == "on" or (mode == "auto" and cl.closed)
+    if mode == "auto" and not cl.closed:
+        # an open scene (or one with a cavity of wrongly wound faces) is still closed around
+        # the facets whose every ray met a front face: those rows are balanced too
+        rt = RowTargets(rt.target, rt.balance & (cl.lost[:, 0] == 0) & (rt.target == 1),
+                        rt.dead, rt.sided)
+    do_balance = mode == "on" or (mode == "auto" and bool((rt.balance & (rows0 > 0)).any()))
     if mode == "on":
         rt = RowTargets(np.ones(n), ~contact, contact, rt.sided)
     elif not do_balance:
@@ -110,7 +118,8 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
     fig: dict = {"enclosure_mode": mode, "closed": cl.closed, "enclosure": cl.closed,
                  "not_enclosure_because": "" if cl.closed else cl.reason,
                  "closure": cl.to_dict(), "balanced": do_balance, "nonzeros": int(F.nnz),
-                 "contact_facets": int(contact.sum()),
+                 "contact_facets": int(cl.contact[:, 0].sum()),
+                 "inside_facets": int(buried.sum()),
                  "partly_covered_facets": int(cl.counts["partly_covered_sides"]),
                  "partly_inside_facets": int(part.sum()),
                  "row_sum_min": float(rows0.min()), "row_sum_max": float(rows0.max()),

@@ -773,3 +773,24 @@ def _touching_faces(fac):
     on = (np.isclose(v[..., 1], 0) | np.isclose(v[..., 0], 0) | np.isclose(v[..., 0], 4)
           | np.isclose(v[..., 1], 0.625))
     return 96 + np.nonzero(on.any(axis=1))[0]
+
+
+def test_view_factors_of_a_small_mesh_run_in_process_from_a_plain_script(tmp_path):
+    """radiosity.view_factors on a 24-facet box from a script with no __main__ guard: threads in
+    the caller's process (no worker processes, so no "Nanny failed to start"), rows 1."""
+    script = tmp_path / "plain.py"
+    script.write_text(
+        "import numpy as np\nimport radiosity\n"
+        f"V = np.array({box([0, 0, 0], [1, 1, 1], 2)[0].tolist()})\n"
+        f"F = {box([0, 0, 0], [1, 1, 1], 2)[1]}\n"
+        "M = radiosity.view_factors((V, F))\n"
+        "print('rows', float(abs(np.asarray(M.sum(axis=1)).ravel() - 1).max()))\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    t = time.perf_counter()
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env,
+                          cwd=tmp_path, timeout=600)
+    wall = time.perf_counter() - t
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "Nanny" not in proc.stderr and "Traceback" not in proc.stderr
+    assert float(proc.stdout.split("rows")[-1]) < 1e-12
+    print(f"plain script: {wall:.1f} s")

@@ -1,6 +1,7 @@
 """A hierarchy over the original elements, so that nothing is n x n in them (SPEC §5's block
 culling, the effects planner): blocks are classified cluster against cluster, and only the pairs
-that may face each other are ever listed, sparsely.
+that may face each other are ever listed, sparsely. The view factors walk the same tree over
+their facets (viewfactors/master.make_inputs).
 
 Design notes and measurements: docs/src/design/scene-originals.md.
 """

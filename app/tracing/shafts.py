@@ -5,7 +5,9 @@ A shaft is the convex hull of two boxes; an occluder whose box lies outside it, 
 leaves both boxes on one side, cannot cut any segment between them. `classify` applies this
 hierarchically to a block of sub-element pairs (ranges halved recursively; sub-elements are in
 depth-first split order, so a range is a compact patch) and says, per pair, whether it faces
-away (V = 0), is visible without a ray, or needs rays.
+away (V = 0), is visible without a ray, or needs rays. The view factors' occluder search
+(viewfactors/occlusion.py) uses the same tests (shaft_excludes, same_side_boxes,
+same_side_polys) and boxes (occluders, node_boxes).
 """
 
 from __future__ import annotations

@@ -34,7 +34,11 @@ class Closure:
     hemisphere that reaches geometry, snapped to 1 where no more rays escape than cracks
     explain and to 0 where (almost) all do (the outward back of a two-sided shell); exact,
     where it was snapped (those rows may be balanced); contact, sides covered by a touching
-    surface (contact.py: they take no part in the transport)."""
+    surface (contact.py: they take no part in the transport); inside, the fraction of the
+    side's sample points that lie inside a solid (every ray meets a back face: a floor under a
+    block whose bottom faces up), left out of the count like covered points; lost, the
+    fraction of the side's counted rays that escaped or met a back face (0: closed on that
+    side, whatever the rest of the scene)."""
 
     closed: bool
     escaped: int
@@ -45,6 +49,8 @@ class Closure:
     target: np.ndarray | None = field(default=None, repr=False, compare=False)
     exact: np.ndarray | None = field(default=None, repr=False, compare=False)
     contact: np.ndarray | None = field(default=None, repr=False, compare=False)
+    inside: np.ndarray | None = field(default=None, repr=False, compare=False)
+    lost: np.ndarray | None = field(default=None, repr=False, compare=False)
     counts: dict | None = None       # contact_sides, void_sides, open_sides (measured only)
 
     def to_dict(self) -> dict:
@@ -94,6 +100,7 @@ def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
     rng = np.random.default_rng(seed)
     lost = np.zeros((n, 2))
     cast = np.zeros((n, 2))
+    inside = np.zeros((n, 2))
     # off the surface, beyond float32 rounding, and well inside the contact window: a point
     # nearer than that to another surface is covered (contact.py), never stepped through it
     step = (TOL.closure_step * max(1.0, ray_offset / TOL.ray_offset_unit) * scene_scale(elements)
@@ -129,7 +136,9 @@ def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
         # neither takes part in the transport, and neither is counted
         miss = (~h).reshape(len(sub), P, directions)
         back = back.reshape(len(sub), P, directions)
-        skip = back.all(axis=2) | covered[sub, :, k]
+        solid = back.all(axis=2)
+        skip = solid | covered[sub, :, k]
+        inside[sub, k] = (solid & ~covered[sub, :, k]).sum(axis=1) / P
         lost[sub, k] += np.where(skip[..., None], False, miss | back).sum(axis=(1, 2))
         cast[sub, k] += (~skip).sum(axis=1) * directions
 
@@ -174,7 +183,7 @@ def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
                   f"most from {elements.describe(worst)}, {wf:.0%} of its rays){extra}: rows "
                   "are not balanced, only capped at 1")
     return Closure(closed, escaped, total, worst if escaped else -1, wf, reason,
-                   target=target, exact=exact, contact=touching,
+                   target=target, exact=exact, contact=touching, inside=inside, lost=frac,
                    counts={"contact_sides": int(touching.sum()), "void_sides": int(void.sum()),
                            "partly_covered_sides": int((live & (cover > 0)).sum()),
                            "open_sides": int((counted & (frac > SIDE_LEAK)).sum())})

@@ -1,6 +1,7 @@
 """A hierarchy over the original elements, so that nothing is n x n in them (SPEC §5's block
 culling, the effects planner): blocks are classified cluster against cluster, and only the pairs
-that may face each other are ever listed, sparsely.
+that may face each other are ever listed, sparsely. The view factors walk the same tree over
+their facets (viewfactors/master.make_inputs).
 
 Design notes and measurements: docs/src/design/scene-originals.md.
 """
@@ -70,6 +71,15 @@ class OriginalsTree:
     @property
     def size(self) -> np.ndarray:
         return self.end - self.start
+
+    def leaves(self) -> np.ndarray:
+        """The leaf node ids in leaf order (their ranges tile 0:n), (l,) int64."""
+        lf = np.nonzero(self.left < 0)[0]
+        return lf[np.argsort(self.start[lf], kind="stable")]
+
+    def node_sums(self, x: np.ndarray) -> np.ndarray:
+        """The sum of x (n,) (per element, in element order) over each node's elements, (K,)."""
+        return _sums(np.asarray(x, np.float64)[self.order][:, None], self.start, self.end)[:, 0]
 
     def nbytes(self) -> int:
         return int(sum(getattr(self, f).nbytes for f in (

@@ -5,7 +5,9 @@ A shaft is the convex hull of two boxes; an occluder whose box lies outside it, 
 leaves both boxes on one side, cannot cut any segment between them. `classify` applies this
 hierarchically to a block of sub-element pairs (ranges halved recursively; sub-elements are in
 depth-first split order, so a range is a compact patch) and says, per pair, whether it faces
-away (V = 0), is visible without a ray, or needs rays.
+away (V = 0), is visible without a ray, or needs rays. The view factors' occluder search
+(viewfactors/occlusion.py) uses the same tests (shaft_excludes, same_side_boxes,
+same_side_polys) and boxes (occluders, node_boxes).
 """
 
 from __future__ import annotations
@@ -110,7 +112,7 @@ def _box_side(X, N, D, o, pad):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _same_side(A, B, N, D, o, pad):
+def same_side_boxes(A, B, N, D, o, pad):
     """Do boxes A and B lie on one closed side of occluder o's plane (N[o], D[o])? Then the
     (planar) occluder cannot block a segment between them (closed_apart); a coplanar
     neighbour of either end is no occluder."""
@@ -132,7 +134,7 @@ def _poly_side(V, x, nv, N, D, o, pad):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def same_side_polys(V, a, na, b, nb, N, D, o, pad):
-    """_same_side for polygons a, b of V (their vertices; a polygon is the convex hull of its
+    """same_side_boxes for polygons a, b of V (their vertices; a polygon is the convex hull of its
     vertices, so the closed half-space test on them holds for every point)."""
     return closed_apart(_poly_side(V, a, na, N, D, o, pad), _poly_side(V, b, nb, N, D, o, pad))
 
@@ -253,7 +255,7 @@ def classify(rows, cols, occ, cand, sampled):
         for c in range(c0, c1):
             o = pool[c]
             tests += 1
-            if not (_same_side(A, B, on, od, o, pad) or shaft_excludes(A, B, olo, ohi, o)):
+            if not (same_side_boxes(A, B, on, od, o, pad) or shaft_excludes(A, B, olo, ohi, o)):
                 pool[k] = o
                 k += 1
         n0, n1 = top, k
@@ -276,7 +278,7 @@ def classify(rows, cols, occ, cand, sampled):
                         o = pool[c]
                         if sampled:
                             tests += 1
-                            if not (_same_side(A, B, on, od, o, pad)
+                            if not (same_side_boxes(A, B, on, od, o, pad)
                                     or shaft_excludes(A, B, olo, ohi, o)):
                                 hit = True
                                 break
@@ -314,7 +316,7 @@ def block_candidates(A, B, olo, ohi, on, od, pad, skip_a, skip_b):
     for o in range(olo.shape[0]):
         if o == skip_a or o == skip_b:
             continue
-        if not (_same_side(A, B, on, od, o, pad) or shaft_excludes(A, B, olo, ohi, o)):
+        if not (same_side_boxes(A, B, on, od, o, pad) or shaft_excludes(A, B, olo, ohi, o)):
             out[k] = o
             k += 1
     return out[:k]

@@ -16,6 +16,12 @@ from radiosity.viewfactors.master import ViewFactors, compute_viewfactors, resol
 __all__ = ["Facets", "ViewFactors", "compute_viewfactors", "load_facets", "resolve_params",
            "viewfactors"]
 
+#: With radiosity.cluster.processes auto, meshes of at most this many facets run on threads in
+#: the caller's process (as radiosity.render runs small scenes): no worker processes to start,
+#: so a plain script needs no `if __name__ == "__main__"` guard. Chosen, not measured: half a
+#: million pairs, where starting workers stops being the larger cost.
+IN_PROCESS_FACETS = 1000
+
 
 def viewfactors(mesh, *, accuracy: float | None = None, enclosure: str | None = None,
                 out: str | None = None, client=None, workers: int | None = None,
@@ -27,11 +33,12 @@ def viewfactors(mesh, *, accuracy: float | None = None, enclosure: str | None = 
 
     accuracy: target absolute error per factor (default radiosity.viewfactors.accuracy);
     enclosure: auto | on | off; out: run directory (default: a temporary one, removed after);
-    client: a distributed.Client (default: a LocalCluster of `workers` for this call);
+    client: a distributed.Client (default: a LocalCluster of `workers` for this call, on
+    threads in this process for meshes of at most IN_PROCESS_FACETS facets);
     settings: the run's settings (default: resolved from dask.config)."""
     import tempfile
 
-    from radiosity.runtime.cluster import open_client
+    from radiosity.runtime.cluster import local_mode, open_client
 
     settings = resolve({"viewfactors.accuracy": accuracy, "viewfactors.enclosure": enclosure},
                        base=settings)
@@ -40,6 +47,9 @@ def viewfactors(mesh, *, accuracy: float | None = None, enclosure: str | None = 
         if client is not None:
             return compute_viewfactors(mesh, run, client, resume=resume, progress=progress,
                                        settings=settings).matrix
-        with open_client(workers, quiet=True) as c:
+        mesh = load_facets(mesh, settings=settings)
+        # (local_mode's size is camera samples for a render; here, facets)
+        in_process, _ = local_mode(settings.cluster.processes, len(mesh), IN_PROCESS_FACETS)
+        with open_client(workers, quiet=True, in_process=in_process) as c:
             return compute_viewfactors(mesh, run, c, resume=resume, progress=progress,
                                        settings=settings).matrix

@@ -2,7 +2,8 @@
 quadrature and moments, cluster culling over the facet tree, facing pairs, the cheap kernel
 with its proven bound (*), and the CSR assembly loops. Small, no I/O, no configuration.
 
-Facet arrays are in the tree order of bvh.FacetTree; tree arguments are bvh.Nodes tuples.
+Facet arrays are in the leaf order of the facets' tree (scene/originals.build_tree, the one
+bounding-volume tree of the package); tree arguments are `Nodes` tuples.
 The form factor, the cheap kernel and the derivation of its bound (*):
 docs/src/design/viewfactors-method.md ("The cheap kernel and its proven bound").
 """
@@ -10,9 +11,16 @@ docs/src/design/viewfactors-method.md ("The cheap kernel and its proven bound").
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numba
 import numpy as np
+
+#: The node arrays of the facets' tree (scene/originals.OriginalsTree) as one argument of the
+#: numba kernels (here and occlusion.py): ranges start:end of the leaf order, children left,
+#: right (-1 at a leaf), vertex boxes lo, hi (K, 3), normal cones axis (K, 3), spread (K,)
+#: (>= |n - axis| for every facet below), facet area (K,), and the root node.
+Nodes = namedtuple("Nodes", "start end left right lo hi axis spread area root")
 
 C6 = 231.0 / math.pi             # the constant of bound (*): 166320 / (720 pi)
 MAXQ = 14                        # quadrature nodes per facet, at most
@@ -119,7 +127,7 @@ def _box_gap2(alo, ahi, blo, bhi):
 
 @numba.njit(cache=True, nogil=True)
 def near_leaves(nodes, a, tol, cutoff, leaves_out, drop_node, drop_ab, drop_ba):
-    """The leaves B (tree order, start[B] >= start[a]) of the tree `nodes` (bvh.Nodes) whose
+    """The leaves B (tree order, start[B] >= start[a]) of the tree `nodes` (Nodes) whose
     facets leaf `a` may exchange radiation with: every pair (i in a, j in B, i < j) is visited
     once over all leaves a.
 

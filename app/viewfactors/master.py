@@ -50,29 +50,41 @@ def params_of(vf: ViewFactorSettings) -> Params:
 # ----------------------------------------------------------------------------- inputs and plan
 
 def make_inputs(fac: Facets, leaf_size: int, epsilon: float):
-    """The tree (leaves of at most `leaf_size` facets) and the worker inputs of facets `fac`;
-    epsilon: the ray offset (radiosity.rays.epsilon)."""
+    """The tree (scene/originals.build_tree, leaves of at most `leaf_size` facets) and the
+    worker inputs of facets `fac`, in the tree's leaf order; epsilon: the ray offset
+    (radiosity.rays.epsilon). Boxes and the plane tolerance of the occlusion tests are the
+    render's (tracing/shafts.occluders: padded boxes)."""
     from dask.base import tokenize
 
-    from radiosity.viewfactors.bvh import build_tree
-    from radiosity.viewfactors.loops import facet_quadrature, second_moments
+    from radiosity.scene.originals import build_tree
+    from radiosity.tracing.shafts import node_boxes, occluders
+    from radiosity.viewfactors.loops import Nodes, facet_quadrature, second_moments
 
     verts = np.ascontiguousarray(fac.verts, np.float64)
-    flo, fhi = verts.min(axis=1), verts.max(axis=1)
-    tree = build_tree(flo, fhi, fac.center, fac.normal, fac.area, leaf_size)
-    p = tree.perm
+    n = len(fac)
+    tree = build_tree(verts, fac.nverts, fac.normal, fac.center, np.zeros(n, bool),
+                      leaf=max(1, int(leaf_size)))
+    p = tree.order
     v = verts[p]
     nv = fac.nverts[p].astype(np.int64)
     normal, center, area = fac.normal[p], fac.center[p], fac.area[p]
+    olo, ohi, _, _, pad = occluders(fac)
+    flo, fhi = np.ascontiguousarray(olo[p]), np.ascontiguousarray(ohi[p])
     doff = np.einsum("ic,ic->i", normal, center)
     dev = np.abs(np.einsum("ic,ikc->ik", normal, v) - doff[:, None]).max(axis=1)
-    size = float(np.linalg.norm(fhi.max(0) - flo.min(0))) or 1.0
+    vs = verts.reshape(-1, 3)
+    size = float(np.linalg.norm(vs.max(0) - vs.min(0))) or 1.0
     tol = PLANE_TOL * size + float(dev.max(initial=0.0))
     J, R = second_moments(v, nv, center, area)
     qn, qw, qc = facet_quadrature(v, nv, area)
+    # node boxes of the padded facet boxes (in leaf order the tree's order is the identity)
+    lo, hi = node_boxes(tree.left, tree.right, tree.start, tree.end, np.arange(n, dtype=np.int64),
+                        flo, fhi)
+    nodes = Nodes(tree.start, tree.end, tree.left, tree.right, lo, hi, tree.axis, tree.spread,
+                  tree.node_sums(fac.area), 0)
     inp = Inputs(verts=v, nv=nv, normal=normal, center=center, area=area, doff=doff,
-                 flo=flo[p], fhi=fhi[p], gid=p, J=J, R=R, qn=qn, qw=qw, qc=qc,
-                 nodes=tree.nodes(), n_leaves=len(tree.leaves), tol=tol, pad=tol,
+                 flo=flo, fhi=fhi, gid=p, J=J, R=R, qn=qn, qw=qw, qc=qc,
+                 nodes=nodes, n_leaves=len(tree.leaves()), tol=tol, pad=pad,
                  key="vf-" + tokenize(v, nv), epsilon=float(epsilon))
     return tree, inp
 
@@ -81,7 +93,7 @@ def plan_tasks(tree, n: int, task_pairs: int, min_tasks: int) -> list:
     """Runs of consecutive leaves (tree order), each about the same number of pairs (i < j
     with i in the run), at most task_pairs unless one leaf holds more, and at least
     min_tasks runs when there are enough leaves. Returns a list of leaf-id arrays."""
-    lv = tree.leaves
+    lv = tree.leaves()
     na = tree.end[lv] - tree.start[lv]
     cost = na * (na - 1) // 2 + na * (n - tree.end[lv])
     total = int(cost.sum())
@@ -232,7 +244,7 @@ def assemble(rs, fac: Facets, tree, entries: dict) -> Assembled:
             dropdiff[tree.start[b]] += bba
             dropdiff[tree.end[b]] -= bba
     dropped = np.zeros(n)
-    dropped[tree.perm] = np.cumsum(dropdiff)[:n]
+    dropped[tree.order] = np.cumsum(dropdiff)[:n]
     indptr = np.concatenate([[0], np.cumsum(rowcount)])
     indices = np.empty(int(indptr[-1]), np.int32)
     data = np.empty(int(indptr[-1]))

@@ -1,8 +1,9 @@
-"""Numba kernels of the view-factor task's visibility (task.py): shafts between boxes
-(Haines & Wallace) that prove pairs unobstructed, and the jittered stratified sample points,
+"""Numba kernels of the view-factor task's visibility (task.py): the search of the facets' tree
+for occluders in the shaft between two boxes (the shaft and plane tests are the render's,
+tracing/shafts.py) that proves pairs unobstructed, and the jittered stratified sample points,
 rays and visible fractions of the pairs that need rays. Small, no I/O, no configuration.
 
-Facet arrays are in the tree order of bvh.FacetTree; tree arguments are bvh.Nodes tuples.
+Facet arrays are in the leaf order of the facets' tree; tree arguments are loops.Nodes tuples.
 The method: docs/src/design/viewfactors-method.md.
 """
 
@@ -13,68 +14,26 @@ import math
 import numba
 import numpy as np
 
-from radiosity.tracing.shafts import closed_apart, side_code
+from radiosity.tracing.shafts import same_side_boxes, same_side_polys, shaft_excludes
 
 
 # ----------------------------------------------------------------------------- shafts
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def shaft_out(alo, ahi, blo, bhi, clo, chi):
-    """Is box C outside the shaft between boxes A and B (their box hull, cut by the planes that
-    join the two boxes' corners in each coordinate plane; Haines & Wallace 1991)? Then no
-    segment from A to B meets C."""
+def _box_of(lo, hi, x, out):
+    """out (2, 3) = the box [lo[x], hi[x]] (the (lo, hi) pair tracing/shafts' tests take)."""
     for k in range(3):
-        if chi[k] < min(alo[k], blo[k]) or clo[k] > max(ahi[k], bhi[k]):
-            return True
-    for i in range(3):
-        for j in range(i + 1, 3):
-            for si in range(2):
-                for sj in range(2):
-                    gi = 1.0 if si == 1 else -1.0
-                    gj = 1.0 if sj == 1 else -1.0
-                    ai = ahi[i] if si == 1 else alo[i]
-                    aj = ahi[j] if sj == 1 else alo[j]
-                    bi = bhi[i] if si == 1 else blo[i]
-                    bj = bhi[j] if sj == 1 else blo[j]
-                    if (gi * (ai - bi) > 0) == (gj * (aj - bj) > 0):
-                        continue   # one corner is outermost both ways: the box hull suffices
-                    ni = -(bj - aj)
-                    nj = bi - ai
-                    if ni * gi + nj * gj < 0:
-                        ni = -ni
-                        nj = -nj
-                    d = ni * ai + nj * aj
-                    x = clo[i] if ni > 0 else chi[i]
-                    y = clo[j] if nj > 0 else chi[j]
-                    if ni * x + nj * y > d + 1e-12 * (abs(d) + (abs(ni) + abs(nj))
-                                                      * (abs(x) + abs(y))):
-                        return True
-    return False
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _box_side(lo, hi, n, d, pad):
-    """shafts.side_code of box [lo, hi] with respect to plane (n, d)."""
-    mn = 0.0
-    mx = 0.0
-    for k in range(3):
-        if n[k] > 0:
-            mn += n[k] * lo[k]
-            mx += n[k] * hi[k]
-        else:
-            mn += n[k] * hi[k]
-            mx += n[k] * lo[k]
-    return side_code(mn - d, mx - d, pad)
+        out[0, k] = lo[x, k]
+        out[1, k] = hi[x, k]
 
 
 @numba.njit(cache=True, nogil=True)
-def block_occluders(nodes, flo, fhi, normal, doff, pad, alo, ahi, blo, bhi, out):
-    """Facets that may cut a segment between boxes A and B: their box enters the shaft and
-    their plane does not hold both boxes on one closed side. Traversal of the tree `nodes`
-    (bvh.Nodes) with the shaft test on node boxes. Writes facet ids (tree order) into out;
-    returns their count."""
-    start, end, left, right, lo, hi = (nodes.start, nodes.end, nodes.left, nodes.right,
-                                       nodes.lo, nodes.hi)
+def block_occluders(nodes, flo, fhi, normal, doff, pad, A, B, out):
+    """Facets that may cut a segment between boxes A and B ((2, 3): lo, hi): their box enters
+    the shaft and their plane does not hold both boxes on one closed side (tracing/shafts:
+    shaft_excludes, same_side_boxes). Traversal of the tree `nodes` (loops.Nodes) with the
+    shaft test on node boxes. Writes facet ids (leaf order) into out; returns their count."""
+    start, end, left, right = nodes.start, nodes.end, nodes.left, nodes.right
     stack = np.empty(512, np.int64)
     stack[0] = nodes.root
     sp = 1
@@ -82,7 +41,7 @@ def block_occluders(nodes, flo, fhi, normal, doff, pad, alo, ahi, blo, bhi, out)
     while sp > 0:
         sp -= 1
         v = stack[sp]
-        if shaft_out(alo, ahi, blo, bhi, lo[v], hi[v]):
+        if shaft_excludes(A, B, nodes.lo, nodes.hi, v):
             continue
         if left[v] >= 0:
             stack[sp] = right[v]
@@ -90,26 +49,13 @@ def block_occluders(nodes, flo, fhi, normal, doff, pad, alo, ahi, blo, bhi, out)
             sp += 2
             continue
         for o in range(start[v], end[v]):
-            if closed_apart(_box_side(alo, ahi, normal[o], doff[o], pad),
-                             _box_side(blo, bhi, normal[o], doff[o], pad)):
+            if same_side_boxes(A, B, normal, doff, o, pad):
                 continue
-            if shaft_out(alo, ahi, blo, bhi, flo[o], fhi[o]):
+            if shaft_excludes(A, B, flo, fhi, o):
                 continue
             out[m] = o
             m += 1
     return m
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _verts_side(verts, nv, i, n, d, pad):
-    """shafts.side_code of facet i's vertices with respect to plane (n, d)."""
-    mn = 1e300
-    mx = -1e300
-    for q in range(nv[i]):
-        s = n[0] * verts[i, q, 0] + n[1] * verts[i, q, 1] + n[2] * verts[i, q, 2] - d
-        mn = min(mn, s)
-        mx = max(mx, s)
-    return side_code(mn, mx, pad)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -123,6 +69,8 @@ def prove_unobstructed(ia, ib, blk, need, bleaf, aleaf, nodes, verts, nv, flo, f
     vertices on one closed side, or its box is outside the shaft of the two facets' boxes).
     Returns the number of facet tests made."""
     cand = np.empty(flo.shape[0], np.int64)
+    A = np.empty((2, 3))
+    B = np.empty((2, 3))
     tests = 0
     p = 0
     n = ia.shape[0]
@@ -136,9 +84,9 @@ def prove_unobstructed(ia, ib, blk, need, bleaf, aleaf, nodes, verts, nv, flo, f
         if not any_need:   # one ray each decides them as well as a proof would
             p = q
             continue
-        b = bleaf[k]
-        nc = block_occluders(nodes, flo, fhi, normal, doff, pad, nodes.lo[aleaf],
-                             nodes.hi[aleaf], nodes.lo[b], nodes.hi[b], cand)
+        _box_of(nodes.lo, nodes.hi, aleaf, A)
+        _box_of(nodes.lo, nodes.hi, bleaf[k], B)
+        nc = block_occluders(nodes, flo, fhi, normal, doff, pad, A, B, cand)
         if nc == 0:
             for r in range(p, q):
                 proven[r] = True
@@ -147,16 +95,17 @@ def prove_unobstructed(ia, ib, blk, need, bleaf, aleaf, nodes, verts, nv, flo, f
                 if not need[r]:
                     continue
                 i, j = ia[r], ib[r]
+                _box_of(flo, fhi, i, A)
+                _box_of(flo, fhi, j, B)
                 ok = True
                 for c in range(nc):
                     o = cand[c]
                     if o == i or o == j:
                         continue
                     tests += 1
-                    if closed_apart(_verts_side(verts, nv, i, normal[o], doff[o], pad),
-                                     _verts_side(verts, nv, j, normal[o], doff[o], pad)):
+                    if same_side_polys(verts, i, nv[i], j, nv[j], normal, doff, o, pad):
                         continue
-                    if shaft_out(flo[i], fhi[i], flo[j], fhi[j], flo[o], fhi[o]):
+                    if shaft_excludes(A, B, flo, fhi, o):
                         continue
                     ok = False
                     break
@@ -202,16 +151,18 @@ def _bilinear_jacobian(P, u, v):
 
 
 @numba.njit(cache=True, nogil=True)
-def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
-    """Jittered stratified points of facets fids (tree order): s * s per facet, pts
+def sample_facets(fids, key, s, seed, verts, nv, center, area, pts, w):
+    """Jittered stratified points of facets fids (leaf order): s * s per facet, pts
     (len(fids) * s * s, 3), weights w (same count; each facet's sum to 1 in expectation).
 
     Triangles: one uniform point in each of the s^2 congruent sub-triangles of the regular
     subdivision, weight 1 / s^2. Quads: one point in each cell of an s x s grid of the bilinear
     map, weight = its Jacobian / (s^2 area) (unbiased for any planar convex quad). s = 1: the
     centroid (measured: one random point instead doubles the rows' errors on the urban scene of
-    benchmarks/bench_viewfactors.py). The jitter depends on (seed, gid[facet], s, cell) only
-    (gid: the facets' original ids), so every task draws the same points."""
+    benchmarks/bench_viewfactors.py). The jitter depends on (seed, key[t], s, cell) only, so
+    every task draws the same points: task.py keys them by the pair (both facets' original
+    ids), so that a facet's points differ from pair to pair and their errors do not add up
+    over its row (docs/src/design/viewfactors-method.md, "Sampled visibility")."""
     S = s * s
     for t in range(fids.shape[0]):
         f = fids[t]
@@ -221,7 +172,7 @@ def sample_facets(fids, gid, s, seed, verts, nv, center, area, pts, w):
                 pts[base, k] = center[f, k]
             w[base] = 1.0
             continue
-        g = gid[f]
+        g = key[t]
         if nv[f] == 3:
             c = 0
             for a in range(s):

@@ -24,7 +24,7 @@ from radiosity.scene.meshes import (MAX_COORD, MESH_FORMATS, RawMesh, SceneWarni
 from radiosity.scene.trimeshes import load_mesh, load_trimesh
 from radiosity.scene.meshscene import (DEFAULT_RESOLUTION, DOCS as MESH_DOCS, camera_toml,
                                        default_camera, is_mesh_path, require_emitter)
-from radiosity.settings import Settings, resolve
+from radiosity.settings import Settings
 
 __all__ = ["MAX_COORD", "MAX_RESOLUTION", "MESH_FORMATS", "TINY", "DEFAULT_REFLECTANCE", "RawMesh",
            "SceneWarning", "load_mesh", "load_obj", "load_trimesh", "merge_parallelograms",
@@ -212,13 +212,13 @@ def _rgb(val, what, fn) -> np.ndarray:
     return _vec(val, what, fn, 3)
 
 
-def load_scene(path: str, resolution=None, settings: Settings | None = None) -> Scene:
+def load_scene(path: str, resolution=None, *, settings: Settings) -> Scene:
     """Read a scene TOML (or a folder holding scene.toml) into a Scene: its meshes, material
     overrides and camera. A bare mesh file (OBJ, glTF, GLB, PLY) is a scene too: its own
     materials, which must include an emitter, and a default camera (scene/meshscene.py; the
-    Scene's `chosen` says which, as a [camera] table to copy). settings: the scene.*
-    tolerances and the rays' epsilon (None: resolved here)."""
-    s = resolve(base=settings)
+    Scene's `chosen` says which, as a [camera] table to copy). settings: the run's
+    settings.Settings (its scene.* tolerances and the rays' epsilon)."""
+    s = settings
     path = os.path.abspath(path)
     if os.path.isdir(path) and os.path.exists(os.path.join(path, "scene.toml")):
         path = os.path.join(path, "scene.toml")
@@ -253,7 +253,7 @@ def load_scene(path: str, resolution=None, settings: Settings | None = None) -> 
         raw = load_mesh(fn, m.get("material", "default"))
         for name, props in raw.materials.items():
             file_mats.setdefault(name, (fn, props))
-        v, n, f, mats = polygons_from_raw(raw, fn, settings=s)
+        v, n, f, mats = polygons_from_raw(raw, fn, s)
         # which way the faces point: as in the file, or fixed (scene/orientation.py, ORIENTS)
         v = orient_polygons(v, n, m.get("orient", "as-is"), f"{path}: [[mesh]] {mi + 1}")
         sources.append(fn)

@@ -21,14 +21,13 @@ def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: b
     the answer (final gather and all: nothing else runs), else it skips the final gather.
     solve_kw: run_solve's keywords (effects, preview, closure, keep_unconverged, method)."""
     from radiosity.runtime.store import RunStore, update_report
-    from radiosity.settings import resolve
     from radiosity.stages.solve import run_solve
 
     n, _, _ = rounds_of(settings)
     if n == 0 or solve_kw.get("method") not in (None, "hierarchical"):
         return run_solve(run_dir, client, settings, progress=progress, **solve_kw)
     t0 = time.perf_counter()
-    mid = resolve({"hierarchy.final-gather": "none"}, base=settings)
+    mid = settings.replace({"hierarchy.final-gather": "none"})
     kw = {**solve_kw, "keep_unconverged": True}
     why = None
     if n == AUTO:

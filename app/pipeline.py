@@ -151,18 +151,8 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     s = settings
     t0 = time.perf_counter()
     stages = {}
-    reuse = False
     digest = scene_digest(scene)
-    if resume and os.path.exists(os.path.join(out, "store.zarr")):
-        try:
-            rs = RunStore(out)
-            at = rs.attrs
-            reuse = (at.get("scene") == scene.path and at.get("scene_digest") == digest
-                     and at.get("camera") == scene.camera.to_dict()
-                     and at.get("views", {}) == {n: c.to_dict() for n, c in scene.views}
-                     and at.get("subpixel") == int(s.subdivide.subpixel) and rs.has("raster"))
-        except Exception:
-            reuse = False
+    reuse = resume and _reusable(out, scene, digest, int(s.subdivide.subpixel))
     t = time.perf_counter()
     # the closure test needs only the scene: its rays run beside the preprocess, whose driver
     # steps leave a core idle (docs/src/design/pipeline.md: what it saves)
@@ -212,13 +202,8 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     fig = render_outputs(out, settings=s, progress=progress)
     stages["image_s"] = time.perf_counter() - t
     if scene.views:  # the other cameras: views of the one solution (stages/views.py)
-        from radiosity.stages.views import Viewer
-
         t = time.perf_counter()
-        viewer = Viewer(out, s)
-        for name, cam in scene.views:
-            viewer.render(cam, name, exposure=fig.exposure)
-        stages["views"] = [name for name, _ in scene.views]
+        stages["views"] = _render_views(scene, out, s, fig.exposure)
         stages["views_s"] = time.perf_counter() - t
     if preview:
         t = time.perf_counter()
@@ -228,6 +213,33 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     stages["peak_rss_mb"] = peak_rss_mb(client)
     report = update_report(out, "render", {"stages": stages})
     return RenderFigures(stages, report)
+
+
+def _reusable(out: str, scene: Scene, digest: str, subpixel: int) -> bool:
+    """Whether `out` holds a preprocessed run of this scene (file, contents and meshes by
+    scene_digest), camera, views and sub-pixel factor: what `render --resume` keeps."""
+    if not os.path.exists(os.path.join(out, "store.zarr")):
+        return False
+    try:
+        rs = RunStore(out)
+        at = rs.attrs
+        return (at.get("scene") == scene.path and at.get("scene_digest") == digest
+                and at.get("camera") == scene.camera.to_dict()
+                and at.get("views", {}) == {n: c.to_dict() for n, c in scene.views}
+                and at.get("subpixel") == subpixel and rs.has("raster"))
+    except Exception:
+        return False
+
+
+def _render_views(scene: Scene, out: str, settings: Settings, exposure: float) -> list:
+    """The scene's other cameras ([[camera]] entries) as views of the one solution, at the
+    run's exposure; returns their names."""
+    from radiosity.stages.views import Viewer
+
+    viewer = Viewer(out, settings)
+    for name, cam in scene.views:
+        viewer.render(cam, name, exposure=exposure)
+    return [name for name, _ in scene.views]
 
 
 def render_preview(scene: Scene, out: str, client, settings: Settings, exposure=None) -> str:

@@ -22,7 +22,7 @@ from radiosity.runtime.monitor import peak_rss_mb
 from radiosity.runtime.precompile import with_helper
 from radiosity.runtime.store import RunStore, StageFigures, update_report
 from radiosity.scene.effects import plan_effects
-from radiosity.settings import Settings, options
+from radiosity.settings import OPTIONS, Settings, options
 from radiosity.stages.image import previewer, render_outputs
 from radiosity.stages.preprocess import preprocess
 from radiosity.stages.solve import resolve_closure, run_solve, write_direct_solution
@@ -326,10 +326,15 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
     script needs no guard."""
     import tempfile
 
+    from radiosity.errors import RadiosityError
     from radiosity.runtime.checks import check_new_run_dir, check_scene, check_solve
     from radiosity.runtime.cluster import local_mode, open_client
     from radiosity.stages.pixels import read_exr, tonemap
 
+    unknown = sorted(set(options_) - set(OPTIONS) - set(_RUN_KEYWORDS))
+    if unknown:
+        raise RadiosityError(f"radiosity.render: unknown option(s) {', '.join(unknown)} (options: "
+                             f"resolution, {', '.join([*_RUN_KEYWORDS, *OPTIONS])})")
     run_kw = {k: options_.pop(k) for k in _RUN_KEYWORDS if k in options_}
     st = options(settings, processes=False if processes is None else processes, **options_)
     sc = scene_of(scene, resolution, st)

@@ -44,6 +44,7 @@ class HierarchicalMethod:
     def open(self, rs, client, settings, where: str = "auto", **options) -> Opened:
         from radiosity.methods.hierarchical.solve.leaves import leaf_vectors, live_leaves, to_sub_elements
         from radiosity.methods.hierarchical.solve.transport import open_link_operator
+
         op, table, el, part = open_link_operator(rs, client, where, settings)
         Le, rho, area = leaf_vectors(table, el)
         m = len(part)

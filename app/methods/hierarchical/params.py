@@ -141,8 +141,9 @@ def choose_epsilon(settings, pixels: int | None = None) -> tuple[float, str]:
 
 def resolve_params(elements, settings, occlusion: bool = True,
                    pixels: int | None = None) -> tuple[LinkParams, str]:
-    """The link settings from the run's settings.Settings, checked; returns (LinkParams, weight). epsilon `auto` (the default): choose_epsilon's for a
-    criterion raster of `pixels` (None: its base)."""
+    """The link settings from the run's settings.Settings, checked; returns (LinkParams,
+    weight). epsilon `auto` (the default): choose_epsilon's for a criterion raster of `pixels`
+    (None: its base)."""
     from radiosity.core.kernels import KERNELS, base_kernel, kernel_id
     s = settings
     h = s.hierarchy

@@ -135,3 +135,11 @@ def test_a_trimesh_scene_renders_as_its_glb_would():
     assert (sc.camera.width, sc.camera.height) == (16, 16)
     with pytest.raises(Exception, match="cannot render a dict"):
         scene_of({}, 16, st)
+    # view factors take a trimesh.Scene too: its meshes placed by their transforms
+    from radiosity.viewfactors.facets import load_facets
+
+    far = trimesh.creation.box()
+    far.apply_translation([3, 0, 0])
+    one = load_facets(trimesh.creation.box(), st)
+    two = load_facets(trimesh.Scene([trimesh.creation.box(), far]), st)
+    assert len(two) == 2 * len(one) and two.center[:, 0].max() > 2.5

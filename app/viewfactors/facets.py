@@ -57,7 +57,8 @@ def _from_polygons(parts: list, sources: list) -> Facets:
 def load_facets(mesh, settings: Settings) -> Facets:
     """The facets of `mesh`: a path (OBJ, glTF/GLB, PLY, or a scene TOML / its directory, whose
     [[mesh]] files are read and whose camera and materials are ignored), a trimesh.Trimesh, a
-    (vertices (V, 3), faces) pair, a types.Elements, or Facets. Bad input raises SceneError.
+    trimesh.Scene, a (vertices (V, 3), faces) pair, a types.Elements, or Facets. Bad input
+    raises SceneError.
     settings: the run's (its scene tolerances)."""
     from radiosity.scene.load import MESH_FORMATS, RawMesh, load_mesh
     from radiosity.core.bundles import Elements
@@ -79,6 +80,8 @@ def load_facets(mesh, settings: Settings) -> Facets:
             raise SceneError(f"{path}: not a mesh ({', '.join(MESH_FORMATS)}) or a scene TOML")
         parts = [_polygons(load_mesh(fn), fn, settings) for fn in files]
         return _from_polygons(parts, files)
+    if type(mesh).__name__ == "Scene" and hasattr(mesh, "dump"):  # a trimesh.Scene: its
+        mesh = mesh.dump(concatenate=True)  # meshes placed by their transforms, as one
     if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
         vertices, faces, name = mesh.vertices, mesh.faces, "mesh"
     elif isinstance(mesh, (tuple, list)) and len(mesh) == 2:

@@ -56,8 +56,8 @@ _LOADED: dict = {}
 
 
 def load_mitsuba(variant: str = "auto", echo=None):
-    """Import Mitsuba 3 and select its variant (reference.variant): `auto` takes llvm_ad_rgb when drjit's LLVM backend has libLLVM >= 16
-    (DRJIT_LIBLLVM_PATH is set to the newest one found when it is unset), otherwise scalar_rgb,
+    """Import Mitsuba 3 and select its variant (reference.variant): `auto` takes llvm_ad_rgb
+    when drjit's LLVM backend has libLLVM >= 16 (DRJIT_LIBLLVM_PATH is set to the newest one found when it is unset), otherwise scalar_rgb,
     said in one line through `echo`.
 
     Returns (mitsuba module, variant name).
@@ -479,7 +479,8 @@ def form_factor(scene: Scene, frm: str, to: str, spp: int, passes: int, seed: in
 def reference_at(scene: Scene, out: str, spp: int, passes: int, echo=print, *,
                  settings: Settings):
     """Make, or reuse when `out` holds one of this scene and camera with at least `spp` samples
-    in `passes` passes, a reference in `out` (the other reference.* values from `settings`). Returns (mean (H, W, 3), stderr, figures)."""
+    in `passes` passes, a reference in `out` (the other reference.* values from `settings`).
+    Returns (mean (H, W, 3), stderr, figures)."""
     from radiosity.stages.image import read_exr
 
     fig = reusable(out, scene, spp, passes)

@@ -218,7 +218,8 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
                 if hier:
                     compute_links(run, client, row, progress=False)
                 else:
-                    compute_visibility(run, client, row.replace({"solve.kernel": kernel}), progress=False)
+                    compute_visibility(run, client, row.replace({"solve.kernel": kernel}),
+                                       progress=False)
                 t_vis[key] = time.perf_counter() - t
                 current = key
             t = time.perf_counter()

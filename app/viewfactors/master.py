@@ -119,8 +119,9 @@ def compute_viewfactors(mesh, out: str, client, settings: Settings, *, fmt="npz"
     """View factors of the facets of `mesh` (load_facets) into the run directory `out`:
     store.zarr (facets, per-task pairs, the CSR matrix), viewfactors.npz, facets.csv
     (viewfactors.csv with fmt="csv"), report.json (section "viewfactors"). settings: the run's
-    (radiosity.viewfactors.*: accuracy, enclosure auto | on | off, cutoff, ...). resume: keep the finished tasks of an interrupted run with the
-    same inputs. on_done(n) after each finished task (tests)."""
+    (radiosity.viewfactors.*: accuracy, enclosure auto | on | off, cutoff, ...). resume: keep
+    the finished tasks of an interrupted run with the same inputs. on_done(n) after each
+    finished task (tests)."""
     from dask.base import tokenize
 
     from radiosity.runtime.cluster import Scattered

@@ -37,9 +37,8 @@ def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback(monkeyp
     # over its config): ours must still reach the workers
     monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
     lines = []
-    with dask.config.set({"radiosity.cluster.tls": False}), open_client(1, kind="local",
-                                                                        echo=lines.append,
-                                                                        settings=settings_of().cluster) as c:
+    with dask.config.set({"radiosity.cluster.tls": False}), \
+            open_client(1, kind="local", echo=lines.append, settings=settings_of().cluster) as c:
         assert c.scheduler.address.startswith("tcp://127.0.0.1:")
         assert c.dashboard_link.startswith("http://127.0.0.1:")
         workers = c.scheduler_info()["workers"]
@@ -120,9 +119,8 @@ def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene,
     from radiosity.methods.pairs.visibility import compute_visibility
 
     sc = load_scene(small_scene, settings=settings_of())
-    with dask.config.set({"radiosity.cluster.tls": "temporary"}), open_client(1, kind="local",
-                                                                              quiet=True,
-                                                                              settings=settings_of().cluster) as c:
+    with dask.config.set({"radiosity.cluster.tls": "temporary"}), \
+            open_client(1, kind="local", quiet=True, settings=settings_of().cluster) as c:
         assert c.scheduler.address.startswith("tls://127.0.0.1:")
         assert all(w.startswith("tls://127.0.0.1:") for w in c.scheduler_info()["workers"])
         assert c.security.require_encryption

@@ -47,7 +47,8 @@ def test_sphere_interior_reaches_the_exact_answer(client, tmp_path):
         # rows as the kernel makes them (1 - 1/n here): the closed-scene balancing that the
         # default applies to this enclosure would move them to 1
         fig = run_solve(out, client,
-                        settings_of(solver=solver, kernel="point", tol=1e-10).replace({"solve.normalise-rows": "cap"}),
+                        settings_of(solver=solver, kernel="point", tol=1e-10)
+                            .replace({"solve.normalise-rows": "cap"}),
                         progress=False)
         L = radiance(out)[:, 0, 0]
         assert fig["converged"], solver
@@ -69,7 +70,8 @@ def test_furnace_cube_converges_and_states_its_error(client, tmp_path, kernel, n
     (worst element) only absorb summation order."""
     out = prepared(client, tmp_path, scene_path("furnace-cube"), 16)
     fig = run_solve(out, client,
-                    settings_of(solver="cg" if kernel == "point" else "jacobi", kernel=kernel, tol=1e-9).replace({"solve.normalise-rows": normalise}),
+                    settings_of(solver="cg" if kernel == "point" else "jacobi", kernel=kernel, tol=1e-9)
+                        .replace({"solve.normalise-rows": normalise}),
                     progress=False)
     assert fig["row_sums"]["rows_over_1"] > 0 or kernel == "disc"
     assert fig["row_sums"]["normalised"] == (normalise and fig["row_sums"]["rows_over_1"] > 0)

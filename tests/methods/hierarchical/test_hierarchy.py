@@ -85,7 +85,8 @@ def test_epsilon_zero_with_one_ray_per_leaf_pair_equals_the_pairs_method(client,
     LP = radiance(out)
     with dask.config.set(ALL_PAIRS):
         fig = compute_links(out, client,
-                            settings_of(epsilon=0.0, link_rays=1).replace({"hierarchy.kernel": kernel}),
+                            settings_of(epsilon=0.0, link_rays=1)
+                                .replace({"hierarchy.kernel": kernel}),
                             progress=False)
     opH, table, _, _ = open_link_operator(RunStore(out), None, "auto", settings_of())
     assert np.array_equal(table["leaf_sub"], np.arange(len(part)))

@@ -70,13 +70,15 @@ def test_closed_scenes_with_rho_near_one_converge_to_le_over_one_minus_rho(clien
     path.write_text(src)
     out = prepared(client, tmp_path, str(path), 12)
     fig = run_solve(out, client,
-                    settings_of(solver="cg", kernel="point-nf", tol=1e-11).replace({"solve.normalise-rows": "closed"}),
+                    settings_of(solver="cg", kernel="point-nf", tol=1e-11)
+                        .replace({"solve.normalise-rows": "closed"}),
                     progress=False)
     assert fig["converged"] and fig["iterations"] <= 10
     L = radiance(out)[:, 0, :]
     np.testing.assert_allclose(L, 1.0 / (1.0 - rho), rtol=1e-9)
     run_solve(out, client,
-              settings_of(solver="cg", kernel="point-nf", tol=1e-11).replace({"solve.normalise-rows": "cap"}),
+              settings_of(solver="cg", kernel="point-nf", tol=1e-11)
+                  .replace({"solve.normalise-rows": "cap"}),
               progress=False)
     off = 1.0 - radiance(out)[:, 0, :].mean() * (1.0 - rho)
     assert off == pytest.approx({0.99: 0.116, 0.999: 0.570}[rho], abs=0.01)

@@ -358,14 +358,15 @@ def _one_of(*names):
     return lambda v: v in names, f"one of {', '.join(map(str, names))}"
 
 
-def _choices(module: str, table: str, extra=()):
-    """One of a registry's names (core.kernels.KERNELS, core.solvers.SOLVERS), read on use."""
+def _registered(module: str, getter: str, extra=()):
+    """A name the registry's getter knows (core.kernels.get_kernel, core.solvers.get_solver),
+    or one of `extra`: the getter's own error ("unknown kernel 'x': use one of ...")."""
     import importlib
 
-    def names():
-        return (*extra, *getattr(importlib.import_module(module), table))
+    def ok(v):
+        return v in extra or getattr(importlib.import_module(module), getter)(v) is not None
 
-    return (lambda v: v in names()), (lambda: f"one of {', '.join(names())}")
+    return ok, "a registered name"
 
 
 _ON_OFF = _one_of("auto", "on", "off", True, False)
@@ -374,8 +375,8 @@ _ON_OFF = _one_of("auto", "on", "off", True, False)
 CHECKS = {
     "subdivide.subpixel": _at_least(1), "subdivide.variant": _one_of("exact", "seed", "none"),
     "subdivide.subscenes": _at_least(0),
-    "solve.solver": _choices("radiosity.core.solvers", "SOLVERS", ("auto",)),
-    "solve.kernel": _choices("radiosity.core.kernels", "KERNELS"),
+    "solve.solver": _registered("radiosity.core.solvers", "get_solver", ("auto",)),
+    "solve.kernel": _registered("radiosity.core.kernels", "get_kernel"),
     "solve.tol": (lambda v: math.isfinite(v) and 0 < v < 1, "a number in (0, 1)"),
     "solve.max-iterations": _at_least(1), "solve.closure": _ON_OFF,
     "solve.nxm-points": _at_least(1), "solve.mc-samples": _at_least(1),
@@ -389,7 +390,7 @@ CHECKS = {
     "visibility.task-unit": _one_of("block", "stripe", "auto"),
     "hierarchy.task-unit": _one_of("block", "stripe", "auto"),
     "hierarchy.epsilon": (lambda v: v == "auto" or (
-        isinstance(v, (int, float)) and math.isfinite(v) and v >= 0), "auto or a number >= 0"),
+        isinstance(v, (int, float)) and math.isfinite(v) and v >= 0), "a number >= 0 or auto"),
     "hierarchy.link-rays": _at_least(1),
     "cluster.processes": _one_of("auto", "true", "false", True, False),
     "viewfactors.accuracy": (lambda v: math.isfinite(v) and 0 < v < 1, "a number in (0, 1)"),
@@ -407,15 +408,15 @@ def check(settings: Settings) -> Settings:
     for key, (ok, what) in CHECKS.items():
         section, _, name = key.partition(".")
         v = getattr(getattr(settings, section), name.replace("-", "_"))
+        opt = _FLAGS.get(key)
+        where = f"{opt} (--{opt.replace('_', '-')}, radiosity.{key})" if opt else f"radiosity.{key}"
         try:
             good = bool(ok(v))
         except TypeError:
             good = False
+        except RadiosityError as e:  # a registry's own line, which lists the names
+            raise RadiosityError(f"{where}: {e}") from None
         if not good:
-            opt = _FLAGS.get(key)
-            where = (f"{opt} (--{opt.replace('_', '-')}, radiosity.{key})" if opt
-                     else f"radiosity.{key}")
-            what = what() if callable(what) else what
             finite = (isinstance(v, float) and not math.isfinite(v))
             raise RadiosityError(f"{where} must be {what}, got {v!r}"
                                  + (": not a finite number" if finite else ""))

@@ -65,8 +65,10 @@ BAD = [({"tol": 2}, "tol (--tol, radiosity.solve.tol) must be a number in (0, 1)
                                "must be 1 or more, got 0"),
        ({"subpixel": 0}, "subpixel (--subpixel, radiosity.subdivide.subpixel) must be 1 or more, "
                          "got 0"),
-       ({"epsilon": -1.0}, "epsilon (--epsilon, radiosity.hierarchy.epsilon) must be auto or a "
-                           "number >= 0, got -1.0"),
+       ({"epsilon": -1.0}, "epsilon (--epsilon, radiosity.hierarchy.epsilon) must be a number "
+                           ">= 0 or auto, got -1.0"),
+       ({"solver": "sor"}, "solver (--solver, radiosity.solve.solver): unknown solver 'sor': use "
+                           "one of jacobi, gauss-seidel, progressive, cg"),
        ({"sigma": float("inf")}, "sigma (--sigma, radiosity.render.sigma) must be a number above 0, "
                                  "got inf: not a finite number")]
 

@@ -80,8 +80,8 @@ def load_facets(mesh, settings: Settings) -> Facets:
             raise SceneError(f"{path}: not a mesh ({', '.join(MESH_FORMATS)}) or a scene TOML")
         parts = [_polygons(load_mesh(fn), fn, settings) for fn in files]
         return _from_polygons(parts, files)
-    if type(mesh).__name__ == "Scene" and hasattr(mesh, "dump"):  # a trimesh.Scene: its
-        mesh = mesh.dump(concatenate=True)  # meshes placed by their transforms, as one
+    if type(mesh).__name__ == "Scene" and hasattr(mesh, "to_geometry"):  # a trimesh.Scene:
+        mesh = mesh.to_geometry()  # its meshes placed by their transforms, as one
     if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
         vertices, faces, name = mesh.vertices, mesh.faces, "mesh"
     elif isinstance(mesh, (tuple, list)) and len(mesh) == 2:

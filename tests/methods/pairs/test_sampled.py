@@ -89,7 +89,7 @@ def test_sampling_settings_are_checked():
         with pytest.raises(RadiosityError, match="nxm-points must be a square"):
             sampling_of(resolve().solve, "nxm")
     with pytest.raises(RadiosityError, match="mc-samples must be at least 1"):
-        sampling_of(resolve({"solve.mc-samples": 0}).solve, "mc")
+        sampling_of(resolve().replace({"solve.mc-samples": 0}).solve, "mc")
     assert sampling_of(resolve({"solve.nxm-points": 9}).solve, "nxm").rays_per_pair == 81
     assert sampling_of(resolve({"solve.mc-samples": 7, "solve.mc-seed": 2}).solve,
                        "mc") == Sampling("mc", 7, 2)

@@ -29,7 +29,6 @@ from radiosity.scene.load import load_scene
 from radiosity.stages.solve import run_solve
 from radiosity.validation.study import form_factor_of_run
 from radiosity.methods.pairs.visibility import compute_visibility
-from radiosity import config
 from radiosity.settings import options as settings_of
 
 SCENES = ["furnace-cube", "furnace-sphere", "parallel-squares", "perpendicular-squares",
@@ -87,7 +86,7 @@ def main(quick: bool = False) -> None:
             rep = render_scene(sc, out, client, settings_of(), preview=False, progress=False)
             wall = time.perf_counter() - t
             img = read_exr(f"{out}/image.exr")
-            kernel = config.get("solve.kernel")
+            kernel = settings_of().solve.kernel
             against, err = error_of(name, sc, out, client, img, kernel)
             if name == "cornell-box-inside":
                 ref = load_scene(os.path.join(ROOT, "scenes", name, "reference.toml"),

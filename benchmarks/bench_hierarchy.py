@@ -58,7 +58,6 @@ def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dic
     embreex: its rays/s on one thread times `workers`, against the whole stage's."""
     from embreex import mesh_construction, rtcore_scene
 
-    from radiosity import config
     from radiosity.scene.splittrees import seen_originals, tree_nodes
     from radiosity.methods.hierarchical.links.master import LinkInputs, refine_pairs
     from radiosity.methods.hierarchical.params import resolve_params
@@ -72,7 +71,7 @@ def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dic
     prm, weight = resolve_params(el, settings_of())
     seen = seen_originals(rs.read_arrays("raster")["orig"], len(el))
     inp = LinkInputs(tree_nodes(part, el), part, el, seen, prm, weight, "bench",
-                     float(config.get("rays.epsilon")))
+                     float(settings_of().rays.epsilon))
     pairs, first = LinkStore(rs).plan()
     rc = RayCaster(el.verts, el.nverts)
     kept: list = []

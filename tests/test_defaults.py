@@ -233,9 +233,7 @@ def test_default_tolerance_saves_passes_without_a_visible_change(client, tmp_pat
     under 1 % anywhere; 1e-3 would move it by more than that (so the check can tell)."""
     import dask.config
 
-    from radiosity import config
-
-    assert float(config.get("solve.tol")) == 1e-5
+    assert settings_of().solve.tol == 1e-5
     sc = load_scene(scene_path("cornell-box-inside"), resolution=24, settings=settings_of())
     imgs, passes = {}, {}
     for tol in (1e-6, None, 1e-3):

@@ -1,7 +1,8 @@
 """The engine's tunables: one commented YAML (`radiosity.yaml`) registered in dask.config.
 
 `section("solve")` is the one reader of radiosity.* (settings.resolve calls it once per run);
-`get` serves the cluster start only, which dask's own configuration shapes too.
+`dask_get` and `dask_set` serve the cluster start only, which dask's own configuration
+(jobqueue.*, distributed.*) shapes too: the one place outside settings that touches dask.config.
 """
 
 from __future__ import annotations
@@ -26,8 +27,12 @@ def section(name: str) -> dict:
     return dict(dask.config.get(f"radiosity.{name}"))
 
 
-def get(key: str, override=None):
-    """Value of `radiosity.<key>`, or `override` when that is not None: the cluster start only."""
-    if override is not None:
-        return override
-    return dask.config.get(f"radiosity.{key}")
+def dask_get(key: str, default=None):
+    """A key of dask's own configuration (`jobqueue.slurm.cores`, `distributed.scheduler.preload`),
+    `default` when unset: the cluster start only (radiosity.* keys come from settings)."""
+    return dask.config.get(key, default=default)
+
+
+def dask_set(values: dict):
+    """dask.config.set(values) as a context manager: the local cluster's nanny environment."""
+    return dask.config.set(values)

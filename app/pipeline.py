@@ -22,7 +22,7 @@ from radiosity.runtime.monitor import peak_rss_mb
 from radiosity.runtime.precompile import with_helper
 from radiosity.runtime.store import RunStore, StageFigures, update_report
 from radiosity.scene.effects import plan_effects
-from radiosity.settings import resolve
+from radiosity.settings import OPTIONS, Settings, options
 from radiosity.stages.image import previewer, render_outputs
 from radiosity.stages.preprocess import preprocess
 from radiosity.stages.solve import resolve_closure, run_solve, write_direct_solution
@@ -91,8 +91,8 @@ class PlanFigures(StageFigures):
                 "unseen_unsplit": self.unseen_unsplit, key: self.sub_elements}
 
 
-def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = None,
-               full: bool = False, run_dir: str | None = None, settings=None, closure=None):
+def scene_plan(scene: Scene, settings: Settings, full: bool = False, run_dir: str | None = None,
+               closure=None):
     """The effects plan of a scene (effects.py) and figures for its estimates.
 
     With a preprocessed `run_dir`, the estimates use its partition (sub-elements per original)
@@ -100,7 +100,7 @@ def scene_plan(scene: Scene, subpixel: int | None = None, tol: float | None = No
     hit, seen on the built-in scenes). closure: the scene's closure.Closure where the caller
     resolved it (render_scene, during the preprocess), else resolved here. Returns
     PlanFigures."""
-    s = resolve({"solve.tol": tol, "subdivide.subpixel": subpixel}, base=settings)
+    s = settings
     el = scene.elements
     if run_dir is not None:
         rs = RunStore(run_dir)
@@ -137,40 +137,24 @@ def scene_digest(scene: Scene) -> str:
     return h.hexdigest()
 
 
-def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None, variant=None,
-                 unit=None, solver=None, kernel=None, tol=None, filter=None, sigma=None,
-                 exposure=None, resume=False, preview=False, progress=True, echo=print,
-                 full=False, keep_unconverged=False, method=None, epsilon=None,
-                 link_rays=None) -> RenderFigures:
+def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=False,
+                 preview=False, progress=True, echo=print, full=False,
+                 keep_unconverged=False) -> RenderFigures:
     """plan -> preprocess -> the method's stage -> solve -> image (+ the preview when asked).
 
-    settings: a settings.Settings (None: resolved here from dask.config); the keyword
-    arguments override it. method: "pairs" (the seed's visibility matrix), "hierarchical"
-    (links between nodes of the split trees) or "auto" (by the scene, methods/base.py).
+    settings: the run's settings.Settings, resolved by the caller (the CLI, `render`); its
+    visibility.method chooses the method: "pairs" (the seed's visibility matrix),
+    "hierarchical" (links between nodes of the split trees) or "auto" (methods/base.py).
 
     The effects plan (effects.py) decides what is simulated; `full` forces every effect on.
     With `resume`, a run directory whose preprocessing matches (the same scene: file, contents
     and meshes by scene_digest; the same camera and subpixel) keeps its partition and the
     finished tasks of the method's stage."""
-    s = resolve({"subdivide.subpixel": subpixel, "subdivide.variant": variant,
-                 "solve.solver": solver, "solve.kernel": kernel, "solve.tol": tol,
-                 "render.filter": filter, "render.sigma": sigma, "render.exposure": exposure,
-                 "visibility.method": method, "hierarchy.epsilon": epsilon,
-                 "hierarchy.link-rays": link_rays}, base=settings)
+    s = settings
     t0 = time.perf_counter()
     stages = {}
-    reuse = False
     digest = scene_digest(scene)
-    if resume and os.path.exists(os.path.join(out, "store.zarr")):
-        try:
-            rs = RunStore(out)
-            at = rs.attrs
-            reuse = (at.get("scene") == scene.path and at.get("scene_digest") == digest
-                     and at.get("camera") == scene.camera.to_dict()
-                     and at.get("views", {}) == {n: c.to_dict() for n, c in scene.views}
-                     and at.get("subpixel") == int(s.subdivide.subpixel) and rs.has("raster"))
-        except Exception:
-            reuse = False
+    reuse = resume and _reusable(out, scene, digest, int(s.subdivide.subpixel))
     t = time.perf_counter()
     # the closure test needs only the scene: its rays run beside the preprocess, whose driver
     # steps leave a core idle (docs/src/design/pipeline.md: what it saves)
@@ -183,11 +167,11 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
         if resume:
             echo("preprocess: nothing to reuse (no run, or another scene, camera or sub-pixel "
                  "factor): starting again")
-        preprocess(scene, out, client, progress=progress, settings=s)
+        preprocess(scene, out, client, s, progress=progress)
         RunStore(out, "r+").set_attrs(scene_digest=digest)
     stages["preprocess_s"] = time.perf_counter() - t
     # decide the effects before the heavy stages, from the partition just made
-    planned = scene_plan(scene, full=full, run_dir=out, settings=s, closure=closure.result())
+    planned = scene_plan(scene, s, full=full, run_dir=out, closure=closure.result())
     planned.write(out)
     effects = planned.effects
     est = effects.estimates
@@ -199,7 +183,7 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
     update_report(out, "plan", {"method": name, "method_reason": why})
     t = time.perf_counter()
     if effects.interreflection:
-        impl.build(out, client, s, unit=unit, resume=resume and reuse, progress=progress,
+        impl.build(out, client, s, resume=resume and reuse, progress=progress,
                    occlusion=effects.occlusion)
     else:
         echo("visibility: skipped (no interreflection: reflectance is 0 everywhere)")
@@ -210,24 +194,18 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
         from radiosity.stages.rounds import solve_with_rounds
 
         # hierarchy.rounds: refinement by the solved radiance after the first solve (stages/rounds.py)
-        solve_with_rounds(out, client, s, unit=unit, occlusion=effects.occlusion,
+        solve_with_rounds(out, client, s, occlusion=effects.occlusion,
                           progress=progress, echo=echo, effects=effects, preview=previewer(out),
                           closure=planned.closure, keep_unconverged=keep_unconverged, method=name)
     else:
         write_direct_solution(out)
     stages["solve_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    fig = render_outputs(out, filter=filter, sigma=sigma, exposure=exposure, settings=s,
-                         progress=progress)
+    fig = render_outputs(out, settings=s, progress=progress)
     stages["image_s"] = time.perf_counter() - t
     if scene.views:  # the other cameras: views of the one solution (stages/views.py)
-        from radiosity.stages.views import Viewer
-
         t = time.perf_counter()
-        viewer = Viewer(out, s)
-        for name, cam in scene.views:
-            viewer.render(cam, name, exposure=fig.exposure)
-        stages["views"] = [name for name, _ in scene.views]
+        stages["views"] = _render_views(scene, out, s, fig.exposure)
         stages["views_s"] = time.perf_counter() - t
     if preview:
         t = time.perf_counter()
@@ -239,19 +217,46 @@ def render_scene(scene: Scene, out: str, client, settings=None, *, subpixel=None
     return RenderFigures(stages, report)
 
 
-def render_preview(scene: Scene, out: str, client, settings=None, exposure=None) -> str:
+def _reusable(out: str, scene: Scene, digest: str, subpixel: int) -> bool:
+    """Whether `out` holds a preprocessed run of this scene (file, contents and meshes by
+    scene_digest), camera, views and sub-pixel factor: what `render --resume` keeps."""
+    if not os.path.exists(os.path.join(out, "store.zarr")):
+        return False
+    try:
+        rs = RunStore(out)
+        at = rs.attrs
+        return (at.get("scene") == scene.path and at.get("scene_digest") == digest
+                and at.get("camera") == scene.camera.to_dict()
+                and at.get("views", {}) == {n: c.to_dict() for n, c in scene.views}
+                and at.get("subpixel") == subpixel and rs.has("raster"))
+    except Exception:
+        return False
+
+
+def _render_views(scene: Scene, out: str, settings: Settings, exposure: float) -> list:
+    """The scene's other cameras ([[camera]] entries) as views of the one solution, at the
+    run's exposure; returns their names."""
+    from radiosity.stages.views import Viewer
+
+    viewer = Viewer(out, settings)
+    for name, cam in scene.views:
+        viewer.render(cam, name, exposure=exposure)
+    return [name for name, _ in scene.views]
+
+
+def render_preview(scene: Scene, out: str, client, settings: Settings, exposure=None) -> str:
     """The same scene solved on its original elements only (no preprocessing), as the seed's
     first image: writes OUT/preview.png (and keeps its run in OUT/preview/), by the method that
     takes every pair as it is (methods/base.all_pairs_method). Large originals close together
     make the point kernel's rows sum past 1, so the preview uses the bounded disc kernel and at
     most 200 passes."""
-    s = resolve({"subdivide.subpixel": 1, "subdivide.variant": "none", "solve.solver": "jacobi",
-                 "solve.kernel": "disc", "solve.max-iterations": 200,
-                 "render.exposure": exposure}, base=settings)
+    s = settings.replace({"subdivide.subpixel": 1, "subdivide.variant": "none",
+                          "solve.solver": "jacobi", "solve.kernel": "disc",
+                          "solve.max-iterations": 200, "render.exposure": exposure})
     sub = os.path.join(out, "preview")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        preprocess(scene, sub, client, progress=False, settings=s)
+        preprocess(scene, sub, client, s, progress=False)
         exact = all_pairs_method()
         exact.build(sub, client, s, progress=False)
         run_solve(sub, client, s, progress=False, method=exact.name)
@@ -281,44 +286,63 @@ class Rendered:
         return "\n".join(f"  {k:<13} {v}" for k, v in self.figures.rows())
 
 
-# render()'s options that are render_scene's keywords (the CLI's flags of the same names)
-_RENDER_KEYWORDS = ("subpixel", "variant", "unit", "solver", "kernel", "tol", "filter", "sigma",
-                    "exposure", "resume", "preview", "full", "keep_unconverged", "method",
-                    "epsilon", "link_rays")
+# render()'s options that are render_scene's own keywords; the others are settings (OPTIONS)
+_RUN_KEYWORDS = ("resume", "preview", "full", "keep_unconverged")
+
+
+def scene_of(scene, resolution, settings: Settings) -> Scene:
+    """The Scene of `scene`: a scene TOML or mesh path, a loaded Scene, or a trimesh.Trimesh /
+    trimesh.Scene (written to a temporary GLB, with its materials and colours, and read as a
+    mesh file: the same loader, the same checks)."""
+    import tempfile
+
+    from radiosity.errors import RadiosityError
+    from radiosity.scene.load import load_scene
+
+    if isinstance(scene, Scene):
+        return scene
+    if isinstance(scene, (str, os.PathLike)):
+        return load_scene(scene, resolution=resolution, settings=settings)
+    if type(scene).__module__.split(".")[0] == "trimesh" and hasattr(scene, "export"):
+        with tempfile.TemporaryDirectory(prefix="radiosity-mesh-") as tmp:
+            fn = os.path.join(tmp, f"{type(scene).__name__.lower()}.glb")
+            scene.export(fn, file_type="glb")
+            return load_scene(fn, resolution=resolution, settings=settings)
+    raise RadiosityError(f"radiosity.render: cannot render a {type(scene).__name__}: give a scene "
+                         "TOML or mesh path, a trimesh.Trimesh or a trimesh.Scene")
 
 
 @with_helper  # a first run: a helper process compiles from the other end of the kernels
 def render(scene, out: str | None = None, *, client=None, workers: int | None = None,
            scheduler: str | None = None, processes: bool | str | None = None,
-           resolution=None, max_iterations: int | None = None, settings=None,
-           progress: bool = False, echo=None, force: bool = False, **options) -> Rendered:
-    """Render `scene` (a scene TOML or mesh path, or a loaded Scene) into the run directory `out`
-    (None: a temporary one, removed afterwards; the arrays stay) and return a `Rendered`.
+           resolution=None, settings: Settings | None = None, progress: bool = False, echo=None,
+           force: bool = False, **options_) -> Rendered:
+    """Render `scene` (a scene TOML or mesh path, a loaded Scene, a trimesh.Trimesh or
+    trimesh.Scene) into the run directory `out` (None: a temporary one, removed afterwards; the
+    arrays stay) and return a `Rendered`.
 
     Options are the CLI's `render` flags as keywords (resolution=64, tol=1e-6, method="pairs",
-    epsilon=..., preview=True, ...). The cluster: `client` if given, else a new one of
-    `workers` at `scheduler`, or local workers as threads in this process: no worker processes
-    are started unless processes=True (which needs the `if __name__ == "__main__":` guard of
-    any multiprocessing script), so a plain script needs no guard."""
+    epsilon=..., preview=True, ...), checked as the CLI checks them (settings.check: the same
+    one-line RadiosityError). settings: a base settings.Settings (default: dask.config's). The
+    cluster: `client` if given, else a new one of `workers` at `scheduler`, or local workers
+    as threads in this process: no worker processes are started unless processes=True (which
+    needs the `if __name__ == "__main__":` guard of any multiprocessing script), so a plain
+    script needs no guard."""
     import tempfile
 
     from radiosity.errors import RadiosityError
     from radiosity.runtime.checks import check_new_run_dir, check_scene, check_solve
     from radiosity.runtime.cluster import local_mode, open_client
-    from radiosity.scene.load import load_scene
     from radiosity.core.colour import tonemap
     from radiosity.formats.images import read_exr
 
-    unknown = sorted(set(options) - set(_RENDER_KEYWORDS))
+    unknown = sorted(set(options_) - set(OPTIONS) - set(_RUN_KEYWORDS))
     if unknown:
         raise RadiosityError(f"radiosity.render: unknown option(s) {', '.join(unknown)} (options: "
-                             f"resolution, max_iterations, {', '.join(_RENDER_KEYWORDS)})")
-    st = resolve({"solve.max-iterations": max_iterations, "subdivide.subpixel": options.get("subpixel"),
-                  "solve.solver": options.get("solver"), "solve.kernel": options.get("kernel"),
-                  "solve.tol": options.get("tol"),
-                  "cluster.processes": False if processes is None else processes}, base=settings)
-    sc = load_scene(scene, resolution=resolution, settings=st) if isinstance(scene, (str, os.PathLike)) \
-        else scene
+                             f"resolution, {', '.join([*_RUN_KEYWORDS, *OPTIONS])})")
+    run_kw = {k: options_.pop(k) for k in _RUN_KEYWORDS if k in options_}
+    st = options(settings, processes=False if processes is None else processes, **options_)
+    sc = scene_of(scene, resolution, st)
     check_solve(st)
     check_scene(sc, st, stated_method(st))
     say = echo or (lambda *a, **k: None)
@@ -328,13 +352,14 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
         run = out if out is not None else stack.enter_context(
             tempfile.TemporaryDirectory(prefix="radiosity-render-"))
         if out is not None:
-            check_new_run_dir(out, force or bool(options.get("resume")))
+            check_new_run_dir(out, force or bool(run_kw.get("resume")))
         if client is None:
             samples = sum(c.width * c.height for c in sc.cameras) * int(st.subdivide.subpixel) ** 2
             inproc, why = local_mode(st.cluster.processes, samples, st.cluster.in_process_samples)
             client = stack.enter_context(open_client(workers, scheduler, quiet=echo is None,
-                                                     echo=say, in_process=inproc, where=why))
-        fig = render_scene(sc, run, client, st, progress=progress, echo=say, **options)
+                                                     echo=say, in_process=inproc, where=why,
+                                                     settings=st.cluster))
+        fig = render_scene(sc, run, client, st, progress=progress, echo=say, **run_kw)
         image = read_exr(os.path.join(run, "image.exr"))
         srgb = tonemap(image, fig["render"].get("exposure"))
         views = {n: read_exr(os.path.join(run, "views", n, "image.exr")) for n, _ in sc.views}

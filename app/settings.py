@@ -10,6 +10,7 @@ overrides (a flag's value; None means "not given") and checks their names and ty
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -299,10 +300,127 @@ class Settings:
 
 def resolve(overrides: dict | None = None, base: Settings | None = None) -> Settings:
     """The settings of a run: `base` (or dask.config's radiosity.*, read here once) with
-    `overrides` ({"solve.tol": 1e-4, ...}; None values are not given) applied."""
+    `overrides` ({"solve.tol": 1e-4, ...}; None values are not given) applied, checked
+    (check: the same one-line RadiosityError for the CLI's flags and the API's keywords)."""
     if base is None:
         base = Settings(**{s: cls.from_dict(config.section(s)) for s, cls in SECTIONS.items()})
-    return base.replace(overrides)
+    return check(base.replace(overrides))
+
+
+# ----------------------------------------------------------------------------- options
+
+#: The options a user gives by name, the same on the CLI (--max-iterations) and in the Python
+#: API (max_iterations=): keyword -> the setting(s) it overrides. `unit` is both methods' task
+#: unit (--task-unit).
+OPTIONS = {
+    "subpixel": ("subdivide.subpixel",), "variant": ("subdivide.variant",),
+    "subscenes": ("subdivide.subscenes",),
+    "solver": ("solve.solver",), "kernel": ("solve.kernel",), "tol": ("solve.tol",),
+    "max_iterations": ("solve.max-iterations",), "closure": ("solve.closure",),
+    "nxm_points": ("solve.nxm-points",), "mc_samples": ("solve.mc-samples",),
+    "mc_seed": ("solve.mc-seed",),
+    "filter": ("render.filter",), "sigma": ("render.sigma",), "exposure": ("render.exposure",),
+    "sampling": ("render.sampling",), "area_samples": ("render.area-samples",),
+    "edge_samples": ("render.edge-samples",),
+    "method": ("visibility.method",), "unit": ("visibility.task-unit", "hierarchy.task-unit"),
+    "epsilon": ("hierarchy.epsilon",), "link_rays": ("hierarchy.link-rays",),
+    "processes": ("cluster.processes",),
+    "accuracy": ("viewfactors.accuracy",), "cutoff": ("viewfactors.cutoff",),
+    "enclosure": ("viewfactors.enclosure",),
+}
+
+
+def overrides_of(**options) -> dict:
+    """{"section.key": value} of the options given by keyword (OPTIONS; None: not given);
+    an unknown keyword is a RadiosityError that lists the known ones."""
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise RadiosityError(f"unknown option(s) {', '.join(unknown)} (options: "
+                             f"{', '.join(OPTIONS)})")
+    return {key: v for name, v in options.items() if v is not None for key in OPTIONS[name]}
+
+
+def options(base: Settings | None = None, **given) -> Settings:
+    """The settings of the options given by keyword (tol=1e-6, method="pairs", ...) over `base`
+    (None: dask.config's radiosity.*), checked: `radiosity.render`'s and the tests' way in."""
+    return resolve(overrides_of(**given), base=base)
+
+
+def _at_least(lo):
+    return lambda v: math.isfinite(v) and v >= lo, f"{lo} or more"
+
+
+def _above(lo):
+    return lambda v: math.isfinite(v) and v > lo, f"a number above {lo}"
+
+
+def _one_of(*names):
+    return lambda v: v in names, f"one of {', '.join(map(str, names))}"
+
+
+def _registered(module: str, getter: str, extra=()):
+    """A name the registry's getter knows (core.kernels.get_kernel, core.solvers.get_solver),
+    or one of `extra`: the getter's own error ("unknown kernel 'x': use one of ...")."""
+    import importlib
+
+    def ok(v):
+        return v in extra or getattr(importlib.import_module(module), getter)(v) is not None
+
+    return ok, "a registered name"
+
+
+_ON_OFF = _one_of("auto", "on", "off", True, False)
+
+#: The checks of every value a user sets by name: setting -> (test, what it must be).
+CHECKS = {
+    "subdivide.subpixel": _at_least(1), "subdivide.variant": _one_of("exact", "seed", "none"),
+    "subdivide.subscenes": _at_least(0),
+    "solve.solver": _registered("radiosity.core.solvers", "get_solver", ("auto",)),
+    "solve.kernel": _registered("radiosity.core.kernels", "get_kernel"),
+    "solve.tol": (lambda v: math.isfinite(v) and 0 < v < 1, "a number in (0, 1)"),
+    "solve.max-iterations": _at_least(1), "solve.closure": _ON_OFF,
+    "solve.nxm-points": _at_least(1), "solve.mc-samples": _at_least(1),
+    "solve.mc-seed": _at_least(0),
+    "render.filter": _one_of("box", "gaussian"), "render.sigma": _above(0),
+    "render.exposure": (lambda v: v is None or v == "auto" or (
+        isinstance(v, (int, float)) and math.isfinite(v) and v > 0),
+        "a positive number or auto"),
+    "render.sampling": _one_of("area", "point"), "render.area-samples": _at_least(1),
+    "render.edge-samples": _at_least(0),
+    "visibility.task-unit": _one_of("block", "stripe", "auto"),
+    "hierarchy.task-unit": _one_of("block", "stripe", "auto"),
+    "hierarchy.epsilon": (lambda v: v == "auto" or (
+        isinstance(v, (int, float)) and math.isfinite(v) and v >= 0), "a number >= 0 or auto"),
+    "hierarchy.link-rays": _at_least(1),
+    "cluster.processes": _one_of("auto", "true", "false", True, False),
+    "viewfactors.accuracy": (lambda v: math.isfinite(v) and 0 < v < 1, "a number in (0, 1)"),
+    "viewfactors.cutoff": _at_least(0), "viewfactors.enclosure": _ON_OFF,
+    "reference.spp": _at_least(1), "reference.passes": _at_least(1),
+    "reference.seed": _at_least(0),
+}
+_FLAGS = {key: name for name, keys in OPTIONS.items() for key in keys}
+
+
+def check(settings: Settings) -> Settings:
+    """`settings`, its user-set values checked (CHECKS); the first bad one is a RadiosityError
+    naming the option, its flag and its setting: "tol (--tol, radiosity.solve.tol) must be a
+    number in (0, 1), got 2.0" from the CLI and the API alike."""
+    for key, (ok, what) in CHECKS.items():
+        section, _, name = key.partition(".")
+        v = getattr(getattr(settings, section), name.replace("-", "_"))
+        opt = _FLAGS.get(key)
+        where = f"{opt} (--{opt.replace('_', '-')}, radiosity.{key})" if opt else f"radiosity.{key}"
+        try:
+            good = bool(ok(v))
+        except TypeError:
+            good = False
+        except RadiosityError as e:  # a registry's own line, which lists the names
+            raise RadiosityError(f"{where}: {e}") from None
+        if not good:
+            finite = (isinstance(v, float) and not math.isfinite(v))
+            raise RadiosityError(f"{where} must be {what}, got {v!r}"
+                                 + (": not a finite number" if finite else ""))
+    return settings
 
 
 def sampling_of(solve: SolveSettings, kernel: str | None = None):

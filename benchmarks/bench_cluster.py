@@ -25,6 +25,7 @@ from radiosity.pipeline import render_scene
 from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
 from radiosity.methods.pairs.visibility import compute_visibility
+from radiosity.settings import options as settings_of
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 THREE = os.path.join(ROOT, "scenes", "three-rectangles", "scene.toml")
@@ -52,18 +53,20 @@ def _inprocess_client(threads):
 
 
 SHAPES = {
-    "2 processes x 1 thread": lambda: open_client(2, threads_per_worker=1, quiet=True),
-    "1 process x 2 threads": lambda: open_client(1, threads_per_worker=2, quiet=True),
+    "2 processes x 1 thread": lambda: open_client(2, threads_per_worker=1, quiet=True,
+                                                  settings=settings_of().cluster),
+    "1 process x 2 threads": lambda: open_client(1, threads_per_worker=2, quiet=True,
+                                                 settings=settings_of().cluster),
     "in-process 1 x 2 threads": lambda: _inprocess_client(2),
 }
 
 
 def visibility_runs(client, d, repeat, unit=None):
-    compute_visibility(d, client, progress=False, unit=unit)  # warm-up: numba cache, Embree scenes
+    compute_visibility(d, client, settings_of(), progress=False, unit=unit)  # warm-up: numba cache, Embree scenes
     best = None
     for _ in range(repeat):
         t = time.perf_counter()
-        fig = compute_visibility(d, client, progress=False, unit=unit).to_dict()
+        fig = compute_visibility(d, client, settings_of(), progress=False, unit=unit).to_dict()
         fig["wall_s"] = time.perf_counter() - t
         if best is None or fig["wall_s"] < best["wall_s"]:
             best = fig
@@ -85,15 +88,15 @@ def bench_shapes(resolutions, repeat, rounds):
     times, figs, info = {}, {}, {}
     for _ in range(rounds):
         for res in resolutions:
-            sc = load_scene(CORNELL, resolution=res)
+            sc = load_scene(CORNELL, resolution=res, settings=settings_of())
             for name, make in SHAPES.items():
                 with make() as client, tempfile.TemporaryDirectory() as d:
                     threads = sum(client.nthreads().values())
-                    pre = preprocess(sc, d, client, progress=False)
-                    compute_visibility(d, client, progress=False)  # warm-up: numba cache, Embree
+                    pre = preprocess(sc, d, client, settings_of(), progress=False)
+                    compute_visibility(d, client, settings_of(), progress=False)  # warm-up: numba cache, Embree
                     for _ in range(repeat):
                         t = time.perf_counter()
-                        fig = compute_visibility(d, client, progress=False)
+                        fig = compute_visibility(d, client, settings_of(), progress=False)
                         dt = time.perf_counter() - t
                         ts = times.setdefault((res, name), [])
                         ts.append(dt)
@@ -117,7 +120,8 @@ def bench_shapes(resolutions, repeat, rounds):
 def bench_overhead(res, repeat):
     rows = []
     for tls in (False, "temporary"):
-        with open_client(2, threads_per_worker=1, quiet=True, tls=tls) as client:
+        with open_client(2, threads_per_worker=1, quiet=True, tls=tls,
+                         settings=settings_of().cluster) as client:
             client.submit(noop, 0).result()
             n = 300
             t = time.perf_counter()
@@ -138,9 +142,9 @@ def bench_overhead(res, repeat):
                          "ms_per_task": 1e3 * bt / m})
             if tls:
                 continue
-            sc = load_scene(CORNELL, resolution=res)
+            sc = load_scene(CORNELL, resolution=res, settings=settings_of())
             with tempfile.TemporaryDirectory() as d:
-                preprocess(sc, d, client, progress=False)
+                preprocess(sc, d, client, settings_of(), progress=False)
                 for unit in ("block", "stripe"):
                     fig = visibility_runs(client, d, repeat, unit=unit)
                     rows.append({"part": "b", "shape": "2 processes x 1 thread",
@@ -155,7 +159,7 @@ def bench_overhead(res, repeat):
 
 
 def _render_timed(open_cm, res):
-    sc = load_scene(THREE, resolution=res)
+    sc = load_scene(THREE, resolution=res, settings=settings_of())
     t0 = time.perf_counter()
     with open_cm() as client:
         t_up = time.perf_counter() - t0
@@ -163,7 +167,8 @@ def _render_timed(open_cm, res):
         for label in ("first", "second"):
             with tempfile.TemporaryDirectory() as d:
                 t = time.perf_counter()
-                render_scene(sc, d, client, preview=False, progress=False, method="pairs")
+                render_scene(sc, d, client, settings_of(method="pairs"), preview=False,
+                             progress=False)
                 out[label] = time.perf_counter() - t
         t_close = time.perf_counter()
     closed = time.perf_counter() - t_close
@@ -173,17 +178,20 @@ def _render_timed(open_cm, res):
 
 def bench_slurm(res):
     rows = [{"part": "c", "cluster": "LocalCluster 2 x 1",
-             **_render_timed(lambda: open_client(2, threads_per_worker=1, quiet=True), res)}]
+             **_render_timed(lambda: open_client(2, threads_per_worker=1, quiet=True,
+                                                 settings=settings_of().cluster), res)}]
     why = slurm_unavailable()
     if why:
         print(f"  Slurm skipped: {why} (start it with bash deploy/slurm-up.sh)")
         return rows, why
     logs = tempfile.mkdtemp(prefix="radiosity-bench-slurm-")
     rows.append({"part": "c", "cluster": "SLURMCluster 2 jobs x 1 worker",
-                 **_render_timed(lambda: open_client(
-                     2, kind="slurm", quiet=True, cores=1, processes=1, memory="1GB",
-                     walltime="00:10:00", log_directory=logs, job_name="radiosity-bench",
-                     timeout=120, **SLURM_LOOPBACK), res)})
+                 **_render_timed(lambda: open_client(2, kind="slurm", quiet=True, cores=1,
+                                                     processes=1, memory="1GB",
+                                                     walltime="00:10:00", log_directory=logs,
+                                                     job_name="radiosity-bench", timeout=120,
+                                                     settings=settings_of().cluster,
+                                                     **SLURM_LOOPBACK), res)})
     t = time.perf_counter()
     while subprocess.run(["squeue", "-h"], capture_output=True, text=True).stdout.strip():
         if time.perf_counter() - t > 30:

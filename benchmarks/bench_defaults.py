@@ -29,7 +29,7 @@ from radiosity.scene.load import load_scene
 from radiosity.stages.solve import run_solve
 from radiosity.validation.study import form_factor_of_run
 from radiosity.methods.pairs.visibility import compute_visibility
-from radiosity import config
+from radiosity.settings import options as settings_of
 
 SCENES = ["furnace-cube", "furnace-sphere", "parallel-squares", "perpendicular-squares",
           "coaxial-discs", "unseen-emitter", "cornell-box-inside", "three-rectangles",
@@ -51,8 +51,8 @@ def error_of(name: str, sc, out: str, client, img, kernel: str) -> tuple[str, fl
         return "L = Le / (1 - rho), max over pixels", float(np.abs(img[seen][:, 0] / exact - 1).max())
     if "form_factor" in val:
         # nothing reflects, so the render skipped visibility: make it for the default kernel
-        compute_visibility(out, client, progress=False, kernel=kernel)
-        f = form_factor_of_run(out, client, kernel, val["from"], val["to"])
+        compute_visibility(out, client, settings_of(kernel=kernel), progress=False)
+        f = form_factor_of_run(out, client, kernel, val["from"], val["to"], settings=settings_of())
         return "F (Howell), relative", abs(f / val["form_factor"] - 1)
     if val.get("kind") == "point-to-polygon":
         sys.path.insert(0, os.path.join(ROOT, "tests"))
@@ -74,25 +74,28 @@ def error_of(name: str, sc, out: str, client, img, kernel: str) -> tuple[str, fl
 def main(quick: bool = False) -> None:
     rows, tol_rows = [], []
     lum = np.array([0.2126, 0.7152, 0.0722])
-    with open_client(2, quiet=True) as client, tempfile.TemporaryDirectory() as d:
+    with open_client(2, quiet=True, settings=settings_of().cluster) as client, tempfile.TemporaryDirectory() as d:
         # warm numba's caches and the workers once
-        render_scene(load_scene(scene_file("three-rectangles"), resolution=8), f"{d}/warm", client,
-                     preview=False, progress=False)
+        render_scene(load_scene(scene_file("three-rectangles"), resolution=8,
+                                settings=settings_of()),
+                     f"{d}/warm", client, settings_of(), preview=False, progress=False)
         for name in SCENES[:5] if quick else SCENES:
-            sc = load_scene(scene_file(name))
+            sc = load_scene(scene_file(name), settings=settings_of())
             out = f"{d}/{name}"
             t = time.perf_counter()
-            rep = render_scene(sc, out, client, preview=False, progress=False)
+            rep = render_scene(sc, out, client, settings_of(), preview=False, progress=False)
             wall = time.perf_counter() - t
             img = read_exr(f"{out}/image.exr")
-            kernel = config.get("solve.kernel")
+            kernel = settings_of().solve.kernel
             against, err = error_of(name, sc, out, client, img, kernel)
             if name == "cornell-box-inside":
-                ref = load_scene(os.path.join(ROOT, "scenes", name, "reference.toml"))
+                ref = load_scene(os.path.join(ROOT, "scenes", name, "reference.toml"),
+                                 settings=settings_of())
                 import dask.config
 
                 with dask.config.set({"radiosity.subdivide.unseen": "keep"}):
-                    render_scene(ref, f"{d}/ref", client, preview=False, progress=False)
+                    render_scene(ref, f"{d}/ref", client, settings_of(), preview=False,
+                                 progress=False)
                 r = read_exr(f"{d}/ref/image.exr") @ lum
                 m = r > 0
                 err = abs(float((img @ lum)[m].mean() / r[m].mean() - 1))
@@ -113,10 +116,12 @@ def main(quick: bool = False) -> None:
             images = {}
             for tol in TOLS:
                 if method == "hierarchical":
-                    fig = run_solve(out, client, tol=tol, progress=False, method="hierarchical")
+                    fig = run_solve(out, client, settings_of(tol=tol), progress=False,
+                                    method="hierarchical")
                 else:
-                    fig = run_solve(out, client, tol=tol, progress=False, closure=None)
-                render_outputs(out)
+                    fig = run_solve(out, client, settings_of(tol=tol), progress=False,
+                                    closure=None)
+                render_outputs(out, settings=settings_of())
                 images[tol] = (read_exr(f"{out}/image.exr"), fig.iterations)
             ref_img = images[1e-6][0]
             m = ref_img.sum(-1) > 0

@@ -30,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import ROOT, table, write  # noqa: E402
+from radiosity.settings import options as settings_of
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 STORED_REFERENCE = "/tmp/h26/ref256"
@@ -48,13 +49,13 @@ def counts(client, quiet) -> list[dict]:
 
     rows = []
     for path in sorted(glob.glob(os.path.join(ROOT, "scenes", "*", "scene.toml"))):
-        sc = load_scene(path)
+        sc = load_scene(path, settings=settings_of())
         row = {"scene": os.path.basename(os.path.dirname(path)),
                "resolution": sc.camera.width, "originals": len(sc.elements)}
         for mode in ("keep", "refine"):
             with tempfile.TemporaryDirectory() as d, \
                     dask.config.set({"radiosity.subdivide.hidden": mode}):
-                fig = preprocess(sc, os.path.join(d, "run"), client, progress=False)
+                fig = preprocess(sc, os.path.join(d, "run"), client, settings_of(), progress=False)
             row[f"subs_{mode}"] = fig.sub_elements
             row[f"preprocess_s_{mode}"] = fig.time_total_s
             if mode == "refine":
@@ -96,16 +97,17 @@ def renders(client, res: int, ref_dir: str | None, methods: list[str]) -> tuple[
     with tempfile.TemporaryDirectory() as d:
         if ref_dir is None:
             ref_dir = os.path.join(d, "reference")
-            reference_at(load_scene(CORNELL, resolution=2 * res), ref_dir, 1024, 8)
+            reference_at(load_scene(CORNELL, resolution=2 * res, settings=settings_of()), ref_dir,
+                         1024, 8, settings=settings_of())
         ref = box_down(read_exr(os.path.join(ref_dir, "reference.exr")), res, res)
-        sc = load_scene(CORNELL, resolution=res)
+        sc = load_scene(CORNELL, resolution=res, settings=settings_of())
         for method in methods:
             for mode in ("keep", "refine"):
                 out = os.path.join(d, f"{method}-{mode}")
                 t = time.perf_counter()
                 with dask.config.set({"radiosity.subdivide.hidden": mode}):
-                    rep = render_scene(sc, out, client, preview=False, progress=False,
-                                       method=method, echo=lambda *a: None)
+                    rep = render_scene(sc, out, client, settings_of(method=method), preview=False,
+                                       progress=False, echo=lambda *a: None)
                 wall = time.perf_counter() - t
                 img = read_exr(os.path.join(out, "image.exr")).astype(np.float64)
                 orig = RunStore(out).read_arrays("raster")["orig"]
@@ -149,7 +151,7 @@ def main():
         ref_dir = STORED_REFERENCE
     extra = {"resolution": args.res}
     count_rows, render_rows = [], []
-    with open_client(2, quiet=True) as client:
+    with open_client(2, quiet=True, settings=settings_of().cluster) as client:
         if not args.skip_counts:
             count_rows = counts(client, quiet=True)
             print_counts(count_rows)

@@ -36,6 +36,7 @@ from radiosity.validation.compare import box_down, box_down_stderr, errors, nois
 from radiosity.pipeline import render_scene
 from radiosity.stages.image import read_exr
 from radiosity.scene.load import load_scene
+from radiosity.settings import options as settings_of
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 ROOM = os.path.join(ROOT, "scenes", "room-2400", "scene.toml")
@@ -46,8 +47,8 @@ def reference(spp: int, out: str) -> dict:
     """The Mitsuba reference of the Cornell box at GRID x GRID: mean, stderr, figures."""
     from radiosity.validation.reference import make_reference
 
-    fig = make_reference(load_scene(CORNELL, resolution=GRID), out, spp=spp, passes=8,
-                         echo=lambda *a: None)
+    fig = make_reference(load_scene(CORNELL, resolution=GRID, settings=settings_of()), out,
+                         spp=spp, passes=8, echo=lambda *a: None, settings=settings_of())
     return {"mean": read_exr(os.path.join(out, "reference.exr")),
             "stderr": read_exr(os.path.join(out, "reference-stderr.exr")), "figures": fig}
 
@@ -57,7 +58,6 @@ def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dic
     embreex: its rays/s on one thread times `workers`, against the whole stage's."""
     from embreex import mesh_construction, rtcore_scene
 
-    from radiosity import config
     from radiosity.scene.splittrees import seen_originals, tree_nodes
     from radiosity.methods.hierarchical.links.master import LinkInputs, refine_pairs
     from radiosity.methods.hierarchical.params import resolve_params
@@ -68,10 +68,10 @@ def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dic
 
     rs = RunStore(run_dir)
     part, el = rs.load_partition(), rs.load_elements()
-    prm, weight = resolve_params(el)
+    prm, weight = resolve_params(el, settings_of())
     seen = seen_originals(rs.read_arrays("raster")["orig"], len(el))
     inp = LinkInputs(tree_nodes(part, el), part, el, seen, prm, weight, "bench",
-                     float(config.get("rays.epsilon")))
+                     float(settings_of().rays.epsilon))
     pairs, first = LinkStore(rs).plan()
     rc = RayCaster(el.verts, el.nverts)
     kept: list = []
@@ -127,15 +127,15 @@ def interior_cells(grid: int) -> np.ndarray:
     all-cell error at 128^2, the same for both methods)."""
     from radiosity.validation.compare import element_raster, interior
 
-    return interior(element_raster(load_scene(CORNELL, resolution=grid)))
+    return interior(element_raster(load_scene(CORNELL, resolution=grid, settings=settings_of())))
 
 
 def run_one(client, scene_file: str, res: int, method: str, d: str, ref=None, grid: int = 32) -> dict:
-    sc = load_scene(scene_file, resolution=res)
+    sc = load_scene(scene_file, resolution=res, settings=settings_of())
     client.run(_reset_peak)
     out = os.path.join(d, f"{os.path.basename(os.path.dirname(scene_file))}-{method}-{res}")
     t = time.perf_counter()
-    rep = render_scene(sc, out, client, preview=False, progress=False, method=method)
+    rep = render_scene(sc, out, client, settings_of(method=method), preview=False, progress=False)
     wall = time.perf_counter() - t
     st = rep.stages
     row = {"scene": os.path.basename(os.path.dirname(scene_file)), "method": method, "res": res,
@@ -178,7 +178,8 @@ def main():
     sizes = [int(s) for s in args.sizes.split(",") if s]
     pairs_sizes = [int(s) for s in args.pairs.split(",") if s]
     rows = []
-    with tempfile.TemporaryDirectory() as d, open_client(args.workers, quiet=True) as client:
+    with tempfile.TemporaryDirectory() as d, open_client(args.workers, quiet=True,
+                                                         settings=settings_of().cluster) as client:
         t = time.perf_counter()
         ref = reference(args.spp, os.path.join(d, "reference"))
         ref["interior"] = interior_cells(args.grid)

@@ -37,6 +37,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import ROOT, table, write  # noqa: E402
+from radiosity.settings import options as settings_of
 
 SCENE = os.path.join(ROOT, "scenes", "cornell-box-indirect")
 VARIANTS = {"default": ({}, []), "rounds0": ({"DASK_RADIOSITY__HIERARCHY__ROUNDS": "0"}, []),
@@ -104,7 +105,7 @@ def main() -> None:
     from radiosity.formats.images import read_exr
     from radiosity.validation.compare import element_raster, interior
 
-    sc = load_scene(SCENE)
+    sc = load_scene(SCENE, settings=settings_of())
     raster = element_raster(sc)
     mask = interior(raster)
     names = {e: f"{e}: {LABELS.get(e, 'element')}" for e in range(len(sc.elements))}

@@ -34,6 +34,7 @@ from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.validation.study import form_factor_of_run, kernel_setting
 from radiosity.methods.pairs.visibility import compute_visibility
+from radiosity.settings import options as settings_of
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 VALIDATION = ("parallel-squares", "perpendicular-squares")
@@ -41,7 +42,7 @@ VALIDATION = ("parallel-squares", "perpendicular-squares")
 
 def _settings(specs):
     """(label, kernel, dask.config overrides) of each kernel spec ("nxm:16": 16 points)."""
-    return [(spec, *kernel_setting(spec)) for spec in specs]
+    return [(spec, *kernel_setting(spec, settings_of())) for spec in specs]
 
 
 def _disk_mib(run: str) -> float:
@@ -61,7 +62,8 @@ def cost(client, res, settings, max_rays_per_pair):
     with tempfile.TemporaryDirectory() as d:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            preprocess(load_scene(CORNELL, resolution=res), d, client, progress=False)
+            preprocess(load_scene(CORNELL, resolution=res, settings=settings_of()), d, client,
+                       settings_of(), progress=False)
         for label, kernel, cfg in settings:
             with dask.config.set(cfg):
                 smp = sampling_of(kernel)
@@ -70,11 +72,12 @@ def cost(client, res, settings, max_rays_per_pair):
                 t_vis = float("inf")
                 for _ in range(2):
                     t = time.perf_counter()
-                    vis = compute_visibility(d, client, progress=False, kernel=kernel)
+                    vis = compute_visibility(d, client, settings_of(kernel=kernel), progress=False)
                     t_vis = min(t_vis, time.perf_counter() - t)
                 solver = "cg" if KERNELS[kernel].reciprocal else "gauss-seidel"
                 t = time.perf_counter()
-                sol = run_solve(d, client, solver=solver, kernel=kernel, progress=False)
+                sol = run_solve(d, client, settings_of(solver=solver, kernel=kernel),
+                                progress=False)
                 t_sol = time.perf_counter() - t
             rows.append({"res": res, "kernel": label, "sub_elements": vis["sub_elements"],
                          "rays": vis["rays"], "partial_pairs": vis.get("pairs_partial") or 0,
@@ -94,18 +97,20 @@ def errors(client, resolutions, settings):
     with tempfile.TemporaryDirectory() as d:
         for name in VALIDATION:
             path = os.path.join(ROOT, "scenes", name, "scene.toml")
-            exact = load_scene(path).validation["form_factor"]
+            exact = load_scene(path, settings=settings_of()).validation["form_factor"]
             for res in resolutions:
                 run = os.path.join(d, f"{name}-{res}")
                 with dask.config.set({"radiosity.subdivide.hidden": "keep"}):  # the camera's
-                    preprocess(load_scene(path, resolution=res), run, client, progress=False)
+                    preprocess(load_scene(path, resolution=res, settings=settings_of()), run,
+                               client, settings_of(), progress=False)
                 part = RunStore(run).load_partition()
                 m, size = len(part), float(np.sqrt(part.area.mean()))
                 for label, kernel, cfg in settings:
                     with dask.config.set(cfg):
                         t = time.perf_counter()
-                        compute_visibility(run, client, progress=False, kernel=kernel)
-                        f = form_factor_of_run(run, client, kernel, "emitter", "receiver")
+                        compute_visibility(run, client, settings_of(kernel=kernel), progress=False)
+                        f = form_factor_of_run(run, client, kernel, "emitter", "receiver",
+                                               settings=settings_of())
                         t = time.perf_counter() - t
                     rows.append({"scene": name, "res": res, "sub_elements": m, "size": size,
                                  "kernel": label, "error": abs(f / exact - 1), "time_s": round(t, 3)})
@@ -138,7 +143,7 @@ def main():
     ap.add_argument("--skip-cost", action="store_true", help="Only the validation scenes' errors.")
     args = ap.parse_args()
     settings = _settings(args.kernels.split(","))
-    with open_client(2, None, "local", echo=lambda *a: None) as client:
+    with open_client(2, None, "local", echo=lambda *a: None, settings=settings_of().cluster) as client:
         rows = []
         if not args.skip_cost:
             # warm-up: numba caches, Embree, workers

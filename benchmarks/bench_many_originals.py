@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from common import ROOT, table, write
+from radiosity.settings import options as settings_of
 
 
 def write_scene(d: str, triangles: int, resolution: int, seed: int = 5) -> str:
@@ -87,7 +88,7 @@ def tree_figures(scene: str) -> dict:
     from radiosity.scene.load import load_scene
 
     t0 = time.perf_counter()
-    el = load_scene(scene).elements
+    el = load_scene(scene, settings=settings_of()).elements
     t_load = time.perf_counter() - t0
     tracemalloc.start()
     t0 = time.perf_counter()

@@ -23,6 +23,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import ROOT, table, write  # noqa: E402
+from radiosity.settings import options as settings_of
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 
@@ -71,27 +72,29 @@ def main():
     from radiosity.validation.compare import box_down
     from radiosity.validation.reference import reference_at
 
-    sc = load_scene(CORNELL, resolution=args.res)
+    sc = load_scene(CORNELL, resolution=args.res, settings=settings_of())
     with tempfile.TemporaryDirectory() as d:
         t = time.perf_counter()
         ref_dir = args.reference or os.path.join(d, "reference")
         if args.reference is None:
-            reference_at(load_scene(CORNELL, resolution=2 * args.res), ref_dir, args.spp, 8)
+            reference_at(load_scene(CORNELL, resolution=2 * args.res, settings=settings_of()),
+                         ref_dir, args.spp, 8, settings=settings_of())
         ref = box_down(read_exr(os.path.join(ref_dir, "reference.exr")), args.res, args.res)
         ref_s = time.perf_counter() - t
         run = args.run
         if run is None:
             run = os.path.join(d, "run")
-            with open_client(2, quiet=True) as client:
-                render_scene(sc, run, client, preview=False, progress=False, echo=lambda *a: None)
+            with open_client(2, quiet=True, settings=settings_of().cluster) as client:
+                render_scene(sc, run, client, settings_of(), preview=False, progress=False,
+                             echo=lambda *a: None)
         masks = cell_masks(sc, ref)
         rows = []
         for sampling, k in [("point", 1), ("area", 1), ("area", 2), ("area", 4), ("area", 8)]:
-            fig = render_outputs(run, sampling=sampling, area_samples=k)
+            fig = render_outputs(run, sampling=sampling, area_samples=k, settings=settings_of())
             img = read_exr(os.path.join(run, "image.exr")).astype(np.float64)
             rows.append({"sampling": sampling, "k": k, "rays": fig.rays,
                          "image_s": fig.time_image_s, **errors(img, ref, masks)})
-        render_outputs(run)  # leave the default image in the run
+        render_outputs(run, settings=settings_of())  # leave the default image in the run
     counts = {k: int(m.sum()) for k, m in masks.items()}
     cols = ["sampling", "k", "rays", "image_s", "err_all", "err_interior", "err_edge",
             "err_light_border", "light_border_signed", "light_border_worst"]

@@ -20,6 +20,7 @@ from radiosity.tracing.rays import RayCaster
 from radiosity.scene.load import load_scene
 from radiosity.tracing.rays import raster_band
 from radiosity.scene.subdivide import subdivide
+from radiosity.settings import options as settings_of
 
 
 def raw_embree(el):
@@ -41,7 +42,7 @@ def main():
     ap.add_argument("--scene", default="scenes/cornell-box/scene.toml")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
-    sc = load_scene(args.scene)
+    sc = load_scene(args.scene, settings=settings_of())
     el = sc.elements
     rc = RayCaster(el.verts, el.nverts)
     raw, origin, scale = raw_embree(el)
@@ -69,13 +70,13 @@ def main():
     from radiosity.stages.preprocess import preprocess
     import tempfile
 
-    with open_client(args.workers, quiet=True) as client:
+    with open_client(args.workers, quiet=True, settings=settings_of().cluster) as client:
         for res in (128, args.max_res):
-            s2 = load_scene(args.scene, resolution=res)
+            s2 = load_scene(args.scene, resolution=res, settings=settings_of())
             with tempfile.TemporaryDirectory() as d:
-                preprocess(s2, d, client, progress=False)  # warm the workers
+                preprocess(s2, d, client, settings_of(), progress=False)  # warm the workers
                 t = time.perf_counter()
-                fig = preprocess(s2, d, client, progress=False)
+                fig = preprocess(s2, d, client, settings_of(), progress=False)
                 rows.append({"resolution": res, "rays": res * res, "sub_elements": fig["sub_elements"],
                              "levels": fig["levels"], "dask_pipeline_s": time.perf_counter() - t})
     cols = ["resolution", "rays", "sub_elements", "levels", "raster_s", "subdivide_s", "preprocess_s",

@@ -34,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import ROOT, table, write  # noqa: E402
+from radiosity.settings import options as settings_of
 
 REFERENCE = "eps1e-4"
 
@@ -62,8 +63,8 @@ def render_one(client, sc, out: str, config: dict) -> dict:
 
     t = time.perf_counter()
     with dask.config.set(config):
-        rep = render_scene(sc, out, client, preview=False, progress=False,
-                           method="hierarchical", echo=lambda *a: None)
+        rep = render_scene(sc, out, client, settings_of(method="hierarchical"), preview=False,
+                           progress=False, echo=lambda *a: None)
     wall = time.perf_counter() - t
     img = read_exr(os.path.join(out, "image.exr")).astype(np.float64)
     orig = RunStore(out).read_arrays("raster")["orig"]
@@ -102,12 +103,13 @@ def main():
 
     variants = args.variants.split(",")
     rows, surfaces = [], {}
-    with open_client(2, quiet=True) as client, tempfile.TemporaryDirectory() as d:
+    with open_client(2, quiet=True, settings=settings_of().cluster) as client, tempfile.TemporaryDirectory() as d:
         # warm: the numba cache loaded, the workers' imports done
         render_one(client, load_scene(os.path.join(ROOT, "scenes", "cornell-box", "scene.toml"),
-                                      resolution=16), os.path.join(d, "warm"), {})
+                                      resolution=16, settings=settings_of()), os.path.join(d, "warm"), {})
         for name in args.scenes.split(","):
-            sc = load_scene(os.path.join(ROOT, "scenes", name, "scene.toml"), resolution=args.res)
+            sc = load_scene(os.path.join(ROOT, "scenes", name, "scene.toml"), resolution=args.res,
+                            settings=settings_of())
             got = {}
             for v in variants:
                 got[v] = render_one(client, sc, os.path.join(d, f"{name}-{v}"),

@@ -30,6 +30,7 @@ from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.visibility import compute_visibility
+from radiosity.settings import options as settings_of
 
 CUBE = os.path.join(ROOT, "scenes", "furnace-cube", "scene.toml")
 KERNELS = ("point", "disc", "point-nf")
@@ -43,17 +44,18 @@ def main():
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     rows = []
-    with open_client(args.workers, quiet=True) as client, \
+    with open_client(args.workers, quiet=True, settings=settings_of().cluster) as client, \
             dask.config.set({"radiosity.subdivide.unseen": args.unseen}):
         for res in (int(r) for r in args.res.split(",")):
             with tempfile.TemporaryDirectory() as d:
-                preprocess(load_scene(CUBE, resolution=res), d, client, progress=False)
-                compute_visibility(d, client, progress=False)
+                preprocess(load_scene(CUBE, resolution=res, settings=settings_of()), d, client,
+                           settings_of(), progress=False)
+                compute_visibility(d, client, settings_of(), progress=False)
                 rs = RunStore(d)
                 row = {"resolution": res, "sub_elements": len(rs.load_partition())}
                 for kernel in KERNELS:
                     t = time.perf_counter()
-                    op, part, _ = open_operator(rs, client, kernel)
+                    op, part, _ = open_operator(rs, client, kernel, settings_of())
                     sums = op.row_sums()[0]
                     row[f"{kernel}_max_dev"] = float(np.abs(sums - 1).max())
                     row[f"{kernel}_s"] = round(time.perf_counter() - t, 2)

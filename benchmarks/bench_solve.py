@@ -27,6 +27,7 @@ from radiosity.methods.pairs.method import side_vectors
 from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.visibility import compute_visibility
+from radiosity.settings import options as settings_of
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 
@@ -55,11 +56,11 @@ def naive_pass(data, base, tiles, offsets, c, n, area, L, y):
 
 
 def throughput(client, res):
-    sc = load_scene(CORNELL, resolution=res)
+    sc = load_scene(CORNELL, resolution=res, settings=settings_of())
     with tempfile.TemporaryDirectory() as d:
-        preprocess(sc, d, client, progress=False)
-        compute_visibility(d, client, progress=False)
-        op, part, el = open_operator(RunStore(d), client, "point")
+        preprocess(sc, d, client, settings_of(), progress=False)
+        compute_visibility(d, client, settings_of(), progress=False)
+        op, part, el = open_operator(RunStore(d), client, "point", settings_of())
         inp = op.inp
         Le, rho, A = side_vectors(part, el)
         ids = np.arange(len(inp.tasks))
@@ -85,14 +86,16 @@ def passes(client, scene, res, tol, rho=None):
     """Passes each solver needs to reach tol; each solver runs once untimed first (numba)."""
     rows = []
     with tempfile.TemporaryDirectory() as d:
-        sc = load_scene(scene, resolution=res)
+        sc = load_scene(scene, resolution=res, settings=settings_of())
         if rho is not None:
             sc.elements.reflectance[sc.elements.reflectance > 0] = rho
-        preprocess(sc, d, client, progress=False)
-        compute_visibility(d, client, progress=False)
+        preprocess(sc, d, client, settings_of(), progress=False)
+        compute_visibility(d, client, settings_of(), progress=False)
         for solver in ("jacobi", "gauss-seidel", "progressive", "cg"):
-            run_solve(d, client, solver=solver, tol=tol, max_iter=3, progress=False)  # warm
-            f = run_solve(d, client, solver=solver, tol=tol, max_iter=5000, progress=False)
+            run_solve(d, client, settings_of(solver=solver, tol=tol, max_iterations=3),
+                      progress=False)  # warm
+            f = run_solve(d, client, settings_of(solver=solver, tol=tol, max_iterations=5000),
+                          progress=False)
             rows.append({"scene": os.path.basename(os.path.dirname(scene)) + (f" rho={rho}" if rho else ""),
                          "resolution": res, "solver": solver, "passes": f["iterations"],
                          "products": f["passes"], "converged": f["converged"],
@@ -107,18 +110,18 @@ def main():
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
     warnings.simplefilter("ignore")
-    with open_client(args.workers, quiet=True) as client:
+    with open_client(args.workers, quiet=True, settings=settings_of().cluster) as client:
         tp = throughput(client, args.tput_res)
         pr = passes(client, CORNELL, 64, 1e-6)
         pr += passes(client, os.path.join(ROOT, "scenes", "furnace-cube", "scene.toml"), 16, 1e-6, rho=0.99)
         e2e = []
         for res in [int(r) for r in args.e2e.split(",")]:
             with tempfile.TemporaryDirectory() as d:
-                sc = load_scene(CORNELL, resolution=res)
+                sc = load_scene(CORNELL, resolution=res, settings=settings_of())
                 t = time.perf_counter()
                 # the pairs method (this benchmark's subject; bench_hierarchy times the other)
-                rep = render_scene(sc, d, client, solver="cg", progress=False, preview=False,
-                                   echo=lambda *a: None, method="pairs")
+                rep = render_scene(sc, d, client, settings_of(solver="cg", method="pairs"),
+                                   progress=False, preview=False, echo=lambda *a: None)
                 st = rep["render"]["stages"]
                 e2e.append({"resolution": res, "sub_elements": rep["preprocess"]["sub_elements"],
                             "preprocess_s": st["preprocess_s"], "visibility_s": st["visibility_s"],

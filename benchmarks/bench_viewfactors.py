@@ -36,6 +36,7 @@ import numpy as np
 from common import table, write
 
 from radiosity.runtime.cluster import open_client
+from radiosity.settings import options as settings_of
 
 
 # ----------------------------------------------------------------------------- the scene
@@ -102,16 +103,16 @@ def ours(mesh, workers, accuracy=None, smax=None, warm=True, repeat=1):
     from radiosity.viewfactors.api import compute_viewfactors
 
     cfg = {} if smax is None else {"radiosity.viewfactors.max-points-per-side": smax}
-    with dask.config.set(cfg), open_client(workers, quiet=True) as client, \
+    with dask.config.set(cfg), open_client(workers, quiet=True, settings=settings_of().cluster) as client, \
             tempfile.TemporaryDirectory() as d:
         if warm:
             compute_viewfactors(urban(1, block=5, street=5), os.path.join(d, "warm"), client,
-                                progress=False)
+                                settings_of(), progress=False)
         wall = np.inf
         for k in range(repeat):
             t, c = time.perf_counter(), time.process_time()
-            res = compute_viewfactors(mesh, os.path.join(d, f"run{k}"), client, accuracy=accuracy,
-                                      progress=False)
+            res = compute_viewfactors(mesh, os.path.join(d, f"run{k}"), client,
+                                      settings_of(accuracy=accuracy), progress=False)
             if time.perf_counter() - t < wall:
                 wall = time.perf_counter() - t
                 # CPU seconds: the tasks' on the workers plus the driver's (load-independent)
@@ -219,7 +220,7 @@ def compare(nb: int, workers: int, repeat: int) -> list:
     from radiosity.viewfactors.api import load_facets
 
     V, F = urban(nb)
-    fac = load_facets((V, F))
+    fac = load_facets((V, F), settings_of())
     print(f"compare: {len(F)} facets; reference (accuracy 1e-4, 32 points per side) ...", flush=True)
     ref, t_ref = ours((V, F), workers, accuracy=1e-4, smax=32)
     chk = check_reference(fac, ref.matrix, 1e-4)

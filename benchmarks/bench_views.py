@@ -46,6 +46,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import ROOT, table, write  # noqa: E402
+from radiosity.settings import options as settings_of
 
 CORNELL = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 ABOVE = {"position": [278.0, 540.0, 280.0], "look_at": [278.0, 0.0, 280.0],
@@ -208,7 +209,8 @@ def main():
     frames = {}
     t = time.perf_counter()
     w = render_walkthrough(run, orbit, out=os.path.join(d, "orbit-api.mp4"), name="orbit-api",
-                           progress=False, on_frame=lambda k, img, fig: frames.setdefault(k, img))
+                           progress=False, on_frame=lambda k, img, fig: frames.setdefault(k, img),
+                           settings=settings_of())
     t_api = time.perf_counter() - t
     walk = {"frames": args.frames, "process_s": round(t_walk, 3),
             "process_cpu_s": round(cpu_walk, 3), "api_s": round(t_api, 3),
@@ -219,10 +221,10 @@ def main():
 
     # (d): Mitsuba on the same frames at the same per-pixel error
     mi, variant = load_mitsuba(echo=print)
-    sc = load_scene(CORNELL, resolution=R)
+    sc = load_scene(CORNELL, resolution=R, settings=settings_of())
     cams = load_path(orbit).cameras(RunStore(run).load_camera())
     mid = len(cams) // 2
-    D, _ = path_depth(sc)
+    D, _ = path_depth(sc, settings_of().reference.truncation)
     sensors = [mi.load_dict(sensor_dict(dataclasses.replace(sc, camera=c), 1)) for c in cams]
     integrators = {"no roulette": mi.load_dict({"type": "path", "max_depth": D, "rr_depth": D}),
                    "roulette from 5": mi.load_dict({"type": "path", "max_depth": D, "rr_depth": 5})}
@@ -247,7 +249,7 @@ def main():
     from radiosity.methods.hierarchical.views.points import PointGather
 
     lattice = []
-    v = Viewer(run)
+    v = Viewer(run, settings_of())
     for px, far in ((0.0, math.inf), (2.0, math.inf), (2.0, 6.0), (4.0, 6.0)):
         v.source = PointGather(v.store, v.settings, lattice_pixels=px, ray_far=far)
         c = time.process_time()

@@ -23,16 +23,17 @@ from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
 from radiosity.tracing.shafts import block_candidates, classify
 from radiosity.methods.pairs.visibility import compute_visibility, vis_inputs
+from radiosity.settings import options as settings_of
 
 
 def run(scene, res, workers, unit=None):
-    sc = load_scene(scene, resolution=res)
-    with open_client(workers, quiet=True) as client, tempfile.TemporaryDirectory() as d:
-        preprocess(sc, d, client, progress=False)
+    sc = load_scene(scene, resolution=res, settings=settings_of())
+    with open_client(workers, quiet=True, settings=settings_of().cluster) as client, tempfile.TemporaryDirectory() as d:
+        preprocess(sc, d, client, settings_of(), progress=False)
         # warm-up: numba kernels load from cache, Embree scenes build on every worker
-        compute_visibility(d, client, progress=False, unit=unit)
+        compute_visibility(d, client, settings_of(), progress=False, unit=unit)
         t = time.perf_counter()
-        fig = compute_visibility(d, client, progress=False, unit=unit).to_dict()
+        fig = compute_visibility(d, client, settings_of(), progress=False, unit=unit).to_dict()
         fig["wall_s"] = time.perf_counter() - t
         return fig
 
@@ -43,9 +44,9 @@ def ray_throughput(scene, res):
     from radiosity.tracing.rays import RayCaster
     from embreex import mesh_construction, rtcore_scene
 
-    sc = load_scene(scene, resolution=res)
-    with open_client(1, quiet=True) as client, tempfile.TemporaryDirectory() as d:
-        preprocess(sc, d, client, progress=False)
+    sc = load_scene(scene, resolution=res, settings=settings_of())
+    with open_client(1, quiet=True, settings=settings_of().cluster) as client, tempfile.TemporaryDirectory() as d:
+        preprocess(sc, d, client, settings_of(), progress=False)
         rs = RunStore(d)
         part, el = rs.load_partition(), rs.load_elements()
     inp = vis_inputs(part, el, "bench", 1e-6)

@@ -32,6 +32,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_views import CPU, pixel_error, spp_for, whole  # noqa: E402
 from common import ROOT, table, write  # noqa: E402
+from radiosity.settings import options as settings_of
 
 SCENE = os.path.join(ROOT, "scenes", "cornell-box", "scene.toml")
 
@@ -82,8 +83,8 @@ def main():
     ours_img = read_exr(os.path.join(ours_run, "image.exr")).astype(np.float64)
 
     mi, variant = load_mitsuba(echo=print)
-    sc = load_scene(SCENE, resolution=R)
-    D, _ = path_depth(sc)
+    sc = load_scene(SCENE, resolution=R, settings=settings_of())
+    D, _ = path_depth(sc, settings_of().reference.truncation)
     msc, _ = mitsuba_scene(sc, D, mi=mi)
     integ = mi.load_dict({"type": "path", "max_depth": D, "rr_depth": 5})
 

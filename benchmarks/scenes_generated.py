@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+from radiosity.settings import options as settings_of
 
 
 def _write(folder: str, name: str, tris_by_material: dict, camera: dict, materials: str) -> str:
@@ -111,7 +112,7 @@ def tessellated_cornell(folder: str, per_quad: int = 2000, resolution: int = 128
 
     src = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenes",
                        "cornell-box", "scene.toml")
-    sc = load_scene(src)
+    sc = load_scene(src, settings=settings_of())
     el = sc.elements
     k = max(1, int(round(np.sqrt(per_quad / 4))))
     by_mat: dict = {}

@@ -9,6 +9,7 @@ import shutil
 import textwrap
 
 import numpy as np
+from radiosity.settings import options as settings_of
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENES = os.path.join(ROOT, "scenes")
@@ -57,9 +58,10 @@ def prepared(client, tmp_path, scene: str, res: int, name: str = "run", visibili
     from radiosity.methods.pairs.visibility import compute_visibility
 
     out = str(tmp_path / name)
-    preprocess(load_scene(scene, resolution=res), out, client, progress=False, **kw)
+    preprocess(load_scene(scene, resolution=res, settings=settings_of()), out, client,
+               settings_of(**kw), progress=False)
     if visibility:
-        compute_visibility(out, client, progress=False)
+        compute_visibility(out, client, settings_of(), progress=False)
     return out
 
 
@@ -204,7 +206,7 @@ def link_power_balance(run_dir: str) -> tuple[float, float, float]:
     from radiosity.runtime.store import RunStore
 
     rs = RunStore(run_dir)
-    op, table, el, _ = open_link_operator(rs, None)
+    op, table, el, _ = open_link_operator(rs, None, "auto", settings_of())
     Le, rho, A = leaf_vectors(table, el)
     L = np.transpose(rs.read_arrays("solution")["leaf_radiance"], (1, 2, 0))
     H = op.apply(L)

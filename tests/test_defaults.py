@@ -17,6 +17,7 @@ from radiosity.core.solvers import choose_solver
 from radiosity.runtime.store import RunStore
 from radiosity.validation.compare import interior
 from helpers import SCENES, radiance, scene_path, write_scene
+from radiosity.settings import options as settings_of
 
 
 def _cube_obj(n: int, faces=range(6), block: bool = False) -> str:
@@ -82,7 +83,7 @@ def _furnace(tmp_path, rho: float, **kw) -> str:
     (range(5), True, False),
 ])
 def test_closure_is_decided_from_the_geometry(tmp_path, faces, block, closed):
-    sc = load_scene(_furnace(tmp_path, 0.5, n=2, faces=faces, block=block))
+    sc = load_scene(_furnace(tmp_path, 0.5, n=2, faces=faces, block=block), settings=settings_of())
     c = detect_closure(sc.elements, 1e-6)
     assert c.closed == closed, c.reason
     assert c.reason.startswith("closed" if closed else "open")
@@ -93,14 +94,15 @@ def test_closure_is_decided_from_the_geometry(tmp_path, faces, block, closed):
 @pytest.mark.parametrize("name, closed", [("furnace-cube", True), ("furnace-sphere", True),
                                           ("cornell-box", False), ("parallel-squares", False)])
 def test_closure_of_the_builtin_scenes(name, closed):
-    assert detect_closure(load_scene(scene_path(name)).elements, 1e-6).closed == closed
+    assert detect_closure(load_scene(scene_path(name), settings=settings_of()).elements, 1e-6).closed == closed
 
 
 @pytest.mark.parametrize("rho", [0.99, 0.999])
 def test_closed_cube_with_high_reflectance_is_exact_with_no_options(client, tmp_path, rho):
     """Exact L = Le / (1 - rho) = 100 (1000) on every pixel; rows only capped give about 30."""
     out = str(tmp_path / "run")
-    rep = render_scene(load_scene(_furnace(tmp_path, rho)), out, client, preview=False, progress=False)
+    rep = render_scene(load_scene(_furnace(tmp_path, rho), settings=settings_of()), out, client,
+                       settings_of(), preview=False, progress=False)
     assert rep["plan"]["closure"]["closed"] and rep["solve"]["closure"]["closed"]
     assert rep["solve"]["row_sums"]["mode"] == "closed"
     img = read_exr(f"{out}/image.exr")
@@ -111,8 +113,9 @@ def test_closed_cube_with_high_reflectance_is_exact_with_no_options(client, tmp_
 
 def test_open_box_is_never_balanced(client, tmp_path):
     out = str(tmp_path / "run")
-    rep = render_scene(load_scene(_furnace(tmp_path, 0.9, n=4, faces=range(5))), out, client,
-                       preview=False, progress=False)
+    rep = render_scene(load_scene(_furnace(tmp_path, 0.9, n=4, faces=range(5)),
+                                  settings=settings_of()),
+                       out, client, settings_of(), preview=False, progress=False)
     cl = rep["solve"]["closure"]
     assert not cl["closed"] and cl["reason"].startswith("open")
     assert rep["solve"]["row_sums"]["mode"] == "cap"
@@ -155,12 +158,13 @@ def test_out_of_view_emitter_is_right_pointwise_with_no_options(client, tmp_path
     about 33 % (the hierarchical method would split the emitter on demand)."""
     import dask.config
 
-    sc = load_scene(scene_path("unseen-emitter"))
+    sc = load_scene(scene_path("unseen-emitter"), settings=settings_of())
     out = str(tmp_path / unseen)
     seed = {} if unseen == "refine" else {"radiosity.visibility.method": "pairs"}
     with dask.config.set({"radiosity.subdivide.unseen": unseen, **seed}):
-        rep = render_scene(sc, out, client, preview=False, progress=False,
-                           kernel=None if unseen == "refine" else "point")
+        rep = render_scene(sc, out, client,
+                           settings_of(kernel=None if unseen == "refine" else "point"),
+                           preview=False, progress=False)
     ex = _exact_receiver(sc, out)
     # pixels wholly on the receiver: a rim pixel is the mean over its area (half of it
     # background), the exact value is its centre's
@@ -191,8 +195,8 @@ def test_cornell_box_with_the_light_out_of_view_matches_the_presplit_reference(c
         with dask.config.set({"radiosity.subdivide.unseen": unseen,
                               "radiosity.visibility.method": "pairs"}):
             out = str(tmp_path / name)
-            render_scene(load_scene(f"{d}/{toml}", resolution=48), out, client, preview=False,
-                         progress=False)
+            render_scene(load_scene(f"{d}/{toml}", resolution=48, settings=settings_of()), out,
+                         client, settings_of(), preview=False, progress=False)
         imgs[name] = read_exr(f"{out}/image.exr") @ lum
     m = imgs["ref"] > 0
     for name, (level, p95_lo, p95_hi) in {"default": (0.02, 0, 0.05), "seed": (1, 0.15, 1e9)}.items():
@@ -212,12 +216,13 @@ def test_solver_auto_follows_the_kernel():
 
 
 def test_kernel_disc_alone_renders_and_explicit_cg_disc_is_refused(client, tmp_path):
-    sc = load_scene(scene_path("three-rectangles"), resolution=12)
-    rep = render_scene(sc, str(tmp_path / "a"), client, kernel="disc", preview=False, progress=False)
+    sc = load_scene(scene_path("three-rectangles"), resolution=12, settings=settings_of())
+    rep = render_scene(sc, str(tmp_path / "a"), client, settings_of(kernel="disc"), preview=False,
+                       progress=False)
     assert rep["solve"]["solver"] == "gauss-seidel" and rep["solve"]["converged"]
     with pytest.raises(RadiosityError, match="reciprocal"):
-        render_scene(sc, str(tmp_path / "b"), client, kernel="disc", solver="cg", preview=False,
-                     progress=False)
+        render_scene(sc, str(tmp_path / "b"), client, settings_of(kernel="disc", solver="cg"),
+                     preview=False, progress=False)
 
 
 # ----------------------------------------------------------------------------- tolerance
@@ -228,15 +233,14 @@ def test_default_tolerance_saves_passes_without_a_visible_change(client, tmp_pat
     under 1 % anywhere; 1e-3 would move it by more than that (so the check can tell)."""
     import dask.config
 
-    from radiosity import config
-
-    assert float(config.get("solve.tol")) == 1e-5
-    sc = load_scene(scene_path("cornell-box-inside"), resolution=24)
+    assert settings_of().solve.tol == 1e-5
+    sc = load_scene(scene_path("cornell-box-inside"), resolution=24, settings=settings_of())
     imgs, passes = {}, {}
     for tol in (1e-6, None, 1e-3):
         out = str(tmp_path / f"t{tol}")
         with dask.config.set({"radiosity.visibility.method": "pairs"}):
-            rep = render_scene(sc, out, client, tol=tol, preview=False, progress=False)
+            rep = render_scene(sc, out, client, settings_of(tol=tol), preview=False,
+                               progress=False)
         imgs[tol], passes[tol] = read_exr(f"{out}/image.exr"), rep["solve"]["iterations"]
     m = imgs[1e-6] > 0
     change = {t: np.abs(imgs[t][m] / imgs[1e-6][m] - 1) for t in (None, 1e-3)}

@@ -154,6 +154,78 @@ def test_task_functions_read_no_configuration():
     assert found >= 6  # raster, subdivide, seed subscene, visibility, apply, gs sweep
 
 
+# where settings are resolved: the CLI, the Python API's entry points (radiosity.render,
+# radiosity.view_factors) and the settings module itself; everything below takes frozen objects
+SETTINGS_BOUNDARY = ("cli", "pipeline", "viewfactors.api", "settings")
+
+
+def _at_boundary(mod: str) -> bool:
+    return any(mod == b or mod.startswith(b + ".") for b in SETTINGS_BOUNDARY)
+
+
+def test_no_function_below_the_boundary_takes_settings_none():
+    """A `settings=None` parameter meant "read dask.config now": below the boundary every
+    function takes the run's settings object."""
+    bad = []
+    for m, path in _modules().items():
+        if _at_boundary(m):
+            continue
+        for node in ast.walk(ast.parse(open(path).read())):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            a = node.args
+            pos = a.posonlyargs + a.args
+            pairs = list(zip(pos[len(pos) - len(a.defaults):], a.defaults)) + \
+                [(p, d) for p, d in zip(a.kwonlyargs, a.kw_defaults) if d is not None]
+            bad += [f"{m}.{node.name}:{node.lineno}" for p, d in pairs
+                    if p.arg == "settings" and isinstance(d, ast.Constant) and d.value is None]
+    assert not bad, f"settings=None below the boundary: {bad}"
+
+
+def test_settings_are_resolved_only_at_the_boundary():
+    """settings.resolve (and settings.options, which calls it) only in the boundary modules."""
+    bad = []
+    for m, path in _modules().items():
+        if _at_boundary(m):
+            continue
+        tree = ast.parse(open(path).read())
+        names = {a.asname or a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)
+                 and n.module == "radiosity.settings" for a in n.names
+                 if a.name in ("resolve", "options")}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call):
+                f = node.func
+                if (isinstance(f, ast.Name) and f.id in names) or (
+                        isinstance(f, ast.Attribute) and f.attr in ("resolve", "options")
+                        and isinstance(f.value, ast.Name) and f.value.id == "settings"):
+                    bad.append(f"{m}:{node.lineno}")
+    assert not bad, f"settings resolved below the boundary: {bad}"
+
+
+def test_only_config_settings_and_the_cli_read_dask_config():
+    """dask.config is read by config.py (the YAML and its reader) and settings.py (resolve),
+    and by nothing else: not even the cluster start, which takes a settings.ClusterSettings and
+    reaches dask's own keys (jobqueue.*, distributed.*) through config.dask_get."""
+    bad = []
+    for m, path in _modules().items():
+        if m in ("config", "settings") or _room(m) == "cli":
+            continue
+        tree = ast.parse(open(path).read())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import) and any(a.name == "dask.config" for a in node.names):
+                bad.append(f"{m}:{node.lineno} import dask.config")
+            elif isinstance(node, ast.ImportFrom) and node.module == "dask" and any(
+                    a.name == "config" for a in node.names):
+                bad.append(f"{m}:{node.lineno} from dask import config")
+            elif isinstance(node, ast.Attribute) and node.attr == "config" and \
+                    isinstance(node.value, ast.Name) and node.value.id == "dask":
+                bad.append(f"{m}:{node.lineno} dask.config")
+            elif isinstance(node, ast.Attribute) and node.attr == "section" and \
+                    isinstance(node.value, ast.Name) and node.value.id == "config":
+                bad.append(f"{m}:{node.lineno} config.section")
+    assert not bad, f"dask.config read outside config.py, settings.py and cli/: {bad}"
+
+
 def test_no_module_is_named_after_the_standard_library():
     import sys
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from helpers import ROOT, radiance, scene_path
+from radiosity.settings import options as settings_of
 
 pytestmark = pytest.mark.cluster
 
@@ -97,8 +98,8 @@ def test_the_plan_takes_the_closure_resolved_beside_the_preprocess():
     from radiosity.scene.load import load_scene
     from radiosity.stages.solve import resolve_closure
 
-    sc = load_scene(scene_path("furnace-cube"))
-    own = scene_plan(sc).closure
+    sc = load_scene(scene_path("furnace-cube"), settings=settings_of())
+    own = scene_plan(sc, settings_of()).closure
     given = resolve_closure("auto", sc.elements, 1e-6)
     assert own.closed and own.reason == given.reason
-    assert scene_plan(sc, closure=given).closure is given
+    assert scene_plan(sc, settings_of(), closure=given).closure is given

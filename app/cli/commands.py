@@ -12,7 +12,7 @@ import time
 
 import click
 
-from radiosity.cli.options import (POSITIVE, POSITIVE_INT, TOL, _Finite,
+from radiosity.cli.options import (POSITIVE, POSITIVE_INT, _Finite,
                                    _resolution, cluster_options,
                                    force_option, image_options, kernel_options, method_options,
                                    settings_from_flags, solve_options, _client)
@@ -100,7 +100,7 @@ def main():
 @click.option("--out", "-o", required=True, type=click.Path(), help="Run directory to create.")
 @click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
               help="Override the camera resolution.")
-@click.option("--subpixel", type=POSITIVE_INT, default=None, help="Criterion on a K-times finer raster.")
+@click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--variant", type=click.Choice(["exact", "seed", "none"]), default=None,
               help="exact: equals the sequential partition; seed: each subscene renders alone "
                    "(seed §4.2); none: no subdivision (the seed's image without preprocessing).")
@@ -237,6 +237,7 @@ def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up,
     from radiosity.stages.image import render_outputs
     from radiosity.runtime.runlock import run_lock
 
+    st = settings_from_flags(render__filter=filter_, render__sigma=sigma, render__exposure=exposure)
     check_run_dir(run_dir)
     if camera_file or position or look_at:
         from radiosity.runtime.store import RunStore
@@ -245,7 +246,7 @@ def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up,
         cam = view_camera(RunStore(run_dir).load_camera(), camera_file, position, look_at, up, fov,
                           resolution)
         with run_lock(run_dir, _command_line()):
-            v = render_view(run_dir, cam, name, settings=settings_from_flags(), exposure=exposure)
+            v = render_view(run_dir, cam, name, settings=st, exposure=exposure)
         g = v.figures["gather"]
         click.echo(_table([("view", f"{cam.width}x{cam.height}, {v.figures['samples_per_pixel']} "
                                     f"rays a pixel, {v.figures['method']} solution"),
@@ -258,7 +259,7 @@ def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up,
     _started(run_dir, resume=False)
     with run_lock(run_dir, _command_line()):
         fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure,
-                             settings=settings_from_flags(), progress=True)
+                             settings=st, progress=True)
         _record_run(run_dir)
         _finish(run_dir, [])
     click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, "
@@ -387,8 +388,8 @@ def _builtin_cornell() -> str:
 @click.argument("scene", type=click.Path())
 @click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
               help="Override the camera resolution.")
-@click.option("--subpixel", type=POSITIVE_INT, default=None, help="Criterion on a K-times finer raster.")
-@click.option("--tol", type=TOL, default=None, help="Solver tolerance (for the pass estimate).")
+@click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
+@click.option("--tol", type=float, default=None, help="Solver tolerance (for the pass estimate).")
 @lambda fn: method_options(fn, links=False)
 @_friendly
 def plan(scene, resolution, subpixel, tol):
@@ -420,7 +421,7 @@ def plan(scene, resolution, subpixel, tol):
 @click.option("--out", "-o", required=True, type=click.Path(), help="Run directory.")
 @click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
               help="Override the camera resolution.")
-@click.option("--subpixel", type=POSITIVE_INT, default=None, help="Criterion on a K-times finer raster.")
+@click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--task-unit", type=click.Choice(["block", "stripe", "auto"]), default=None)
 @click.option("--resume", is_flag=True, help="Reuse the partition and finished visibility tasks in OUT.")
 @click.option("--preview/--no-preview", default=False,
@@ -444,7 +445,9 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
 
     st = settings_from_flags(subdivide__subpixel=subpixel, solve__solver=solver,
                              solve__kernel=kernel, solve__tol=tol,
-                             solve__max_iterations=max_iterations)
+                             solve__max_iterations=max_iterations, render__filter=filter_,
+                             render__sigma=sigma, render__exposure=exposure,
+                             visibility__task_unit=task_unit, hierarchy__task_unit=task_unit)
     sc = _load_scene(scene, resolution, st)
     check_solve(st)
     check_scene(sc, st, stated_method(st))
@@ -454,10 +457,8 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
                f"{sc.camera.width}x{sc.camera.height}")
     with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind, st,
                                                  _samples(sc.cameras, st.subdivide.subpixel)) as client:
-        rep = render_scene(sc, out, client, st, unit=task_unit, resume=resume, filter=filter_,
-                           sigma=sigma, exposure=exposure,
-                           preview=preview, echo=click.echo, full=full,
-                           keep_unconverged=keep_unconverged)
+        rep = render_scene(sc, out, client, st, resume=resume, preview=preview, echo=click.echo,
+                           full=full, keep_unconverged=keep_unconverged)
         _record_run(out, sc.name)
     click.echo(_table(_finish(out, rep.rows())))
     click.echo(f"wrote {out}/image.exr, image.png, {'preview.png, ' if preview else ''}mesh.glb, "

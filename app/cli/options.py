@@ -1,6 +1,7 @@
 """The CLI's options: validators, the shared option groups, and flags as overrides of the
 settings (recorded on the click context, resolved once by settings_from_flags; no flag writes
-dask.config)."""
+dask.config). A flag that sets a setting is checked where `radiosity.render`'s keyword is:
+settings.check, one RadiosityError (exit 2) with the same line for both."""
 
 from __future__ import annotations
 
@@ -26,7 +27,6 @@ class _Finite(click.FloatRange):
 
 POSITIVE_INT = click.IntRange(min=1)
 POSITIVE = _Finite(min=0.0, min_open=True)
-TOL = _Finite(min=0.0, max=1.0, min_open=True, max_open=True)
 
 
 def _resolution(ctx, param, value):
@@ -109,8 +109,9 @@ def _cluster(key: str, value=None):
 
 
 def settings_from_flags(**explicit):
-    """The command's settings: dask.config's radiosity.* with the flags applied (resolved once,
-    here; `explicit` adds section__key=value for flags the command reads itself)."""
+    """The command's settings: dask.config's radiosity.* with the flags applied, checked
+    (resolved once, here; `explicit` adds section__key=value for flags the command reads
+    itself)."""
     from radiosity.settings import resolve
 
     ctx = click.get_current_context(silent=True)
@@ -132,8 +133,7 @@ def kernel_options(fn, help_="Form-factor kernel (default: radiosity.solve.kerne
             ("--mc-seed", "mc-seed", "mc kernel: seed of the random sample points."),
             ("--mc-samples", "mc-samples", "mc kernel: random sample pairs (rays) per pair."),
             ("--nxm-points", "nxm-points", "nxm kernel: sample points per element (a square).")):
-        kind = click.IntRange(min=0) if key == "mc-seed" else POSITIVE_INT
-        fn = click.option(name, type=kind, default=None, expose_value=False, help=help2,
+        fn = click.option(name, type=int, default=None, expose_value=False, help=help2,
                           callback=_setting(f"solve.{key}"))(fn)
     return click.option("--kernel", type=click.Choice(list(KERNELS)), default=None, help=help_)(fn)
 
@@ -172,10 +172,10 @@ def method_options(fn, links: bool = True):
     """--method pairs|hierarchical, and the hierarchical method's --epsilon / --link-rays
     (overrides of radiosity.visibility.method and radiosity.hierarchy.*)."""
     if links:
-        fn = click.option("--link-rays", type=POSITIVE_INT, default=None, expose_value=False,
+        fn = click.option("--link-rays", type=int, default=None, expose_value=False,
                           help="hierarchical: sample rays per link not proven visible (a square).",
                           callback=_setting("hierarchy.link-rays"))(fn)
-        fn = click.option("--epsilon", type=click.FloatRange(min=0.0), default=None, expose_value=False,
+        fn = click.option("--epsilon", type=float, default=None, expose_value=False,
                           help="hierarchical: refine links while their error estimate exceeds this.",
                           callback=_setting("hierarchy.epsilon"))(fn)
     from radiosity.methods.base import METHODS
@@ -202,8 +202,8 @@ def solve_options(fn):
                       help="Write the solution even when the solver did not converge (by default "
                            "a converged solution already in the run is kept; exit status 3 "
                            "either way).")(fn)
-    fn = click.option("--max-iterations", type=POSITIVE_INT, default=None, help="Pass limit.")(fn)
-    fn = click.option("--tol", type=TOL, default=None,
+    fn = click.option("--max-iterations", type=int, default=None, help="Pass limit.")(fn)
+    fn = click.option("--tol", type=float, default=None,
                       help="Relative residual to stop at, in (0, 1).")(fn)
     fn = kernel_options(fn)
     fn = click.option("--solver", type=click.Choice(["auto", *SOLVERS]), default=None,
@@ -213,12 +213,12 @@ def solve_options(fn):
 
 
 def image_options(fn):
-    fn = click.option("--edge-samples", type=click.IntRange(min=0), default=None,
+    fn = click.option("--edge-samples", type=int, default=None,
                       expose_value=False,
                       help="--sampling area: K x K rays again for each pixel on a silhouette or "
                            "corner (default: radiosity.render.edge-samples; 0: none).",
                       callback=_setting("render.edge-samples"))(fn)
-    fn = click.option("--area-samples", type=POSITIVE_INT, default=None, expose_value=False,
+    fn = click.option("--area-samples", type=int, default=None, expose_value=False,
                       help="--sampling area: K x K rays per pixel (default: "
                            "radiosity.render.area-samples).",
                       callback=_setting("render.area-samples"))(fn)
@@ -230,7 +230,7 @@ def image_options(fn):
                       callback=_setting("render.sampling"))(fn)
     fn = click.option("--exposure", default=None, callback=_exposure,
                       help="Exposure for PNG/mesh colours, or 'auto'.")(fn)
-    fn = click.option("--sigma", type=POSITIVE, default=None, help="Gaussian sigma in fine pixels.")(fn)
+    fn = click.option("--sigma", type=float, default=None, help="Gaussian sigma in fine pixels.")(fn)
     fn = click.option("--filter", "filter_", type=click.Choice(["box", "gaussian"]), default=None,
                       help="Sub-pixel reconstruction filter.")(fn)
     return fn
@@ -244,13 +244,15 @@ def force_option(fn):
 
 
 def _client(workers, scheduler, cluster_kind, st=None, samples: int | None = None, **kw):
-    """open_client with the cluster flags (adaptive, tls, batch-job options); with the settings
-    `st`, a local cluster's workers are threads or processes by radiosity.cluster.processes
-    for a scene of `samples` camera samples (runtime/cluster.local_mode)."""
+    """open_client with the cluster flags (adaptive, tls, batch-job options) and the command's
+    settings `st` (None: the flags' own, settings_from_flags); with `st`, a local cluster's
+    workers are threads or processes by radiosity.cluster.processes for a scene of `samples`
+    camera samples (runtime/cluster.local_mode)."""
     from radiosity.runtime.cluster import local_mode, open_client
 
     if st is not None:
         kw["in_process"], kw["where"] = local_mode(st.cluster.processes, samples,
                                                    st.cluster.in_process_samples)
-    return open_client(workers, scheduler, cluster_kind, echo=click.echo,
+    cl = (st if st is not None else settings_from_flags()).cluster
+    return open_client(workers, scheduler, cluster_kind, echo=click.echo, settings=cl,
                        **{**cluster_from_flags(), **kw})

@@ -8,7 +8,7 @@ import os
 import click
 
 from radiosity.cli.options import (POSITIVE_INT, _client, _number_list, cluster_options,
-                                   force_option)
+                                   force_option, settings_from_flags)
 from radiosity.cli.summary import _friendly
 from radiosity.errors import RadiosityError
 
@@ -74,12 +74,13 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
     ks = [k for k in kernels.split(",") if k]
     if epsilons:
         ks += [f"{HIER}:{e:g}:{k}" for e in _floats(epsilons) for k in _floats(link_rays, int)]
+    st = settings_from_flags(solve__solver=solver)
     for k in ks:
-        kernel_setting(k)  # a bad name or count fails before the cluster starts
+        kernel_setting(k, st)  # a bad name or count fails before the cluster starts
     if reference == "auto":
         from radiosity.validation.reference import load_mitsuba
 
-        load_mitsuba(echo=click.echo)  # Mitsuba missing fails before the sweep
+        load_mitsuba(st.reference.variant, echo=click.echo)  # Mitsuba missing fails first
     elif reference is not None and not os.path.isfile(reference):
         raise RadiosityError(f"--reference {reference}: no such file (give an EXR image, or auto)")
     pts = _floats(path_tracer_spp, int) if path_tracer_spp else None
@@ -87,7 +88,7 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
     with _client(workers, scheduler, cluster_kind) as client:
         rows = accuracy(scene, out, client, _floats(resolutions, int), _floats(subpixels, int), ks,
                         _floats(tols), reference=reference, solver=solver, echo=click.echo,
-                        reference_spp=reference_spp, path_tracer_spp=pts)
+                        reference_spp=reference_spp, path_tracer_spp=pts, settings=st)
     best = [r for r in rows if r["pareto"]]
     click.echo(f"wrote {out}/results.csv, results.md, accuracy.png; {len(best)} settings on the Pareto front")
 
@@ -109,6 +110,8 @@ def study_seed(scene, out, resolutions, speedup_resolution, max_workers, force):
 
     _check_study_out(out, force, "seed.md")
     n = max_workers or default_workers()
-    res = seed(scene, out, lambda w: open_client(w, quiet=True), _floats(resolutions, int),
-               list(range(1, n + 1)), speedup_resolution, echo=click.echo)
+    st = settings_from_flags()
+    res = seed(scene, out, lambda w: open_client(w, quiet=True, settings=st.cluster),
+               _floats(resolutions, int), list(range(1, n + 1)), speedup_resolution,
+               echo=click.echo, settings=st)
     click.echo(f"wrote {out}/seed.md and its plots; visibility time ~ m^{res['order']:.2f}")

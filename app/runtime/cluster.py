@@ -15,8 +15,6 @@ import sys
 import time
 import warnings
 
-import dask.config
-
 from radiosity import config
 from radiosity.errors import RadiosityError
 from radiosity.runtime.dashboard import dashboard_link
@@ -34,14 +32,9 @@ def default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
 
 
-def _cfg(key: str, default=None):
-    """`radiosity.<key>` with a default for keys that the YAML may not have yet."""
-    return dask.config.get(f"radiosity.{key}", default=default)
-
-
-def tls_mode(tls=None) -> str | None:
-    """None (plain TCP) or "temporary", from `tls` or `radiosity.cluster.tls`."""
-    v = _cfg("cluster.tls", False) if tls is None else tls
+def tls_mode(tls) -> str | None:
+    """None (plain TCP) or "temporary", from `tls` (radiosity.cluster.tls, or --tls)."""
+    v = tls
     if v is None or v is False or (isinstance(v, str) and v.strip().lower() in ("", "false", "no", "off", "none")):
         return None
     if v is True or (isinstance(v, str) and v.strip().lower() in ("temporary", "true", "yes", "on")):
@@ -49,7 +42,7 @@ def tls_mode(tls=None) -> str | None:
     raise RadiosityError(f"radiosity.cluster.tls must be false or temporary, not {v!r}")
 
 
-def make_security(tls=None):
+def make_security(tls):
     """A `distributed.security.Security` for a new cluster, or None for plain TCP."""
     if tls_mode(tls) is None:
         return None
@@ -64,10 +57,10 @@ def make_security(tls=None):
 def adaptive_bounds(adaptive, n: int) -> tuple[int, int] | None:
     """(minimum, maximum) workers for `cluster.adapt`, or None for a fixed size.
 
-    `adaptive` (else `radiosity.cluster.adaptive`): false; true (1 .. n); [min, max];
+    `adaptive` (radiosity.cluster.adaptive, or --adaptive): false; true (1 .. n); [min, max];
     {minimum: .., maximum: ..}; or "min:max". The minimum is at least 1: the engine sizes its
     task windows by the workers it sees when a stage starts."""
-    v = _cfg("cluster.adaptive", False) if adaptive is None else adaptive
+    v = adaptive
     if v is None or v is False or (isinstance(v, str) and v.strip().lower() in ("", "false", "no", "off")):
         return None
     if v is True or (isinstance(v, str) and v.strip().lower() in ("true", "yes", "on")):
@@ -98,17 +91,17 @@ def jobqueue_kwargs(kind: str, threads_per_worker: int | None = None, security=N
     kw = {k.replace("-", "_"): v for k, v in overrides.items() if v is not None}
     if kind in ("sge", "lsf") and "account" in kw:  # their keyword is `project`
         kw.setdefault("project", kw.pop("account"))
-    if "python" not in kw and dask.config.get(f"{section}.python", default=None) is None:
+    if "python" not in kw and config.dask_get(f"{section}.python") is None:
         kw["python"] = sys.executable
     if threads_per_worker and "processes" not in kw:
-        cores = kw.get("cores") or dask.config.get(f"{section}.cores", default=None)
+        cores = kw.get("cores") or config.dask_get(f"{section}.cores")
         if cores:
             kw["processes"] = max(1, int(cores) // int(threads_per_worker))
     if security is not None:
         kw["security"] = security
     # the engine's dashboard page on the batch cluster's scheduler too (merged with the config's
     # scheduler options, which an explicit scheduler_options would otherwise replace)
-    so = dict(kw.get("scheduler_options") or dask.config.get(f"{section}.scheduler-options", default={}) or {})
+    so = dict(kw.get("scheduler_options") or config.dask_get(f"{section}.scheduler-options", {}) or {})
     if "radiosity.runtime.dashboard" not in so.get("preload", []):
         so["preload"] = [*so.get("preload", []), "radiosity.runtime.dashboard"]
     kw["scheduler_options"] = so
@@ -130,7 +123,7 @@ def jobqueue_cluster(kind: str, threads_per_worker: int | None = None, security=
                              f".memory in deploy/jobqueue.yaml, via DASK_CONFIG or ~/.config/dask/)") from None
     except TypeError as e:
         raise RadiosityError(f"bad {JOBQUEUE_KINDS[kind]} option: {e}") from None
-    cluster.radiosity_python = kw.get("python") or dask.config.get(f"jobqueue.{kind}.python", default=None)
+    cluster.radiosity_python = kw.get("python") or config.dask_get(f"jobqueue.{kind}.python")
     return cluster
 
 
@@ -141,8 +134,9 @@ _MALLOC = (("malloc-trim-threshold", "MALLOC_TRIM_THRESHOLD_"),
 _USER_MALLOC = {var: os.environ.get(var) for _, var in _MALLOC}
 
 
-def tune_malloc() -> dict:
-    """This process's glibc malloc thresholds from radiosity.cluster.malloc-* (as the local
+def tune_malloc(settings) -> dict:
+    """This process's glibc malloc thresholds from `settings` (a settings.ClusterSettings:
+    radiosity.cluster.malloc-*; as the local
     workers get them by variable), unless the process started with the variable: the driver
     runs the solve's passes, its final gather and the node table, whose large arrays would
     otherwise be fresh mappings that page-fault on first touch (measured:
@@ -156,7 +150,7 @@ def tune_malloc() -> dict:
         return {}
     done = {}
     for key, var in _MALLOC:
-        value = config.get(f"cluster.{key}")
+        value = getattr(settings, key.replace("-", "_"))
         if value is not None and _USER_MALLOC[var] is None \
                 and mallopt(ctypes.c_int(params[var]), ctypes.c_int(int(value))) == 1:
             done[var] = int(value)
@@ -209,9 +203,10 @@ def scatterable(cls):
 
 
 def _direct(client) -> bool:
-    """Whether scatter() sends straight to the workers: radiosity.cluster.direct-scatter true or
-    false, or auto: when every worker listens on this machine's loopback (a LocalCluster)."""
-    mode = config.get("cluster.direct-scatter")
+    """Whether scatter() sends straight to the workers: radiosity.cluster.direct-scatter (as
+    open_client recorded it on the client; auto for other clients) true or false, or auto: when
+    every worker listens on this machine's loopback (a LocalCluster)."""
+    mode = getattr(client, "radiosity_direct_scatter", "auto")
     if mode != "auto":
         return bool(mode)
     try:
@@ -294,18 +289,20 @@ def local_mode(processes, samples: int | None, limit: int) -> tuple[bool, str]:
     return False, f"auto, {samples} camera samples > {limit}"
 
 
-def local_cluster(n: int, threads_per_worker: int | None = None, security=None, processes: bool | None = None):
-    """A LocalCluster on `radiosity.cluster.host` (127.0.0.1) with its dashboard on loopback."""
+def local_cluster(n: int, settings, threads_per_worker: int | None = None, security=None,
+                  processes: bool | None = None):
+    """A LocalCluster on `settings.host` (radiosity.cluster.*: 127.0.0.1) with its dashboard on
+    loopback."""
     from distributed import LocalCluster
 
     if processes is None:
-        processes = _mode(_cfg("cluster.processes", "auto")) != "off"
+        processes = _mode(settings.processes) != "off"
     processes = bool(processes)
     kw = {}
     if security is not None:
-        kw.update(security=security, protocol="tls://", host=config.get("cluster.host"))
+        kw.update(security=security, protocol="tls://", host=settings.host)
     elif processes:
-        kw.update(host=config.get("cluster.host"))
+        kw.update(host=settings.host)
     else:
         # in-process workers talk over inproc://, which binds no socket (and takes no host).
         # No memory limit: their monitor would measure this whole process (the driver's arrays
@@ -314,23 +311,23 @@ def local_cluster(n: int, threads_per_worker: int | None = None, security=None, 
         kw.update(memory_limit=0)
     env = {}
     for key, var in _MALLOC:
-        value = config.get(f"cluster.{key}")
+        value = getattr(settings, key.replace("-", "_"))
         if value is not None and _USER_MALLOC[var] is None:
             # a nanny takes the variable from os.environ over its config, and puts Dask's
             # 65536 there for the trim threshold when it starts a worker: set ours in both
             # (workers added later find it too)
             os.environ[var] = str(int(value))
             env[f"distributed.nanny.pre-spawn-environ.{var}"] = int(value)
-    with dask.config.set(env):
+    with config.dask_set(env):
         return LocalCluster(n_workers=n,
-                            threads_per_worker=config.get("cluster.threads-per-worker",
-                                                          threads_per_worker),
+                            threads_per_worker=(settings.threads_per_worker if threads_per_worker
+                                                is None else threads_per_worker),
                             processes=processes,
-                            dashboard_address=config.get("cluster.dashboard-address"),
+                            dashboard_address=settings.dashboard_address,
                             # a failed task's traceback goes to the run's log file (faults.py),
                             # not to the terminal from every worker that tried it
                             silence_logs=50, scheduler_kwargs={"preload": [  # dashboard.py's page
-                                *dask.config.get("distributed.scheduler.preload"),
+                                *config.dask_get("distributed.scheduler.preload", []),
                                 "radiosity.runtime.dashboard"]},
                             **kw)
 
@@ -339,10 +336,11 @@ def local_cluster(n: int, threads_per_worker: int | None = None, security=None, 
 def open_client(workers: int | None = None, scheduler: str | None = None, kind: str | None = None,
                 threads_per_worker: int | None = None, quiet: bool = False, echo=print, *,
                 adaptive=None, timeout: float | None = None, tls=None, in_process: bool | None = None,
-                where: str | None = None, **jobqueue_overrides):
+                where: str | None = None, settings, **jobqueue_overrides):
     """Yield a Client: to `scheduler` if given, else a new cluster of `kind` with `workers` workers.
 
-    `kind`: local (default: `radiosity.cluster.kind`), slurm, pbs, sge or lsf.
+    settings: the run's settings.ClusterSettings (radiosity.cluster.*), which every keyword
+    given here overrides. `kind`: local (default: `radiosity.cluster.kind`), slurm, pbs, sge or lsf.
     `adaptive`: false | true | (minimum, maximum) (default `radiosity.cluster.adaptive`); with it
     `workers` is the maximum. `timeout`: seconds to wait for the workers (default
     `radiosity.cluster.worker-timeout`, 300). `tls`: false | "temporary" (default
@@ -353,8 +351,10 @@ def open_client(workers: int | None = None, scheduler: str | None = None, kind: 
     """
     from distributed import Client
 
-    tune_malloc()
-    kind = config.get("cluster.kind", kind)
+    cs = settings
+    tune_malloc(cs)
+    kind = kind or cs.kind
+    tls = cs.tls if tls is None else tls
     if scheduler:
         if tls_mode(tls) is not None:
             raise RadiosityError("radiosity.cluster.tls: temporary makes certificates for a cluster that "
@@ -365,13 +365,14 @@ def open_client(workers: int | None = None, scheduler: str | None = None, kind: 
         except OSError as e:
             raise RadiosityError(f"cannot reach the Dask scheduler at {scheduler}: {e}") from None
         with client:
+            client.radiosity_direct_scatter = cs.direct_scatter
             if not quiet:
                 echo(f"dashboard: {dashboard_link(client)}")
             yield client
         return
-    n = workers or config.get("cluster.workers") or default_workers()
-    bounds = adaptive_bounds(adaptive, n)
-    wait_s = float(timeout if timeout is not None else _cfg("cluster.worker-timeout", DEFAULT_WORKER_TIMEOUT))
+    n = workers or cs.workers or default_workers()
+    bounds = adaptive_bounds(cs.adaptive if adaptive is None else adaptive, n)
+    wait_s = float(timeout if timeout is not None else (cs.worker_timeout or DEFAULT_WORKER_TIMEOUT))
     security = make_security(tls)
     given = {k: v for k, v in jobqueue_overrides.items() if v is not None}
     if kind == "local":
@@ -379,9 +380,9 @@ def open_client(workers: int | None = None, scheduler: str | None = None, kind: 
             warnings.warn(f"{', '.join(sorted(given))} only apply to batch-system clusters "
                           f"(--cluster slurm|pbs|sge|lsf); ignored for the local cluster")
         if in_process is None:
-            in_process = _mode(_cfg("cluster.processes", "auto")) == "off"
+            in_process = _mode(cs.processes) == "off"
         processes = not in_process
-        build = functools.partial(local_cluster, 0 if bounds else n, threads_per_worker,
+        build = functools.partial(local_cluster, 0 if bounds else n, cs, threads_per_worker,
                                   security, processes)
         cluster = start_shielded(build) if processes else build()  # Ctrl-C: the driver only
     elif kind in JOBQUEUE_KINDS:
@@ -394,13 +395,14 @@ def open_client(workers: int | None = None, scheduler: str | None = None, kind: 
         raise RadiosityError(f"unknown cluster kind {kind!r}: use one of local, "
                              + ", ".join(JOBQUEUE_KINDS))
     with cluster, Client(cluster, security=security) as client:
+        client.radiosity_direct_scatter = cs.direct_scatter
         if not quiet:
             if kind == "local":
                 echo(f"cluster: {n} local worker{'s' if n != 1 else ''} as "
                      f"{'threads in this process' if in_process else 'processes'}"
                      + (f" ({where})" if where else ""))
             echo(f"dashboard: {dashboard_link(client)}")
-            if kind == "local" and config.get("cluster.dashboard-address"):
+            if kind == "local" and cs.dashboard_address:
                 from radiosity.runtime.dashboard import page_url
 
                 echo(f"radiosity page: {page_url(client)}")

@@ -29,7 +29,7 @@ from radiosity.formats.trimeshes import load_trimesh
 from radiosity.scene.meshes import MAX_COORD, merge_parallelograms, polygons_from_raw
 from radiosity.scene.meshscene import (DEFAULT_RESOLUTION, DOCS as MESH_DOCS, camera_toml,
                                        default_camera, is_mesh_path, require_emitter)
-from radiosity.settings import Settings, resolve
+from radiosity.settings import Settings
 
 __all__ = ["MAX_COORD", "MAX_RESOLUTION", "MESH_FORMATS", "DEFAULT_REFLECTANCE", "RawMesh",
            "SceneWarning", "load_mesh", "load_obj", "load_trimesh", "merge_parallelograms",
@@ -255,7 +255,7 @@ def _read_meshes(meshes: list, path: str, s: Settings):
         raw = load_mesh(fn, m.get("material", "default"))
         for name, props in raw.materials.items():
             file_mats.setdefault(name, (fn, props))
-        v, n, f, mats = polygons_from_raw(raw, fn, settings=s)
+        v, n, f, mats = polygons_from_raw(raw, fn, s)
         # which way the faces point: as in the file, or fixed (scene/orientation.py, ORIENTS)
         v = orient_polygons(v, n, m.get("orient", "as-is"), f"{path}: [[mesh]] {mi + 1}")
         sources.append(fn)
@@ -328,13 +328,14 @@ def _validation(doc: dict, path: str, names: list) -> dict:
     return dict(validation)
 
 
-def load_scene(path: str, resolution=None, settings: Settings | None = None) -> Scene:
+def load_scene(path: str, resolution=None, *, settings: Settings) -> Scene:
     """Read a scene TOML (or a folder holding scene.toml) into a Scene: its meshes, material
     overrides and camera. A bare mesh file (any of formats.load.MESH_FORMATS) is a scene too:
     its own materials, which must include an emitter, and a default camera
     (scene/meshscene.py; the Scene's `chosen` says which, as a [camera] table to copy).
-    settings: the scene.* tolerances and the ray offset, rays.epsilon (None: resolved here)."""
-    s = resolve(base=settings)
+    settings: the run's settings.Settings (its scene.* tolerances and the ray offset,
+    rays.epsilon)."""
+    s = settings
     path, doc, mesh_scene = _scene_document(path)
     meshes = doc.get("mesh", [])
     if not isinstance(meshes, list) or not meshes:

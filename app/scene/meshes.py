@@ -15,7 +15,7 @@ from radiosity.errors import SceneError
 from radiosity.core.geometry import diameter, polygon_properties
 from radiosity.formats.raw import RawMesh, warn
 from radiosity.scene import meshkernels
-from radiosity.settings import Settings, resolve
+from radiosity.settings import Settings
 
 #: Largest vertex coordinate accepted: fourth powers of lengths (|cross product|^2, r^4 in
 #: the sampled kernels) must stay finite in float64 (1e75^4 = 1e300 < 1.8e308).
@@ -83,19 +83,19 @@ def _quad_shapes(p: np.ndarray, tol: float):
     return planar, convex & planar, other
 
 
-def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Settings | None = None,
+def polygons_from_raw(raw: RawMesh, fn: str, settings: Settings, merge: bool = True,
                       first_face: int = 1):
     """Validate faces and turn them into polygons: (verts (n,4,3), nverts (n,), face (n,), material names).
 
     Non-planar or non-convex quads become two triangles, n-gons a triangle fan; each with a warning
     (the first MAX_FACE_WARNINGS of a file, then one line for the rest). merge=False keeps
     triangle pairs that form parallelograms apart (view factors between the user's own facets).
-    settings: its scene.* tolerances (None: resolved here). first_face: the number the messages
+    settings: the run's (its scene.* tolerances). first_face: the number the messages
     give the file's first face, as the command's files count (1: surfaces.csv, OBJ; 0: the
     view factors' facets.csv). Whole-array operations per face size
     (triangles, quads, n-gons); the first bad face in file order is the one named.
     """
-    sc = resolve(base=settings).scene
+    sc = settings.scene
     tol = sc.planarity_tolerance
     V = np.asarray(raw.vertices, float).reshape(-1, 3)
     nv = len(V)
@@ -180,18 +180,16 @@ def polygons_from_raw(raw: RawMesh, fn: str, merge: bool = True, settings: Setti
     return verts, nverts, face, out_m
 
 
-def merge_parallelograms(verts, nverts, face, mats, tol: float | None = None):
+def merge_parallelograms(verts, nverts, face, mats, tol: float):
     """Merge pairs of coplanar triangles that share a diagonal and form a parallelogram into quads.
 
     Greedy in file order, each triangle merges at most once; keeps the winding (front side).
-    tol: scene.merge-tolerance (None: resolved here). A triangle k tries its edges e = 0, 1, 2
+    tol: scene.merge-tolerance. A triangle k tries its edges e = 0, 1, 2
     and on each the other triangles on that edge in file order (order of their edge slots);
     the first one that is free, of the same material, wound the other way along the edge and
     forms a parallelogram with k (diagonals that bisect each other, coplanar, within tol) is
     its partner (meshkernels.merge_pairs); k becomes the quad, the partner is dropped.
     """
-    if tol is None:
-        tol = resolve().scene.merge_tolerance
     tri = np.nonzero(nverts == 3)[0]
     if len(tri) < 2:
         return verts, nverts, face, mats

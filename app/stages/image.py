@@ -27,7 +27,7 @@ from radiosity.formats.images import read_exr, write_exr, write_png
 from radiosity.formats.meshexport import export_mesh, triangles
 from radiosity.formats.viewer import VIEWER_GROW_PX, VIEWER_MAX_TRIANGLES, write_viewer
 from radiosity.runtime.store import StageFigures
-from radiosity.settings import Settings, resolve
+from radiosity.settings import Settings
 from radiosity.stages.tables import light_tables, write_light_tables
 from radiosity.stages.pixels import (SAMPLINGS, downsample, edge_pixels, facing_side,
                                      pixel_radiance, plane_ids, sample_pixels, sample_raster,
@@ -87,7 +87,7 @@ class ImageFigures(StageFigures):
 # ----------------------------------------------------------------------------- the stage
 
 def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None = None,
-                   exposure: float | str | None = None, settings: Settings | None = None,
+                   exposure: float | str | None = None, *, settings: Settings,
                    sampling: str | None = None, area_samples: int | None = None,
                    edge_samples: int | None = None, progress: bool = False) -> ImageFigures:
     """Image, meshes and viewer of a solved run: writes image.exr, image.png, mesh.glb,
@@ -95,7 +95,7 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
 
     filter, sigma, exposure, sampling, area_samples, edge_samples: None takes `render.filter`,
     `render.sigma`, `render.exposure`, `render.sampling`, `render.area-samples`,
-    `render.edge-samples` of `settings` (None: resolved here); an exposure of None there (or
+    `render.edge-samples` of `settings`; an exposure of None there (or
     "auto" here) is automatic (`auto_exposure` of the final image). progress: a bar (or a
     started and a done line) over the four outputs: image, meshes, viewer, tables. sampling
     "area": each fine pixel is the mean of ceil(area-samples / subpixel)^2 rays over its area
@@ -111,10 +111,10 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
 
     t0 = time.perf_counter()
     sigma_given = sigma is not None
-    st = resolve({"render.filter": filter, "render.sigma": sigma, "render.exposure": exposure,
-                  "render.sampling": sampling, "render.area-samples": area_samples,
-                  "render.edge-samples": edge_samples},
-                 base=settings)
+    st = settings.replace({"render.filter": filter, "render.sigma": sigma,
+                           "render.exposure": exposure, "render.sampling": sampling,
+                           "render.area-samples": area_samples,
+                           "render.edge-samples": edge_samples})
     r = st.render
     if r.sampling not in SAMPLINGS:
         raise RenderError(f"radiosity.render.sampling must be one of {', '.join(SAMPLINGS)}, got "
@@ -245,10 +245,10 @@ def _image_and_meshes(rs, st, part, elements, camera, k: int, raster, radiance, 
     }
 
 
-def previewer(run_dir: str, settings: Settings | None = None):
+def previewer(run_dir: str):
     """A function (2, C, m) radiance -> small sRGB image (h, w, 3) uint8 of the run's camera
     view, for the dashboard's live preview while the solver runs. It reads no setting (box
-    filter, automatic exposure): `settings` is taken for the entry points' common signature."""
+    filter, automatic exposure)."""
     from radiosity.runtime.store import RunStore
 
     rs = RunStore(run_dir)

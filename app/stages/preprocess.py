@@ -319,18 +319,12 @@ def _split_hidden(tasks: _Tasks, el, cams, part, pieces: list, ranges, pts: _Poi
     return part, hfig
 
 
-def preprocess(scene: Scene, out: str, client, subpixel: int | None = None,
-               variant: str | None = None, subscenes: int | None = None,
-               progress: bool = True, settings=None) -> PreprocessFigures:
+def preprocess(scene: Scene, out: str, client, settings, progress: bool = True) -> PreprocessFigures:
     """Camera-driven subdivision as Dask tasks; writes elements, partition and raster to the
     store. With several cameras (scene.views) each sub-element is small enough for every
     camera that sees it (the union of each camera's partition); the raster stored is the run's
-    own camera's. settings: a settings.Settings (None: resolved here); the other arguments
-    override its subdivide section."""
-    from radiosity.settings import resolve
-
-    st = resolve({"subdivide.subpixel": subpixel, "subdivide.variant": variant,
-                  "subdivide.subscenes": subscenes}, base=settings)
+    own camera's. settings: the run's settings.Settings (its subdivide section)."""
+    st = settings
     sd = st.subdivide
     t0 = time.perf_counter()
     subpixel, variant, max_depth = int(sd.subpixel), sd.variant, int(sd.max_depth)

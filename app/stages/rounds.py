@@ -22,7 +22,6 @@ def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: b
     method)."""
     from radiosity.methods.base import get_method, method_of_run
     from radiosity.runtime.store import RunStore, update_report
-    from radiosity.settings import resolve
     from radiosity.stages.solve import run_solve
 
     method = solve_kw.get("method")
@@ -31,7 +30,7 @@ def solve_with_rounds(run_dir: str, client, settings, *, unit=None, occlusion: b
     if n == 0:
         return run_solve(run_dir, client, settings, progress=progress, **solve_kw)
     t0 = time.perf_counter()
-    mid = resolve({"hierarchy.final-gather": "none"}, base=settings)
+    mid = settings.replace({"hierarchy.final-gather": "none"})
     kw = {**solve_kw, "keep_unconverged": True}
     why = None
     if n is None:

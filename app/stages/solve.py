@@ -21,6 +21,7 @@ from radiosity.runtime.monitor import Monitor, progress_bar
 from radiosity.methods.base import CAP_MIN, CAP_PRODUCT
 from radiosity.core.solvers import SOLVERS, anorm, choose_solver, get_solver  # noqa: F401  (SOLVERS: re-exported)
 from radiosity.runtime.store import RunStore, StageFigures
+from radiosity.settings import Settings
 
 
 @dataclass(frozen=True)
@@ -215,18 +216,17 @@ def write_direct_solution(run_dir: str) -> SolveFigures:
     return fig
 
 
-def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
-              kernel: str | None = None, tol: float | None = None, max_iter: int | None = None,
-              progress: bool = True, callback=None, normalise=None, effects=None, preview=None,
-              closure=None, keep_unconverged: bool = False, method: str | None = None,
-              where: str = "auto", x0=None, gather_if=None) -> SolveFigures:
+def run_solve(run_dir: str, client, settings: Settings, *, progress: bool = True,
+              callback=None, effects=None, preview=None, closure=None,
+              keep_unconverged: bool = False, method: str | None = None, where: str = "auto",
+              x0=None, gather_if=None) -> SolveFigures:
     """Solve the run's radiosity system with the method whose stage it holds (or `method`);
     write solution/ and the report's "solve" section.
 
-    settings: a settings.Settings (None: resolved here from dask.config); solver, kernel, tol,
-    max_iter, normalise override it. A solve that does not reach `tol` does not replace a
-    converged solution already in the store (fig.solution says "kept previous"), unless
-    `keep_unconverged`; with none to keep it is written, marked converged = False.
+    settings: the run's settings.Settings (solve.solver, kernel, tol, max-iterations,
+    normalise-rows, ...). A solve that does not reach tol does not replace a converged solution
+    already in the store (fig.solution says "kept previous"), unless `keep_unconverged`; with
+    none to keep it is written, marked converged = False.
 
     effects: an effects.EffectsPlan (grey scenes solve one channel, dead rows skip gathering,
     two-sided elements reached from one side are solved one-sided). preview: a function
@@ -237,11 +237,8 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     gather_if: a function (opened, solved L) -> False where the method's final gather is to be
     skipped (stages/rounds.py: a round follows)."""
     from radiosity.methods.base import get_method, method_of_run
-    from radiosity.settings import resolve
 
-    s = resolve({"solve.solver": solver, "solve.kernel": kernel, "solve.tol": tol,
-                 "solve.max-iterations": max_iter, "solve.normalise-rows": normalise},
-                base=settings)
+    s = settings
     get_kernel(s.solve.kernel)
     t0 = time.perf_counter()
     rs = RunStore(run_dir, "r+")
@@ -316,7 +313,7 @@ def run_solve(run_dir: str, client, settings=None, *, solver: str | None = None,
     y = op.apply(res.radiance)
     final = anorm(Le + rho * y - res.radiance, area) / (anorm(Le, area) or 1.0)
     fin = s if gather_if is None or gather_if(opened, res.radiance) else \
-        resolve({"hierarchy.final-gather": "none"}, base=s)
+        s.replace({"hierarchy.final-gather": "none"})
     # a final gather (the hierarchical method's re-evaluates every link at the leaves): a stage
     gathers = impl.gathers(fin)
     with progress_bar(1, "final gather", progress and gathers, unit="pass") as fbar:

@@ -130,12 +130,10 @@ class Viewer:
     as render_view does. What was opened is read-only: one Viewer serves any number of
     cameras, with the same images as separate render_view calls."""
 
-    def __init__(self, run_dir: str, settings=None):
-        from radiosity.settings import resolve
-
+    def __init__(self, run_dir: str, settings):
         t0 = time.perf_counter()
         self.run_dir = run_dir
-        self.settings = s = resolve(base=settings)
+        self.settings = s = settings
         self.store = rs = RunStore(run_dir)
         if not rs.has("solution"):
             raise RadiosityError(f"{run_dir} has no solution yet: run radiosity render (or solve) "
@@ -197,7 +195,7 @@ class Viewer:
         return View(folder, img, figures)
 
 
-def render_view(run_dir: str, camera: Camera, name: str | None = None, settings=None,
+def render_view(run_dir: str, camera: Camera, name: str | None = None, *, settings,
                 samples: int = VIEW_SAMPLES, exposure: float | None = None) -> View:
     """The image of `camera` from the solved run in `run_dir`, into RUN/views/NAME/ (a Viewer
     opened for this one view; open a Viewer for many)."""

@@ -310,7 +310,7 @@ class VideoWriter:
 
 
 def render_walkthrough(run_dir: str, path, out: str | None = None, name: str | None = None,
-                       settings=None, samples: int | None = None, exposure: float | None = None,
+                       *, settings, samples: int | None = None, exposure: float | None = None,
                        progress: bool = True, keep_frames: bool = True, viewer=None,
                        on_frame=None) -> Walkthrough:
     """Render the camera path `path` (a CameraPath, or a TOML file for load_path) through the

@@ -13,7 +13,6 @@ import os
 import numpy as np
 
 from radiosity.errors import RadiosityError
-from radiosity.settings import Settings
 
 CHANNELS = ("R", "G", "B")
 
@@ -195,12 +194,10 @@ def write_difference_png(path: str, rel: np.ndarray, title: str = "") -> float:
     return lim
 
 
-def compare_files(a_path: str, b_path: str, out: str | None = None,
-                  settings: Settings | None = None) -> dict:
+def compare_files(a_path: str, b_path: str, out: str | None = None) -> dict:
     """Figures of image A against reference B (EXR files; the finer one is box-filtered to the
     coarser grid). B's standard error is used when `<B without .exr>-stderr.exr` exists (what
-    `radiosity reference` writes). With `out`: compare.json and compare.png there. It reads no
-    setting: `settings` is taken for the entry points' common signature."""
+    `radiosity reference` writes). With `out`: compare.json and compare.png there."""
     from radiosity.stages.image import read_exr
 
     a, b = read_exr(a_path), read_exr(b_path)

@@ -20,7 +20,7 @@ import numpy as np
 from radiosity.errors import RadiosityError
 from radiosity.core.bundles import Camera, Scene
 from radiosity.scene.emitters import AreaEmitters
-from radiosity.settings import Settings, resolve
+from radiosity.settings import Settings
 
 INSTALL = "pip install -e '.[reference]'"
 #: drjit's LLVM backend needs this major version or newer (older ones crash in its kernels).
@@ -56,15 +56,13 @@ def find_libllvm(min_major: int = MIN_LLVM) -> str | None:
 _LOADED: dict = {}
 
 
-def load_mitsuba(variant: str | None = None, echo=None, settings: Settings | None = None):
-    """Import Mitsuba 3 and select its variant (None: `reference.variant` of `settings`, resolved
-    here when None): `auto` takes llvm_ad_rgb when drjit's LLVM backend has libLLVM >= 16
-    (DRJIT_LIBLLVM_PATH is set to the newest one found when it is unset), otherwise scalar_rgb,
+def load_mitsuba(variant: str = "auto", echo=None):
+    """Import Mitsuba 3 and select its variant (reference.variant): `auto` takes llvm_ad_rgb
+    when drjit's LLVM backend has libLLVM >= 16 (DRJIT_LIBLLVM_PATH is set to the newest one found when it is unset), otherwise scalar_rgb,
     said in one line through `echo`.
 
     Returns (mitsuba module, variant name).
     """
-    variant = resolve({"reference.variant": variant}, base=settings).reference.variant
     if variant not in ("auto", "llvm_ad_rgb", "scalar_rgb"):
         raise ReferenceError(f"reference.variant {variant!r}: use auto, llvm_ad_rgb or scalar_rgb")
     if _LOADED.get("asked") == variant:
@@ -171,12 +169,10 @@ def _register_twosided_emitter(mi, dr) -> None:
 
 # ----------------------------------------------------------------------------- the conversion
 
-def path_depth(scene: Scene, truncation: float | None = None) -> tuple[int, float]:
+def path_depth(scene: Scene, truncation: float) -> tuple[int, float]:
     """(D, rho_max): the path integrator's max_depth D, the smallest with rho_max^D <= truncation
     (at least 1: paths of one segment see the emitters), and the scene's largest reflectance.
-    truncation None: `reference.truncation`, resolved here."""
-    if truncation is None:
-        truncation = resolve().reference.truncation
+    truncation: reference.truncation."""
     truncation = float(truncation)
     rho = float(np.max(scene.elements.reflectance))
     if rho <= 0.0:
@@ -334,14 +330,11 @@ def _chunks(spp: int, pixels: int, max_samples: int) -> list[int]:
 
 
 def render_passes(mi, msc, spp: int, passes: int, seed: int = 0, sensor=None, echo=None,
-                  max_samples: int | None = None):
+                  *, max_samples: int):
     """K = `passes` independent estimates of `spp // passes` samples per pixel each.
 
     Returns (mean (H, W, 3) float64, stderr (H, W, 3) float64 (std over passes / sqrt K, zero
-    when K = 1), seconds per pass (K,) list). max_samples None: `reference.max-samples-per-call`,
-    resolved here."""
-    if max_samples is None:
-        max_samples = resolve().reference.max_samples_per_call
+    when K = 1), seconds per pass (K,) list). max_samples: reference.max-samples-per-call."""
     max_samples = int(max_samples)
     per = spp // passes
     s = sensor if sensor is not None else msc.sensors()[0]
@@ -385,22 +378,22 @@ def _spp_per_pass(spp: int, passes: int) -> int:
 
 
 def make_reference(scene: Scene, out: str, spp: int | None = None, passes: int | None = None,
-                   seed: int | None = None, variant: str | None = None, echo=print,
-                   settings: Settings | None = None) -> dict:
+                   seed: int | None = None, variant: str | None = None, echo=print, *,
+                   settings: Settings) -> dict:
     """Render `scene` with Mitsuba into `out`: reference.exr (mean radiance), reference-stderr.exr
     (per-pixel standard error) and reference.json (the figures, returned). `spp` is the total
     per pixel, split into `passes` passes (rounded up to a multiple of it). None: the
-    reference.* value of `settings` (resolved here when None)."""
+    reference.* value of `settings`."""
     from radiosity.stages.image import write_exr
 
-    s = resolve({"reference.spp": spp, "reference.passes": passes, "reference.seed": seed,
-                 "reference.variant": variant}, base=settings)
+    s = settings.replace({"reference.spp": spp, "reference.passes": passes,
+                          "reference.seed": seed, "reference.variant": variant})
     ref = s.reference
     spp = int(ref.spp)
     passes = int(ref.passes)
     seed = int(ref.seed)
     per = _spp_per_pass(spp, passes)
-    mi, var = load_mitsuba(echo=echo, settings=s)
+    mi, var = load_mitsuba(s.reference.variant, echo=echo)
     depth, rho = path_depth(scene, ref.truncation)
     os.makedirs(out, exist_ok=True)
     t0 = time.perf_counter()
@@ -451,15 +444,15 @@ def reusable(out: str, scene: Scene, spp: int, passes: int) -> dict | None:
 
 
 def form_factor(scene: Scene, frm: str, to: str, spp: int, passes: int, seed: int = 0,
-                variant: str | None = None, echo=None,
-                settings: Settings | None = None) -> tuple[float, float]:
+                variant: str | None = None, echo=None, *,
+                settings: Settings) -> tuple[float, float]:
     """The form factor from material `frm` to material `to` measured by Mitsuba: irradiance
     meters on the `to` elements, the emitters being `frm` (Le must be grey and uniform on them,
     and nothing else may emit or reflect). F_frm->to = sum_j A_j E_j / (pi Le A_frm).
 
     Returns (F, its standard error over the passes)."""
-    s = resolve({"reference.variant": variant}, base=settings)
-    mi, _ = load_mitsuba(echo=echo, settings=s)
+    s = settings.replace({"reference.variant": variant})
+    mi, _ = load_mitsuba(s.reference.variant, echo=echo)
     el = scene.elements
     names = np.array(el.material_names)[el.material]
     src, dst = np.nonzero(names == frm)[0], np.nonzero(names == to)[0]
@@ -486,11 +479,11 @@ def form_factor(scene: Scene, frm: str, to: str, spp: int, passes: int, seed: in
 
 # ----------------------------------------------------------------------------- for the accuracy study
 
-def reference_at(scene: Scene, out: str, spp: int, passes: int, echo=print,
-                 settings: Settings | None = None):
+def reference_at(scene: Scene, out: str, spp: int, passes: int, echo=print, *,
+                 settings: Settings):
     """Make, or reuse when `out` holds one of this scene and camera with at least `spp` samples
-    in `passes` passes, a reference in `out` (the other reference.* values from `settings`,
-    resolved when None). Returns (mean (H, W, 3), stderr, figures)."""
+    in `passes` passes, a reference in `out` (the other reference.* values from `settings`).
+    Returns (mean (H, W, 3), stderr, figures)."""
     from radiosity.stages.image import read_exr
 
     fig = reusable(out, scene, spp, passes)
@@ -502,16 +495,16 @@ def reference_at(scene: Scene, out: str, spp: int, passes: int, echo=print,
             read_exr(os.path.join(out, "reference-stderr.exr")).astype(np.float64), fig)
 
 
-def path_tracer_runs(scene: Scene, spps, seed: int = 12345, repeat: int = 2, echo=print,
-                     settings: Settings | None = None) -> list[dict]:
+def path_tracer_runs(scene: Scene, spps, seed: int = 12345, repeat: int = 2, echo=print, *,
+                     settings: Settings) -> list[dict]:
     """The path tracer as a method of the study: for each sample count, a render of the scene's
     camera, timed (the conversion and scene build, measured once after a warm-up, plus the best
     of `repeat` renders; the kernel compilation is left out as the engine's numba warm-up is).
     The image kept is the first render's (its seed, not the timing, decides it).
     Returns [{"spp", "time_s", "image" (H, W, 3) float64}]."""
-    s = resolve(base=settings)
+    s = settings
     max_samples = s.reference.max_samples_per_call
-    mi, var = load_mitsuba(echo=echo, settings=s)
+    mi, var = load_mitsuba(s.reference.variant, echo=echo)
     depth, _ = path_depth(scene, s.reference.truncation)
     msc, _ = mitsuba_scene(scene, depth, mi=mi)
     render_passes(mi, msc, 2, 2, seed=seed, max_samples=max_samples)  # warm-up: compiles the kernel

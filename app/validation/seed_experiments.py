@@ -10,17 +10,17 @@ import warnings
 
 import numpy as np
 
-from radiosity.settings import Settings, resolve
+from radiosity.settings import Settings
 
 
 def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256), workers=(1, 2),
-         speedup_res: int = 96, echo=print, settings: Settings | None = None) -> dict:
+         speedup_res: int = 96, echo=print, *, settings: Settings) -> dict:
     """Reproduce the seed's experiments on SCENE (seed §5, §6): preprocessing time against camera
     resolution (Fig. 3), visibility time against the number of sub-elements (Fig. 4), speedup
     against workers (§5.2 table), and the image series (no preprocessing / 50x50 / 70x70 with a
     Gaussian filter, §6). `open_cluster(n)` is a context manager giving a Client of n workers.
     Writes seed-fig3.png, seed-fig4.png, seed-speedup.png, seed-images.png and seed.md.
-    settings: the runs' (None: resolved here)."""
+    settings: the runs'."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -33,7 +33,7 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
 
     compute_visibility = all_pairs_method().build  # the seed's visibility matrix (seed §4.3)
 
-    s = resolve(base=settings)
+    s = settings
     os.makedirs(out, exist_ok=True)
     runs = os.path.join(out, "runs")
     rows = []
@@ -65,9 +65,9 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
         series.append(("no preprocessing", os.path.join(runs, "series", "preview", "image.png")))
         for res, k, filt, label in ((50, 1, "box", "50 x 50"), (70, 2, "gaussian", "70 x 70, Gaussian")):
             d = os.path.join(runs, f"series{res}")
-            render_scene(load_scene(scene_path, resolution=res, settings=s), d, client, s,
-                         subpixel=k, filter=filt, preview=False, progress=False,
-                         echo=lambda *a: None)
+            render_scene(load_scene(scene_path, resolution=res, settings=s), d, client,
+                         s.replace({"subdivide.subpixel": k, "render.filter": filt}),
+                         preview=False, progress=False, echo=lambda *a: None)
             series.append((label, os.path.join(d, "image.png")))
     speed = []
     for w in workers:

@@ -20,7 +20,7 @@ import numpy as np
 from radiosity.errors import RadiosityError
 from radiosity.core.kernels import MC, NXM, get_kernel, kernel_id
 from radiosity.core.solvers import choose_solver
-from radiosity.settings import Settings, resolve, sampling_of
+from radiosity.settings import Settings, sampling_of
 from radiosity.validation.seed_experiments import seed
 
 __all__ = ["COLUMNS", "PATH_TRACER", "HIER", "pareto", "resample", "image_error",
@@ -78,11 +78,11 @@ def sampled_radiance(part, L: np.ndarray, orig: np.ndarray, points: np.ndarray, 
 HIER = "hier"  # a sweep label hier:EPSILON:RAYS is --method hierarchical with those settings
 
 
-def kernel_setting(spec: str, settings: Settings | None = None):
+def kernel_setting(spec: str, settings: Settings):
     """A kernel of a sweep: "point", or a sampled kernel with its sample count, "nxm:16"
     (points per element) or "mc:64" (sample pairs), or the hierarchical method with its
-    epsilon and link rays, "hier:1e-3:16" (kernel: hierarchy.kernel of `settings`, resolved
-    when None). Returns (kernel, dask.config overrides {"radiosity.section.key": value};
+    epsilon and link rays, "hier:1e-3:16" (kernel: hierarchy.kernel of `settings`). Returns
+    (kernel, dask.config overrides {"radiosity.section.key": value};
     `overridden` makes them a Settings)."""
     name, _, n = spec.partition(":")
     if name == HIER:
@@ -94,7 +94,7 @@ def kernel_setting(spec: str, settings: Settings | None = None):
                                  "e.g. hier:1e-3:16") from None
         if not (eps >= 0 and k >= 1 and int(round(k ** 0.5)) ** 2 == k):
             raise RadiosityError(f"setting {spec!r}: epsilon >= 0 and a square number of link rays")
-        return resolve(base=settings).hierarchy.kernel, {
+        return settings.hierarchy.kernel, {
             "radiosity.visibility.method": "hierarchical", "radiosity.hierarchy.epsilon": eps,
             "radiosity.hierarchy.link-rays": k}
     kid = kernel_id(name)
@@ -121,15 +121,15 @@ def _visibility_key(spec: str, settings: Settings) -> str:
 
 
 def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str,
-                       settings: Settings | None = None) -> float:
+                       settings: Settings) -> float:
     """F from material `frm` to material `to` as the run's operator computes it (front sides),
-    with `kernel`; settings: the operator's (None: resolved here)."""
+    with `kernel`; settings: the operator's."""
     from radiosity.methods.base import method_of_run
     from radiosity.stages.solve import normalise_rows
     from radiosity.runtime.store import RunStore
 
     rs = RunStore(run_dir)
-    opened = method_of_run(rs).open(rs, client, resolve({"solve.kernel": kernel}, base=settings))
+    opened = method_of_run(rs).open(rs, client, settings.replace({"solve.kernel": kernel}))
     op, orig, area = opened.op, opened.orig, opened.area
     _, scaling = normalise_rows(op)
     if scaling:
@@ -145,8 +145,8 @@ def form_factor_of_run(run_dir: str, client, kernel: str, frm: str, to: str,
 
 def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels, tols,
              reference: str | None = None, solver: str | None = None, echo=print,
-             reference_spp: int | None = None, path_tracer_spp=None,
-             settings: Settings | None = None) -> list[dict]:
+             reference_spp: int | None = None, path_tracer_spp=None, *,
+             settings: Settings) -> list[dict]:
     """Run the sweep; write results.csv, results.md and accuracy.png into `out` (with
     `reference="auto"` also surfaces.csv and the Mitsuba reference(s) in out/reference/).
 
@@ -170,14 +170,14 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
       sample counts (its error against the higher-spp reference, its time), so the Pareto front
       shows where each method wins.
 
-    solver: solve.solver (None: that of `settings`, resolved here when None).
+    solver: solve.solver (None: that of `settings`, the run's settings.Settings).
     """
     from radiosity.methods.base import all_pairs_method
     from radiosity.stages.preprocess import preprocess
     from radiosity.stages.image import read_exr
     from radiosity.scene.load import load_scene
 
-    s = resolve({"solve.solver": solver}, base=settings)
+    s = settings.replace({"solve.solver": solver})
     os.makedirs(out, exist_ok=True)
     val = load_scene(scene_path, settings=s).validation
     if reference == "auto" and val:
@@ -190,7 +190,7 @@ def accuracy(scene_path: str, out: str, client, resolutions, subpixels, kernels,
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         preprocess(load_scene(scene_path, resolution=min(resolutions), settings=s), warm, client,
-                   progress=False, settings=s)
+                   s, progress=False)
     all_pairs_method().build(warm, client, s, progress=False)
     for res, k in sorted(itertools.product(resolutions, subpixels)):
         run = os.path.join(out, "runs", f"r{res}-k{k}")
@@ -250,7 +250,7 @@ def _sweep_run(scene_path: str, run: str, client, res: int, k: int, kernels, tol
     t = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        pre = preprocess(sc, run, client, subpixel=k, progress=False, settings=s)
+        pre = preprocess(sc, run, client, s.replace({"subdivide.subpixel": k}), progress=False)
     t_pre = time.perf_counter() - t
     t_vis = {}  # per sampling: one-ray kernels share one matrix, nxm / mc cast their own
     current = "none yet"
@@ -281,8 +281,8 @@ def _sweep_run(scene_path: str, run: str, client, res: int, k: int, kernels, tol
             err = abs(f / val["form_factor"] - 1.0)
             t_solve, t_img = time.perf_counter() - t, 0.0
         else:
-            fig = run_solve(run, client, row, solver=solve_with, tol=tol, progress=False,
-                            method=method.name)
+            fig = run_solve(run, client, row.replace({"solve.solver": solve_with, "solve.tol": tol}),
+                            progress=False, method=method.name)
             passes = fig.iterations
             t_solve = time.perf_counter() - t
             t = time.perf_counter()
@@ -339,20 +339,20 @@ def _against_finest(scene_path: str, rows: list[dict], images: dict, echo, s: Se
 
 
 def against_mitsuba(scene_path: str, out: str, rows: list[dict], images: dict, resolutions,
-                    spp: int | None = None, path_tracer_spp=None, echo=print,
-                    settings: Settings | None = None) -> list[dict]:
+                    spp: int | None = None, path_tracer_spp=None, echo=print, *,
+                    settings: Settings) -> list[dict]:
     """Measure every row's image (images[(res, K, kernel, tol)], (res, res, 3)) against Mitsuba
     ground truth, in place: `error` (mean absolute relative error over the pixels wholly inside
     one element), `error_surface` (mean over the elements seen of their mean's relative error),
     `noise_floor` (what an exact image would show against this reference). Renders the path
     tracer at `path_tracer_spp` (default: 1, 4, 16, ... up to spp / 16) at every resolution of
     the sweep and returns its rows; writes surfaces.csv (per element, per setting). spp None:
-    reference.study-spp of `settings` (resolved here when None)."""
+    reference.study-spp of `settings`."""
     from radiosity.validation.compare import box_down, box_down_stderr, element_raster, errors, interior, noise_floor, surface_errors
     from radiosity.validation.reference import path_tracer_runs, reference_at
     from radiosity.scene.load import load_scene
 
-    s = resolve({"reference.study-spp": spp}, base=settings)
+    s = settings.replace({"reference.study-spp": spp})
     spp = int(s.reference.study_spp)
     passes = int(s.reference.passes)
     finest = max(resolutions)

@@ -9,7 +9,7 @@ API and the names the CLI uses; the stage is master.py (driver), task.py (worker
 
 from __future__ import annotations
 
-from radiosity.settings import Settings, resolve
+from radiosity.settings import Settings, options
 from radiosity.viewfactors.facets import Facets, load_facets
 from radiosity.viewfactors.master import ViewFactors, compute_viewfactors, resolve_params
 
@@ -35,21 +35,21 @@ def viewfactors(mesh, *, accuracy: float | None = None, enclosure: str | None = 
     enclosure: auto | on | off; out: run directory (default: a temporary one, removed after);
     client: a distributed.Client (default: a LocalCluster of `workers` for this call, on
     threads in this process for meshes of at most IN_PROCESS_FACETS facets);
-    settings: the run's settings (default: resolved from dask.config)."""
+    settings: a base settings.Settings (default: dask.config's), the options checked over it."""
     import tempfile
 
     from radiosity.runtime.cluster import local_mode, open_client
 
-    settings = resolve({"viewfactors.accuracy": accuracy, "viewfactors.enclosure": enclosure},
-                       base=settings)
+    settings = options(settings, accuracy=accuracy, enclosure=enclosure)
     with tempfile.TemporaryDirectory(prefix="radiosity-vf-") as tmp:
         run = out or tmp
         if client is not None:
-            return compute_viewfactors(mesh, run, client, resume=resume, progress=progress,
-                                       settings=settings).matrix
+            return compute_viewfactors(mesh, run, client, settings, resume=resume,
+                                       progress=progress).matrix
         mesh = load_facets(mesh, settings=settings)
         # (local_mode's size is camera samples for a render; here, facets)
         in_process, _ = local_mode(settings.cluster.processes, len(mesh), IN_PROCESS_FACETS)
-        with open_client(workers, quiet=True, in_process=in_process) as c:
-            return compute_viewfactors(mesh, run, c, resume=resume, progress=progress,
-                                       settings=settings).matrix
+        with open_client(workers, quiet=True, in_process=in_process,
+                         settings=settings.cluster) as c:
+            return compute_viewfactors(mesh, run, c, settings, resume=resume,
+                                       progress=progress).matrix

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radiosity.errors import SceneError
-from radiosity.settings import Settings, resolve
+from radiosity.settings import Settings
 
 
 @dataclass(frozen=True)
@@ -54,17 +54,17 @@ def _from_polygons(parts: list, sources: list) -> Facets:
     return Facets(verts, nverts, normal, center, area, face, source, tuple(sources))
 
 
-def load_facets(mesh, settings: Settings | None = None) -> Facets:
+def load_facets(mesh, settings: Settings) -> Facets:
     """The facets of `mesh`: a path (OBJ, glTF/GLB, PLY, or a scene TOML / its directory, whose
     [[mesh]] files are read and whose camera and materials are ignored), a trimesh.Trimesh, a
-    (vertices (V, 3), faces) pair, a types.Elements, or Facets. Bad input raises SceneError.
-    settings: the run's (its scene tolerances; default: resolved from dask.config)."""
+    trimesh.Scene, a (vertices (V, 3), faces) pair, a types.Elements, or Facets. Bad input
+    raises SceneError.
+    settings: the run's (its scene tolerances)."""
     from radiosity.scene.load import MESH_FORMATS, RawMesh, load_mesh
     from radiosity.core.bundles import Elements
 
     if isinstance(mesh, Facets):
         return mesh
-    settings = resolve(None, base=settings)
     if isinstance(mesh, Elements):
         return Facets(mesh.verts, mesh.nverts, mesh.normal, mesh.center, mesh.area, mesh.face,
                       mesh.source, mesh.sources)
@@ -80,6 +80,8 @@ def load_facets(mesh, settings: Settings | None = None) -> Facets:
             raise SceneError(f"{path}: not a mesh ({', '.join(MESH_FORMATS)}) or a scene TOML")
         parts = [_polygons(load_mesh(fn), fn, settings) for fn in files]
         return _from_polygons(parts, files)
+    if type(mesh).__name__ == "Scene" and hasattr(mesh, "to_geometry"):  # a trimesh.Scene:
+        mesh = mesh.to_geometry()  # its meshes placed by their transforms, as one
     if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
         vertices, faces, name = mesh.vertices, mesh.faces, "mesh"
     elif isinstance(mesh, (tuple, list)) and len(mesh) == 2:
@@ -133,7 +135,7 @@ def _polygons(raw, fn: str, settings: Settings):
             ok = (area > scene.min_relative_area * diam ** 2) & (~quad | (planar & convex))
             if ok.all():
                 return p, sizes.astype(np.int8), np.arange(len(sizes), dtype=np.int32)
-    v, nv, f, _ = polygons_from_raw(raw, fn, merge=False, settings=settings, first_face=0)
+    v, nv, f, _ = polygons_from_raw(raw, fn, settings, merge=False, first_face=0)
     return v, nv, f
 
 

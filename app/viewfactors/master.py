@@ -13,7 +13,7 @@ import numpy as np
 
 from radiosity.core.tolerances import TOL
 from radiosity.errors import RadiosityError
-from radiosity.settings import Settings, ViewFactorSettings, resolve
+from radiosity.settings import Settings, ViewFactorSettings
 from radiosity.viewfactors.facets import Facets, load_facets
 from radiosity.viewfactors.store import read_vf_task
 from radiosity.viewfactors.task import COUNTERS, STAGES, Inputs, Params, task_viewfactors
@@ -24,11 +24,9 @@ FORMATS = ("npz", "csv")
 PLANE_TOL = TOL.facet_plane   # facing and plane tests (core.tolerances)
 
 
-def resolve_params(accuracy=None, cutoff=None, settings: Settings | None = None) -> Params:
-    """The task parameters of `settings` (default: resolved from dask.config) with the flags
-    --accuracy and --cutoff (None: not given); RadiosityError names a bad value."""
-    s = resolve({"viewfactors.accuracy": accuracy, "viewfactors.cutoff": cutoff}, base=settings)
-    return params_of(s.viewfactors)
+def resolve_params(settings: Settings) -> Params:
+    """The task parameters of `settings`; RadiosityError names a bad value."""
+    return params_of(settings.viewfactors)
 
 
 def params_of(vf: ViewFactorSettings) -> Params:
@@ -128,15 +126,15 @@ class ViewFactors:
     figures: dict
 
 
-def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None, fmt="npz",
-                        cutoff=None, resume: bool = False, progress: bool = True,
-                        on_done=None, settings: Settings | None = None) -> ViewFactors:
+def compute_viewfactors(mesh, out: str, client, settings: Settings, *, fmt="npz",
+                        resume: bool = False, progress: bool = True,
+                        on_done=None) -> ViewFactors:
     """View factors of the facets of `mesh` (load_facets) into the run directory `out`:
     store.zarr (facets, per-task pairs, the CSR matrix), viewfactors.npz, facets.csv
-    (viewfactors.csv with fmt="csv"), report.json (section "viewfactors"). accuracy, enclosure
-    (auto | on | off), cutoff: the flags (None: radiosity.viewfactors.* of `settings`, default
-    resolved from dask.config). resume: keep the finished tasks of an interrupted run with the
-    same inputs. on_done(n) after each finished task (tests)."""
+    (viewfactors.csv with fmt="csv"), report.json (section "viewfactors"). settings: the run's
+    (radiosity.viewfactors.*: accuracy, enclosure auto | on | off, cutoff, ...). resume: keep
+    the finished tasks of an interrupted run with the same inputs. on_done(n) after each
+    finished task (tests)."""
     from dask.base import tokenize
 
     from radiosity.runtime.cluster import Scattered
@@ -147,8 +145,7 @@ def compute_viewfactors(mesh, out: str, client, *, accuracy=None, enclosure=None
     from radiosity.viewfactors.store import VFLedger
 
     t_start = time.perf_counter()
-    s = resolve({"viewfactors.accuracy": accuracy, "viewfactors.enclosure": enclosure,
-                 "viewfactors.cutoff": cutoff}, base=settings)
+    s = settings
     vf = s.viewfactors
     if vf.enclosure not in ENCLOSURE_MODES:
         raise RadiosityError(f"--enclosure must be one of {', '.join(ENCLOSURE_MODES)}, "

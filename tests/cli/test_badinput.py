@@ -11,6 +11,7 @@ from click.testing import CliRunner
 
 from radiosity.cli.commands import main
 from helpers import scene_path
+from radiosity.settings import options as settings_of
 
 S = scene_path("three-rectangles")
 
@@ -199,7 +200,7 @@ def test_a_camera_that_sees_one_small_thing_is_not_refused(tmp_path):
     """
     path = write_scene(tmp_path, obj, "[material.default]\nemission = [1.0, 1.0, 1.0]\n"
                                       "reflectance = [0.0, 0.0, 0.0]\n", camera=cam)
-    sc = load_scene(path)
+    sc = load_scene(path, settings=settings_of())
     assert 600 > COARSE_RAYS
     assert check_scene(sc, resolve())["hits"] >= 1
 
@@ -224,7 +225,7 @@ def test_a_huge_coordinate_is_rejected_up_front(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no overflow warning, no "non-convex quad" on the way
         with pytest.raises(SceneError, match="face 1 has a vertex coordinate of 1e.300"):
-            load_scene(path)
+            load_scene(path, settings=settings_of())
 
 
 def test_plan_dead_rows_add_up_on_coaxial_discs():

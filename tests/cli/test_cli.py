@@ -12,6 +12,7 @@ from click.testing import CliRunner
 from radiosity.cli.commands import main
 from radiosity.stages.image import read_exr
 from helpers import FLOOR_AND_TRIANGLE, ROOT, scene_path, write_scene
+from radiosity.settings import options as settings_of
 
 DATA = os.path.join(ROOT, "tests", "data")
 # built-in scenes with an exact answer at every pixel: closed, uniform Le = 1 and rho = 0.5, so
@@ -130,14 +131,15 @@ def test_coaxial_discs_through_the_pipeline_against_the_exact_form_factor(client
     from radiosity.scene.load import load_scene
     from radiosity.validation.study import form_factor_of_run
 
-    val = load_scene(scene_path("coaxial-discs")).validation
+    val = load_scene(scene_path("coaxial-discs"), settings=settings_of()).validation
     errs = []
     for res in (8, 16):
         out = tmp_path / f"r{res}"
         r = CliRunner().invoke(main, ["render", scene_path("coaxial-discs"), "--out", str(out), "--resolution",
                                       str(res), "--full", "--no-preview", "--scheduler", client.scheduler.address])
         assert r.exit_code == 0, r.output
-        f = form_factor_of_run(str(out), client, "point-nf", val["from"], val["to"])
+        f = form_factor_of_run(str(out), client, "point-nf", val["from"], val["to"],
+                               settings=settings_of())
         errs.append(f / val["form_factor"] - 1)
     print(f"coaxial discs: F error {errs}")
     assert errs[1] == pytest.approx(0.0527, abs=1e-3) and errs[1] < errs[0]

@@ -17,6 +17,7 @@ from click.testing import CliRunner
 
 from radiosity.cli.commands import main
 from helpers import SCENES, box_polygons
+from radiosity.settings import options as settings_of
 
 ROOM = ((0.0, 0.0, 0.0), (4.0, 3.0, 5.0))
 CAMERA = """
@@ -121,7 +122,7 @@ def test_a_lamp_outside_among_lamps_that_light_is_a_warning(tmp_path):
     said = (r"light of material 'light2' of lamp.obj \(\[\[mesh\]\] 2\) reaches no element "
             r"\(\d+ of 256 rays meet the backs")
     with pytest.warns(UserWarning, match=said):
-        fig = check_scene(load_scene(path), resolve())
+        fig = check_scene(load_scene(path, settings=settings_of()), resolve())
     assert {e["material"]: e["reached"] > 0 for e in fig["orientation"]["emitters"]} == \
         {"light": True, "light2": False}
 
@@ -145,7 +146,7 @@ def test_no_false_alarm(tmp_path, kind):
     for p in paths:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the scenes' own (non-planar quads split)
-            sc = load_scene(p)
+            sc = load_scene(p, settings=settings_of())
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always")
             fig = check_scene(sc, resolve())["orientation"]

@@ -21,6 +21,7 @@ from radiosity.runtime.cluster import (adaptive_bounds, jobqueue_cluster, jobque
 from radiosity.errors import RadiosityError
 
 from helpers import ROOT, scene_path
+from radiosity.settings import options as settings_of
 
 LOOPBACK_SCHEDULER = {"host": "127.0.0.1", "dashboard_address": "127.0.0.1:0"}
 
@@ -36,7 +37,8 @@ def test_local_cluster_binds_scheduler_dashboard_and_workers_to_loopback(monkeyp
     # over its config): ours must still reach the workers
     monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
     lines = []
-    with dask.config.set({"radiosity.cluster.tls": False}), open_client(1, kind="local", echo=lines.append) as c:
+    with dask.config.set({"radiosity.cluster.tls": False}), \
+            open_client(1, kind="local", echo=lines.append, settings=settings_of().cluster) as c:
         assert c.scheduler.address.startswith("tcp://127.0.0.1:")
         assert c.dashboard_link.startswith("http://127.0.0.1:")
         workers = c.scheduler_info()["workers"]
@@ -57,13 +59,13 @@ def test_in_process_workers_have_no_memory_limit_so_they_never_pause():
     driver's arrays too) against a share of the machine and pause them; a paused worker takes
     no scatter, and the link stage after a large cluster layer failed with "No valid workers
     found". Worker processes keep Dask's limit."""
-    with open_client(2, kind="local", quiet=True, in_process=True) as c:
+    with open_client(2, kind="local", quiet=True, in_process=True, settings=settings_of().cluster) as c:
         limits = [w["memory_limit"] for w in c.scheduler_info()["workers"].values()]
         assert limits == [0, 0]
         big = np.ones(1 << 20)
         [f] = c.scatter([big], broadcast=True)
         assert c.submit(np.sum, f).result() == 1 << 20
-    with open_client(1, kind="local", quiet=True, in_process=False) as c:
+    with open_client(1, kind="local", quiet=True, in_process=False, settings=settings_of().cluster) as c:
         assert all(w["memory_limit"] > 0 for w in c.scheduler_info()["workers"].values())
 
 
@@ -74,14 +76,14 @@ def test_the_driver_gets_the_workers_malloc_thresholds_unless_its_environment_se
     import radiosity.runtime.cluster as rc
 
     monkeypatch.setattr(rc, "_USER_MALLOC", {var: None for _, var in rc._MALLOC})
-    assert rc.tune_malloc() == {"MALLOC_TRIM_THRESHOLD_": 67108864,
+    assert rc.tune_malloc(settings_of().cluster) == {"MALLOC_TRIM_THRESHOLD_": 67108864,
                                 "MALLOC_MMAP_THRESHOLD_": 67108864}
     monkeypatch.setattr(rc, "_USER_MALLOC", {"MALLOC_TRIM_THRESHOLD_": "131072",
                                              "MALLOC_MMAP_THRESHOLD_": None})
     with dask.config.set({"radiosity.cluster.malloc-mmap-threshold": 1 << 25}):
-        assert rc.tune_malloc() == {"MALLOC_MMAP_THRESHOLD_": 1 << 25}
+        assert rc.tune_malloc(settings_of().cluster) == {"MALLOC_MMAP_THRESHOLD_": 1 << 25}
     with dask.config.set({"radiosity.cluster.malloc-mmap-threshold": None}):
-        assert rc.tune_malloc() == {}
+        assert rc.tune_malloc(settings_of().cluster) == {}
 
 
 def test_trim_malloc_hands_back_the_pages_of_arrays_freed_in_the_middle_of_the_heap():
@@ -116,17 +118,18 @@ def test_tls_temporary_local_cluster_runs_preprocess_and_visibility(small_scene,
     from radiosity.scene.load import load_scene
     from radiosity.methods.pairs.visibility import compute_visibility
 
-    sc = load_scene(small_scene)
-    with dask.config.set({"radiosity.cluster.tls": "temporary"}), open_client(1, kind="local", quiet=True) as c:
+    sc = load_scene(small_scene, settings=settings_of())
+    with dask.config.set({"radiosity.cluster.tls": "temporary"}), \
+            open_client(1, kind="local", quiet=True, settings=settings_of().cluster) as c:
         assert c.scheduler.address.startswith("tls://127.0.0.1:")
         assert all(w.startswith("tls://127.0.0.1:") for w in c.scheduler_info()["workers"])
         assert c.security.require_encryption
-        preprocess(sc, str(tmp_path / "tls"), c, progress=False)
-        fig = compute_visibility(str(tmp_path / "tls"), c, progress=False)
+        preprocess(sc, str(tmp_path / "tls"), c, settings_of(), progress=False)
+        fig = compute_visibility(str(tmp_path / "tls"), c, settings_of(), progress=False)
     assert fig["tasks_computed"] == fig["tasks"] > 0
     # the same stages over plain TCP (the session's cluster) give the same answer
-    preprocess(sc, str(tmp_path / "tcp"), client, progress=False)
-    ref = compute_visibility(str(tmp_path / "tcp"), client, progress=False)
+    preprocess(sc, str(tmp_path / "tcp"), client, settings_of(), progress=False)
+    ref = compute_visibility(str(tmp_path / "tcp"), client, settings_of(), progress=False)
     for k in ("sub_elements", "pairs_facing", "pairs_visible", "rays"):
         assert fig[k] == ref[k], k
 
@@ -135,7 +138,8 @@ def test_adaptive_local_cluster_scales_up_under_load_and_down_when_idle():
     """adaptive (1, 2): one worker while idle; 40 half-second tasks (20 s of work, beyond
     the scheduler's 5 s target per worker) bring the second; once idle again the cluster
     retires back to one."""
-    with open_client(2, kind="local", quiet=True, adaptive=(1, 2), timeout=60) as c:
+    with open_client(2, kind="local", quiet=True, adaptive=(1, 2), timeout=60,
+                     settings=settings_of().cluster) as c:
         def workers():
             return len(c.scheduler_info()["workers"])
 
@@ -162,7 +166,7 @@ def test_tls_and_adaptive_settings_parse():
     assert tls_mode(False) is None and tls_mode("false") is None and tls_mode(None) is None
     assert tls_mode("temporary") == "temporary" and tls_mode(True) == "temporary"
     with dask.config.set({"radiosity.cluster.tls": "temporary"}):
-        assert tls_mode() == "temporary"
+        assert tls_mode(settings_of().cluster.tls) == "temporary"
     with pytest.raises(RadiosityError, match="false or temporary"):
         tls_mode("mutual")
     assert adaptive_bounds(False, 4) is None
@@ -177,14 +181,14 @@ def test_tls_and_adaptive_settings_parse():
 def test_batch_kind_without_its_submit_command_fails_clearly(tmp_path, monkeypatch):
     monkeypatch.setenv("PATH", str(tmp_path))  # no qsub here
     with pytest.raises(RadiosityError, match="qsub.*not on PATH"):
-        with open_client(1, kind="pbs", quiet=True):
+        with open_client(1, kind="pbs", quiet=True, settings=settings_of().cluster):
             pass
     with pytest.raises(RadiosityError, match="unknown cluster kind"):
-        with open_client(1, kind="kubernetes", quiet=True):
+        with open_client(1, kind="kubernetes", quiet=True, settings=settings_of().cluster):
             pass
     with dask.config.set({"radiosity.cluster.tls": "temporary"}), \
             pytest.raises(RadiosityError, match="running scheduler over TLS"):
-        with open_client(scheduler="tcp://127.0.0.1:1", quiet=True):
+        with open_client(scheduler="tcp://127.0.0.1:1", quiet=True, settings=settings_of().cluster):
             pass
 
 
@@ -269,7 +273,7 @@ def test_render_through_slurm_jobs_equals_local_render(client, tmp_path):
     from radiosity.scene.load import load_scene
     from radiosity.runtime.store import RunStore
 
-    sc = load_scene(scene_path("three-rectangles"), resolution=12)
+    sc = load_scene(scene_path("three-rectangles"), resolution=12, settings=settings_of())
     logs = tmp_path / "slurm-logs"
     logs.mkdir()
     lines = []
@@ -278,18 +282,18 @@ def test_render_through_slurm_jobs_equals_local_render(client, tmp_path):
             open_client(2, kind="slurm", echo=lines.append, cores=1, processes=1, memory="1GB",
                         walltime="00:10:00", timeout=120, job_name=f"radiosity-test-{os.getpid()}",
                         log_directory=str(logs), scheduler_options=LOOPBACK_SCHEDULER,
-                        worker_extra_args=["--host", "127.0.0.1"]) as c:
+                        worker_extra_args=["--host", "127.0.0.1"], settings=settings_of().cluster) as c:
         t_up = time.perf_counter() - t0
         assert c.scheduler.address.startswith("tcp://127.0.0.1:")
         assert len(_squeue()) == 2  # the two workers are Slurm jobs
         assert len(c.scheduler_info()["workers"]) == 2
-        render_scene(sc, str(tmp_path / "slurm"), c, preview=False, progress=False)
+        render_scene(sc, str(tmp_path / "slurm"), c, settings_of(), preview=False, progress=False)
     t_render = time.perf_counter() - t0 - t_up
     left = _wait_queue_empty()
     assert not left, f"jobs left in the queue: {left}"
     assert any("worker(s) connected" in line for line in lines)
 
-    render_scene(sc, str(tmp_path / "local"), client, preview=False, progress=False)
+    render_scene(sc, str(tmp_path / "local"), client, settings_of(), preview=False, progress=False)
     a = RunStore(str(tmp_path / "slurm")).read_arrays("solution")["radiance"]
     b = RunStore(str(tmp_path / "local")).read_arrays("solution")["radiance"]
     assert a.shape == b.shape and len(a) > 3
@@ -306,7 +310,7 @@ def test_tls_with_slurm_workers_runs_the_stages(small_scene, client, tmp_path):
     from radiosity.scene.load import load_scene
     from radiosity.methods.pairs.visibility import compute_visibility
 
-    sc = load_scene(small_scene)
+    sc = load_scene(small_scene, settings=settings_of())
     certs = tmp_path / "certs"
     certs.mkdir()
     with dask.config.set({"radiosity.cluster.tls": "temporary"}), \
@@ -314,17 +318,17 @@ def test_tls_with_slurm_workers_runs_the_stages(small_scene, client, tmp_path):
                         walltime="00:10:00", timeout=120, job_name=f"radiosity-test-{os.getpid()}",
                         log_directory=str(tmp_path), shared_temp_directory=str(certs),
                         scheduler_options=LOOPBACK_SCHEDULER,
-                        worker_extra_args=["--host", "127.0.0.1"]) as c:
+                        worker_extra_args=["--host", "127.0.0.1"], settings=settings_of().cluster) as c:
         assert c.scheduler.address.startswith("tls://127.0.0.1:")
         workers = c.scheduler_info()["workers"]
         assert len(workers) == 1 and all(w.startswith("tls://127.0.0.1:") for w in workers)
         assert c.security.require_encryption and len(_squeue()) == 1  # the worker is a Slurm job
-        preprocess(sc, str(tmp_path / "tls"), c, progress=False)
-        fig = compute_visibility(str(tmp_path / "tls"), c, progress=False)
+        preprocess(sc, str(tmp_path / "tls"), c, settings_of(), progress=False)
+        fig = compute_visibility(str(tmp_path / "tls"), c, settings_of(), progress=False)
     left = _wait_queue_empty()
     assert not left, f"jobs left in the queue: {left}"
-    preprocess(sc, str(tmp_path / "tcp"), client, progress=False)
-    ref = compute_visibility(str(tmp_path / "tcp"), client, progress=False)
+    preprocess(sc, str(tmp_path / "tcp"), client, settings_of(), progress=False)
+    ref = compute_visibility(str(tmp_path / "tcp"), client, settings_of(), progress=False)
     for k in ("sub_elements", "pairs_facing", "pairs_visible", "rays"):
         assert fig[k] == ref[k], k
 
@@ -335,8 +339,9 @@ def test_unsatisfiable_slurm_jobs_fail_with_what_to_check(tmp_path):
         with open_client(1, kind="slurm", quiet=True, cores=1, processes=1, memory="1GB",
                          walltime="00:05:00", timeout=4, log_directory=str(tmp_path),
                          job_name=f"radiosity-test-{os.getpid()}",
-                         job_extra_directives=["--begin=now+1hour"],  # pending for an hour
-                         scheduler_options=LOOPBACK_SCHEDULER, worker_extra_args=["--host", "127.0.0.1"]):
+                         job_extra_directives=["--begin=now+1hour"],
+                         scheduler_options=LOOPBACK_SCHEDULER,
+                         worker_extra_args=["--host", "127.0.0.1"], settings=settings_of().cluster):
             pass
     msg = str(e.value)
     assert "0 of 1 Dask workers connected within 4 s" in msg

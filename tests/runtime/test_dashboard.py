@@ -17,6 +17,7 @@ import time
 import pytest
 
 from helpers import CHROMIUM, ROOT, scene_path
+from radiosity.settings import options as settings_of
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -168,17 +169,17 @@ def test_dashboard_page_in_chromium(tmp_path):
     lines: list[str] = []
     with dask.config.set({"radiosity.cluster.host": "127.0.0.1",
                           "radiosity.cluster.dashboard-address": "127.0.0.1:0"}), \
-            open_client(workers=1, kind="local", echo=lines.append) as client:
+            open_client(workers=1, kind="local", echo=lines.append, settings=settings_of().cluster) as client:
         url = page_url(client)
         assert url.startswith("http://127.0.0.1:") and url.endswith(PATH)
         assert f"radiosity page: {url}" in lines, lines
         t_cluster = time.perf_counter() - t0
 
         # a tiny real run publishes every key: run, visibility, solve, preview
-        sc = load_scene(scene_path("cornell-box"), resolution=16)  # 20 originals, 9 CG passes
-        preprocess(sc, out, client, progress=False)
-        compute_visibility(out, client, progress=False)
-        run_solve(out, client, progress=False)
+        sc = load_scene(scene_path("cornell-box"), resolution=16, settings=settings_of())  # 20 originals, 9 CG passes
+        preprocess(sc, out, client, settings_of(), progress=False)
+        compute_visibility(out, client, settings_of(), progress=False)
+        run_solve(out, client, settings_of(), progress=False)
         assert client.get_metadata(["radiosity", "preview"])["png"]
         t_run = time.perf_counter() - t0 - t_cluster
 

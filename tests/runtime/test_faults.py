@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from helpers import scene_path
+from radiosity.settings import options as settings_of
 
 S = scene_path("three-rectangles")
 from helpers import ROOT  # noqa: E402
@@ -269,7 +270,7 @@ def test_corrupted_zstd_frame_stops_solve_in_one_line_and_resume_recomputes_it(c
     r = cli(["solve", run_dir], client)
     one_error(r, f"of {run_dir} is corrupted (unreadable chunk",
               f"run radiosity visibility {run_dir} --resume")
-    fig = compute_visibility(run_dir, client, resume=True, progress=False)
+    fig = compute_visibility(run_dir, client, settings_of(), resume=True, progress=False)
     assert fig.tasks_corrupted_recomputed == 1 and fig.tasks_computed == 1
     np.testing.assert_array_equal(dense_visibility(RunStore(run_dir)), before)
     r = cli(["solve", run_dir], client)
@@ -546,7 +547,7 @@ def test_image_names_the_solve_command_and_warns_about_idle_filters(client, tmp_
     run_dir = prepared(client, tmp_path, S, 8)
     r = cli(["image", run_dir])
     one_error(r, f"{run_dir} has no solution yet: run radiosity solve {run_dir} first")
-    run_solve(run_dir, client, progress=False)
+    run_solve(run_dir, client, settings_of(), progress=False)
     r = cli(["image", run_dir, "--filter", "gaussian"])
     assert r.exit_code == 0 and "warning:" in r.output and "has no sub-samples" in r.output, r.output
     r = cli(["image", run_dir, "--sigma", "2"])

@@ -20,6 +20,7 @@ from radiosity.stages.solve import run_solve
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore
 from helpers import prepared, radiance, scene_path
+from radiosity.settings import options as settings_of
 
 
 def test_corrupted_bits_stop_the_solve_and_visibility_resume_repairs_them(client, tmp_path):
@@ -27,7 +28,7 @@ def test_corrupted_bits_stop_the_solve_and_visibility_resume_repairs_them(client
     `radiosity visibility RUN --resume` recomputes the task -> solve gives the first answer."""
     sched = ["--scheduler", client.scheduler.address]
     ref = prepared(client, tmp_path, scene_path("cornell-box"), 10, name="ref")
-    run_solve(ref, client, progress=False)
+    run_solve(ref, client, settings_of(), progress=False)
     out = prepared(client, tmp_path, scene_path("cornell-box"), 10, name="run")
     rs = RunStore(out, "r+")
     plan = VisibilityStore(rs).plan()
@@ -73,7 +74,7 @@ def test_worker_killed_during_solve_gives_the_same_answer(killable, tmp_path, so
     c.wait_for_workers(2, timeout=180)  # a worker's start takes long on a loaded machine
     out = prepared(c, tmp_path, scene_path("cornell-box"), 12, visibility=False)
     get_method(method).build(out, c, None, progress=False)
-    ref = run_solve(out, c, solver=solver, tol=1e-10, progress=False, where="cluster")
+    ref = run_solve(out, c, settings_of(solver=solver, tol=1e-10), progress=False, where="cluster")
     L_ref = radiance(out)
     workers = sorted(c.scheduler_info()["workers"])
     pids = c.run(os.getpid)
@@ -88,8 +89,8 @@ def test_worker_killed_during_solve_gives_the_same_answer(killable, tmp_path, so
             killed.append(threading.Thread(target=later))
             killed[0].start()
 
-    fig = run_solve(out, c, solver=solver, tol=1e-10, progress=False, callback=kill_soon,
-                    where="cluster")
+    fig = run_solve(out, c, settings_of(solver=solver, tol=1e-10), progress=False,
+                    callback=kill_soon, where="cluster")
     killed[0].join()
     assert victim not in c.run(os.getpid).values()  # it really died (the nanny started another)
     assert fig["converged"] and fig["iterations"] == ref["iterations"]

@@ -13,6 +13,7 @@ from radiosity.scene.load import load_scene
 from radiosity.stages.solve import RowTargets, normalise_rows, resolve_closure, row_mode
 from radiosity.methods.base import CAP_PRODUCT
 from helpers import scene_path, write_scene
+from radiosity.settings import options as settings_of
 
 
 def _box(lo, hi, inward: bool, n: int = 1, skip=()):
@@ -67,7 +68,7 @@ def _scene(tmp_path, groups, two_sided: bool = False) -> str:
 
 
 def _furnished():
-    return load_scene(scene_path("furnished-room")).elements
+    return load_scene(scene_path("furnished-room"), settings=settings_of()).elements
 
 
 def _material(el, name):
@@ -96,7 +97,7 @@ def test_contact_faces_of_the_furnished_room():
 
 @pytest.mark.parametrize("name", ["cornell-box", "room-2400", "furnace-cube"])
 def test_no_contact_faces_in_clean_scenes(name):
-    el = load_scene(scene_path(name)).elements
+    el = load_scene(scene_path(name), settings=settings_of()).elements
     assert not find_contacts(el, 1e-6).any()
     assert detect_closure(el, 1e-6).to_dict()["contact_sides"] == 0
 
@@ -109,7 +110,7 @@ def test_two_boxes_pressed_together(tmp_path, gap, touching):
     room = _box((0, 0, 0), (1, 1, 1), inward=True, n=2)
     a = _box((0.2, 0.0, 0.3), (0.5, 0.4, 0.6), inward=False)
     b = _box((0.5 + gap, 0.0, 0.3), (0.8, 0.3, 0.6), inward=False)
-    el = load_scene(_scene(tmp_path, [("room", room), ("a", a), ("b", b)])).elements
+    el = load_scene(_scene(tmp_path, [("room", room), ("a", a), ("b", b)]), settings=settings_of()).elements
     c = find_contacts(el, 1e-6)[:, 0]
     a_x1 = _material(el, "a") & (el.normal[:, 0] > 0.99)
     b_x0 = _material(el, "b") & (el.normal[:, 0] < -0.99)
@@ -143,7 +144,8 @@ def test_furnished_room_is_closed_with_targets_one_but_on_contact_sides():
 def test_two_sided_closed_shell_is_closed_and_its_backs_see_the_void(tmp_path):
     room = _box((0, 0, 0), (1, 1, 1), inward=True, n=2)
     light = [np.array([[0.4, 0.999, 0.4], [0.4, 0.999, 0.6], [0.6, 0.999, 0.6], [0.6, 0.999, 0.4]])]
-    el = load_scene(_scene(tmp_path, [("shell", room), ("light", light)], two_sided=True)).elements
+    el = load_scene(_scene(tmp_path, [("shell", room), ("light", light)], two_sided=True),
+                    settings=settings_of()).elements
     assert el.two_sided.all()
     cl = detect_closure(el, 1e-6)
     assert cl.closed, cl.reason
@@ -159,7 +161,7 @@ def test_two_sided_closed_shell_is_closed_and_its_backs_see_the_void(tmp_path):
 
 def test_open_box_is_open_and_its_sides_that_see_out_have_targets_below_one(tmp_path):
     box = _box((0, 0, 0), (1, 1, 1), inward=True, n=2, skip=("z0",))
-    el = load_scene(_scene(tmp_path, [("box", box)])).elements
+    el = load_scene(_scene(tmp_path, [("box", box)]), settings=settings_of()).elements
     cl = detect_closure(el, 1e-6)
     assert not cl.closed and cl.reason.startswith("open")
     far = el.normal[:, 2] < -0.99                          # the face opposite the opening

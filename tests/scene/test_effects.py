@@ -12,6 +12,7 @@ from radiosity.scene.effects import plan_effects
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
 from helpers import scene_path, write_scene
+from radiosity.settings import options as settings_of
 
 CAM_ABOVE = """
 [camera]
@@ -57,8 +58,9 @@ def _both(client, tmp_path, path, **kw):
     out = []
     for full in (False, True):
         d = str(tmp_path / ("full" if full else "planned"))
-        rep = render_scene(load_scene(path), d, client, preview=False, progress=False, full=full,
-                           echo=lambda *a: None, tol=1e-12, **kw)
+        rep = render_scene(load_scene(path, settings=settings_of()), d, client,
+                           settings_of(tol=1e-12, **kw), preview=False, progress=False,
+                           full=full, echo=lambda *a: None)
         out += [rep, RunStore(d).read_arrays("solution")["radiance"]]
     return out
 
@@ -88,7 +90,7 @@ reflectance = [0.5, 0.5, 0.5]
 
 def test_occlusion_off_in_a_convex_enclosure(client, tmp_path):
     path = scene_path("furnace-cube")
-    p = plan_effects(load_scene(path).elements)
+    p = plan_effects(load_scene(path, settings=settings_of()).elements)
     assert not p.occlusion and "convex" in p.reasons["occlusion"]
     plan_rep, L, full_rep, Lf = _both(client, tmp_path, path)
     _same(L, Lf)
@@ -102,7 +104,7 @@ def test_no_interreflection_solves_direct_emission_only(client, tmp_path):
     mats = COLOURED.replace("[0.6, 0.5, 0.4]", "[0.0, 0.0, 0.0]").replace("[0.3, 0.7, 0.3]", "[0, 0, 0]") \
         .replace("reflectance = [0.5, 0.5, 0.5]", "reflectance = [0.0, 0.0, 0.0]")
     path = _scene(tmp_path, mats)
-    assert not plan_effects(load_scene(path).elements).interreflection
+    assert not plan_effects(load_scene(path, settings=settings_of()).elements).interreflection
     plan_rep, L, full_rep, Lf = _both(client, tmp_path, path)
     _same(L, Lf)
     assert plan_rep["solve"]["pair_terms"] == 0 and plan_rep["visibility"]["skipped"]
@@ -114,7 +116,7 @@ def test_grey_scene_solves_one_channel(client, tmp_path):
     mats = COLOURED.replace("[0.6, 0.5, 0.4]", "[0.6, 0.6, 0.6]").replace("[4.0, 3.0, 2.0]", "[3.0, 3.0, 3.0]") \
         .replace("[0.3, 0.7, 0.3]", "[0.4, 0.4, 0.4]")
     path = _scene(tmp_path, mats)
-    assert not plan_effects(load_scene(path).elements).colour
+    assert not plan_effects(load_scene(path, settings=settings_of()).elements).colour
     plan_rep, L, full_rep, Lf = _both(client, tmp_path, path)
     _same(L, Lf)
     assert plan_rep["solve"]["channels"] == 1 and full_rep["solve"]["channels"] == 3
@@ -125,7 +127,7 @@ def test_two_sided_element_with_nothing_behind_is_solved_one_sided(client, tmp_p
     # nothing lies behind the wall (z > 1.2): its back side can neither receive nor send light
     mats = COLOURED.replace("[material.wall]", "[material.wall]\ntwo_sided = true")
     path = _scene(tmp_path, mats)
-    p = plan_effects(load_scene(path).elements)
+    p = plan_effects(load_scene(path, settings=settings_of()).elements)
     assert p.two_sided.sum() == 0 and "solved as one-sided" in p.reasons["two_sided"]
     plan_rep, L, full_rep, Lf = _both(client, tmp_path, path)
     _same(L, Lf)
@@ -135,8 +137,8 @@ def test_two_sided_element_with_nothing_behind_is_solved_one_sided(client, tmp_p
 
 def test_dead_rows_drop_out_of_the_iteration(client, tmp_path):
     path = _scene(tmp_path, COLOURED)
-    p = plan_effects(load_scene(path).elements)
-    el = load_scene(path).elements
+    p = plan_effects(load_scene(path, settings=settings_of()).elements)
+    el = load_scene(path, settings=settings_of()).elements
     names = [el.material_names[m] for m in el.material]
     assert not p.gather[names.index("lamp")]     # an emitter that reflects nothing
     assert not p.gather[names.index("under")]    # no light reaches it
@@ -175,7 +177,7 @@ def test_every_skip_gives_the_full_answer_with_the_other_solvers(client, tmp_pat
     mats = COLOURED.replace("[0.6, 0.5, 0.4]", "[0.6, 0.6, 0.6]").replace("[4.0, 3.0, 2.0]", "[3.0, 3.0, 3.0]") \
         .replace("[0.3, 0.7, 0.3]", "[0.4, 0.4, 0.4]").replace("[material.wall]", "[material.wall]\ntwo_sided = true")
     path = _scene(tmp_path, mats)
-    p = plan_effects(load_scene(path).elements)
+    p = plan_effects(load_scene(path, settings=settings_of()).elements)
     assert not p.colour and p.two_sided.sum() == 0 and not p.gather.all()
     plan_rep, L, full_rep, Lf = _both(client, tmp_path, path, solver=solver)
     assert plan_rep["solve"]["solver"] == full_rep["solve"]["solver"] == solver

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from radiosity.errors import SceneError
 from radiosity.scene.load import load_scene
 from radiosity.core.bundles import Scene
+from radiosity.settings import options as settings_of
 
 OBJ = b"""mtllib mesh.mtl
 v 0 0 0
@@ -115,7 +116,7 @@ def _load(files: dict) -> None:
             warnings.simplefilter("ignore")        # the loader's SceneWarnings are fine
             warnings.simplefilter("error", RuntimeWarning)  # overflow or NaN arithmetic is not
             try:
-                sc = load_scene(os.path.join(d, "scene.toml"))
+                sc = load_scene(os.path.join(d, "scene.toml"), settings=settings_of())
             except SceneError as e:
                 assert "\n" not in str(e).strip(), str(e)  # one line
                 return

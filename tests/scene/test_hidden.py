@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from helpers import box_polygons
+from radiosity.settings import options as settings_of
 
 SHORT = ((0.75, 0.0, 0.5), (1.25, 0.45, 0.9))
 TALL = ((0.5, 0.0, 1.1), (1.5, 0.9, 1.5))
@@ -92,7 +93,7 @@ def partitions(tmp_path_factory):
     from radiosity.scene.load import load_scene
     from radiosity.scene.subdivide import subdivide_scene
 
-    sc = load_scene(blocks_scene(tmp_path_factory.mktemp("blocks")))
+    sc = load_scene(blocks_scene(tmp_path_factory.mktemp("blocks")), settings=settings_of())
     keep = subdivide_scene(sc.elements, sc.camera, 1)
     refine = subdivide_scene_hidden(sc.elements, sc.camera, *RULE)
     return sc, keep, refine
@@ -191,9 +192,9 @@ def test_the_tall_face_gets_the_gaps_light(client, tmp_path):
     for name, (toml, cfg) in runs.items():
         out = str(tmp_path / name)
         with dask.config.set({f"radiosity.subdivide.{k}": v for k, v in cfg.items()}):
-            rep = render_scene(load_scene(str(tmp_path / f"{toml}.toml")), out, client,
-                               preview=False, progress=False, method="pairs",
-                               echo=lambda *a: None)
+            rep = render_scene(load_scene(str(tmp_path / f"{toml}.toml"), settings=settings_of()),
+                               out, client, settings_of(method="pairs"), preview=False,
+                               progress=False, echo=lambda *a: None)
         img[name] = read_exr(f"{out}/image.exr").astype(float).sum(-1)
         figures[name] = rep["preprocess"]
     face = RunStore(str(tmp_path / "keep")).read_arrays("raster")["orig"] == TALL_FRONT

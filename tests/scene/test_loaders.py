@@ -12,6 +12,7 @@ import trimesh
 
 from radiosity.scene.load import SceneWarning, load_scene
 from helpers import prepared, radiance, write_scene
+from radiosity.settings import options as settings_of
 
 CAMERA = ('[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nup = [0, 1, 0]\nfov_y = 60\n'
           'resolution = 8\n')
@@ -65,7 +66,7 @@ def test_glb_double_sided_duplicate_and_unnamed_materials(tmp_path):
     (tmp_path / "m.glb").write_bytes(bytes(out))
 
     with pytest.warns(SceneWarning, match="glTF material 1 reuses the name 'paint'.*'paint#1'"):
-        el = load_scene(path).elements
+        el = load_scene(path, settings=settings_of()).elements
     assert len(el) == 18 and np.all(el.nverts == 4)  # 3 boxes x 6 quads (triangles merged)
     names = np.array(el.material_names)[el.material]
     box = _by_box(el)
@@ -86,7 +87,7 @@ def test_gltf_same_name_same_material_is_one_material(tmp_path):
                            _box("wood", [0.5, 0.4, 0.3, 1.0], False, 2)])
     with warnings.catch_warnings():
         warnings.simplefilter("error", SceneWarning)
-        el = load_scene(path).elements
+        el = load_scene(path, settings=settings_of()).elements
     assert el.material_names == ("wood",)
 
 
@@ -130,7 +131,7 @@ def test_back_emission_of_two_sided_elements(client, tmp_path):
     cam = ("[camera]\nposition = [0.2, 3.0, -3.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n"
            "fov_y = 50.0\nresolution = [12, 12]\n")
     path = write_scene(tmp_path, obj, extra, camera=cam)
-    el = load_scene(path).elements
+    el = load_scene(path, settings=settings_of()).elements
     names = list(np.array(el.material_names)[el.material])
     panel, twin, floor = names.index("panel"), names.index("twin"), names.index("floor")
     np.testing.assert_array_equal(el.emission[panel], [[0, 0, 0], [5, 4, 3]])
@@ -139,7 +140,7 @@ def test_back_emission_of_two_sided_elements(client, tmp_path):
     from radiosity.stages.solve import run_solve
 
     out = prepared(client, tmp_path, path, 12)
-    run_solve(out, client, tol=1e-10, progress=False)
+    run_solve(out, client, settings_of(tol=1e-10), progress=False)
     from radiosity.runtime.store import RunStore
 
     part = RunStore(out).load_partition()
@@ -158,7 +159,7 @@ def test_ngon_becomes_a_fan_of_triangles_with_a_warning(tmp_path):
     verts = "\n".join(f"v {np.cos(a):.17g} 0 {np.sin(a):.17g}" for a in ang)
     path = write_scene(tmp_path, verts + "\nf 6 5 4 3 2 1\n")
     with pytest.warns(SceneWarning, match="face 1 has 6 vertices; triangulated as a fan"):
-        el = load_scene(path).elements
+        el = load_scene(path, settings=settings_of()).elements
     assert len(el) == 4 and np.all(el.nverts == 3)
     assert el.area.sum() == pytest.approx(3 * np.sqrt(3) / 2, rel=1e-14)
     np.testing.assert_allclose(el.normal, np.broadcast_to([0, 1.0, 0], (4, 3)), atol=1e-15)
@@ -172,14 +173,14 @@ def test_ply_without_material_is_default_grey_and_takes_the_default_override(tmp
     cam = ('[camera]\nposition = [0.2, 0.2, 3]\nlook_at = [0.2, 0.2, 0]\nup = [0, 1, 0]\nfov_y = 40\n'
            'resolution = 8\n')
     (tmp_path / "a.toml").write_text('[[mesh]]\npath = "t.ply"\n' + cam)
-    el = load_scene(str(tmp_path / "a.toml")).elements
+    el = load_scene(str(tmp_path / "a.toml"), settings=settings_of()).elements
     assert el.material_names == ("default",)
     np.testing.assert_array_equal(el.reflectance[0], [[0.5, 0.5, 0.5], [0, 0, 0]])
     np.testing.assert_array_equal(el.emission[0], 0.0)
     assert not el.two_sided[0]
     (tmp_path / "b.toml").write_text('[[mesh]]\npath = "t.ply"\n[material.default]\n'
                                      'reflectance = [0.1, 0.2, 0.3]\n' + cam)
-    el = load_scene(str(tmp_path / "b.toml")).elements
+    el = load_scene(str(tmp_path / "b.toml"), settings=settings_of()).elements
     np.testing.assert_array_equal(el.reflectance[0, 0], [0.1, 0.2, 0.3])
 
 

@@ -17,6 +17,7 @@ from radiosity.core.colour import srgb_to_linear
 from radiosity.scene.meshscene import DEFAULT_RESOLUTION
 
 from helpers import edit_glb, glb_room  # noqa: E402
+from radiosity.settings import options as settings_of
 
 L, H, D = 4.0, 2.5, 3.0
 
@@ -41,7 +42,7 @@ def _same_camera(a, b):
 
 def test_a_closed_glb_room_is_a_scene_seen_from_inside(tmp_path):
     fn = write_room(tmp_path, strength=4.0)
-    sc = load_scene(fn)
+    sc = load_scene(fn, settings=settings_of())
     el = sc.elements
     assert sc.name == "room" and sc.path == fn
     assert set(el.material_names) == {"lamp", "red", "white"}
@@ -67,7 +68,8 @@ def test_an_open_room_is_seen_from_its_open_side_and_resolution_overrides(tmp_pa
     from radiosity.settings import resolve
     from radiosity.runtime.checks import check_scene
 
-    sc = load_scene(write_room(tmp_path, closed=False), resolution=(24, 16))
+    sc = load_scene(write_room(tmp_path, closed=False), resolution=(24, 16),
+                    settings=settings_of())
     assert "outside: not a closed room; from the -z side" in sc.chosen
     assert sc.camera.center[2] < 0 and (sc.camera.width, sc.camera.height) == (24, 16)
     _same_camera(parse_camera(_table_of(sc.chosen), "printed"), sc.camera)
@@ -76,7 +78,8 @@ def test_an_open_room_is_seen_from_its_open_side_and_resolution_overrides(tmp_pa
 
 def test_a_mesh_without_an_emitter_is_refused_in_one_line(tmp_path):
     with pytest.raises(SceneError) as e:
-        load_scene(write_room(tmp_path, name="dark.glb", emissive=(0.0, 0.0, 0.0)))
+        load_scene(write_room(tmp_path, name="dark.glb", emissive=(0.0, 0.0, 0.0)),
+                   settings=settings_of())
     msg = str(e.value)
     assert "\n" not in msg
     assert msg.startswith("dark.glb has no emissive material (lamp, red, white): give one "
@@ -91,7 +94,7 @@ def test_obj_with_mtl_takes_kd_and_ke_and_says_what_is_missing(tmp_path):
     (tmp_path / "box.obj").write_text(obj)
     (tmp_path / "m.mtl").write_text("newmtl floor\nKd 0.3 0.4 0.5\nnewmtl lamp\nKd 0.1 0.1 0.1\n"
                                     "Ke 5 4 3\n")
-    sc = load_scene(str(tmp_path / "box.obj"))
+    sc = load_scene(str(tmp_path / "box.obj"), settings=settings_of())
     el = sc.elements
     f, lamp = (el.material_names.index(n) for n in ("floor", "lamp"))
     np.testing.assert_array_equal(el.reflectance[el.material == f, 0], [[0.3, 0.4, 0.5]])
@@ -100,7 +103,7 @@ def test_obj_with_mtl_takes_kd_and_ke_and_says_what_is_missing(tmp_path):
     (tmp_path / "m.mtl").write_text("newmtl floor\nKd 0.3 0.4 0.5\nnewmtl lamp\nKd 0.1 0.1 0.1\n")
     with pytest.raises(SceneError, match=r"box.obj has no emissive material \(floor, lamp\): give "
                                          r"one material of its MTL file a Ke line"):
-        load_scene(str(tmp_path / "box.obj"))
+        load_scene(str(tmp_path / "box.obj"), settings=settings_of())
 
 
 def test_ply_colours_become_materials(tmp_path):
@@ -112,12 +115,12 @@ def test_ply_colours_become_materials(tmp_path):
     m.export(tmp_path / "c.ply")
     with pytest.raises(SceneError, match="c.ply has no emissive material .*a PLY file holds no "
                                          "emission, or write a scene.toml"):
-        load_scene(str(tmp_path / "c.ply"))
+        load_scene(str(tmp_path / "c.ply"), settings=settings_of())
     # in a scene file the colour materials can be given an emission
     (tmp_path / "s.toml").write_text(
         '[[mesh]]\npath = "c.ply"\n[material.colour-808080]\nemission = [1, 1, 1]\n'
         '[camera]\nposition = [0.5, 0.5, 3]\nlook_at = [0.5, 0.5, 0]\nfov_y = 60\nresolution = 8\n')
-    el = load_scene(str(tmp_path / "s.toml")).elements
+    el = load_scene(str(tmp_path / "s.toml"), settings=settings_of()).elements
     assert el.material_names == ("colour-808080", "colour-c81e1e")
     np.testing.assert_allclose(el.reflectance[el.material == 1, 0],
                                [srgb_to_linear(np.array([200, 30, 30]) / 255)])
@@ -134,7 +137,7 @@ def test_gltf_texture_means_and_a_material_without_base_colour(tmp_path):
     fn.write_bytes(edit_glb(glb_room(baseColorTexture=img), lambda doc: [
         m["pbrMetallicRoughness"].pop("baseColorFactor")
         for m in doc["materials"] if m.get("name") == "white"]))
-    el = load_scene(str(fn)).elements
+    el = load_scene(str(fn), settings=settings_of()).elements
     names = el.material_names
     lamp = el.material == names.index("lamp")
     want = 0.5 * srgb_to_linear(np.array([188, 188, 94]) / 255)
@@ -152,7 +155,7 @@ def test_resolution_must_be_whole_pixels_in_a_scene_file(tmp_path):
                      camera=cam)
     with pytest.raises(SceneError, match=r"scene.toml \[camera\]: resolution must be a whole "
                                          r"number of pixels: N, \[W, H\] or 'WxH', got 64.5"):
-        load_scene(fn)
+        load_scene(fn, settings=settings_of())
 
 
 def test_the_cornell_box_loads_without_a_warning():
@@ -160,5 +163,5 @@ def test_the_cornell_box_loads_without_a_warning():
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        el = load_scene(scene_path("cornell-box")).elements
+        el = load_scene(scene_path("cornell-box"), settings=settings_of()).elements
     assert len(el) == 20 and (el.nverts == 3).sum() == 2  # the red wall's two triangles

@@ -13,6 +13,7 @@ from radiosity.scene.originals import (TOL, FacingPairsError, behind_any, build_
                                        check_budget, estimate_facing_pairs, facing_pairs, tree_of)
 from radiosity.methods.pairs.plan import facing_blocks, make_plan
 from radiosity.scene.load import load_scene
+from radiosity.settings import options as settings_of
 
 
 def dense_pairs(v, nv, nrm, c, ts):
@@ -44,7 +45,7 @@ SCENES = ["cornell-box", "room-2400", "furnace-sphere", "construction-in-wood", 
 
 @pytest.mark.parametrize("name", SCENES)
 def test_facing_pairs_and_behind_equal_the_dense_relations_on_builtin_scenes(name):
-    el = load_scene(scene_path(name)).elements
+    el = load_scene(scene_path(name), settings=settings_of()).elements
     bi, bj, _ = facing_pairs(tree_of(el))
     di, dj = dense_pairs(el.verts, el.nverts, el.normal, el.center, el.two_sided)
     np.testing.assert_array_equal(bi, di)
@@ -77,7 +78,7 @@ def test_facing_pairs_equal_the_dense_relation_on_random_soups(rng, seed, n, cop
 
 
 def test_sparse_plan_equals_the_dense_plan(rng):
-    el = load_scene(scene_path("room-2400")).elements
+    el = load_scene(scene_path("room-2400"), settings=settings_of()).elements
     bi, bj, _ = facing_pairs(tree_of(el))
     f = facing_blocks(el.verts, el.nverts, el.normal, el.center, el.two_sided)
     off = np.concatenate([[0], np.cumsum(rng.integers(1, 30, len(el)))])
@@ -142,7 +143,7 @@ def test_a_scene_beyond_the_pair_budget_is_refused_for_pairs_and_clustered_other
 
     from radiosity.cli.commands import main
 
-    el = load_scene(scene_path("furnace-sphere")).elements  # 320 elements, 51 040 facing pairs
+    el = load_scene(scene_path("furnace-sphere"), settings=settings_of()).elements  # 320 elements, 51 040 facing pairs
     with pytest.raises(FacingPairsError, match=r"about 5.1e\+04 pairs of its 320 original elements"):
         check_budget(tree_of(el), 10_000, "furnace-sphere")
     with dask.config.set({"radiosity.plan.max-facing-pairs": 10_000}):

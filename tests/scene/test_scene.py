@@ -11,6 +11,7 @@ import pytest
 from radiosity.errors import SceneError
 from radiosity.scene.load import SceneWarning, load_scene, merge_parallelograms, parse_camera
 from helpers import FLOOR_AND_TRIANGLE, write_scene
+from radiosity.settings import options as settings_of
 
 QUAD = """
 v 0 0 0
@@ -22,7 +23,7 @@ f 1 4 3 2
 
 
 def test_obj_quads_stay_quads_and_normals_follow_winding(small_scene):
-    sc = load_scene(small_scene)
+    sc = load_scene(small_scene, settings=settings_of())
     el = sc.elements
     assert list(el.nverts) == [4, 3]
     np.testing.assert_allclose(el.normal[0], [0, 1, 0])
@@ -44,7 +45,7 @@ def test_mtl_materials_and_overrides_two_sided_back_material(tmp_path):
     [material.lamp]
     emission = [1.0, 2.0, 3.0]
     """
-    sc = load_scene(write_scene(tmp_path, obj, extra, mtl=mtl))
+    sc = load_scene(write_scene(tmp_path, obj, extra, mtl=mtl), settings=settings_of())
     el = sc.elements
     names = [el.material_names[m] for m in el.material]
     i, j = names.index("panel"), names.index("lamp")
@@ -68,7 +69,7 @@ def test_parallelogram_triangle_pairs_merge_into_quads(tmp_path):
     f 1 3 2
     f 5 7 6
     """
-    sc = load_scene(write_scene(tmp_path, obj))
+    sc = load_scene(write_scene(tmp_path, obj), settings=settings_of())
     el = sc.elements
     assert sorted(el.nverts.tolist()) == [3, 4]
     q = np.nonzero(el.nverts == 4)[0][0]
@@ -79,14 +80,15 @@ def test_parallelogram_triangle_pairs_merge_into_quads(tmp_path):
 def test_non_parallelogram_pairs_do_not_merge():
     tri = np.array([[[0, 0, 0], [1, 0, 1], [1, 0, 0], [1, 0, 0]],
                     [[0, 0, 0], [0.3, 0, 1.2], [1, 0, 1], [1, 0, 1]]], float)
-    v, n, f, m = merge_parallelograms(tri, np.array([3, 3], np.int8), np.array([0, 1]), ["a", "a"])
+    v, n, f, m = merge_parallelograms(tri, np.array([3, 3], np.int8), np.array([0, 1]), ["a", "a"],
+                                      settings_of().scene.merge_tolerance)
     assert list(n) == [3, 3]
 
 
 def test_non_planar_quad_is_split_with_warning(tmp_path):
     obj = QUAD.replace("v 1 0 1", "v 1 0.2 1")
     with pytest.warns(SceneWarning, match="face 1 .*non-planar quad; split into two triangles"):
-        sc = load_scene(write_scene(tmp_path, obj))
+        sc = load_scene(write_scene(tmp_path, obj), settings=settings_of())
     assert list(sc.elements.nverts) == [3, 3]
 
 
@@ -99,7 +101,7 @@ def test_non_convex_quad_is_split_with_warning(tmp_path):
     f 1 2 3 4
     """
     with pytest.warns(SceneWarning, match="non-convex"):
-        sc = load_scene(write_scene(tmp_path, obj))
+        sc = load_scene(write_scene(tmp_path, obj), settings=settings_of())
     el = sc.elements
     assert list(el.nverts) == [3, 3]
     # both halves face the same way and cover the quad's area
@@ -123,7 +125,7 @@ def test_gltf_materials_emissive_strength_and_double_sided(tmp_path):
     (tmp_path / "scene.toml").write_text(
         '[[mesh]]\npath = "model.gltf"\n[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\n'
         'up = [0, 1, 0]\nfov_y = 40\nresolution = 8\n')
-    sc = load_scene(str(tmp_path / "scene.toml"))
+    sc = load_scene(str(tmp_path / "scene.toml"), settings=settings_of())
     el = sc.elements
     assert len(el) == 6 and np.all(el.nverts == 4)  # 12 triangles merged back into 6 quads
     np.testing.assert_allclose(el.reflectance[:, 0], [[0.2, 0.4, 0.6]] * 6)
@@ -139,7 +141,7 @@ def test_ply_with_mesh_material(tmp_path):
     (tmp_path / "scene.toml").write_text(
         '[[mesh]]\npath = "t.ply"\nmaterial = "screen"\n[material.screen]\nreflectance = [0.3, 0.3, 0.3]\n'
         '[camera]\nposition = [0.2, 0.2, 3]\nlook_at = [0.2, 0.2, 0]\nup = [0, 1, 0]\nfov_y = 40\nresolution = 8\n')
-    el = load_scene(str(tmp_path / "scene.toml")).elements
+    el = load_scene(str(tmp_path / "scene.toml"), settings=settings_of()).elements
     assert el.material_names == ("screen",)
     np.testing.assert_allclose(el.reflectance[0, 0], 0.3)
 
@@ -184,39 +186,39 @@ resolution = [8, 8]
 ])
 def test_bad_input_names_the_culprit(tmp_path, obj, extra, camera, match):
     with pytest.raises(SceneError, match=match):
-        load_scene(write_scene(tmp_path, obj, extra, camera=camera))
+        load_scene(write_scene(tmp_path, obj, extra, camera=camera), settings=settings_of())
 
 
 def test_missing_unreadable_and_unknown_files(tmp_path):
     with pytest.raises(SceneError, match="scene file not found"):
-        load_scene(str(tmp_path / "nope.toml"))
+        load_scene(str(tmp_path / "nope.toml"), settings=settings_of())
     (tmp_path / "a.toml").write_text('[[mesh]]\npath = "gone.obj"\n' + CAM)
     with pytest.raises(SceneError, match=r"mesh file not found: .*gone.obj"):
-        load_scene(str(tmp_path / "a.toml"))
+        load_scene(str(tmp_path / "a.toml"), settings=settings_of())
     (tmp_path / "b.toml").write_text('[[mesh]]\npath = "m.step"\n' + CAM)
     (tmp_path / "m.step").write_text("ISO-10303-21;\n")
     with pytest.raises(SceneError, match=r"unknown mesh format '.step' of .*m.step: use one of "
                                          r"\.obj, .*\.stl"):
-        load_scene(str(tmp_path / "b.toml"))
+        load_scene(str(tmp_path / "b.toml"), settings=settings_of())
     os.mkdir(tmp_path / "dir.obj")
     (tmp_path / "c.toml").write_text('[[mesh]]\npath = "dir.obj"\n' + CAM)
     with pytest.raises(SceneError, match=r"cannot read mesh file .*dir.obj"):
-        load_scene(str(tmp_path / "c.toml"))
+        load_scene(str(tmp_path / "c.toml"), settings=settings_of())
     (tmp_path / "d.toml").write_text("[[mesh]\npath=")
     with pytest.raises(SceneError, match=r"d.toml: not valid TOML"):
-        load_scene(str(tmp_path / "d.toml"))
+        load_scene(str(tmp_path / "d.toml"), settings=settings_of())
     (tmp_path / "e.toml").write_text(CAM)
     with pytest.raises(SceneError, match=r"no \[\[mesh\]\] entries: the scene is empty"):
-        load_scene(str(tmp_path / "e.toml"))
+        load_scene(str(tmp_path / "e.toml"), settings=settings_of())
 
 
 def test_camera_that_sees_nothing(tmp_path, client):
     from radiosity.stages.preprocess import preprocess
 
     cam = CAM.replace("look_at = [0.5, 0.0, 0.5]", "look_at = [0.5, 4.0, -5.0]")
-    sc = load_scene(write_scene(tmp_path, FLOOR_AND_TRIANGLE, camera=cam))
+    sc = load_scene(write_scene(tmp_path, FLOOR_AND_TRIANGLE, camera=cam), settings=settings_of())
     with pytest.raises(SceneError, match="the camera sees no element"):
-        preprocess(sc, str(tmp_path / "run"), client, progress=False)
+        preprocess(sc, str(tmp_path / "run"), client, settings_of(), progress=False)
 
 
 # ----------------------------------------------------------------------------- whole-array loader
@@ -334,7 +336,8 @@ def test_whole_array_polygons_match_the_per_face_loop(monkeypatch):
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter("always")
             try:
-                v, n, f, m = polygons_from_raw(RawMesh(V, faces, mats), "m.obj", merge=False)
+                v, n, f, m = polygons_from_raw(RawMesh(V, faces, mats), "m.obj", settings_of(),
+                                               merge=False)
                 got = None
             except SceneError as e:
                 got = str(e)
@@ -393,7 +396,7 @@ def test_a_grid_of_triangle_pairs_merges_back_into_quads(tmp_path):
                            np.stack([a, d, c], -2).reshape(-1, 3, 3)])
     lines = ["v %.17g %.17g %.17g" % tuple(p) for p in tris.reshape(-1, 3)]
     lines += ["f %d %d %d" % (3 * k + 1, 3 * k + 2, 3 * k + 3) for k in range(len(tris))]
-    el = load_scene(write_scene(tmp_path, "\n".join(lines) + "\n")).elements
+    el = load_scene(write_scene(tmp_path, "\n".join(lines) + "\n"), settings=settings_of()).elements
     assert len(el) == n * n and np.all(el.nverts == 4)
     assert el.area.sum() == pytest.approx(9.0, rel=1e-12)
     np.testing.assert_allclose(el.normal, np.broadcast_to([0, 1.0, 0], (n * n, 3)))
@@ -409,7 +412,7 @@ def test_many_repairs_are_said_ten_times_then_counted(tmp_path):
                  f"f {4 * k + 1} {4 * k + 4} {4 * k + 3} {4 * k + 2}"]
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
-        el = load_scene(write_scene(tmp_path, "\n".join(rows) + "\n")).elements
+        el = load_scene(write_scene(tmp_path, "\n".join(rows) + "\n"), settings=settings_of()).elements
     said = [str(x.message) for x in w if issubclass(x.category, SceneWarning)]
     assert len(said) == 11 and len(el) == 50
     assert all(f"face {k + 1} (material 'default') is a non-planar quad" in s for k, s in enumerate(said[:10]))
@@ -424,7 +427,7 @@ def test_the_first_bad_face_is_named_and_the_repairs_before_it_said(tmp_path):
            "f 1 2 3 4\nf 1 2 4\nf 1 5 2\nf 1 6 2\n")
     with pytest.warns(SceneWarning, match="face 1 .*non-convex quad"):
         with pytest.raises(SceneError, match=r"mesh.obj: face 3 has a NaN or infinite vertex coordinate"):
-            load_scene(write_scene(tmp_path, obj))
+            load_scene(write_scene(tmp_path, obj), settings=settings_of())
 
 
 def test_a_quad_with_three_collinear_vertices_is_split_along_the_other_diagonal(tmp_path):
@@ -433,7 +436,7 @@ def test_a_quad_with_three_collinear_vertices_is_split_along_the_other_diagonal(
     with zero area."""
     obj = "v 0 0 0\nv 1 0 1\nv 2 0 0\nv 1 0 0\nf 1 2 3 4\n"
     with pytest.warns(SceneWarning, match="face 1 .*non-convex quad"):
-        el = load_scene(write_scene(tmp_path, obj)).elements
+        el = load_scene(write_scene(tmp_path, obj), settings=settings_of()).elements
     assert list(el.nverts) == [3, 3]
     np.testing.assert_array_equal(el.verts[:, 0], [[1, 0, 1], [1, 0, 1]])  # both from vertex 1
     assert el.area.sum() == pytest.approx(1.0)

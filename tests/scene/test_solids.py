@@ -11,6 +11,7 @@ import numpy as np
 from radiosity.methods.hierarchical.links.sampling import SolidPoints, link_fractions
 from radiosity.scene.contact import inside_solid
 from radiosity.tracing.rays import RayCaster
+from radiosity.settings import options as settings_of
 
 
 def _quad(a, b, c, d):
@@ -152,10 +153,10 @@ def test_the_floor_under_the_cornell_boxs_blocks_takes_no_part(client, tmp_path)
         with dask.config.set({"radiosity.hierarchy.inside-solids": solids}):
             out = prepared(client, tmp_path, scene_path("cornell-box"), 16, name=f"s{solids}",
                            visibility=False)
-            compute_links(out, client, progress=False)
-            run_solve(out, client, method="hierarchical", progress=False)
+            compute_links(out, client, settings_of(), progress=False)
+            run_solve(out, client, settings_of(), method="hierarchical", progress=False)
         rs = RunStore(out)
-        _, table, el, _ = open_link_operator(rs, None)
+        _, table, el, _ = open_link_operator(rs, None, "auto", settings_of())
         L = rs.read_arrays("solution")["leaf_radiance"][:, 0].sum(axis=1)  # front, RGB summed
         leaves[solids] = (table, el, L)
     table, el, L = leaves[True]

@@ -17,6 +17,7 @@ from radiosity.runtime.store import RunStore
 from radiosity.scene.subdivide import lookup, split_polygons, subdivide, subdivide_scene
 from radiosity.core.bundles import Camera, Scene
 from helpers import scene_path
+from radiosity.settings import options as settings_of
 
 
 def _check_partition(el, part, raster, pts):
@@ -40,14 +41,14 @@ def _check_partition(el, part, raster, pts):
 @pytest.mark.parametrize("name", ["cornell-box", "three-rectangles", "construction-in-wood",
                                   "room-2400", "furnace-cube", "furnace-sphere"])
 def test_builtin_scenes_satisfy_the_criterion(name):
-    sc = load_scene(scene_path(name), resolution=48)
+    sc = load_scene(scene_path(name), resolution=48, settings=settings_of())
     part, raster, pts, fig = subdivide_scene(sc.elements, sc.camera, 1)
     _check_partition(sc.elements, part, raster, pts)
     assert fig["guarded"] == 0
 
 
 def test_subpixel_criterion_on_the_finer_raster():
-    sc = load_scene(scene_path("three-rectangles"), resolution=16)
+    sc = load_scene(scene_path("three-rectangles"), resolution=16, settings=settings_of())
     p1, *_ = subdivide_scene(sc.elements, sc.camera, 1)
     p3, raster, pts, _ = subdivide_scene(sc.elements, sc.camera, 3)
     assert raster.shape == (48, 48)
@@ -131,7 +132,7 @@ def _scaled(sc: Scene, f: float) -> Scene:
 
 @pytest.mark.parametrize("factor", [1e-3, 1e3])
 def test_scale_invariance(factor):
-    sc = load_scene(scene_path("cornell-box"), resolution=64)
+    sc = load_scene(scene_path("cornell-box"), resolution=64, settings=settings_of())
     p1, r1, *_ = subdivide_scene(sc.elements, sc.camera, 1)
     p2, r2, *_ = subdivide_scene(_scaled(sc, factor).elements, _scaled(sc, factor).camera, 1)
     assert np.array_equal(r1, r2)
@@ -143,12 +144,13 @@ def test_parallel_partition_equals_sequential(client, tmp_path):
     from radiosity.scene.hidden import subdivide_scene_hidden
     from radiosity.settings import resolve
 
-    sc = load_scene(scene_path("cornell-box"), resolution=64)
+    sc = load_scene(scene_path("cornell-box"), resolution=64, settings=settings_of())
     s = resolve().subdivide  # with the default rule for hidden sub-elements (scene/hidden.py)
     seq, raster, pts, fig = subdivide_scene_hidden(sc.elements, sc.camera, s.hidden_factor,
                                                    s.unseen_budget, s.hidden_rays, 2)
     assert s.hidden == "refine" and fig["hidden"]["split"] > 0
-    fig = preprocess(sc, str(tmp_path / "run"), client, subpixel=2, subscenes=5, progress=False)
+    fig = preprocess(sc, str(tmp_path / "run"), client, settings_of(subpixel=2, subscenes=5),
+                     progress=False)
     assert fig["subscene_tasks"] == 5
     st_ = RunStore(str(tmp_path / "run"))
     par = st_.load_partition()
@@ -164,8 +166,9 @@ def test_parallel_partition_equals_sequential(client, tmp_path):
 
 
 def test_seed_variant_over_refines_hidden_elements(client, tmp_path):
-    sc = load_scene(scene_path("cornell-box"), resolution=32)
-    fig = preprocess(sc, str(tmp_path / "run"), client, variant="seed", subscenes=4, progress=False)
+    sc = load_scene(scene_path("cornell-box"), resolution=32, settings=settings_of())
+    fig = preprocess(sc, str(tmp_path / "run"), client, settings_of(variant="seed", subscenes=4),
+                     progress=False)
     assert fig["sub_elements"] > fig["sub_elements_exact"]
     assert fig["over_refined_elements"] > 0
     assert fig["max_pixels_per_sub_element"] <= 1
@@ -220,7 +223,7 @@ def test_pack_groups_puts_the_longest_tasks_first_onto_the_least_loaded_group():
 
 
 def test_pixel_directions_invert_projection():
-    sc = load_scene(scene_path("cornell-box"), resolution=[20, 10])
+    sc = load_scene(scene_path("cornell-box"), resolution=[20, 10], settings=settings_of())
     cam = sc.camera
     d = pixel_directions(cam, 2)
     col, row, z = project(cam, cam.center + 3 * d, 2)
@@ -232,7 +235,7 @@ def test_pixel_directions_invert_projection():
 def test_numba_camera_rays_match_the_numpy_reference():
     from radiosity.core.camera import ray_directions32
 
-    sc = load_scene(scene_path("cornell-box"), resolution=[12, 7])
+    sc = load_scene(scene_path("cornell-box"), resolution=[12, 7], settings=settings_of())
     d = ray_directions32(sc.camera, 2, 3, 9)
     np.testing.assert_allclose(d, pixel_directions(sc.camera, 2, slice(3, 9)), atol=1e-7)
 

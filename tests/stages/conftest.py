@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from helpers import write_scene
+from radiosity.settings import options as settings_of
 
 LAMP_SIDE = 0.1
 LAMP_HEIGHT = 1.0
@@ -87,8 +88,9 @@ def lamp_render(client, tmp_path_factory):
             d = tmp_path_factory.mktemp(f"lamp-{method}")
             path = write_scene(d, LAMP_OBJ, LAMP_TOML, camera=LAMP_CAMERA)
             out = str(d / "run")
-            render_scene(load_scene(path), out, client, preview=False, progress=False,
-                         echo=lambda s: None, method=method)
+            render_scene(load_scene(path, settings=settings_of()), out, client,
+                         settings_of(method=method), preview=False, progress=False,
+                         echo=lambda s: None)
             runs[method] = out
         return runs[method]
 

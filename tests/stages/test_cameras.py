@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from helpers import per_surface, scene_path
+from radiosity.settings import options as settings_of
 
 R = 32
 FRONT = dict(position=[278.0, 273.0, -800.0], look_at=[278.0, 273.0, 0.0], up=[0.0, 1.0, 0.0],
@@ -41,12 +42,12 @@ def test_camera_entries_are_named_and_the_first_is_the_runs_own(tmp_path):
     f = tmp_path / "two.toml"
     f.write_text(cornell_with(_table("[[camera]]", FRONT, "front") + "\n"
                               + _table("[[camera]]", ABOVE)))
-    sc = load_scene(str(f))
+    sc = load_scene(str(f), settings=settings_of())
     assert [n for n, _ in sc.views] == ["camera-2"]
     assert np.allclose(sc.camera.center, FRONT["position"])
     assert np.allclose(sc.views[0][1].center, ABOVE["position"])
     assert len(sc.cameras) == 2 and sc.cameras[0] is sc.camera
-    one = load_scene(scene_path("cornell-box"))
+    one = load_scene(scene_path("cornell-box"), settings=settings_of())
     assert one.views == () and len(one.cameras) == 1
 
 
@@ -62,7 +63,7 @@ def test_bad_camera_entries_are_one_line_naming_the_entry(tmp_path, second, says
     f = tmp_path / "bad.toml"
     f.write_text(cornell_with(_table("[[camera]]", FRONT, "front") + "\n" + second))
     with pytest.raises(SceneError, match=says) as e:
-        load_scene(str(f))
+        load_scene(str(f), settings=settings_of())
     assert str(f) in str(e.value) and "\n" not in str(e.value)
 
 
@@ -85,7 +86,7 @@ def test_a_camera_that_would_make_a_black_image_is_refused_by_name(tmp_path, loo
     f.write_text(cornell_with(_table("[[camera]]", FRONT, "front") + "\n"
                               + _table("[[camera]]", {**look, "fov_y": 40.0}, "bad")))
     with pytest.raises(RadiosityError, match=says) as e:
-        check_scene(load_scene(str(f)), resolve())
+        check_scene(load_scene(str(f), settings=settings_of()), resolve())
     assert type(e.value).__name__ == error and "'bad'" in str(e.value)
 
 
@@ -111,7 +112,7 @@ def test_the_partition_of_two_cameras_is_the_union_of_each_cameras():
     from radiosity.scene.subdivide import subdivide
     from radiosity.tracing.rays import RayCaster, raster_band
 
-    sc = load_scene(scene_path("cornell-box"), resolution=R)
+    sc = load_scene(scene_path("cornell-box"), resolution=R, settings=settings_of())
     el = sc.elements
     rc = RayCaster(el.verts, el.nverts)
     cams = [sc.camera, parse_camera({**ABOVE, "resolution": R}, "test")]

@@ -22,6 +22,7 @@ from radiosity.stages.preprocess import preprocess
 from radiosity.scene.load import load_scene
 from radiosity.runtime.store import RunStore
 from helpers import CHROMIUM, scene_path, write_scene
+from radiosity.settings import options as settings_of
 
 # Three vertical unit panels in the plane z = 0, the camera in front at z = -3 looking +z.
 # "twosided" (left) and "onesided" (right) face +z, away from the camera: we see their backs.
@@ -77,8 +78,8 @@ def fabricate_solution(run_dir: str) -> np.ndarray:
 
 
 def _prepare(client, path, out, resolution, k):
-    preprocess(load_scene(path, resolution=resolution), str(out), client, subpixel=k,
-               progress=False)
+    preprocess(load_scene(path, resolution=resolution, settings=settings_of()), str(out), client,
+               settings_of(subpixel=k), progress=False)
     fabricate_solution(str(out))
     return str(out)
 
@@ -242,9 +243,9 @@ def _bytes(fn):
 
 def test_render_outputs_writes_deterministic_images(cornell_run):
     rs, part, el, cam, raster, L = _load(cornell_run)
-    f1 = render.render_outputs(cornell_run)
+    f1 = render.render_outputs(cornell_run, settings=settings_of())
     exr, png = _bytes(f1["image_exr"]), _bytes(f1["image_png"])
-    f2 = render.render_outputs(cornell_run)
+    f2 = render.render_outputs(cornell_run, settings=settings_of())
     assert _bytes(f2["image_exr"]) == exr and _bytes(f2["image_png"]) == png
     assert f1["exposure"] == f2["exposure"] and f1["exposure_auto"]  # yaml: exposure null
     assert (f1["width"], f1["height"]) == (cam.width, cam.height) == (16, 16)
@@ -269,13 +270,13 @@ def test_render_outputs_writes_deterministic_images(cornell_run):
     want = render.downsample(fine, 2, "box")
     np.testing.assert_array_equal(img, want.astype(np.float32))
     # the seed's point samples: the ID raster of the fine pixels' centres
-    fp = render.render_outputs(cornell_run, sampling="point")
+    fp = render.render_outputs(cornell_run, sampling="point", settings=settings_of())
     point = render.downsample(render.pixel_radiance(part, el, cam, raster["sub"], L), 2, "box")
     np.testing.assert_array_equal(render.read_exr(fp["image_exr"]), point.astype(np.float32))
     assert (fp["sampling"], fp["rays"]) == ("point", 0)
     with pytest.raises(render.RenderError, match="render.sampling must be one of area, point"):
-        render.render_outputs(cornell_run, sampling="centre")
-    f1 = render.render_outputs(cornell_run)
+        render.render_outputs(cornell_run, sampling="centre", settings=settings_of())
+    f1 = render.render_outputs(cornell_run, settings=settings_of())
     np.testing.assert_allclose(f1["mean_radiance"], want.reshape(-1, 3).mean(0))
     with Image.open(f1["image_png"]) as im:
         np.testing.assert_array_equal(np.asarray(im), render.tonemap(want, f1["exposure"]))
@@ -284,20 +285,22 @@ def test_render_outputs_writes_deterministic_images(cornell_run):
     report = json.load(open(os.path.join(cornell_run, "report.json")))
     assert report["render"]["exposure"] == f1["exposure"]
     # explicit parameters win over the config
-    f3 = render.render_outputs(cornell_run, filter="gaussian", sigma=1.2, exposure=2.0)
+    f3 = render.render_outputs(cornell_run, filter="gaussian", sigma=1.2, exposure=2.0,
+                               settings=settings_of())
     got = (f3["filter"], f3["sigma"], f3["exposure"], f3["exposure_auto"])
     assert got == ("gaussian", 1.2, 2.0, False)
     assert _bytes(f3["image_exr"]) != exr
     with pytest.raises(render.RenderError, match="exposure"):
-        render.render_outputs(cornell_run, exposure=-1.0)
+        render.render_outputs(cornell_run, exposure=-1.0, settings=settings_of())
 
 
 def test_render_without_solution_says_what_to_run(client, tmp_path):
     path = write_scene(tmp_path, PANELS, PANELS_TOML, camera=PANELS_CAMERA)
     out = str(tmp_path / "run")
-    preprocess(load_scene(path), out, client, progress=False)
+    preprocess(load_scene(path, settings=settings_of()), out, client, settings_of(),
+               progress=False)
     with pytest.raises(Exception, match="solution"):
-        render.render_outputs(out)
+        render.render_outputs(out, settings=settings_of())
 
 
 def test_mesh_glb_and_ply_load_back_with_flat_colours(cornell_run, tmp_path):
@@ -379,7 +382,7 @@ def test_viewer_page_is_self_contained(cornell_run, tmp_path):
 
 @pytest.mark.needs("chromium")
 def test_viewer_draws_in_headless_chromium(cornell_run, tmp_path):
-    figures = render.render_outputs(cornell_run)
+    figures = render.render_outputs(cornell_run, settings=settings_of())
     shot = tmp_path / "shot.png"
     profile = tmp_path / "profile"
     profile.mkdir()

@@ -10,6 +10,7 @@ import pytest
 
 from radiosity.stages import pixels
 from helpers import write_scene
+from radiosity.settings import options as settings_of
 
 # A large ceiling (y = 1, facing down) and a 1 x 1 light just under it (y = 0.999, facing down),
 # turned 23 degrees about the vertical so that its edges cross the pixels obliquely; seen from
@@ -79,9 +80,9 @@ def edge_run(client, tmp_path_factory):
     from radiosity.stages.preprocess import preprocess
 
     d = tmp_path_factory.mktemp("edge")
-    sc = load_scene(write_scene(d, _obj(), TOML, camera=CAMERA))
+    sc = load_scene(write_scene(d, _obj(), TOML, camera=CAMERA), settings=settings_of())
     out = str(d / "run")
-    preprocess(sc, out, client, progress=False)
+    preprocess(sc, out, client, settings_of(), progress=False)
     rs = RunStore(out, "r+")
     part, el = rs.load_partition(), rs.load_elements()
     rs.write_arrays("solution", {"radiance": el.emission[part.orig] + el.reflectance[part.orig]})
@@ -121,7 +122,8 @@ def test_an_edge_pixel_is_the_coverage_weighted_mean_of_its_two_sides(edge_run):
     assert edge.sum() >= 12 and inside.sum() > 300
     err = {}
     for sampling, edges in (("area", 0), ("area", 24), ("point", 0)):
-        fig = render_outputs(out, sampling=sampling, area_samples=4, edge_samples=edges)
+        fig = render_outputs(out, sampling=sampling, area_samples=4, edge_samples=edges,
+                             settings=settings_of())
         img = read_exr(f"{out}/image.exr").astype(float)[..., 0]
         assert fig.sampling == sampling and fig.rays == (20 * 20 * 16 if sampling == "area" else 0)
         # the pixels sampled again: those whose 16 rays see both the light and the ceiling

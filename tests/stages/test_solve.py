@@ -15,6 +15,7 @@ from radiosity.core.solvers import SOLVERS
 from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.visibility import dense_visibility
 from helpers import prepared, radiance, scene_path, write_scene
+from radiosity.settings import options as settings_of
 
 ALL = list(SOLVERS)
 
@@ -45,8 +46,10 @@ def test_sphere_interior_reaches_the_exact_answer(client, tmp_path):
     for solver in ALL:
         # rows as the kernel makes them (1 - 1/n here): the closed-scene balancing that the
         # default applies to this enclosure would move them to 1
-        fig = run_solve(out, client, solver=solver, kernel="point", tol=1e-10, progress=False,
-                        normalise="cap")
+        fig = run_solve(out, client,
+                        settings_of(solver=solver, kernel="point", tol=1e-10)
+                            .replace({"solve.normalise-rows": "cap"}),
+                        progress=False)
         L = radiance(out)[:, 0, 0]
         assert fig["converged"], solver
         np.testing.assert_allclose(L, exact, rtol=1e-8, err_msg=solver)
@@ -66,8 +69,10 @@ def test_furnace_cube_converges_and_states_its_error(client, tmp_path, kernel, n
     figures are deterministic to the solver's tolerance (1e-9); margins 1e-3 (mean) and 5e-3
     (worst element) only absorb summation order."""
     out = prepared(client, tmp_path, scene_path("furnace-cube"), 16)
-    fig = run_solve(out, client, solver="cg" if kernel == "point" else "jacobi", kernel=kernel,
-                    tol=1e-9, progress=False, normalise=normalise)
+    fig = run_solve(out, client,
+                    settings_of(solver="cg" if kernel == "point" else "jacobi", kernel=kernel, tol=1e-9)
+                        .replace({"solve.normalise-rows": normalise}),
+                    progress=False)
     assert fig["row_sums"]["rows_over_1"] > 0 or kernel == "disc"
     assert fig["row_sums"]["normalised"] == (normalise and fig["row_sums"]["rows_over_1"] > 0)
     assert fig["converged"] and fig["final_residual"] < 1e-8
@@ -85,7 +90,7 @@ def test_point_kernel_is_reciprocal_and_disc_is_not(client, tmp_path, rng):
     out = prepared(client, tmp_path, scene_path("cornell-box"), 10)
     rs = RunStore(out)
     for kernel, sym in (("point", True), ("disc", False)):
-        op, part, el = open_operator(rs, client, kernel)
+        op, part, el = open_operator(rs, client, kernel, settings_of())
         m = len(part)
         x = np.zeros((2, 3, m))
         z = np.zeros((2, 3, m))
@@ -121,7 +126,7 @@ def test_energy_balance_in_an_open_scene_by_monte_carlo(client, tmp_path):
     from radiosity.methods.pairs.passes import CAP_PRODUCT
 
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 16)
-    fig = run_solve(out, client, tol=1e-10, progress=False)  # the defaults: point-nf, cg
+    fig = run_solve(out, client, settings_of(tol=1e-10), progress=False)  # the defaults: point-nf, cg
     assert fig["kernel"] == "point-nf" and fig["converged"]
     rs = RunStore(out)
     part, el = rs.load_partition(), rs.load_elements()
@@ -132,7 +137,7 @@ def test_energy_balance_in_an_open_scene_by_monte_carlo(client, tmp_path):
     assert np.all(np.abs(off) < 2.5e-3), off
     # the check can fail: the same kernel with every pair scaled by 1.1 (reciprocal, rows within
     # 1 here) solves its own equation exactly, and breaks the balance
-    op, part, el = open_operator(rs, client, "point-nf")
+    op, part, el = open_operator(rs, client, "point-nf", settings_of())
     op.configure(cap=np.full(len(part), np.sqrt(1.1)), cmode=CAP_PRODUCT)  # pairs x d_a d_b
     Le, rho, A = side_vectors(part, el)
     res = SOLVERS["cg"](op, Le, rho, A, 1e-10, 500)
@@ -154,7 +159,8 @@ def test_solvers_agree_with_each_other_and_with_a_dense_direct_solve(client, tmp
         for solver in ALL:
             if solver == "cg" and kernel == "disc":
                 continue
-            run_solve(out, client, solver=solver, kernel=kernel, tol=1e-10, progress=False)
+            run_solve(out, client, settings_of(solver=solver, kernel=kernel, tol=1e-10),
+                      progress=False)
             L = radiance(out)
             err = np.abs(L - ref).max() / scale
             assert err < 1e-6, f"{solver}/{kernel}: {err:.2e}"
@@ -193,7 +199,7 @@ def test_two_sided_panel_lit_from_one_side_is_dark_on_the_other(client, tmp_path
     """
     path = write_scene(tmp_path, obj, extra, camera=cam)
     out = prepared(client, tmp_path, path, 16)
-    run_solve(out, client, solver="jacobi", tol=1e-10, progress=False)
+    run_solve(out, client, settings_of(solver="jacobi", tol=1e-10), progress=False)
     rs = RunStore(out)
     part, el = rs.load_partition(), rs.load_elements()
     L = radiance(out)
@@ -210,11 +216,11 @@ def test_two_sided_panel_lit_from_one_side_is_dark_on_the_other(client, tmp_path
 def test_registry_errors_list_the_valid_names(client, tmp_path):
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 8)
     with pytest.raises(RadiosityError, match="unknown solver 'sor': use one of jacobi, gauss-seidel, progressive, cg"):
-        run_solve(out, client, solver="sor", progress=False)
+        run_solve(out, client, settings_of(solver="sor"), progress=False)
     with pytest.raises(RadiosityError, match="unknown kernel 'exactish': use one of point, disc"):
-        run_solve(out, client, kernel="exactish", progress=False)
+        run_solve(out, client, settings_of(kernel="exactish"), progress=False)
     with pytest.raises(RadiosityError, match="cg solver needs a reciprocal kernel"):
-        run_solve(out, client, solver="cg", kernel="disc", progress=False)
+        run_solve(out, client, settings_of(solver="cg", kernel="disc"), progress=False)
 
 
 def test_progressive_ambient_term_makes_every_preview_right_on_average(client, tmp_path):
@@ -227,7 +233,7 @@ def test_progressive_ambient_term_makes_every_preview_right_on_average(client, t
     out = prepared(client, tmp_path, scene_path("furnace-cube"), 8)
     A = RunStore(out).load_partition().area
     previews = []
-    fig = run_solve(out, client, solver="progressive", tol=1e-5, progress=False,
+    fig = run_solve(out, client, settings_of(solver="progressive", tol=1e-5), progress=False,
                     callback=lambda k, r, L: previews.append(L[0, 0].copy()))
     assert fig["row_sums"]["mode"] == "closed" and fig["converged"]
     assert len(previews) == fig["iterations"] > 3
@@ -247,7 +253,8 @@ def test_pair_terms_per_second_counts_only_the_solvers_passes(client, tmp_path):
 
     out = prepared(client, tmp_path, scene_path("cornell-box"), 8)
     with pytest.warns(UserWarning, match="did not reach tol=1e-30 in 3 passes"):
-        fig = run_solve(out, client, solver="jacobi", kernel="point", tol=1e-30, max_iter=3,
+        fig = run_solve(out, client,
+                        settings_of(solver="jacobi", kernel="point", tol=1e-30, max_iterations=3),
                         progress=False, callback=lambda k, r, L: time.sleep(1.0))
     assert fig["iterations"] == 3 and fig["time_s"] > 3.0
     # pair_terms also counts the row-sum and the final residual pass (5 passes' terms against

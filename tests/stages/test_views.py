@@ -13,6 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from helpers import per_surface, scene_path
+from radiosity.settings import options as settings_of
 
 pytestmark = pytest.mark.cluster
 
@@ -46,7 +47,7 @@ def test_a_view_from_above_equals_a_fresh_render_from_there(runs):
 
     d, a, b = runs
     cam = RunStore(str(d / "B")).load_camera()
-    v = render_view(str(d / "A"), cam, name="above")
+    v = render_view(str(d / "A"), cam, name="above", settings=settings_of())
     assert v.figures["gather"]["gathered_points"] > 0  # the floor behind the blocks was unseen
     assert abs(v.image.mean() / b.image.mean() - 1) < 0.01
     orig = RunStore(str(d / "B")).read_arrays("raster")["orig"]
@@ -64,7 +65,7 @@ def test_a_view_from_the_runs_own_camera_shows_its_solution(runs):
     d, a, _ = runs
     rs = RunStore(str(d / "A"))
     cam = rs.load_camera()
-    v = render_view(str(d / "A"), cam, name="same", samples=1)
+    v = render_view(str(d / "A"), cam, name="same", samples=1, settings=settings_of())
     raster = rs.read_arrays("raster")
     sub, orig = raster["sub"], raster["orig"]
     part, el = rs.load_partition(), rs.load_elements()

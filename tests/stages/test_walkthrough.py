@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from helpers import scene_path
+from radiosity.settings import options as settings_of
 
 PATH = """\
 frames = 5
@@ -130,13 +131,14 @@ def test_frames_are_views_of_the_run_and_the_video_reads_back(run, tmp_path):
     fn = _path(tmp_path)
     frames = {}
     w = render_walkthrough(str(run / "cb"), fn, progress=False,
-                           on_frame=lambda k, img, fig: frames.setdefault(k, img))
+                           on_frame=lambda k, img, fig: frames.setdefault(k, img),
+                           settings=settings_of())
     assert w.frames == 5 and os.path.basename(w.folder) == "orbit"
     assert sorted(f for f in os.listdir(w.folder) if f.endswith(".png")) == [
         f"frame-{k:04d}.png" for k in range(1, 6)]
     cams = load_path(fn).cameras(RunStore(str(run / "cb")).load_camera())
     for k in (0, 3):  # each frame: the view render_view makes from that frame's camera alone
-        v = render_view(str(run / "cb"), cams[k], name=f"frame{k}")
+        v = render_view(str(run / "cb"), cams[k], name=f"frame{k}", settings=settings_of())
         assert np.allclose(frames[k], v.image, rtol=1e-9, atol=1e-12)
         assert frames[k].mean() > 0
     assert not np.allclose(frames[0], frames[2])  # the camera moves

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from radiosity.tracing.rays import RayCaster
+from radiosity.settings import options as settings_of
 
 # a unit quad at z = 1 (facing -z) and a small occluding triangle at z = 0.5
 VERTS = np.array([[[0, 0, 1], [0, 1, 1], [1, 1, 1], [1, 0, 1]],
@@ -60,7 +61,7 @@ def test_the_hull_planes_are_a_rooms_walls_and_never_block_a_segment_between_ele
     from radiosity.core.geometry import on_hull_planes
     from radiosity.scene.load import load_scene
 
-    el = load_scene("scenes/cornell-box").elements
+    el = load_scene("scenes/cornell-box", settings=settings_of()).elements
     hull = on_hull_planes(el.verts, el.nverts, el.normal)
     names = np.array(el.material_names)[el.material]
     assert hull[names != "white"].all()  # the coloured walls and the light

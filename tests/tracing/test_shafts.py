@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from helpers import ROOT, scene_path
+from radiosity.settings import options as settings_of
 
 
 @pytest.mark.parametrize("which", ["cornell-box", "terrain"])
@@ -27,7 +28,7 @@ def test_tree_candidates_equal_the_linear_scan(tmp_path, which, rng):
         path = scenes_generated.terrain(str(tmp_path / "t"), 3000, 8)
     else:
         path = scene_path(which)
-    el = load_scene(path).elements
+    el = load_scene(path, settings=settings_of()).elements
     elo, ehi, en, eo, pad = occluders(el)
     tree = occluder_tree(el, elo, ehi)
     n = len(el)

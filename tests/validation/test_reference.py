@@ -32,6 +32,7 @@ import pytest
 from click.testing import CliRunner
 
 from helpers import ROOT, scene_path, write_scene
+from radiosity.settings import options as settings_of
 
 
 @pytest.fixture(scope="module")
@@ -56,15 +57,17 @@ def _scene(name, res=None):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return load_scene(scene_path(name) if "/" not in name else name, resolution=res)
+        return load_scene(scene_path(name) if "/" not in name else name, resolution=res,
+                          settings=settings_of())
 
 
 def _render(mitsuba, sc, spp, passes, seed=0):
     from radiosity.validation.reference import mitsuba_scene, path_depth, render_passes
 
     mi, _ = mitsuba
-    msc, _ = mitsuba_scene(sc, path_depth(sc)[0], mi=mi)
-    m, se, _ = render_passes(mi, msc, spp, passes, seed=seed)
+    msc, _ = mitsuba_scene(sc, path_depth(sc, settings_of().reference.truncation)[0], mi=mi)
+    m, se, _ = render_passes(mi, msc, spp, passes, seed=seed,
+                             max_samples=settings_of().reference.max_samples_per_call)
     return m, se
 
 
@@ -132,11 +135,11 @@ def test_non_square_pixels_are_refused(mitsuba, tmp_path):
 def test_path_depth_bounds_the_truncation():
     from radiosity.validation.reference import path_depth
 
-    d, rho = path_depth(_scene("cornell-box", 8))
+    d, rho = path_depth(_scene("cornell-box", 8), settings_of().reference.truncation)
     assert rho == 0.78 and d == 56 and 0.78 ** d <= 1e-6 < 0.78 ** (d - 1)
-    d, rho = path_depth(_scene("furnace-cube", 8))
+    d, rho = path_depth(_scene("furnace-cube", 8), settings_of().reference.truncation)
     assert (d, rho) == (20, 0.5)
-    assert path_depth(_scene("parallel-squares", 8)) == (1, 0.0)
+    assert path_depth(_scene("parallel-squares", 8), settings_of().reference.truncation) == (1, 0.0)
 
 
 # ----------------------------------------------------------------------------- exact answers
@@ -159,7 +162,8 @@ def test_parallel_squares_form_factor(mitsuba):
 
     sc = _scene("parallel-squares")
     exact = sc.validation["form_factor"]
-    f, se = form_factor(sc, sc.validation["from"], sc.validation["to"], 2 ** 19, 32)  # t with 31 d.o.f.
+    f, se = form_factor(sc, sc.validation["from"], sc.validation["to"], 2 ** 19, 32,
+                        settings=settings_of())  # t with 31 d.o.f.
     assert abs(f - exact) < 3 * se and se < 0.003 * exact, (f, se, exact)
 
 
@@ -243,8 +247,8 @@ def test_cornell_box_walls_agree_with_radiosity(mitsuba, client, tmp_path):
     # (test_hidden_sub_elements_are_split_on_demand_so_the_tall_block_face_is_right)
     with warnings.catch_warnings(), dask.config.set({"radiosity.subdivide.unseen": "keep"}):
         warnings.simplefilter("ignore")
-        render_scene(sc, str(tmp_path / "run"), client, subpixel=1, kernel="point", preview=False,
-                     progress=False, echo=lambda *a: None)
+        render_scene(sc, str(tmp_path / "run"), client, settings_of(subpixel=1, kernel="point"),
+                     preview=False, progress=False, echo=lambda *a: None)
     img = read_exr(str(tmp_path / "run" / "image.exr")).astype(float)
     m, se = _render(mitsuba, sc, 512, 8)
     raster = element_raster(sc)
@@ -368,11 +372,13 @@ def test_study_accuracy_against_mitsuba(mitsuba, client, tmp_path):
     from radiosity.validation.reference import reference_at
 
     said = []
-    again, _, fig = reference_at(_scene("cornell-box", 24), str(out / "reference" / "r24"), 256, 8, said.append)
+    again, _, fig = reference_at(_scene("cornell-box", 24), str(out / "reference" / "r24"), 256, 8,
+                                 said.append, settings=settings_of())
     assert "reusing the reference" in said[0] and np.array_equal(again, ref) and fig["spp"] == 256
     # a user's EXR keeps its meaning: relative RMS difference of the images
-    rows = accuracy(scene_path("cornell-box"), str(tmp_path / "st2"), client, [8], [1], ["point"], [1e-6],
-                    reference=str(out / "reference" / "r24" / "reference.exr"), echo=lambda *a: None)
+    rows = accuracy(scene_path("cornell-box"), str(tmp_path / "st2"), client, [8], [1], ["point"],
+                    [1e-6], reference=str(out / "reference" / "r24" / "reference.exr"),
+                    echo=lambda *a: None, settings=settings_of())
     img2 = read_exr(str(tmp_path / "st2" / "runs" / "r8-k1" / "image.exr"))
     assert rows[0]["error"] == pytest.approx(image_error(img2, ref), rel=1e-9)
     # validation scenes have their exact answer
@@ -421,8 +427,8 @@ def test_hidden_sub_elements_are_split_on_demand_so_the_tall_block_face_is_right
         out = tmp_path / f"run-{hidden}"
         with dask.config.set({"radiosity.hierarchy.split-hidden": hidden,
                               "radiosity.subdivide.hidden": "keep"}):
-            rep = render_scene(sc, str(out), client, preview=False, progress=False,
-                               method="hierarchical", echo=lambda *a: None)
+            rep = render_scene(sc, str(out), client, settings_of(method="hierarchical"),
+                               preview=False, progress=False, echo=lambda *a: None)
         rel[hidden] = read_exr(str(out / "image.exr")).astype(float)[sel].mean(axis=0) / b - 1.0
         if hidden:  # some floor sub-elements were split below the camera's partition
             assert rep["links"]["split_off_nodes"] > 0
@@ -453,8 +459,8 @@ def test_cornell_box_inside_with_no_options_against_mitsuba(mitsuba, client, tmp
                                                  "radiosity.subdivide.unseen": "keep",
                                                  "radiosity.subdivide.hidden": "keep"})):
         with dask.config.set(cfg):
-            rep = render_scene(sc, str(tmp_path / name), client, preview=False, progress=False,
-                               echo=lambda *a: None)
+            rep = render_scene(sc, str(tmp_path / name), client, settings_of(), preview=False,
+                               progress=False, echo=lambda *a: None)
         img = read_exr(str(tmp_path / name / "image.exr")).astype(float) @ lum
         err[name] = (img[sel].mean() / M[sel].mean() - 1, np.abs(img[sel] / M[sel] - 1).mean())
         if name == "default":

@@ -25,11 +25,13 @@ from radiosity.core.exact import (coaxial_discs, pair_form_factors_exact, parall
 from radiosity.viewfactors.api import compute_viewfactors, load_facets
 
 from helpers import ROOT, scene_path  # noqa: E402
+from radiosity.settings import options as settings_of
 
 
 def run(client, tmp_path, mesh, name="run", **kw):
     kw.setdefault("progress", False)
-    return compute_viewfactors(mesh, str(tmp_path / name), client, **kw)
+    given = {k: kw.pop(k) for k in ("accuracy", "cutoff", "enclosure") if k in kw}
+    return compute_viewfactors(mesh, str(tmp_path / name), client, settings_of(**given), **kw)
 
 
 def square(z, up=True, size=1.0, x0=-0.5, y0=-0.5):
@@ -148,7 +150,7 @@ def test_half_blocked_squares_against_brute_force_monte_carlo(client, tmp_path):
     d = q - p
     r2 = (d * d).sum(1)
     kern = d[:, 2] * d[:, 2] / (np.pi * r2 * r2)        # cos cos / (pi r^2), A_j = 1
-    fac = load_facets((V, Fc))
+    fac = load_facets((V, Fc), settings_of())
     vis = ~RayCaster(fac.verts, fac.nverts).occluded(p, q, np.zeros(N, int), np.ones(N, int))
     mc = float((kern * vis).mean())
     se = float((kern * vis).std() / np.sqrt(N))
@@ -235,7 +237,7 @@ def test_obstructed_never_exceeds_unobstructed_and_matches_a_naive_reference(cli
     acc = 2e-3
     res = run(client, tmp_path, (V, Fc), accuracy=acc)
     M = res.matrix.toarray()
-    fac = load_facets((V, Fc))
+    fac = load_facets((V, Fc), settings_of())
     ref, se, fu = _naive(fac)
     rel = res.figures["cheap_kernel_relative_bound"]
     assert (M <= fu * (1 + rel) + 1e-15).all()
@@ -345,11 +347,11 @@ def test_facets_load_as_the_scene_loader_would(recwarn):
     for V, F in (box([0, 0, 0], [1, 2, 3], 3), _random_scene(rng)):
         raw = RawMesh(np.asarray(V, float), F, ["default"] * len(F))
         got = _polygons(raw, "m", settings)
-        want = polygons_from_raw(raw, "m", merge=False, settings=settings)
+        want = polygons_from_raw(raw, "m", settings, merge=False)
         assert all(np.array_equal(a, b) for a, b in zip(got, want[:3]))
     # two triangles forming a square stay two facets (no merge)
     tri = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.]]), [[0, 1, 2], [0, 2, 3]], ["d"] * 2)
-    assert len(load_facets((tri.vertices, tri.faces))) == 2
+    assert len(load_facets((tri.vertices, tri.faces), settings_of())) == 2
     bent = RawMesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.3], [0, 1, 0]]), [[0, 1, 2, 3]], ["default"])
     assert list(_polygons(bent, "bent.obj", settings)[1]) == [3, 3]
     # faces are numbered from 0 in the messages, as facets.csv numbers them (the render's
@@ -390,7 +392,7 @@ def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
     from radiosity.settings import resolve
     from radiosity.viewfactors.master import assemble, make_inputs
 
-    fac = load_facets(mesh)
+    fac = load_facets(mesh, settings_of())
     tree, _ = make_inputs(fac, 4, resolve().rays.epsilon)
     lines = (tmp_path / "cut" / "viewfactors.manifest.jsonl").read_text().splitlines()[1:]
     entries = {e["task"]: e for e in map(json.loads, lines)}

@@ -110,12 +110,11 @@ class HierarchicalMethod(TransportMethod):
     def open(self, rs, client, settings, where: str = "auto", **options) -> Opened:
         from radiosity.methods.hierarchical.solve.leaves import leaf_vectors, live_leaves, to_sub_elements
         from radiosity.methods.hierarchical.solve.transport import open_link_operator
-        from radiosity.settings import resolve
 
         op, table, el, part = open_link_operator(rs, client, where, settings)
         Le, rho, area = leaf_vectors(table, el)
         m = len(part)
-        s = settings if settings is not None else resolve()
+        s = settings
         live = live_leaves(table, el, s.rays.epsilon) if s.hierarchy.inside_solids else None
         return Opened(op, Le, rho, area, table["orig"][table["leaf_node"]], m,
                       lambda L: to_sub_elements(L, table, m), originals=len(el), live=live,

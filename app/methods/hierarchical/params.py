@@ -140,15 +140,13 @@ def choose_epsilon(settings, pixels: int | None = None) -> tuple[float, str]:
                              f"{res0:g}^2 pixels get finer links)")
 
 
-def resolve_params(elements, settings=None, occlusion: bool = True,
+def resolve_params(elements, settings, occlusion: bool = True,
                    pixels: int | None = None) -> tuple[LinkParams, str]:
-    """The link settings from a settings.Settings (None: resolved here from dask.config),
-    checked; returns (LinkParams, weight). epsilon `auto` (the default): choose_epsilon's for a
-    criterion raster of `pixels` (None: its base)."""
+    """The link settings from the run's settings.Settings, checked; returns (LinkParams,
+    weight). epsilon `auto` (the default): choose_epsilon's for a criterion raster of `pixels`
+    (None: its base)."""
     from radiosity.core.kernels import KERNELS, base_kernel, kernel_id
-    from radiosity.settings import resolve
-
-    s = settings if settings is not None else resolve()
+    s = settings
     h = s.hierarchy
     kernel = h.kernel
     kernel_id(kernel)

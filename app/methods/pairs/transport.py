@@ -277,15 +277,13 @@ class DaskOperator(_Base):
 
 # ----------------------------------------------------------------------------- opening a run
 
-def open_operator(rs, client, kernel: str, settings=None, *, sampling=...):
+def open_operator(rs, client, kernel: str, settings, *, sampling=...):
     """The operator of run store `rs` for `kernel`: a DaskOperator on `client`, or a
     LocalOperator when client is None; with the kernel's near-field corrections (the partly
     visible pairs of the sampled kernels are read and applied on the workers, task by task, like
     the bits). settings: a settings.Settings (solve.cache-bytes, near-field-factor,
-    visibility.retries; None: resolved here). Returns (operator, partition, elements)."""
-    from radiosity.settings import resolve
-
-    s = settings if settings is not None else resolve()
+    visibility.retries). Returns (operator, partition, elements)."""
+    s = settings
     vs = VisibilityStore(rs)
     token, plan, done = vs.require()
     missing = [t for t in range(len(plan.tasks)) if t not in done]

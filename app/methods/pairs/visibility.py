@@ -294,18 +294,16 @@ class _Ledger:
         self.vs.record(task, result)
 
 
-def compute_visibility(run_dir: str, client, settings=None, *, unit: str | None = None,
+def compute_visibility(run_dir: str, client, settings, *, unit: str | None = None,
                        resume: bool = False, progress: bool = True, on_done=None,
-                       occlusion: bool = True, kernel: str | None = None) -> VisibilityFigures:
+                       occlusion: bool = True) -> VisibilityFigures:
     """The dynamic master (seed §4.3) on the one stage executor (runtime/stage.py): a bounded
     window of tasks per worker thread, most expensive first, failed tasks resubmitted, every
     finished task recorded with its checksum, so `resume` recomputes only what is missing or
     corrupted. occlusion=False (effects.py: nothing can block) makes the bits orientation
-    alone. kernel (default solve.kernel): the sampled ones (nxm, mc) cast one ray per sample
-    pair. settings: a settings.Settings (None: resolved here)."""
-    from radiosity.settings import resolve
-
-    s = resolve({"solve.kernel": kernel}, base=settings)
+    alone. settings: the run's settings.Settings; its solve.kernel's sampled kernels (nxm, mc)
+    cast one ray per sample pair."""
+    s = settings
     sampling = sampling_of(s.solve)
     epsilon = float(s.rays.epsilon)
     t_start = time.perf_counter()

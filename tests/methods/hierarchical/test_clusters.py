@@ -13,6 +13,7 @@ from radiosity.methods.hierarchical.clusters.refine import cluster_tree
 from radiosity.methods.hierarchical.clusters.weights import link_form_factors
 from radiosity.methods.hierarchical.clusters.tasks import refine_all
 from radiosity.scene.originals import facing_pairs, tree_of
+from radiosity.settings import options as settings_of
 
 
 def _elements(verts, nverts, rho=0.5, emit=None) -> Elements:
@@ -781,8 +782,8 @@ def test_a_closed_sphere_of_5000_triangles_is_the_furnace(client, tmp_path):
                         resolution = [16, 16]
                         """)
     out = str(tmp_path / "run")
-    fig = render_scene(load_scene(scene), out, client, preview=False, progress=False,
-                       echo=lambda *a: None)
+    fig = render_scene(load_scene(scene, settings=settings_of()), out, client, settings_of(),
+                       preview=False, progress=False, echo=lambda *a: None)
     assert fig["plan"]["method"] == "hierarchical" and fig["links"]["cluster_links"] > 0
     assert fig["rounds"]["why"].startswith("auto: none: the links start at clusters")
     img = read_exr(f"{out}/image.exr")

@@ -22,6 +22,7 @@ from radiosity.runtime.store import RunStore
 from radiosity.scene.subdivide import split_polygons, subdivide_scene
 from radiosity.settings import resolve
 from helpers import link_power_balance, prepared, radiance, scene_path, write_scene
+from radiosity.settings import options as settings_of
 
 ALL_PAIRS = {"radiosity.hierarchy.min-node-size": 1e9, "radiosity.hierarchy.weight": "none",
              "radiosity.hierarchy.near-gauss-gap": float("inf"),
@@ -37,12 +38,15 @@ def run_solve_links(out, client, **kw):
     """The solve of a run's links: the solve stage through the hierarchical method's seam."""
     from radiosity.stages.solve import run_solve
 
-    return run_solve(out, client, method="hierarchical", **kw)
+    run = {k: kw.pop(k) for k in ("progress", "where", "callback") if k in kw}
+    if "max_iter" in kw:
+        kw["max_iterations"] = kw.pop("max_iter")
+    return run_solve(out, client, settings_of(**kw), method="hierarchical", **run)
 
 
 def in_process(path, res=None, kernel="point-nf", epsilon=None, rays=None, seen=None, cfg=None):
     """A scene's LinkInputs without a cluster: (scene, partition, tree, inputs)."""
-    sc = load_scene(path, resolution=res)
+    sc = load_scene(path, resolution=res, settings=settings_of())
     el = sc.elements
     part, raster, _, _ = subdivide_scene(el, sc.camera)
     tree = tree_nodes(part, el)
@@ -76,12 +80,15 @@ def test_epsilon_zero_with_one_ray_per_leaf_pair_equals_the_pairs_method(client,
 
     out = prepared(client, tmp_path, scene_path(scene), res)
     rs = RunStore(out)
-    opP, part, el = open_operator(rs, client, kernel)
-    run_solve(out, client, solver="cg", kernel=kernel, tol=1e-12, progress=False)
+    opP, part, el = open_operator(rs, client, kernel, settings_of())
+    run_solve(out, client, settings_of(solver="cg", kernel=kernel, tol=1e-12), progress=False)
     LP = radiance(out)
     with dask.config.set(ALL_PAIRS):
-        fig = compute_links(out, client, kernel=kernel, epsilon=0.0, rays=1, progress=False)
-    opH, table, _, _ = open_link_operator(RunStore(out), None)
+        fig = compute_links(out, client,
+                            settings_of(epsilon=0.0, link_rays=1)
+                                .replace({"hierarchy.kernel": kernel}),
+                            progress=False)
+    opH, table, _, _ = open_link_operator(RunStore(out), None, "auto", settings_of())
     assert np.array_equal(table["leaf_sub"], np.arange(len(part)))
     x = np.random.default_rng(3).random((2, 3, len(part)))
     yP, yH = opP.apply(x, use_need=False), opH.apply(x, use_need=False)
@@ -214,7 +221,7 @@ def test_a_hidden_sub_element_of_a_seen_original_is_split_on_demand(tmp_path):
 
 def _solve(client, tmp_path, path, res=None, **kw):
     out = prepared(client, tmp_path, path, res, visibility=False)
-    fig = compute_links(out, client, progress=False, **kw)
+    fig = compute_links(out, client, settings_of(), progress=False, **kw)
     run_solve_links(out, client, solver="cg", tol=1e-11, progress=False)
     rs = RunStore(out)
     return rs.load_partition(), rs.load_elements(), radiance(out), fig
@@ -303,7 +310,7 @@ def test_closed_cube_rho_099_with_balanced_rows(client, tmp_path):
     path = tmp_path / "furnace.toml"
     path.write_text(src)
     out = prepared(client, tmp_path, str(path), 12, visibility=False)
-    compute_links(out, client, progress=False)
+    compute_links(out, client, settings_of(), progress=False)
     fig = run_solve_links(out, client, solver="cg", tol=1e-12, progress=False)  # closure: auto
     assert fig["converged"] and fig["closure"]["closed"] and fig["row_sums"]["mode"] == "closed"
     L = radiance(out)[:, 0, :]
@@ -317,7 +324,7 @@ def test_push_pull_conserves_energy_in_an_open_scene(client, tmp_path):
     leaf's total outgoing form factor summed directly from the stored links over its ancestors
     (not through the operator): this holds only if pull and push weigh by area consistently."""
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 16, visibility=False)
-    fig = compute_links(out, client, progress=False)
+    fig = compute_links(out, client, settings_of(), progress=False)
     run_solve_links(out, client, solver="gauss-seidel", tol=1e-13, max_iter=500, progress=False)
     emitted, absorbed, escaped = link_power_balance(out)
     assert fig["links"] < fig["leaves"] ** 2 / 4 and escaped > 0.01 * emitted
@@ -329,8 +336,8 @@ def test_symmetric_form_and_every_solver_agree(client, tmp_path):
     Gauss-Seidel, progressive refinement and CG reach the same answer on the links, and the
     passes on the workers give the driver's answer."""
     out = prepared(client, tmp_path, scene_path("cornell-box"), 12, visibility=False)
-    compute_links(out, client, progress=False)
-    op, table, el, part = open_link_operator(RunStore(out), client, "cluster")
+    compute_links(out, client, settings_of(), progress=False)
+    op, table, el, part = open_link_operator(RunStore(out), client, "cluster", settings_of())
     assert isinstance(op, LinkOperator)
     A = table["leaf_area"]
     rng = np.random.default_rng(5)
@@ -348,7 +355,7 @@ def test_symmetric_form_and_every_solver_agree(client, tmp_path):
     for solver in ("gauss-seidel", "cg"):  # the same passes on the workers
         run_solve_links(out, client, solver=solver, tol=1e-10, progress=False, where="cluster")
         assert np.abs(radiance(out) - sols[solver]).max() <= 1e-12 * np.abs(ref).max(), solver
-    assert isinstance(open_link_operator(RunStore(out), client)[0], LocalLinkOperator)
+    assert isinstance(open_link_operator(RunStore(out), client, "auto", settings_of())[0], LocalLinkOperator)
 
 
 # ----------------------------------------------------------------------------- link visibility
@@ -446,7 +453,7 @@ def test_half_occluded_pair_gets_the_visible_fraction_within_one_ray(tmp_path, h
 
 def test_corrupted_link_task_is_detected_and_recomputed_on_resume(client, tmp_path):
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 12, visibility=False)
-    fig = compute_links(out, client, progress=False)
+    fig = compute_links(out, client, settings_of(), progress=False)
     from radiosity.methods.hierarchical.store import links_path
 
     store = os.path.join(out, "store.zarr")
@@ -461,8 +468,8 @@ def test_corrupted_link_task_is_detected_and_recomputed_on_resume(client, tmp_pa
     from radiosity.errors import StoreError
 
     with pytest.raises(StoreError, match="corrupted"):
-        open_link_operator(RunStore(out), None)[0].apply(np.ones((2, 3, fig["leaves"])))
-    fig2 = compute_links(out, client, progress=False, resume=True)
+        open_link_operator(RunStore(out), None, "auto", settings_of())[0].apply(np.ones((2, 3, fig["leaves"])))
+    fig2 = compute_links(out, client, settings_of(), progress=False, resume=True)
     assert fig2["tasks_corrupted_recomputed"] == 1 and fig2["tasks_computed"] == 1
     assert fig2["links"] == fig["links"]
 
@@ -576,7 +583,7 @@ def test_epsilon_auto_scales_with_the_raster_and_reaches_the_links(client, tmp_p
         with dask.config.set({"radiosity.hierarchy.epsilon": "auto",
                               "radiosity.hierarchy.epsilon-base": 2e-3,
                               "radiosity.hierarchy.epsilon-resolution": res0}):
-            figs[res0] = compute_links(out, client, progress=False)
+            figs[res0] = compute_links(out, client, settings_of(), progress=False)
     assert figs[24]["epsilon"] == 2e-3 and figs[24]["epsilon_reason"] == "auto: 0.002 up to 24^2 pixels"
     assert figs[6]["epsilon"] == pytest.approx(5e-4) and "x 6 / 24" in figs[6]["epsilon_reason"]
     assert figs[6]["links_per_leaf"] > 1.5 * figs[24]["links_per_leaf"]
@@ -591,8 +598,9 @@ def test_the_final_gather_adds_no_negative_light(client, tmp_path):
     from radiosity.pipeline import render_scene
 
     out = str(tmp_path / "room")
-    render_scene(load_scene(scene_path("room-2400"), resolution=16), out, client, preview=False,
-                 progress=False, method="hierarchical", echo=lambda *a: None)
+    render_scene(load_scene(scene_path("room-2400"), resolution=16, settings=settings_of()), out,
+                 client, settings_of(method="hierarchical"), preview=False, progress=False,
+                 echo=lambda *a: None)
     sol = RunStore(out).read_arrays("solution")
     assert sol["leaf_radiance"].min() >= 0.0  # the solver's own fixed point
     assert sol["radiance"].min() >= 0.0, (sol["radiance"] < 0).sum()
@@ -610,8 +618,9 @@ def test_far_links_gradient_in_the_final_gather_matches_exact_evaluation(client,
     from radiosity.pipeline import render_scene
 
     out = str(tmp_path / "cb")
-    render_scene(load_scene(scene_path("cornell-box"), resolution=48), out, client, preview=False,
-                 progress=False, method="hierarchical", echo=lambda *a: None)
+    render_scene(load_scene(scene_path("cornell-box"), resolution=48, settings=settings_of()), out,
+                 client, settings_of(method="hierarchical"), preview=False, progress=False,
+                 echo=lambda *a: None)
     far0 = ls.FG_FAR
     assert far0 > 0
     runs = {}

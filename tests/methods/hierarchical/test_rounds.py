@@ -16,6 +16,7 @@ from radiosity.runtime.store import RunStore
 from helpers import link_power_balance, prepared, radiance, scene_path
 
 from test_hierarchy import in_process  # noqa: E402  (tests/methods/hierarchical on sys.path)
+from radiosity.settings import options as settings_of
 
 
 class _Dense:
@@ -140,8 +141,9 @@ def _render(client, path, out, res, **cfg):
     from radiosity.scene.load import load_scene
 
     with dask.config.set({f"radiosity.hierarchy.{k}": v for k, v in cfg.items()}):
-        return render_scene(load_scene(path, resolution=res), out, client, preview=False,
-                            progress=False, method="hierarchical", echo=lambda *a: None)
+        return render_scene(load_scene(path, resolution=res, settings=settings_of()), out, client,
+                            settings_of(method="hierarchical"), preview=False, progress=False,
+                            echo=lambda *a: None)
 
 
 def _surface_means(out):
@@ -161,8 +163,8 @@ def test_rounds_off_is_the_plain_solve(client, tmp_path):
     from radiosity.stages.solve import run_solve
 
     out = prepared(client, tmp_path, scene_path("cornell-box-indirect"), 12, visibility=False)
-    compute_links(out, client, progress=False)
-    run_solve(out, client, progress=False, method="hierarchical")
+    compute_links(out, client, settings_of(), progress=False)
+    run_solve(out, client, settings_of(), progress=False, method="hierarchical")
     a = radiance(out).copy()
     solve_with_rounds(out, client, resolve({"hierarchy.rounds": 0}), progress=False,
                       method="hierarchical")
@@ -227,7 +229,7 @@ def test_rounds_bring_the_indirect_box_toward_a_tight_epsilon(client, tmp_path):
     from radiosity.stages.solve import run_solve
 
     warm = radiance(out).copy()
-    run_solve(out, client, progress=False, method="hierarchical", closure=None)
+    run_solve(out, client, settings_of(), progress=False, method="hierarchical", closure=None)
     np.testing.assert_allclose(radiance(out), warm, rtol=2e-3, atol=1e-6)
 
 

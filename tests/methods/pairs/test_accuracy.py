@@ -22,6 +22,7 @@ from radiosity.runtime.store import RunStore
 from radiosity.validation.study import accuracy, form_factor_of_run, pareto
 from radiosity.methods.pairs.visibility import compute_visibility
 from helpers import prepared, radiance, scene_path, write_scene
+from radiosity.settings import options as settings_of
 
 
 def test_centre_kernel_error_at_a_right_angle_edge_is_the_documented_59_percent():
@@ -47,7 +48,7 @@ def test_near_field_row_sums_in_a_closed_scene_stay_within_one_percent(client, t
     rs = RunStore(out)
     worst = {}
     for kernel in ("point", "point-nf"):
-        op, _, _ = open_operator(rs, client, kernel)
+        op, _, _ = open_operator(rs, client, kernel, settings_of())
         worst[kernel] = float(np.abs(op.row_sums()[0] - 1).max())
     print(f"furnace {res}^2: max |row sum - 1| point {worst['point']:.4f}, point-nf {worst['point-nf']:.4f}")
     assert worst["point"] > 0.2
@@ -68,12 +69,17 @@ def test_closed_scenes_with_rho_near_one_converge_to_le_over_one_minus_rho(clien
     path = tmp_path / "furnace.toml"
     path.write_text(src)
     out = prepared(client, tmp_path, str(path), 12)
-    fig = run_solve(out, client, solver="cg", kernel="point-nf", tol=1e-11, progress=False,
-                    normalise="closed")
+    fig = run_solve(out, client,
+                    settings_of(solver="cg", kernel="point-nf", tol=1e-11)
+                        .replace({"solve.normalise-rows": "closed"}),
+                    progress=False)
     assert fig["converged"] and fig["iterations"] <= 10
     L = radiance(out)[:, 0, :]
     np.testing.assert_allclose(L, 1.0 / (1.0 - rho), rtol=1e-9)
-    run_solve(out, client, solver="cg", kernel="point-nf", tol=1e-11, progress=False, normalise="cap")
+    run_solve(out, client,
+              settings_of(solver="cg", kernel="point-nf", tol=1e-11)
+                  .replace({"solve.normalise-rows": "cap"}),
+              progress=False)
     off = 1.0 - radiance(out)[:, 0, :].mean() * (1.0 - rho)
     assert off == pytest.approx({0.99: 0.116, 0.999: 0.570}[rho], abs=0.01)
 
@@ -119,12 +125,14 @@ def test_large_element_next_to_tiny_ones_does_not_diverge(client, tmp_path):
     with dask.config.set({"radiosity.subdivide.unseen": "keep"}):
         out = prepared(client, tmp_path, write_scene(tmp_path, obj, extra, camera=cam), 32)
     assert np.diff(RunStore(out).load_partition().offsets)[1] == 1
-    fig = run_solve(out, client, solver="jacobi", kernel="point", tol=1e-8, progress=False)
+    fig = run_solve(out, client, settings_of(solver="jacobi", kernel="point", tol=1e-8),
+                    progress=False)
     rows = fig["row_sums"]
     assert rows["rows_over_1"] > 0 and rows["max_row_sum"] > 1 and rows["normalised"]
     assert fig["converged"] and np.all(np.isfinite(radiance(out)))
     # the same with the exact near field: no row over 1 (measured: 14 rows up to 6.1 -> none, 0.46)
-    fig2 = run_solve(out, client, solver="cg", kernel="point-nf", tol=1e-8, progress=False)
+    fig2 = run_solve(out, client, settings_of(solver="cg", kernel="point-nf", tol=1e-8),
+                     progress=False)
     assert fig2["converged"] and fig2["row_sums"]["rows_over_1"] == 0
     assert fig2["row_sums"]["max_row_sum"] < rows["max_row_sum"]
 
@@ -132,7 +140,7 @@ def test_large_element_next_to_tiny_ones_does_not_diverge(client, tmp_path):
 def test_coplanar_elements_have_exactly_zero_form_factor(client, tmp_path):
     out = prepared(client, tmp_path, scene_path("furnace-cube"), 8)
     rs = RunStore(out)
-    op, part, _ = open_operator(rs, client, "point")
+    op, part, _ = open_operator(rs, client, "point", settings_of())
     # a source on one face of the cube: the other sub-elements of that face receive exactly 0
     face = part.orig == 0
     x = np.zeros((2, 1, len(part)))
@@ -146,7 +154,7 @@ def test_coplanar_elements_have_exactly_zero_form_factor(client, tmp_path):
 
 @pytest.mark.parametrize("factor", [1e-4, 1e4])
 def test_whole_scene_scaled_gives_the_same_answer(client, tmp_path, factor):
-    sc = load_scene(scene_path("cornell-box"), resolution=10)
+    sc = load_scene(scene_path("cornell-box"), resolution=10, settings=settings_of())
     el = sc.elements
     verts = el.verts * factor
     area, normal, center = polygon_properties(verts, el.nverts)
@@ -158,9 +166,9 @@ def test_whole_scene_scaled_gives_the_same_answer(client, tmp_path, factor):
     outs = []
     for s, name in ((sc, "a"), (sc2, "b")):
         out = str(tmp_path / name)
-        preprocess(s, out, client, progress=False)
-        compute_visibility(out, client, progress=False)
-        run_solve(out, client, solver="cg", tol=1e-12, progress=False)
+        preprocess(s, out, client, settings_of(), progress=False)
+        compute_visibility(out, client, settings_of(), progress=False)
+        run_solve(out, client, settings_of(solver="cg", tol=1e-12), progress=False)
         outs.append(radiance(out))
     np.testing.assert_allclose(outs[1], outs[0], rtol=1e-9, atol=1e-12 * np.abs(outs[0]).max())
 
@@ -207,7 +215,8 @@ def test_thin_slivers_and_near_degenerate_triangles(client, tmp_path):
     resolution = [24, 24]
     """
     out = prepared(client, tmp_path, write_scene(tmp_path, obj, extra, camera=cam), 24)
-    fig = run_solve(out, client, solver="cg", kernel="point-nf", tol=1e-9, progress=False)
+    fig = run_solve(out, client, settings_of(solver="cg", kernel="point-nf", tol=1e-9),
+                    progress=False)
     L = radiance(out)
     # with rows of F summing to at most 1 (capped), no radiance exceeds Le_max / (1 - rho_max) =
     # 5 / (1 - 0.9) = 50 (the maximum principle), and none is negative; the margin is the
@@ -273,7 +282,7 @@ def test_validation_scenes_and_convergence_order(client, tmp_path, name, exact):
     every level, and at the right-angle edge only the near field is accurate from the start."""
     import dask.config
 
-    sc = load_scene(scene_path(name))
+    sc = load_scene(scene_path(name), settings=settings_of())
     assert sc.validation["form_factor"] == pytest.approx(exact, rel=1e-12)
     errs = {k: [] for k in ("point", "disc", "point-nf", "nxm", "mc")}
     sizes = []
@@ -284,8 +293,8 @@ def test_validation_scenes_and_convergence_order(client, tmp_path, name, exact):
         sizes.append(np.sqrt(part.area.mean()))
         for k in errs:
             if k in ("nxm", "mc"):  # one ray per sample pair: their own visibility matrix
-                compute_visibility(out, client, progress=False, kernel=k)
-            f = form_factor_of_run(out, client, k, "emitter", "receiver")
+                compute_visibility(out, client, settings_of(kernel=k), progress=False)
+            f = form_factor_of_run(out, client, k, "emitter", "receiver", settings=settings_of())
             errs[k].append(abs(f / exact - 1))
     orders = {k: float(np.polyfit(np.log(sizes), np.log(np.maximum(v, 1e-16)), 1)[0]) for k, v in errs.items()}
     print(f"{name}: errors {errs}; orders {orders}")
@@ -299,7 +308,7 @@ def test_validation_scenes_and_convergence_order(client, tmp_path, name, exact):
 
 def test_study_accuracy_writes_csv_table_and_plot(client, tmp_path):
     rows = accuracy(scene_path("parallel-squares"), str(tmp_path / "st"), client, [8, 16], [1],
-                    ["point", "point-nf"], [1e-6], echo=lambda *a: None)
+                    ["point", "point-nf"], [1e-6], echo=lambda *a: None, settings=settings_of())
     assert len(rows) == 4 and all(r["error"] > 0 for r in rows)
     with open(tmp_path / "st" / "results.csv") as f:
         got = list(csv.DictReader(f))
@@ -309,8 +318,8 @@ def test_study_accuracy_writes_csv_table_and_plot(client, tmp_path):
     # against the finest setting when there is no exact answer: the coarse run's error equals
     # the same RMS difference found by brute force (every hit point located by testing it
     # against every sub-element polygon of its original, not by the split trees' lookup)
-    rows = accuracy(scene_path("three-rectangles"), str(tmp_path / "st2"), client, [8, 16], [1], ["point"],
-                    [1e-6], echo=lambda *a: None)
+    rows = accuracy(scene_path("three-rectangles"), str(tmp_path / "st2"), client, [8, 16], [1],
+                    ["point"], [1e-6], echo=lambda *a: None, settings=settings_of())
     coarse, fine = (str(tmp_path / "st2" / "runs" / f"r{r}-k1") for r in (8, 16))
     pts, orig, cam = _camera_hit_points(fine)
     a, b = _radiance_at(coarse, pts, orig, cam), _radiance_at(fine, pts, orig, cam)
@@ -383,8 +392,9 @@ def test_study_seed_writes_its_plots_and_times_the_worker_counts_it_names(client
             seen.append(len(c.scheduler_info()["workers"]))
             yield c
 
-    res = seed(scene_path("three-rectangles"), str(tmp_path / "seed"), clusters, resolutions=[12, 16, 24],
-               workers=[1, 2], speedup_res=16, echo=lambda *a: None)
+    res = seed(scene_path("three-rectangles"), str(tmp_path / "seed"), clusters,
+               resolutions=[12, 16, 24], workers=[1, 2], speedup_res=16, echo=lambda *a: None,
+               settings=settings_of())
     assert seen == [2, 1, 2]  # the main runs on the largest, then one cluster per row
     assert [s["workers"] for s in res["speedup"]] == [1, 2]
     assert all(s["visibility_s"] > 0 for s in res["speedup"])
@@ -401,7 +411,7 @@ def test_coaxial_discs_validation_value_is_the_64_gon_contour_integral():
     ring = np.array([[np.cos(2 * np.pi * k / n), np.sin(2 * np.pi * k / n), 0.0] for k in range(n)])
     top = (ring + [0, 0, 1.0])[::-1]
     f = polygon_form_factor(ring, top)
-    assert load_scene(scene_path("coaxial-discs")).validation["form_factor"] == pytest.approx(f, rel=1e-12)
+    assert load_scene(scene_path("coaxial-discs"), settings=settings_of()).validation["form_factor"] == pytest.approx(f, rel=1e-12)
 
 
 def test_study_accuracy_sweeps_the_hierarchical_method(client, tmp_path):
@@ -410,9 +420,11 @@ def test_study_accuracy_sweeps_the_hierarchical_method(client, tmp_path):
     furnace cube (closed, exact radiance Le / (1 - rho)) both methods are exact to the
     closure's balancing (1e-6: the solver's tolerance)."""
     rows = accuracy(scene_path("furnace-cube"), str(tmp_path / "st"), client, [8], [1],
-                    ["point", "hier:1e-3:4", "hier:1e-2:1"], [1e-9], echo=lambda *a: None)
+                    ["point", "hier:1e-3:4", "hier:1e-2:1"], [1e-9], echo=lambda *a: None,
+                    settings=settings_of())
     assert [r["kernel"] for r in rows] == ["point", "hier:1e-2:1", "hier:1e-3:4"]
     for r in rows:
         assert r["error"] < 1e-6 and r["time_visibility_s"] > 0 and r["passes"] > 0, r
     with pytest.raises(RadiosityError, match="hier:EPSILON:RAYS"):
-        accuracy(scene_path("furnace-cube"), str(tmp_path / "x"), client, [8], [1], ["hier:x"], [1e-6])
+        accuracy(scene_path("furnace-cube"), str(tmp_path / "x"), client, [8], [1], ["hier:x"],
+                 [1e-6], settings=settings_of())

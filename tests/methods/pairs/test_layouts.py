@@ -14,6 +14,7 @@ from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore
 from radiosity.methods.pairs.visibility import compute_visibility
 from helpers import prepared, radiance, scene_path
+from radiosity.settings import options as settings_of
 
 
 @pytest.mark.parametrize("unit, max_task_bits", [("stripe", None), ("block", 16), ("stripe", 16)])
@@ -25,7 +26,7 @@ def test_every_solver_on_stripe_tasks_and_banded_tiles(client, tmp_path, unit, m
     out = prepared(client, tmp_path, scene_path("cornell-box"), 8, visibility=False)
     cfg = {} if max_task_bits is None else {"radiosity.visibility.max-task-bits": max_task_bits}
     with dask.config.set(cfg):
-        fig = compute_visibility(out, client, progress=False, unit=unit)
+        fig = compute_visibility(out, client, settings_of(), progress=False, unit=unit)
     assert fig["task_unit"] == unit
     rs = RunStore(out)
     plan = VisibilityStore(rs).plan()
@@ -39,7 +40,8 @@ def test_every_solver_on_stripe_tasks_and_banded_tiles(client, tmp_path, unit, m
     ref = naive.dense_solution(part, el, naive.visibility(part, el), "point")
     scale = np.abs(ref).max()
     for solver in ("jacobi", "gauss-seidel", "progressive"):
-        f = run_solve(out, client, solver=solver, kernel="point", tol=1e-11, progress=False)
+        f = run_solve(out, client, settings_of(solver=solver, kernel="point", tol=1e-11),
+                      progress=False)
         assert f["converged"], solver
         err = np.abs(radiance(out) - ref).max() / scale
         # 1e-11 relative residual; Gauss-Seidel and progressive stop on cheaper bounds of it
@@ -54,7 +56,7 @@ def test_near_field_on_two_sided_elements_matches_the_brute_force(client, tmp_pa
     (base kernel, exact polygon form factors for the near pairs, rows capped as the solve caps
     them); disc-nf (not reciprocal) through Gauss-Seidel, point-nf through CG."""
     out = prepared(client, tmp_path, scene_path("construction-in-wood"), 8)
-    fig = run_solve(out, client, kernel=kernel, tol=1e-12, progress=False)
+    fig = run_solve(out, client, settings_of(kernel=kernel, tol=1e-12), progress=False)
     assert fig["converged"] and fig["solver"] == ("cg" if kernel == "point-nf" else "gauss-seidel")
     rs = RunStore(out)
     part, el = rs.load_partition(), rs.load_elements()

@@ -21,6 +21,7 @@ from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore, read_partial
 from radiosity.methods.pairs.visibility import compute_visibility
 from helpers import prepared, scene_path
+from radiosity.settings import options as settings_of
 
 
 def _polys(rng):
@@ -88,7 +89,7 @@ def test_sampling_settings_are_checked():
         with pytest.raises(RadiosityError, match="nxm-points must be a square"):
             sampling_of(resolve().solve, "nxm")
     with pytest.raises(RadiosityError, match="mc-samples must be at least 1"):
-        sampling_of(resolve({"solve.mc-samples": 0}).solve, "mc")
+        sampling_of(resolve().replace({"solve.mc-samples": 0}).solve, "mc")
     assert sampling_of(resolve({"solve.nxm-points": 9}).solve, "nxm").rays_per_pair == 81
     assert sampling_of(resolve({"solve.mc-samples": 7, "solve.mc-seed": 2}).solve,
                        "mc") == Sampling("mc", 7, 2)
@@ -100,10 +101,10 @@ def test_sampled_operator_equals_brute_force_with_a_ray_per_sample_pair(client, 
     stored fractions + on-the-fly kernel) must equal a brute force that traces every sample pair
     of every ordered pair, and stay reciprocal."""
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 12, visibility=False)
-    fig = compute_visibility(out, client, progress=False, kernel=kernel)
+    fig = compute_visibility(out, client, settings_of(kernel=kernel), progress=False)
     assert fig["pairs_partial"] > 10 and fig["rays_per_pair"] == 16
     rs = RunStore(out)
-    op, part, el = open_operator(rs, client, kernel)
+    op, part, el = open_operator(rs, client, kernel, settings_of())
     assert op.inp.pcrc[:, 1].sum() == fig["pairs_partial"]
     pts, w = sample_points(part.verts, part.nverts, sampling_of(resolve().solve, kernel))
     F = naive.sampled_form_factor_matrix(part, el, kernel, pts, w)
@@ -118,7 +119,7 @@ def test_sampled_operator_equals_brute_force_with_a_ray_per_sample_pair(client, 
     y = op.apply(x, use_need=False)
     assert np.abs(y[:, 0] - ref).max() > 1e-3 * np.abs(ref).max()
     # reciprocity, partial pairs included
-    op, part, el = open_operator(rs, client, kernel)
+    op, part, el = open_operator(rs, client, kernel, settings_of())
     x, z = np.zeros((2, 3, m)), np.zeros((2, 3, m))
     x[0], z[0] = rng.random((3, m)), rng.random((3, m))
     lhs = np.sum(x * part.area * op.apply(z))
@@ -132,12 +133,13 @@ def test_every_solver_applies_the_sparse_corrections(client, tmp_path, kernel):
     radiance with sparse corrections (partial visibility, near field), and nxm matches a dense
     direct solve of the brute-force F."""
     out = prepared(client, tmp_path, scene_path("cornell-box"), 8, visibility=False)
-    compute_visibility(out, client, progress=False, kernel=kernel)
+    compute_visibility(out, client, settings_of(kernel=kernel), progress=False)
     rs = RunStore(out)
     part, el = rs.load_partition(), rs.load_elements()
     got = {}
     for solver in ("jacobi", "gauss-seidel", "progressive", "cg"):
-        run_solve(out, client, solver=solver, kernel=kernel, tol=1e-11, progress=False)
+        run_solve(out, client, settings_of(solver=solver, kernel=kernel, tol=1e-11),
+                  progress=False)
         got[solver] = RunStore(out).read_arrays("solution")["radiance"]
     rep = json.loads((tmp_path / "run" / "report.json").read_text())["solve"]
     assert rep["partial_visibility" if kernel == "nxm" else "near_field"]["pairs"] > 0
@@ -153,39 +155,40 @@ def test_every_solver_applies_the_sparse_corrections(client, tmp_path, kernel):
 
 def test_kernel_needs_its_own_visibility_and_mc_is_seeded(client, tmp_path):
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 12, visibility=False)
-    compute_visibility(out, client, progress=False)
+    compute_visibility(out, client, settings_of(), progress=False)
     with pytest.raises(RadiosityError, match="one ray between centres; the nxm kernel needs 4 points "
                                              "per element .*radiosity visibility .* --kernel nxm"):
-        run_solve(out, client, kernel="nxm", progress=False)
-    compute_visibility(out, client, progress=False, kernel="mc")
+        run_solve(out, client, settings_of(kernel="nxm"), progress=False)
+    compute_visibility(out, client, settings_of(kernel="mc"), progress=False)
     with pytest.raises(RadiosityError, match="--kernel point"):
-        run_solve(out, client, kernel="point", progress=False)
-    run_solve(out, client, kernel="mc", progress=False)
+        run_solve(out, client, settings_of(kernel="point"), progress=False)
+    run_solve(out, client, settings_of(kernel="mc"), progress=False)
     a = RunStore(out).read_arrays("solution")["radiance"]
-    run_solve(out, client, kernel="mc", progress=False)
+    run_solve(out, client, settings_of(kernel="mc"), progress=False)
     assert np.array_equal(a, RunStore(out).read_arrays("solution")["radiance"])
     with dask.config.set({"radiosity.solve.mc-seed": 1}):
         with pytest.raises(RadiosityError, match="random sample pairs \\(seed 0\\)"):
-            run_solve(out, client, kernel="mc", progress=False)
-        compute_visibility(out, client, progress=False, kernel="mc")
-        run_solve(out, client, kernel="mc", progress=False)
+            run_solve(out, client, settings_of(kernel="mc"), progress=False)
+        compute_visibility(out, client, settings_of(kernel="mc"), progress=False)
+        run_solve(out, client, settings_of(kernel="mc"), progress=False)
     b = RunStore(out).read_arrays("solution")["radiance"]
     assert not np.array_equal(a, b) and np.abs(a - b).max() < 0.2 * np.abs(a).max()
 
 
 def test_corrupted_partial_pairs_are_detected_and_recomputed(client, tmp_path):
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 12, visibility=False)
-    compute_visibility(out, client, progress=False, kernel="nxm", unit="block")
+    compute_visibility(out, client, settings_of(kernel="nxm"), progress=False, unit="block")
     rs = RunStore(out, "r+")
     _, _, done = VisibilityStore(rs).require()
     ref = {t: read_partial(rs.path, t, e["partial"]) for t, e in done.items()}
     task = next(t for t, e in done.items() if e["partial"]["n"] > 0)
     arr = rs.root["visibility"]["partial"][f"{task}-phi"]
     arr[0] = arr[0] * 0.5
-    op, part, _ = open_operator(RunStore(out), client, "nxm")
+    op, part, _ = open_operator(RunStore(out), client, "nxm", settings_of())
     with pytest.raises(StoreError, match=f"visibility task {task} .* corrupted"):
         op.apply(np.ones((2, 1, len(part))))
-    fig = compute_visibility(out, client, progress=False, kernel="nxm", unit="block", resume=True)
+    fig = compute_visibility(out, client, settings_of(kernel="nxm"), progress=False, unit="block",
+                             resume=True)
     assert fig["tasks_corrupted_recomputed"] == 1 and fig["tasks_computed"] == 1
     _, _, done = VisibilityStore(RunStore(out)).require()
     for t, e in done.items():  # the recomputed task wrote the same pairs again
@@ -210,13 +213,14 @@ def test_render_with_the_nxm_kernel_from_the_cli(client, tmp_path):
 def test_study_sweeps_sample_counts(client, tmp_path):
     from radiosity.validation.study import accuracy, kernel_setting
 
-    assert kernel_setting("nxm:16") == ("nxm", {"radiosity.solve.nxm-points": 16})
-    assert kernel_setting("point") == ("point", {})
+    assert kernel_setting("nxm:16", settings_of()) == ("nxm", {"radiosity.solve.nxm-points": 16})
+    assert kernel_setting("point", settings_of()) == ("point", {})
     for bad in ("point:4", "mc:x", "nope:3"):
         with pytest.raises(RadiosityError):
-            kernel_setting(bad)
+            kernel_setting(bad, settings_of())
     rows = accuracy(scene_path("parallel-squares"), str(tmp_path / "st"), client, [8], [1],
-                    ["nxm:16", "point", "nxm:4", "mc:16"], [1e-6], echo=lambda *a: None)
+                    ["nxm:16", "point", "nxm:4", "mc:16"], [1e-6], echo=lambda *a: None,
+                    settings=settings_of())
     err = {r["kernel"]: r["error"] for r in rows}
     assert set(err) == {"point", "nxm:4", "nxm:16", "mc:16"}
     # more sample points, less error (measured: 2.7e-2, 6.5e-3, 1.6e-3; mc:16 1.2e-2)

@@ -14,6 +14,7 @@ from radiosity.stages.solve import normalise_rows
 from radiosity.core.solvers import SOLVERS
 from radiosity.runtime.store import RunStore
 from helpers import prepared, scene_path
+from radiosity.settings import options as settings_of
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +29,8 @@ def three(client, tmp_path_factory):
 @pytest.mark.parametrize("solver", list(SOLVERS))
 def test_every_solver_through_every_executor_matches_the_dense_solve(client, three, executor, solver):
     out, part, el, V = three
-    op, _, _ = open_operator(RunStore(out), client if executor == "dask" else None, "point")
+    op, _, _ = open_operator(RunStore(out), client if executor == "dask" else None, "point",
+                             settings_of())
     assert isinstance(op, DaskOperator if executor == "dask" else LocalOperator)
     rows, scaling = normalise_rows(op, "cap")
     if scaling:
@@ -45,8 +47,8 @@ def test_every_solver_through_every_executor_matches_the_dense_solve(client, thr
 
 def test_both_executors_compute_the_same_product_and_counts(client, three, rng):
     out, part, *_ = three
-    dask_op, _, _ = open_operator(RunStore(out), client, "disc")
-    local_op, _, _ = open_operator(RunStore(out), None, "disc")
+    dask_op, _, _ = open_operator(RunStore(out), client, "disc", settings_of())
+    local_op, _, _ = open_operator(RunStore(out), None, "disc", settings_of())
     x = rng.random((2, 3, len(part)))
     np.testing.assert_allclose(dask_op.apply(x), local_op.apply(x), rtol=1e-12, atol=0)
     assert dask_op.terms == local_op.terms > 0

@@ -20,13 +20,14 @@ from radiosity.methods.pairs.store import VisibilityStore
 from radiosity.tracing.shafts import shaft_excludes
 from radiosity.methods.pairs.visibility import compute_visibility, dense_visibility
 from helpers import scene_path
+from radiosity.settings import options as settings_of
 
 
 def _run(client, tmp_path, name, res, **kw):
     out = str(tmp_path / name.replace("/", "_"))
-    sc = load_scene(scene_path(name), resolution=res)
-    preprocess(sc, out, client, progress=False)
-    fig = compute_visibility(out, client, progress=False, **kw)
+    sc = load_scene(scene_path(name), resolution=res, settings=settings_of())
+    preprocess(sc, out, client, settings_of(), progress=False)
+    fig = compute_visibility(out, client, settings_of(), progress=False, **kw)  # kw: unit
     return out, fig
 
 
@@ -82,14 +83,14 @@ def test_three_rectangles_shadow_is_where_the_geometry_puts_it(client, tmp_path)
 def test_worker_killed_mid_run_gives_the_same_matrix(tmp_path):
     from distributed import Client, LocalCluster
 
-    sc = load_scene(scene_path("cornell-box"), resolution=12)
+    sc = load_scene(scene_path("cornell-box"), resolution=12, settings=settings_of())
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None, silence_logs=50) as cluster, Client(cluster) as c:
         ref_dir = str(tmp_path / "ref")
-        preprocess(sc, ref_dir, c, progress=False)
-        compute_visibility(ref_dir, c, progress=False, unit="block")
+        preprocess(sc, ref_dir, c, settings_of(), progress=False)
+        compute_visibility(ref_dir, c, settings_of(), progress=False, unit="block")
         out = str(tmp_path / "run")
-        preprocess(sc, out, c, progress=False)
+        preprocess(sc, out, c, settings_of(), progress=False)
         pids = list(c.run(os.getpid).values())
         killed = []
 
@@ -98,7 +99,7 @@ def test_worker_killed_mid_run_gives_the_same_matrix(tmp_path):
                 os.kill(pids[0], signal.SIGKILL)
                 killed.append(pids[0])
 
-        fig = compute_visibility(out, c, progress=False, unit="block", on_done=kill)
+        fig = compute_visibility(out, c, settings_of(), progress=False, unit="block", on_done=kill)
         assert killed and fig["tasks_computed"] == fig["tasks"]
         assert np.array_equal(dense_visibility(RunStore(out)), dense_visibility(RunStore(ref_dir)))
 
@@ -108,28 +109,29 @@ class _Stop(Exception):
 
 
 def test_interrupted_run_resumes_with_only_the_missing_tasks(client, tmp_path):
-    sc = load_scene(scene_path("cornell-box"), resolution=12)
+    sc = load_scene(scene_path("cornell-box"), resolution=12, settings=settings_of())
     ref = str(tmp_path / "ref")
-    preprocess(sc, ref, client, progress=False)
-    full = compute_visibility(ref, client, progress=False, unit="block")
+    preprocess(sc, ref, client, settings_of(), progress=False)
+    full = compute_visibility(ref, client, settings_of(), progress=False, unit="block")
     out = str(tmp_path / "run")
-    preprocess(sc, out, client, progress=False)
+    preprocess(sc, out, client, settings_of(), progress=False)
 
     def stop(n):
         if n == 7:
             raise _Stop
 
     with pytest.raises(_Stop):
-        compute_visibility(out, client, progress=False, unit="block", on_done=stop)
+        compute_visibility(out, client, settings_of(), progress=False, unit="block", on_done=stop)
     rs = RunStore(out)
     with pytest.raises(StoreError, match="is missing: run radiosity visibility .* --resume"):
         dense_visibility(rs)
-    fig = compute_visibility(out, client, progress=False, unit="block", resume=True)
+    fig = compute_visibility(out, client, settings_of(), progress=False, unit="block", resume=True)
     assert fig["tasks_reused"] == 7
     assert fig["tasks_computed"] == full["tasks"] - 7
     assert np.array_equal(dense_visibility(RunStore(out)), dense_visibility(RunStore(ref)))
     # nothing left to do: a second resume computes nothing
-    again = compute_visibility(out, client, progress=False, unit="block", resume=True)
+    again = compute_visibility(out, client, settings_of(), progress=False, unit="block",
+                               resume=True)
     assert again["tasks_computed"] == 0
 
 
@@ -152,7 +154,7 @@ def test_corrupted_chunk_is_detected_and_recomputed(client, tmp_path):
     files = sorted(os.listdir(chunk_dir), key=int)
     with open(os.path.join(chunk_dir, files[-1]), "wb") as f:
         f.write(b"garbage")
-    fig = compute_visibility(out, client, progress=False, unit="block", resume=True)
+    fig = compute_visibility(out, client, settings_of(), progress=False, unit="block", resume=True)
     assert fig["tasks_corrupted_recomputed"] == 2
     assert fig["tasks_computed"] == 2
     assert np.array_equal(dense_visibility(RunStore(out)), ref)

@@ -345,15 +345,14 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
     return LinkPlan(pairs, first, cost, unit, prm, weight, why, seen, hit, token, cl, cfig)
 
 
-def compute_links(run_dir: str, client, settings=None, *, kernel: str | None = None,
-                  epsilon: float | None = None, rays: int | None = None, unit: str | None = None,
+def compute_links(run_dir: str, client, settings, *, unit: str | None = None,
                   resume: bool = False, progress: bool = True, on_done=None,
                   occlusion: bool = True) -> dict:
     """The link stage on the one stage executor (runtime/stage.py): a bounded window of link
     tasks per worker thread, most expensive first, failed tasks resubmitted, every finished task
     recorded with its crc so `resume` recomputes only what is missing or corrupted; then the node
-    table of the union tree. settings: a settings.Settings (None: resolved here); kernel,
-    epsilon, rays override its hierarchy section. Writes section "links" of report.json and
+    table of the union tree. settings: the run's settings.Settings (hierarchy.kernel,
+    epsilon, link-rays, ...). Writes section "links" of report.json and
     returns its figures."""
     from dask.base import tokenize
 
@@ -361,10 +360,7 @@ def compute_links(run_dir: str, client, settings=None, *, kernel: str | None = N
     from radiosity.runtime.stage import StagePlan, run_stage
     from radiosity.runtime.store import RunStore, update_report
     from radiosity.scene.splittrees import tree_nodes
-    from radiosity.settings import resolve
-
-    s = resolve({"hierarchy.kernel": kernel, "hierarchy.epsilon": epsilon,
-                 "hierarchy.link-rays": rays}, base=settings)
+    s = settings
     t_start = time.perf_counter()
     rs = RunStore(run_dir, "r+")
     part, el = rs.load_partition(), rs.load_elements()

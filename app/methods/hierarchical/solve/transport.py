@@ -571,14 +571,12 @@ def memory_inputs(table: dict, tasks: list, normal: np.ndarray) -> LinkSolveInpu
                            memory=list(tasks))
 
 
-def open_link_operator(rs, client=None, where: str = "auto", settings=None):
+def open_link_operator(rs, client, where: str, settings):
     """The operator of a run's links: in this process (client None, or where "driver", or
     "auto" with at most hierarchy.driver-solve-links links: no round trips per pass) or a
-    LinkOperator over `client` (where "cluster", or "auto" above that). settings: a
-    settings.Settings (None: resolved here). Returns (op, table, elements, partition)."""
-    from radiosity.settings import resolve
-
-    s = settings if settings is not None else resolve()
+    LinkOperator over `client` (where "cluster", or "auto" above that). settings: the run's
+    settings.Settings. Returns (op, table, elements, partition)."""
+    s = settings
     el = rs.load_elements()
     inp, table, kernel = solve_inputs(rs, el, s.solve.cache_bytes)
     links = int(inp.entries[:, 1].sum()) if len(inp.entries) else 0

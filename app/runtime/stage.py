@@ -97,8 +97,8 @@ def run_stage(client, plan: StagePlan, task_fn, args_of: Callable, ledger: Ledge
     for e in done.values():
         counts += np.asarray(e["counts"], np.int64)
     todo = [t for t in range(plan.ntasks) if t not in done]
-    run = StageRun(done=done, counts=counts, corrupted=corrupted,
-                   workers=(len(client.scheduler_info()["workers"]) or 1) if client is not None else 1)
+    workers = (len(client.scheduler_info()["workers"]) or 1) if client is not None else 1
+    run = StageRun(done=done, counts=counts, corrupted=corrupted, workers=workers)
 
     def finished(task, res):
         run.computed += 1

@@ -4,9 +4,9 @@ refine the link of their roots down the split trees until each link carries litt
 A link p <- q between nodes of two originals (scene/splittrees.py) carries the unoccluded form
 factors F_pq, F_qp (A_p F_pq = A_q F_qp) and the visible fraction v. One task per pair of
 originals I < J that face each other (originals.facing_pairs: nothing n x n), or per stripe of
-pairs, run by the one stage executor (runtime/stage.py) like the visibility matrix. Here: the
-task's inputs, the task plan, the task (refine.py's rounds, sampling.py's rays between them)
-and the master; the settings are params.py's.
+pairs, run on the one stage master (runtime/stage.py: LinkStage) like the visibility matrix.
+Here: the task's inputs, the task plan, the task (links/refine.py's rounds, links/sampling.py's
+rays between them), the stage and its figures; the settings are params.py's.
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ class LinkInputs:
         self.ray_offset = float(ray_offset)
         self.params = params
         self.n = n
-        # per partition node and side (k, 2), from refinement rounds (rounds.py; refine.Elements):
+        # per partition node and side (k, 2), from refinement rounds (views/rounds.py; refine.Elements):
         # the solved radiance, its spread over the node, the nodes forced to split; (0, 2): none
         self.nhat = np.zeros((0, 2))
         self.nvar = np.zeros((0, 2))
@@ -270,7 +270,7 @@ class LinkPlan:
 def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
                progress: bool = False) -> LinkPlan:
     """The link stage's plan for run store `rs` (its partition, elements) under settings `s`;
-    with a `client`, the cluster layer runs as tasks on it (clustertasks.plan_clusters)."""
+    with a `client`, the cluster layer runs as tasks on it (clusters/tasks.plan_clusters)."""
     from dask.base import tokenize
 
     from radiosity.scene.originals import FacingPairsError, pairs_within_budget, tree_of

@@ -333,7 +333,7 @@ class Rounds:
         V, NV = t["verts"], t["nverts"].astype(np.int64)
         A, _, C = polygon_properties(V, t["nverts"])
         inp, prm = self.inp, self.lp.prm
-        # can a node split (localnodes._copy_tree_node, and split-off nodes)?
+        # can a node split (links/nodes._copy_tree_node, and split-off nodes)?
         pn = np.maximum(pnode, 0)
         can = np.where(pnode >= 0,
                        (inp.t_child[pn, 0] >= 0) | (inp.ext[pn] & (np.sqrt(inp.t_area[pn])

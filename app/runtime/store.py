@@ -244,12 +244,24 @@ def update_report(run_dir: str, section: str, data: dict) -> dict:
 class StageFigures:
     """What a stage measured: a frozen dataclass that writes its section of report.json and the
     rows of the CLI's summary. Reads like the report section too (fig["key"]), for callers that
-    hold a report key (studies, tests)."""
+    hold a report key (studies, tests). OPTIONAL fields are left out of the section while None
+    (keys the section has only sometimes); FLAT fields are dicts whose items the section holds
+    in their place (figures named by another module, such as a task's counters); a field that
+    holds figures writes their section as its value."""
 
     SECTION: ClassVar[str] = ""
+    OPTIONAL: ClassVar[tuple] = ()
+    FLAT: ClassVar[tuple] = ()
 
     def to_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        out = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.name in self.FLAT:
+                out.update(v)
+            elif not (v is None and f.name in self.OPTIONAL):
+                out[f.name] = v.to_dict() if isinstance(v, StageFigures) else v
+        return out
 
     def write(self, run_dir: str) -> dict:
         """Merge these figures into report.json's section; returns the whole report."""
@@ -260,18 +272,29 @@ class StageFigures:
         return []
 
     def __getitem__(self, key: str):
-        if key not in self.__dataclass_fields__:
-            raise KeyError(key)
-        return getattr(self, key)
+        if key in self.__dataclass_fields__ and key not in self.FLAT:
+            if key in self.OPTIONAL and getattr(self, key) is None:
+                raise KeyError(key)
+            return getattr(self, key)
+        for name in self.FLAT:
+            if key in getattr(self, name):
+                return getattr(self, name)[key]
+        raise KeyError(key)
 
     def __contains__(self, key: str) -> bool:
-        return key in self.__dataclass_fields__
+        try:
+            self[key]
+        except KeyError:
+            return False
+        return True
 
     def get(self, key: str, default=None):
-        return getattr(self, key, default) if key in self else default
+        return self[key] if key in self else default
 
 
 def json_default(o):
+    if isinstance(o, StageFigures):  # figures within figures (the rounds' list)
+        return o.to_dict()
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):

@@ -1,6 +1,6 @@
 """The view-factor stage's master (driver side): resolve the parameters, build the facet tree
-and the worker inputs, plan the tasks, run them through runtime.stage.run_stage (resume,
-checksums, retries), assemble the CSR matrix from the store and write the outputs.
+and the worker inputs, plan the tasks, run them on the one stage master (runtime/stage.py:
+resume, checksums, retries), assemble the CSR matrix from the store and write the outputs.
 The method: docs/src/design/viewfactors-method.md.
 """
 
@@ -13,6 +13,8 @@ import numpy as np
 
 from radiosity.core.tolerances import TOL
 from radiosity.errors import RadiosityError
+from radiosity.runtime.stage import StageMaster, StagePlan
+from radiosity.runtime.store import StageFigures
 from radiosity.settings import Settings, ViewFactorSettings
 from radiosity.viewfactors.facets import Facets, load_facets
 from radiosity.viewfactors.store import read_vf_task
@@ -115,6 +117,37 @@ def task_cost(tree, n: int, leaves: np.ndarray) -> int:
 
 # ----------------------------------------------------------------------------- the master
 
+@dataclass(frozen=True)
+class ViewFactorFigures(StageFigures):
+    """The view-factor stage's figures (report.json, section "viewfactors"): what the outputs
+    found and wrote (outputs.finish: enclosure, balancing, row sums, files), the parameters,
+    the tasks' counters (task.COUNTERS) summed, the task run and the times."""
+
+    SECTION = "viewfactors"
+    FLAT = ("outputs", "counters")
+    outputs: dict
+    facets: int
+    accuracy: float
+    cutoff: float
+    cheap_kernel_relative_bound: float
+    max_points_per_side: int
+    counters: dict
+    tasks: int
+    tasks_computed: int
+    tasks_reused: int
+    tasks_corrupted_recomputed: int
+    time_tasks_s: float
+    busy_s_per_worker: dict
+    idle_fraction: float | None
+    workers: int
+    leaf_size: int
+    time_assembly_s: float
+    task_time_by_stage_s: dict
+    task_cpu_s: float
+    peak_rss_mb: dict
+    time_s: float
+
+
 @dataclass
 class ViewFactors:
     """matrix: CSR (n, n) float64, F[i, j] from facet i to facet j (load order; balanced when
@@ -123,7 +156,87 @@ class ViewFactors:
     matrix: object
     area: np.ndarray
     facets: Facets
-    figures: dict
+    figures: ViewFactorFigures
+
+
+class ViewFactorStage(StageMaster):
+    """The view-factor stage on the one stage master: the plan (the facet tree, runs of its
+    leaves as tasks), the worker inputs, one task_viewfactors per task, the run's store as the
+    ledger; the figures assemble the matrix and write the outputs (outputs.finish)."""
+
+    task = staticmethod(task_viewfactors)
+    counters = COUNTERS
+
+    def __init__(self, mesh, out: str, client, s: Settings, prm: Params, fmt: str, **kw):
+        super().__init__(client, report_dir=out, **kw)
+        self.mesh, self.out, self.s, self.prm, self.fmt = mesh, out, s, prm, fmt
+        self.matrix = None
+
+    def plan(self) -> StagePlan:
+        from dask.base import tokenize
+
+        from radiosity.viewfactors.store import VFLedger
+
+        s, vf, prm = self.s, self.s.viewfactors, self.prm
+        self.fac = fac = load_facets(self.mesh, settings=s)
+        n = len(fac)
+        self.tree, self.inp = tree, _ = make_inputs(fac, vf.leaf_size, s.rays.epsilon)
+        threads = sum(self.client.nthreads().values()) or 1
+        self.tasks = tasks = plan_tasks(tree, n, vf.task_pairs, vf.tasks_per_worker * threads)
+        self.token = tokenize(VERSION, fac.verts, fac.nverts, asdict(prm), vf.leaf_size,
+                              [t.tolist() for t in tasks])
+        self.vfl = VFLedger(self.out)
+        return StagePlan(name="viewfactors", token=self.token, where=self.vfl.path,
+                         ntasks=len(tasks),
+                         cost=np.array([task_cost(tree, n, t) for t in tasks], np.int64),
+                         repair=f"rerun with: radiosity viewfactors MESH --out {self.out} "
+                                "--resume",
+                         window_per_worker=vf.window_per_worker, retries=vf.retries)
+
+    def create(self) -> None:
+        fac = self.fac
+        self.vfl.create(self.token, {"params": asdict(self.prm),
+                                     "leaf_size": self.s.viewfactors.leaf_size,
+                                     "tasks": len(self.tasks)}, fac.sources,
+                        {"verts": fac.verts, "nverts": fac.nverts, "area": fac.area,
+                         "normal": fac.normal, "center": fac.center, "face": fac.face,
+                         "source": fac.source})
+
+    def ledger(self):
+        return self.vfl
+
+    def inputs(self):
+        return self.inp
+
+    def args(self, task: int, shared) -> tuple:
+        return (shared, self.prm, self.tasks[task], self.vfl.path, task)
+
+    def figures(self, run) -> ViewFactorFigures:
+        from radiosity.runtime.monitor import peak_rss_mb
+        from radiosity.viewfactors.outputs import finish
+
+        s, prm, fac = self.s, self.prm, self.fac
+        stage = np.zeros(len(STAGES))
+        cpu = 0.0
+        for e in run.done.values():
+            stage += np.asarray(e["times"])
+            cpu += e["cpu"]
+        t_asm = time.perf_counter()
+        asm = assemble(self.vfl.rs, fac, self.tree,
+                       {t: run.done[t] for t in range(len(self.tasks))})
+        t_asm = time.perf_counter() - t_asm
+        outputs = finish(self.vfl.rs, self.out, fac, asm, s.viewfactors, self.fmt,
+                         float(s.rays.epsilon))
+        self.matrix = outputs.pop("_matrix")
+        return ViewFactorFigures(
+            outputs=outputs, facets=len(fac), accuracy=prm.accuracy, cutoff=prm.cutoff,
+            cheap_kernel_relative_bound=prm.cheap_rel, max_points_per_side=prm.smax,
+            counters=dict(zip(COUNTERS, run.counts.tolist())), tasks=len(self.tasks),
+            **run.figures(), leaf_size=s.viewfactors.leaf_size,
+            time_assembly_s=round(t_asm, 3),
+            task_time_by_stage_s={k: round(float(v), 3) for k, v in zip(STAGES, stage)},
+            task_cpu_s=round(cpu, 3), peak_rss_mb=peak_rss_mb(self.client),
+            time_s=round(time.perf_counter() - self.t_start, 3))
 
 
 def compute_viewfactors(mesh, out: str, client, settings: Settings, *, fmt="npz",
@@ -134,17 +247,7 @@ def compute_viewfactors(mesh, out: str, client, settings: Settings, *, fmt="npz"
     (viewfactors.csv with fmt="csv"), report.json (section "viewfactors"). settings: the run's
     (radiosity.viewfactors.*: accuracy, enclosure auto | on | off, cutoff, ...). resume: keep
     the finished tasks of an interrupted run with the same inputs. on_done(n) after each
-    finished task (tests)."""
-    from dask.base import tokenize
-
-    from radiosity.runtime.cluster import Scattered
-    from radiosity.runtime.monitor import peak_rss_mb
-    from radiosity.runtime.stage import StagePlan, run_stage
-    from radiosity.runtime.store import update_report
-    from radiosity.viewfactors.outputs import finish
-    from radiosity.viewfactors.store import VFLedger
-
-    t_start = time.perf_counter()
+    finished task (tests). The stage: ViewFactorStage."""
     s = settings
     vf = s.viewfactors
     if vf.enclosure not in ENCLOSURE_MODES:
@@ -152,53 +255,11 @@ def compute_viewfactors(mesh, out: str, client, settings: Settings, *, fmt="npz"
                              f"got {vf.enclosure!r}")
     if fmt not in FORMATS:
         raise RadiosityError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
-    prm = params_of(vf)
-    fac = load_facets(mesh, settings=s)
-    n = len(fac)
-    tree, inp = make_inputs(fac, vf.leaf_size, s.rays.epsilon)
-    threads = sum(client.nthreads().values()) or 1
-    tasks = plan_tasks(tree, n, vf.task_pairs, vf.tasks_per_worker * threads)
-    token = tokenize(VERSION, fac.verts, fac.nverts, asdict(prm), vf.leaf_size,
-                     [t.tolist() for t in tasks])
-    ledger = VFLedger(out)
-    plan = StagePlan(name="viewfactors", token=token, where=ledger.path, ntasks=len(tasks),
-                     cost=np.array([task_cost(tree, n, t) for t in tasks], np.int64),
-                     repair=f"rerun with: radiosity viewfactors MESH --out {out} --resume",
-                     window_per_worker=vf.window_per_worker, retries=vf.retries)
-    shared = Scattered(client, inp)  # sent with the first task submitted
+    stage = ViewFactorStage(mesh, out, client, s, params_of(vf), fmt, resume=resume,
+                            progress=progress, on_done=on_done)
+    fig = stage.run()
+    return ViewFactors(stage.matrix, stage.fac.area, stage.fac, fig)
 
-    def create():
-        ledger.create(token, {"params": asdict(prm), "leaf_size": vf.leaf_size,
-                              "tasks": len(tasks)}, fac.sources,
-                      {"verts": fac.verts, "nverts": fac.nverts, "area": fac.area,
-                       "normal": fac.normal, "center": fac.center, "face": fac.face,
-                       "source": fac.source})
-
-    run = run_stage(client, plan, task_viewfactors,
-                    lambda t: (shared.future(), prm, tasks[t], ledger.path, t), ledger,
-                    resume=resume, create=create, ncounters=len(COUNTERS), on_done=on_done,
-                    progress=progress)
-    stage = np.zeros(len(STAGES))
-    cpu = 0.0
-    for e in run.done.values():
-        stage += np.asarray(e["times"])
-        cpu += e["cpu"]
-    t_asm = time.perf_counter()
-    asm = assemble(ledger.rs, fac, tree, {t: run.done[t] for t in range(len(tasks))})
-    t_asm = time.perf_counter() - t_asm
-    fig = finish(ledger.rs, out, fac, asm, vf, fmt, float(s.rays.epsilon))
-    fig.update({
-        "facets": n, "accuracy": prm.accuracy, "cutoff": prm.cutoff,
-        "cheap_kernel_relative_bound": prm.cheap_rel, "max_points_per_side": prm.smax,
-        **dict(zip(COUNTERS, run.counts.tolist())), "tasks": len(tasks), **run.figures(),
-        "leaf_size": vf.leaf_size, "time_assembly_s": round(t_asm, 3),
-        "task_time_by_stage_s": {k: round(float(v), 3) for k, v in zip(STAGES, stage)},
-        "task_cpu_s": round(cpu, 3), "peak_rss_mb": peak_rss_mb(client),
-    })
-    matrix = fig.pop("_matrix")
-    fig["time_s"] = round(time.perf_counter() - t_start, 3)
-    update_report(out, "viewfactors", fig)
-    return ViewFactors(matrix, fac.area, fac, fig)
 
 # ----------------------------------------------------------------------------- assembly
 

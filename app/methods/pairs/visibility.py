@@ -13,13 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 from dask.base import tokenize
 
-from radiosity.runtime.cluster import Scattered
 from radiosity.core.kernels import MC, NXM, Sampling, sample_points, sample_rays
-from radiosity.runtime.monitor import Monitor, peak_rss_mb, worker_address
+from radiosity.runtime.monitor import peak_rss_mb, worker_address
 from radiosity.methods.pairs.plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, make_plan
 from radiosity.runtime.packing import choose_unit
 from radiosity.tracing.rays import caster_for
-from radiosity.runtime.stage import StagePlan, run_stage
+from radiosity.runtime.stage import StageMaster, StagePlan
 from radiosity.settings import sampling_of
 from radiosity.tracing.shafts import block_candidates, classify, occluders, set_bits, small_tile_pairs
 from radiosity.runtime.store import RunStore, StageFigures
@@ -294,64 +293,86 @@ class _Ledger:
         self.vs.record(task, result)
 
 
+class VisibilityStage(StageMaster):
+    """The visibility matrix on the one stage master: the plan of tiles and tasks (plan_for),
+    the inputs (vis_inputs), one task_visibility per task, the store's visibility group as the
+    ledger, VisibilityFigures."""
+
+    task = staticmethod(task_visibility)
+    counters = COUNTERS
+    monitor_stage = "visibility"
+    straight = False
+
+    def __init__(self, run_dir: str, client, s, unit: str | None, occlusion: bool, **kw):
+        super().__init__(client, report_dir=run_dir, **kw)
+        self.s, self.unit, self.occlusion = s, unit, occlusion
+        self.sampling = sampling_of(s.solve)
+        self.epsilon = float(s.rays.epsilon)
+
+    def plan(self) -> StagePlan:
+        s, run_dir = self.s, self.report_dir
+        self.rs = rs = RunStore(run_dir, "r+")
+        self.part, self.el = part, el = rs.load_partition(), rs.load_elements()
+        self.vplan = plan = plan_for(part, el, self.unit, s, where=rs.attrs.get("scene") or run_dir)
+        self.sampled = None if self.sampling is None else self.sampling.to_dict()
+        self.token = tokenize(plan.tiles, plan.tasks, plan.chunk, part.center, part.normal,
+                              el.verts, self.epsilon, self.occlusion, self.sampled)
+        self.vs = VisibilityStore(rs)
+        return StagePlan("visibility", self.token, rs.path, len(plan.tasks), plan.task_bits(),
+                         f"rerun with: radiosity visibility {run_dir} --resume",
+                         int(s.visibility.window_per_worker), int(s.visibility.retries))
+
+    def create(self) -> None:
+        self.rs.drop_after("raster")
+        self.vs.create(self.vplan, self.token, {"rays_epsilon": self.epsilon,
+                                                "sampling": self.sampled})
+
+    def ledger(self):
+        return _Ledger(self.vs, self.vplan)
+
+    def inputs(self) -> VisInputs:
+        el = self.el
+        return vis_inputs(self.part, el, tokenize(el.verts, el.nverts), self.epsilon,
+                          self.occlusion, self.sampling)
+
+    def args(self, task: int, shared) -> tuple:
+        t = self.vplan.tasks[task]
+        return (shared, self.vplan.tiles_of(task), self.rs.path, int(t[TSTART]), int(t[TBYTES]),
+                task)
+
+    def on_result(self, task, result, done) -> None:
+        self.monitor.visibility(self.vplan, done, len(self.el))
+
+    def figures(self, run) -> VisibilityFigures:
+        plan, sampling = self.vplan, self.sampling
+        self.monitor.visibility(plan, run.done, len(self.el), force=True)
+        c = dict(zip(COUNTERS, run.counts.tolist()))
+        m = len(self.part)
+        pairs = m * (m - 1) // 2
+        return VisibilityFigures(
+            task_unit=plan.unit, tasks=int(len(plan.tasks)), **run.figures(),
+            tiles=int(len(plan.tiles)), chunk_bytes=plan.chunk, store_bytes=plan.total,
+            sub_elements=m, blocks_culled=int(plan.blocks_culled), pairs_total=pairs, **c,
+            pairs_culled_by_orientation=pairs - c["pairs_facing"],
+            rays_fraction_of_pairs=c["rays"] / max(1, pairs),
+            naive_ordered_rays=m * (m - 1),  # ordered pairs a brute force would trace
+            time_s=round(time.perf_counter() - self.t_start, 4), occlusion=self.occlusion,
+            sampling=None if sampling is None else sampling.describe(),
+            rays_per_pair=1 if sampling is None else sampling.rays_per_pair,
+            peak_rss_mb=peak_rss_mb(self.client))
+
+
 def compute_visibility(run_dir: str, client, settings, *, unit: str | None = None,
                        resume: bool = False, progress: bool = True, on_done=None,
                        occlusion: bool = True) -> VisibilityFigures:
-    """The dynamic master (seed §4.3) on the one stage executor (runtime/stage.py): a bounded
+    """The dynamic master (seed §4.3) on the one stage master (runtime/stage.py): a bounded
     window of tasks per worker thread, most expensive first, failed tasks resubmitted, every
     finished task recorded with its checksum, so `resume` recomputes only what is missing or
     corrupted. occlusion=False (effects.py: nothing can block) makes the bits orientation
     alone. settings: the run's settings.Settings; its solve.kernel's sampled kernels (nxm, mc)
     cast one ray per sample pair."""
-    s = settings
-    sampling = sampling_of(s.solve)
-    epsilon = float(s.rays.epsilon)
-    t_start = time.perf_counter()
-    rs = RunStore(run_dir, "r+")
-    part, el = rs.load_partition(), rs.load_elements()
-    plan = plan_for(part, el, unit, s, where=rs.attrs.get("scene") or run_dir)
-    sampled = None if sampling is None else sampling.to_dict()
-    token = tokenize(plan.tiles, plan.tasks, plan.chunk, part.center, part.normal, el.verts,
-                     epsilon, occlusion, sampled)
-    vs = VisibilityStore(rs)
-
-    def create():
-        rs.drop_after("raster")
-        vs.create(plan, token, {"rays_epsilon": epsilon, "sampling": sampled})
-
-    mon = Monitor(client)
-    mon.stage("visibility", run_dir)
-    shared = Scattered(client, vis_inputs(part, el, tokenize(el.verts, el.nverts), epsilon,
-                                          occlusion, sampling), straight=False)
-
-    def args(task):
-        t = plan.tasks[task]
-        return (shared.future(), plan.tiles_of(task), rs.path, int(t[TSTART]), int(t[TBYTES]), task)
-
-    stage = StagePlan("visibility", token, rs.path, len(plan.tasks), plan.task_bits(),
-                      f"rerun with: radiosity visibility {run_dir} --resume",
-                      int(s.visibility.window_per_worker), int(s.visibility.retries))
-    run = run_stage(client, stage, task_visibility, args, _Ledger(vs, plan), resume=resume,
-                    create=create, ncounters=len(COUNTERS), progress=progress, on_done=on_done,
-                    on_result=lambda task, res, done: mon.visibility(plan, done, len(el)))
-    mon.visibility(plan, run.done, len(el), force=True)
-    c = dict(zip(COUNTERS, run.counts.tolist()))
-    m = len(part)
-    fig = VisibilityFigures(**{
-        "task_unit": plan.unit, "tasks": int(len(plan.tasks)), **run.figures(),
-        "tiles": int(len(plan.tiles)), "chunk_bytes": plan.chunk, "store_bytes": plan.total,
-        "sub_elements": m, "blocks_culled": int(plan.blocks_culled),
-        "pairs_total": m * (m - 1) // 2, **c,
-        "pairs_culled_by_orientation": m * (m - 1) // 2 - c["pairs_facing"],
-        "rays_fraction_of_pairs": c["rays"] / max(1, m * (m - 1) // 2),
-        "naive_ordered_rays": m * (m - 1),  # ordered pairs a brute force would trace
-        "time_s": round(time.perf_counter() - t_start, 4), "occlusion": occlusion,
-        "sampling": None if sampling is None else sampling.describe(),
-        "rays_per_pair": 1 if sampling is None else sampling.rays_per_pair,
-        "peak_rss_mb": peak_rss_mb(client),
-    })
-    fig.write(run_dir)
-    return fig
+    return VisibilityStage(run_dir, client, settings, unit, occlusion, resume=resume,
+                           progress=progress, on_done=on_done).run()
 
 
 # ----------------------------------------------------------------------------- readers

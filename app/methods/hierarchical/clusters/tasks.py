@@ -1,7 +1,8 @@
 """The cluster layer of a link stage as tasks (SPEC §9): the cluster refinement
-(clusters.refine_clusters) cut breadth first into subtrees of links, each a task that refines
-its links to the end and computes their form factors and rays (clusterweights.link_weights), and the
-figures `radiosity plan` estimates a clustered scene's cost from.
+(clusters/refine.refine_clusters) cut breadth first into subtrees of links, each a task on the
+one stage master (runtime/stage.py: ClusterStage) that refines its links to the end and
+computes their form factors and rays (clusters/weights.link_weights), and the figures
+`radiosity plan` estimates a clustered scene's cost from.
 
 Design notes and measurements: docs/src/design/methods-hierarchical-clusters.md.
 """
@@ -17,6 +18,8 @@ from radiosity.core.arrays import radix_order
 from radiosity.methods.hierarchical.clusters.transport import ClusterLinks
 from radiosity.methods.hierarchical.clusters.refine import ClusterTree, cluster_tree, refine_clusters
 from radiosity.methods.hierarchical.clusters.weights import link_weights, solid_ends
+from radiosity.runtime.stage import StageMaster, StagePlan
+from radiosity.runtime.store import StageFigures
 
 # What a clustered scene costs, as measured (benchmarks/bench_clusters.py, results/clusters.json:
 # terrains of 2 x 10^4 and 2 x 10^5 triangles and the Cornell box cut into 2 000 a face, 128^2,
@@ -48,7 +51,7 @@ class ClusterInputs:
     """What every cluster task needs (scattered once): the tree, the oracle's epsilon, the rays
     per link (0: nothing can block) and the Embree cache key and ray offset of the originals;
     shadow: the threshold of splitting partly visible links (_shadows); solids: rays inside
-    solids left out of the visible fractions (clusterweights.SolidEnds)."""
+    solids left out of the visible fractions (clusters/weights.SolidEnds)."""
 
     ct: ClusterTree
     epsilon: float
@@ -265,6 +268,140 @@ class _Runs:
         return p, q, g
 
 
+@dataclass(frozen=True)
+class ClusterFigures(StageFigures):
+    """The cluster layer's figures (report.json, section "links", under "clusters"): its nodes
+    and links, the pairs of originals it leaves to the element links, the oracle's evaluations
+    and culls, rays, the mean visible fraction, tasks and times; the link stage adds why it ran
+    (or only why not: every other figure None) and what it ran at."""
+
+    OPTIONAL = ("nodes", "links", "pairs_to_elements", "evaluated", "culled_orientation",
+                "rays", "visible_mean", "tasks", "time_refine_s", "time_s", "why", "epsilon",
+                "unseen_importance", "unseen", "outside_footprint")
+    nodes: int | None = None
+    links: int | None = None
+    pairs_to_elements: int | None = None
+    evaluated: int | None = None
+    culled_orientation: int | None = None
+    rays: int | None = None
+    visible_mean: float | None = None
+    tasks: int | None = None
+    time_refine_s: float | None = None
+    time_s: float | None = None
+    why: str | None = None
+    epsilon: float | None = None
+    unseen_importance: float | None = None
+    unseen: int | None = None
+    outside_footprint: int | None = None
+
+    def row(self) -> str:
+        """The link stage's summary row "clusters"."""
+        if self.links is None:
+            return self.why or "off"
+        extra = "" if self.epsilon is None else f"; epsilon {self.epsilon:.3g}"
+        if self.unseen:
+            extra += (f", the light to the {self.unseen} originals no pixel hits weighed "
+                      f"{self.unseen_importance:g}")
+        return (f"{self.links} cluster links over {self.nodes} nodes, {self.pairs_to_elements} "
+                f"pairs of originals refined below them ({self.why}{extra}; {self.time_s:.2f} s)")
+
+
+class ClusterStage(StageMaster):
+    """The cluster layer on the one stage master: the plan refines from the root's self-link
+    until the cut (and keeps what it refined to the end), every waiting link's subtree is a
+    task_clusters, nothing is stored (no ledger: the layer is made again, in a second or so per
+    10^5 links, rather than resumed) and the figures merge the tasks' sorted runs."""
+
+    task = staticmethod(task_clusters)
+
+    def __init__(self, elements, epsilon: float, weights, rays: int, occlusion: bool,
+                 ray_offset: float, client, progress: bool, shadow: float, solids: bool,
+                 unseen: np.ndarray | None, min_size: float):
+        super().__init__(client, progress=progress)
+        self.elements, self.epsilon, self.weights = elements, epsilon, weights
+        self.rays, self.occlusion, self.ray_offset = rays, occlusion, ray_offset
+        self.shadow, self.solids, self.unseen, self.min_size = shadow, solids, unseen, min_size
+        self.rest = []  # (pairs, counts, visible sum, rays) of each task
+        self.freed = 0  # bytes of the tasks' results copied (runs.add) and freed since a trim
+
+    def keep(self, res) -> None:
+        """Copy a task's (or the driver's) sorted run into the merge, free what it held."""
+        from radiosity.runtime.cluster import trim_malloc
+
+        key, g, *other = res
+        self.runs.add(key, g)
+        self.rest.append(other)
+        self.freed += key.nbytes + g.nbytes
+        if self.freed >= TRIM_BYTES:
+            trim_malloc()
+            self.freed = 0
+
+    def plan(self) -> StagePlan:
+        from dask.base import tokenize
+
+        el, client = self.elements, self.client
+        self.ct = ct = cluster_tree(el, *self.weights, unseen=self.unseen, min_size=self.min_size)
+        n = len(el)
+        root = np.zeros((1, 2), np.int64)
+        threads = sum(client.nthreads().values()) if client is not None else 0
+        self.inp = inp = ClusterInputs(ct, float(self.epsilon),
+                                       int(self.rays) if self.occlusion else 0,
+                                       tokenize(el.verts, el.nverts), el.verts, el.nverts,
+                                       float(self.ray_offset), float(self.shadow),
+                                       bool(self.solids))
+        frontier = CUT_PER_TASK * TASKS_PER_THREAD * threads if threads > 1 else 0
+        links, pairs, counts, pending = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
+                                                        max(1024, 8 * n), root, frontier)
+        self.runs = _Runs(np.int64(ct.nodes))
+        self.keep(_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon,
+                           inp.shadow, inp.solids))
+        del links, pairs
+        # every ntasks-th waiting link to a task: neighbours in the breadth-first order are
+        # subtrees of one node and cost alike, so contiguous runs make tasks of very unequal
+        # cost (docs/src/design/methods-hierarchical-clusters.md, "Tasks")
+        ntasks = max(1, len(pending) // CUT_PER_TASK) if len(pending) else 0
+        self.cuts = [np.ascontiguousarray(pending[i::ntasks]) for i in range(ntasks)]
+        token = tokenize(inp.key, inp.epsilon, inp.rays, ct.lref, inp.shadow, ct.tree.stop,
+                         pending) if ntasks else ""
+        return StagePlan("clusters", token, "", ntasks, None, "run the render again",
+                         window_per_worker=2)
+
+    def inputs(self) -> ClusterInputs:
+        return self.inp
+
+    def args(self, task: int, shared) -> tuple:
+        return (shared, self.cuts[task])
+
+    def on_result(self, task, result, done) -> None:
+        self.keep(result)
+
+    def figures(self, run) -> ClusterFigures:
+        import time
+
+        ct, rest, n = self.ct, self.rest, len(self.elements)
+        counts = np.sum([x[1] for x in rest], axis=0)
+        vsum = sum(x[2] for x in rest)
+        nrays = sum(x[3] for x in rest)
+        pairs = np.concatenate([x[0] for x in rest]).reshape(-1, 2)
+        self.rest = rest = None
+        t1 = time.perf_counter()
+        # sorted by (p, q): the cluster layer does not depend on the cut or the workers (a
+        # merge of the tasks' sorted runs, bucket by bucket)
+        order = radix_order(pairs[:, 0] * np.int64(n) + pairs[:, 1], int(n * n).bit_length())
+        self.pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
+        del order, pairs  # the merge below is the stage's peak of memory
+        self.cl = cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area),
+                                    *self.runs.merged())
+        self.runs = None
+        return ClusterFigures(nodes=ct.nodes, links=cl.links,
+                              pairs_to_elements=int(len(self.pairs)),
+                              evaluated=int(counts[0]), culled_orientation=int(counts[1]),
+                              rays=int(nrays),
+                              visible_mean=vsum / cl.links if cl.links else 1.0,
+                              tasks=len(self.cuts), time_refine_s=round(t1 - self.t_start, 4),
+                              time_s=round(time.perf_counter() - self.t_start, 4))
+
+
 def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
                   ray_offset: float, client=None, progress: bool = False,
                   shadow: float = np.inf, solids: bool = False,
@@ -273,82 +410,14 @@ def plan_clusters(elements, epsilon: float, weights, rays: int, occlusion: bool,
     weights (wrho, lhat, lref: params.oracle_weights), the kept links' form factors and visible
     fractions (`rays` rays each; 1 when nothing can block; partly visible links that carry
     more than `shadow` refined further: _shadows; `solids`: rays inside solids left out,
-    clusterweights.SolidEnds; nodes wholly `unseen` and at most `min_size` across stay whole
-    where they can: clusters.cluster_tree). With a `client`, the refinement is
-    cut where CUT_PER_TASK x TASKS_PER_THREAD links per worker thread wait, and every waiting
-    link's subtree is a task (refinement, form factors, rays) on the cluster; the links come
-    out sorted, so the result does not depend on the cut or the workers. Returns (ClusterLinks,
-    pairs (t, 2) int64 of originals I < J sorted, for the element-level refinement; figures
-    dict)."""
-    import time
-
-    from dask.base import tokenize
-
-    from radiosity.runtime.cluster import trim_malloc
-
-    t0 = time.perf_counter()
-    ct = cluster_tree(elements, *weights, unseen=unseen, min_size=min_size)
-    n = len(elements)
-    root = np.zeros((1, 2), np.int64)
-    threads = sum(client.nthreads().values()) if client is not None else 0
-    inp = ClusterInputs(ct, float(epsilon), int(rays) if occlusion else 0,
-                        tokenize(elements.verts, elements.nverts), elements.verts,
-                        elements.nverts, float(ray_offset), float(shadow), bool(solids))
-    frontier = CUT_PER_TASK * TASKS_PER_THREAD * threads if threads > 1 else 0
-    links, pairs, counts, pending = refine_clusters(ct.tree, ct.elems, inp.epsilon, ct.lref,
-                                                    max(1024, 8 * n), root, frontier)
-    runs = _Runs(np.int64(ct.nodes))
-    rest = []  # (pairs, counts, visible sum, rays) of each task
-
-    freed = 0  # bytes of the tasks' results copied (runs.add) and freed since the last trim
-
-    def keep(res):
-        nonlocal freed
-        key, g, *other = res
-        runs.add(key, g)
-        rest.append(other)
-        freed += key.nbytes + g.nbytes
-        if freed >= TRIM_BYTES:
-            trim_malloc()
-            freed = 0
-
-    keep(_compact(ct, links, pairs, counts, _caster(inp, links), inp.rays, inp.epsilon,
-                  inp.shadow, inp.solids))
-    del links, pairs
-    ntasks = 0
-    if len(pending):
-        from radiosity.runtime.cluster import Scattered
-        from radiosity.runtime.runner import run_tasks
-
-        # every ntasks-th waiting link to a task: neighbours in the breadth-first order are
-        # subtrees of one node and cost alike, so contiguous runs make tasks of very unequal
-        # cost (docs/src/design/methods-hierarchical-clusters.md, "Tasks")
-        ntasks = max(1, len(pending) // CUT_PER_TASK)
-        cuts = [np.ascontiguousarray(pending[i::ntasks]) for i in range(ntasks)]
-        shared = Scattered(client, inp)
-        run_tasks(client, task_clusters, range(ntasks), lambda i: (shared.future(), cuts[i]),
-                  name="clusters", token=tokenize(inp.key, inp.epsilon, inp.rays, ct.lref,
-                                                  inp.shadow, ct.tree.stop, pending),
-                  window=2 * threads,
-                  on_result=lambda i, res: keep(res), progress=progress,
-                  repair="run the render again")
-    counts = np.sum([x[1] for x in rest], axis=0)
-    vsum = sum(x[2] for x in rest)
-    nrays = sum(x[3] for x in rest)
-    pairs = np.concatenate([x[0] for x in rest]).reshape(-1, 2)
-    del rest
-    t1 = time.perf_counter()
-    # sorted by (p, q): the cluster layer does not depend on the cut or the workers (a merge
-    # of the tasks' sorted runs, bucket by bucket)
-    order = radix_order(pairs[:, 0] * np.int64(n) + pairs[:, 1], int(n * n).bit_length())
-    pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
-    del order  # the merge below is the stage's peak of memory
-    cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area), *runs.merged())
-    del runs
-    figures = {"nodes": ct.nodes, "links": cl.links, "pairs_to_elements": int(len(pairs)),
-               "evaluated": int(counts[0]), "culled_orientation": int(counts[1]),
-               "rays": int(nrays),
-               "visible_mean": vsum / cl.links if cl.links else 1.0, "tasks": ntasks,
-               "time_refine_s": round(t1 - t0, 4),
-               "time_s": round(time.perf_counter() - t0, 4)}
-    return cl, pairs, figures
+    clusters/weights.SolidEnds; nodes wholly `unseen` and at most `min_size` across stay whole
+    where they can: clusters/refine.cluster_tree). With a `client`, the refinement is cut
+    where CUT_PER_TASK x TASKS_PER_THREAD links per worker thread wait, and every waiting
+    link's subtree is a task (refinement, form factors, rays) on the cluster (ClusterStage);
+    the links come out sorted, so the result does not depend on the cut or the workers.
+    Returns (ClusterLinks, pairs (t, 2) int64 of originals I < J sorted, for the
+    element-level refinement; ClusterFigures)."""
+    stage = ClusterStage(elements, epsilon, weights, rays, occlusion, ray_offset, client,
+                         progress, shadow, solids, unseen, min_size)
+    fig = stage.run()
+    return stage.cl, stage.pairs, fig

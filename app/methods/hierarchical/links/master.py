@@ -4,13 +4,14 @@ refine the link of their roots down the split trees until each link carries litt
 A link p <- q between nodes of two originals (scene/splittrees.py) carries the unoccluded form
 factors F_pq, F_qp (A_p F_pq = A_q F_qp) and the visible fraction v. One task per pair of
 originals I < J that face each other (originals.facing_pairs: nothing n x n), or per stripe of
-pairs, run by the one stage executor (runtime/stage.py) like the visibility matrix. Here: the
-task's inputs, the task plan, the task (refine.py's rounds, sampling.py's rays between them)
-and the master; the settings are params.py's.
+pairs, run on the one stage master (runtime/stage.py: LinkStage) like the visibility matrix.
+Here: the task's inputs, the task plan, the task (links/refine.py's rounds, links/sampling.py's
+rays between them), the stage and its figures; the settings are params.py's.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -23,11 +24,13 @@ from radiosity.methods.hierarchical.params import (LinkParams, choose_epsilon, c
 from radiosity.methods.hierarchical.links.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
                                                    Tree, refine, roots)
-from radiosity.methods.hierarchical.clusters.tasks import plan_clusters
+from radiosity.methods.hierarchical.clusters.tasks import ClusterFigures, plan_clusters
 from radiosity.methods.hierarchical.links.sampling import SolidPoints, clear_pairs, link_fractions
-from radiosity.runtime.cluster import Scattered, scatterable
-from radiosity.runtime.monitor import Monitor, worker_address
+from radiosity.runtime.cluster import scatterable
+from radiosity.runtime.monitor import worker_address
 from radiosity.runtime.packing import capped_starts, choose_unit
+from radiosity.runtime.stage import StageMaster, StagePlan
+from radiosity.runtime.store import StageFigures
 from radiosity.tracing.shafts import OccluderTree, node_boxes, occluders
 
 @scatterable
@@ -81,7 +84,7 @@ class LinkInputs:
         self.ray_offset = float(ray_offset)
         self.params = params
         self.n = n
-        # per partition node and side (k, 2), from refinement rounds (rounds.py; refine.Elements):
+        # per partition node and side (k, 2), from refinement rounds (views/rounds.py; refine.Elements):
         # the solved radiance, its spread over the node, the nodes forced to split; (0, 2): none
         self.nhat = np.zeros((0, 2))
         self.nvar = np.zeros((0, 2))
@@ -236,31 +239,9 @@ def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, ma
     return pairs, first, cost
 
 
-def _clusters_row(c: dict) -> str:
-    if "links" not in c:
-        return c.get("why", "off")
-    extra = f"; epsilon {c['epsilon']:.3g}" if "epsilon" in c else ""
-    if c.get("unseen"):
-        extra += (f", the light to the {c['unseen']} originals no pixel hits weighed "
-                  f"{c['unseen_importance']:g}")
-    return (f"{c['links']} cluster links over {c['nodes']} nodes, {c['pairs_to_elements']} pairs "
-            f"of originals refined below them ({c['why']}{extra}; {c['time_s']:.2f} s)")
-
-
-def links_rows(fig: dict) -> list[tuple[str, object]]:
+def links_rows(fig: "LinkFigures") -> list[tuple[str, object]]:
     """The CLI summary rows of the link stage's figures (report.json section "links")."""
-    return [("sub-elements", f"{fig['sub_elements']} ({fig['leaves']} leaves, "
-                             f"{fig['split_off_nodes']} nodes split below the camera's partition)"),
-            ("epsilon", f"{fig['epsilon']:.3g} ({fig.get('epsilon_reason', 'stated')})"),
-            ("links", f"{fig['links']} ({fig['links_per_leaf']:.1f} per leaf, "
-                      f"{fig['bytes_per_link']} bytes each)"),
-            ("clusters", _clusters_row(fig.get("clusters") or {})),
-            ("proven by shafts", f"{fig['shaft_visible']} visible, {fig['shaft_blocked']} "
-                                 "blocked (no ray)"),
-            ("rays cast", f"{fig['rays']} ({fig['link_rays']} per link on {fig['ray_links']} links)"),
-            ("tasks", f"{fig['tasks']} ({fig['task_unit']}), {fig['tasks_reused']} reused"),
-            ("time", f"{fig['time_s']:.2f} s")]
-
+    return fig.rows()
 
 
 # ----------------------------------------------------------------------------- the master
@@ -283,13 +264,13 @@ class LinkPlan:
     hit: np.ndarray | None
     token: str
     clusters: object = None      # clusters.ClusterLinks, or None without clustering
-    cluster_figures: dict | None = None
+    cluster_figures: ClusterFigures | None = None
 
 
 def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
                progress: bool = False) -> LinkPlan:
     """The link stage's plan for run store `rs` (its partition, elements) under settings `s`;
-    with a `client`, the cluster layer runs as tasks on it (clustertasks.plan_clusters)."""
+    with a `client`, the cluster layer runs as tasks on it (clusters/tasks.plan_clusters)."""
     from dask.base import tokenize
 
     from radiosity.scene.emitters import AreaEmitters
@@ -310,7 +291,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
             bi, bj, _ = pairs_within_budget(tree_of(el, int(s.plan.leaf_size)),
                                             int(s.plan.max_facing_pairs),
                                             rs.attrs.get("scene") or rs.run_dir)
-            cfig = {"why": why_clusters}
+            cfig = ClusterFigures(why=why_clusters)
         except FacingPairsError as e:
             if s.hierarchy.clusters in ("off", False):
                 raise
@@ -326,9 +307,10 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
                                          occlusion, s.rays.epsilon, client, progress,
                                          prm.shadow * ce, prm.solids, unseen=outside,
                                          min_size=prm.min_size)
-        cfig.update(why=why_clusters, epsilon=prm.epsilon * ce, unseen_importance=imp,
-                    unseen=int((~np.asarray(seen_any, bool)).sum()),
-                    outside_footprint=int(outside.sum()))
+        cfig = dataclasses.replace(cfig, why=why_clusters, epsilon=prm.epsilon * ce,
+                                   unseen_importance=imp,
+                                   unseen=int((~np.asarray(seen_any, bool)).sum()),
+                                   outside_footprint=int(outside.sum()))
         bi, bj = cpairs[:, 0], cpairs[:, 1]
         # what the cluster layer is made from besides the elements and prm (it does not depend
         # on the cut or the workers): hashed instead of its links (0.07 s for 8.9 M)
@@ -345,62 +327,87 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
     return LinkPlan(pairs, first, cost, unit, prm, weight, why, seen, hit, token, cl, cfig)
 
 
+class LinkStage(StageMaster):
+    """The link stage on the one stage master: the plan (plan_links: the cluster layer, then
+    the pairs of originals and their tasks), LinkInputs, one task_links per task, the store's
+    links group as the ledger, then the node table of the union tree and LinkFigures."""
+
+    task = staticmethod(task_links)
+    counters = COUNTERS
+    monitor_stage = "links"
+
+    def __init__(self, run_dir: str, client, s, unit: str | None, occlusion: bool, **kw):
+        super().__init__(client, report_dir=run_dir, **kw)
+        self.run_dir, self.s, self.unit, self.occlusion = run_dir, s, unit, occlusion
+        self.cpu = [0.0, 0.0, 0.0]  # tasks' thread CPU: refine + rays, writes; refine's wall
+
+    def plan(self) -> StagePlan:
+        from radiosity.methods.hierarchical.store import LinkStore
+        from radiosity.runtime.store import RunStore
+        from radiosity.scene.splittrees import tree_nodes
+
+        s = self.s
+        self.rs = rs = RunStore(self.run_dir, "r+")
+        self.part, self.el = part, el = rs.load_partition(), rs.load_elements()
+        self.lp = lp = plan_links(rs, part, el, s, self.unit, self.occlusion, self.client,
+                                  self.progress)
+        self.ls = LinkStore(rs)
+        self.tree = tree_nodes(part, el)
+        self.pairs, self.first, self.token = lp.pairs, lp.first, lp.token
+        return StagePlan("links", lp.token, rs.path, len(lp.first) - 1, lp.cost,
+                         f"rerun with: radiosity visibility {self.run_dir} --method hierarchical "
+                         "--resume", int(s.visibility.window_per_worker),
+                         int(s.visibility.retries))
+
+    def create(self) -> None:
+        lp = self.lp
+        self.rs.drop_after("raster")
+        self.ls.create(lp.pairs, lp.first, lp.token,
+                       {"params": lp.prm.to_dict(), "weight": lp.weight,
+                        "kernel": self.s.hierarchy.kernel, "unit": lp.unit},
+                       clusters=None if lp.clusters is None else lp.clusters.arrays())
+
+    def ledger(self):
+        return self.ls
+
+    def inputs(self) -> LinkInputs:
+        from dask.base import tokenize
+
+        lp, el = self.lp, self.el
+        return LinkInputs(self.tree, self.part, el, lp.seen, lp.prm, lp.weight,
+                          tokenize(el.verts, el.nverts), self.s.rays.epsilon, lp.hit)
+
+    def args(self, task: int, shared) -> tuple:
+        return (shared, self.pairs[self.first[task]:self.first[task + 1]], self.rs.path, task)
+
+    def on_result(self, task, result, done) -> None:
+        if self.monitor is not None:
+            self.monitor.links(self.pairs, self.first, done, len(self.el))
+        for k, v in enumerate(result["cpu"]):
+            self.cpu[k] += v
+
+    def figures(self, run) -> "LinkFigures":
+        if self.monitor is not None:
+            self.monitor.links(self.pairs, self.first, run.done, len(self.el), force=True)
+        t_nodes = time.perf_counter()
+        table, split = node_table_of(self.rs, self.tree, self.part, run.done,
+                                     len(self.first) - 1, self.token)
+        t_nodes = time.perf_counter() - t_nodes
+        return link_figures(self.s, self.lp, run, len(self.part), table, split, self.cpu,
+                            self.occlusion, self.client, self.t_start, t_nodes)
+
+
 def compute_links(run_dir: str, client, settings, *, unit: str | None = None,
                   resume: bool = False, progress: bool = True, on_done=None,
-                  occlusion: bool = True) -> dict:
-    """The link stage on the one stage executor (runtime/stage.py): a bounded window of link
+                  occlusion: bool = True) -> "LinkFigures":
+    """The link stage on the one stage master (runtime/stage.py): a bounded window of link
     tasks per worker thread, most expensive first, failed tasks resubmitted, every finished task
     recorded with its crc so `resume` recomputes only what is missing or corrupted; then the node
     table of the union tree. settings: the run's settings.Settings (hierarchy.kernel,
     epsilon, link-rays, ...). Writes section "links" of report.json and
     returns its figures."""
-    from dask.base import tokenize
-
-    from radiosity.methods.hierarchical.store import LinkStore
-    from radiosity.runtime.stage import StagePlan, run_stage
-    from radiosity.runtime.store import RunStore, update_report
-    from radiosity.scene.splittrees import tree_nodes
-    s = settings
-    t_start = time.perf_counter()
-    rs = RunStore(run_dir, "r+")
-    part, el = rs.load_partition(), rs.load_elements()
-    lp = plan_links(rs, part, el, s, unit, occlusion, client, progress)
-    ls = LinkStore(rs)
-
-    def create():
-        rs.drop_after("raster")
-        ls.create(lp.pairs, lp.first, lp.token, {"params": lp.prm.to_dict(), "weight": lp.weight,
-                                                 "kernel": s.hierarchy.kernel, "unit": lp.unit},
-                  clusters=None if lp.clusters is None else lp.clusters.arrays())
-
-    tree = tree_nodes(part, el)
-    shared = Scattered(client, LinkInputs(tree, part, el, lp.seen, lp.prm, lp.weight,
-                                          tokenize(el.verts, el.nverts), s.rays.epsilon, lp.hit))
-    mon = Monitor(client)
-    mon.stage("links", run_dir)
-    cpu = [0.0, 0.0, 0.0]  # tasks' thread CPU: refinement + rays, store writes; refinement's wall
-
-    def on_result(task, res, done):
-        mon.links(lp.pairs, lp.first, done, len(el))
-        for k, v in enumerate(res["cpu"]):
-            cpu[k] += v
-
-    plan = StagePlan("links", lp.token, rs.path, len(lp.first) - 1, lp.cost,
-                     f"rerun with: radiosity visibility {run_dir} --method hierarchical --resume",
-                     int(s.visibility.window_per_worker), int(s.visibility.retries))
-    run = run_stage(client, plan, task_links,
-                    lambda t: (shared.future(), lp.pairs[lp.first[t]:lp.first[t + 1]], rs.path, t),
-                    ls, resume=resume, create=create, ncounters=len(COUNTERS),
-                    on_result=on_result, on_done=on_done, progress=progress)
-    mon.links(lp.pairs, lp.first, run.done, len(el), force=True)
-    t_nodes = time.perf_counter()
-    table, split = node_table_of(rs, tree, part, run.done, plan.ntasks, lp.token)
-    t_nodes = time.perf_counter() - t_nodes
-    figures = link_figures(s, lp, run, len(part), table, split, cpu, occlusion, client)
-    figures.update(time_s=round(time.perf_counter() - t_start, 4),
-                   time_node_table_s=round(t_nodes, 4))
-    update_report(run_dir, "links", figures)
-    return figures
+    return LinkStage(run_dir, client, settings, unit, occlusion, resume=resume,
+                     progress=progress, on_done=on_done).run()
 
 
 def node_table_of(rs, tree, part, done: dict, ntasks: int, token: str):
@@ -417,30 +424,103 @@ def node_table_of(rs, tree, part, done: dict, ntasks: int, token: str):
     return table, xn
 
 
+@dataclass(frozen=True)
+class LinkFigures(StageFigures):
+    """The link stage's figures (report.json, section "links"); the counters are the tasks'
+    (refine.COUNTERS) summed; clusters: the cluster layer's (clusters/tasks.ClusterFigures)."""
+
+    SECTION = "links"
+    method: str
+    task_unit: str
+    tasks: int
+    tasks_computed: int
+    tasks_reused: int
+    tasks_corrupted_recomputed: int
+    time_tasks_s: float
+    busy_s_per_worker: dict
+    idle_fraction: float | None
+    workers: int
+    sub_elements: int
+    nodes: int
+    leaves: int
+    split_off_nodes: int
+    originals_split: int
+    pairs: int
+    links: int
+    evaluated: int
+    refined: int
+    dropped_orientation: int
+    shaft_visible: int
+    shaft_blocked: int
+    ray_links: int
+    rays: int
+    ray_blocked: int
+    partial_refined: int
+    exact: int
+    rounds: int
+    links_per_leaf: float
+    bytes_per_link: int
+    link_bytes: int
+    epsilon: float
+    epsilon_reason: str
+    link_rays: int
+    weight: str
+    min_node_size: float
+    kernel: str
+    rays_per_s: float
+    cpu_refine_s: float
+    cpu_write_s: float
+    wall_refine_s: float
+    occlusion: bool
+    clusters: ClusterFigures | None
+    cluster_links: int
+    peak_rss_mb: dict
+    time_s: float
+    time_node_table_s: float
+
+    def rows(self):
+        return [("sub-elements", f"{self.sub_elements} ({self.leaves} leaves, "
+                                 f"{self.split_off_nodes} nodes split below the camera's "
+                                 "partition)"),
+                ("epsilon", f"{self.epsilon:.3g} ({self.epsilon_reason})"),
+                ("links", f"{self.links} ({self.links_per_leaf:.1f} per leaf, "
+                          f"{self.bytes_per_link} bytes each)"),
+                ("clusters", "off" if self.clusters is None else self.clusters.row()),
+                ("proven by shafts", f"{self.shaft_visible} visible, {self.shaft_blocked} "
+                                     "blocked (no ray)"),
+                ("rays cast", f"{self.rays} ({self.link_rays} per link on {self.ray_links} "
+                              "links)"),
+                ("tasks", f"{self.tasks} ({self.task_unit}), {self.tasks_reused} reused"),
+                ("time", f"{self.time_s:.2f} s")]
+
+
 def link_figures(s, lp: LinkPlan, run, sub_elements: int, table, xn, cpu: list, occlusion: bool,
-                 client) -> dict:
-    """The report's section "links" (without the stage's total and node-table times): the plan,
-    the stage run (runtime/stage.StageRun), the node table and split-off nodes xn, the tasks'
-    CPU seconds [refine + rays, writes, refine's wall]."""
+                 client, t_start: float, t_nodes: float) -> LinkFigures:
+    """The link stage's figures: the plan, the stage run (runtime/stage.StageRun), the node
+    table and split-off nodes xn, the tasks' CPU seconds [refine + rays, writes, refine's wall],
+    the stage's start (perf_counter) and the node table's seconds."""
     from radiosity.methods.hierarchical.store import LINK_DTYPE
     from radiosity.runtime.monitor import peak_rss_mb
 
     c = dict(zip(COUNTERS, run.counts.tolist()))
     wall = run.wall_s
-    return {
-        "method": "hierarchical", "task_unit": lp.unit, "tasks": len(lp.first) - 1,
-        **run.figures(), "sub_elements": sub_elements,
-        "nodes": len(table), "leaves": table.leaves,
-        "split_off_nodes": int(np.count_nonzero(table.pnode < 0)),
-        "originals_split": int(len(np.unique(xn["o"]))),  # below the camera's partition
-        **c, "links_per_leaf": (c["links"] + (0 if lp.clusters is None else lp.clusters.links))
-        / max(1, table.leaves),
-        "bytes_per_link": LINK_DTYPE.itemsize, "link_bytes": c["links"] * LINK_DTYPE.itemsize,
-        "epsilon": lp.prm.epsilon, "epsilon_reason": lp.epsilon_reason, "link_rays": lp.prm.rays,
-        "weight": lp.weight, "min_node_size": lp.prm.min_size, "kernel": s.hierarchy.kernel,
-        "rays_per_s": c["rays"] / wall if wall > 0 else 0.0,
-        "cpu_refine_s": round(cpu[0], 4), "cpu_write_s": round(cpu[1], 4),
-        "wall_refine_s": round(cpu[2], 4), "occlusion": occlusion,
-        "clusters": lp.cluster_figures, "cluster_links": 0 if lp.clusters is None else lp.clusters.links,
-        "peak_rss_mb": peak_rss_mb(client),
-    }
+    nclusters = 0 if lp.clusters is None else lp.clusters.links
+    return LinkFigures(
+        method="hierarchical", task_unit=lp.unit, tasks=len(lp.first) - 1, **run.figures(),
+        sub_elements=sub_elements, nodes=len(table), leaves=table.leaves,
+        split_off_nodes=c["split_off_nodes"],  # made by the tasks (the counter, as before)
+        originals_split=int(len(np.unique(xn["o"]))),  # below the camera's partition
+        pairs=c["pairs"], links=c["links"], evaluated=c["evaluated"], refined=c["refined"],
+        dropped_orientation=c["dropped_orientation"], shaft_visible=c["shaft_visible"],
+        shaft_blocked=c["shaft_blocked"], ray_links=c["ray_links"], rays=c["rays"],
+        ray_blocked=c["ray_blocked"], partial_refined=c["partial_refined"], exact=c["exact"],
+        rounds=c["rounds"],
+        links_per_leaf=(c["links"] + nclusters) / max(1, table.leaves),
+        bytes_per_link=LINK_DTYPE.itemsize, link_bytes=c["links"] * LINK_DTYPE.itemsize,
+        epsilon=lp.prm.epsilon, epsilon_reason=lp.epsilon_reason, link_rays=lp.prm.rays,
+        weight=lp.weight, min_node_size=lp.prm.min_size, kernel=s.hierarchy.kernel,
+        rays_per_s=c["rays"] / wall if wall > 0 else 0.0,
+        cpu_refine_s=round(cpu[0], 4), cpu_write_s=round(cpu[1], 4),
+        wall_refine_s=round(cpu[2], 4), occlusion=occlusion, clusters=lp.cluster_figures,
+        cluster_links=nclusters, peak_rss_mb=peak_rss_mb(client),
+        time_s=round(time.perf_counter() - t_start, 4), time_node_table_s=round(t_nodes, 4))

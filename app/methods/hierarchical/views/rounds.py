@@ -33,6 +33,7 @@ Design and measurements: docs/src/design/methods-hierarchical-rounds.md.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -40,6 +41,9 @@ import numpy as np
 from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.links.formfactors import disc_spread
 from radiosity.scene.emitters import AreaEmitters
+from radiosity.methods.hierarchical.links.master import LinkStage
+from radiosity.runtime.stage import StagePlan
+from radiosity.runtime.store import StageFigures
 
 
 #: rounds_of's count for hierarchy.rounds auto (auto_rounds decides after the first solve)
@@ -269,7 +273,7 @@ class Rounds:
         if not self.excess >= 0:
             raise RadiosityError(f"radiosity.hierarchy.rounds-row-excess must be >= 0, got "
                                  f"{settings.hierarchy.rounds_row_excess!r}")
-        self.figures: list[dict] = []
+        self.figures: list[RoundFigures] = []
 
     def weights(self, radiance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The new weights and spreads (k, 2) from the solved radiance per sub-element (m, 2,
@@ -330,7 +334,7 @@ class Rounds:
         V, NV = t["verts"], t["nverts"].astype(np.int64)
         A, _, C = polygon_properties(V, t["nverts"])
         inp, prm = self.inp, self.lp.prm
-        # can a node split (localnodes.copy_tree_node, and split-off nodes)?
+        # can a node split (links/nodes.copy_tree_node, and split-off nodes)?
         pn = np.maximum(pnode, 0)
         can = np.where(pnode >= 0,
                        (inp.t_child[pn, 0] >= 0) | (inp.ext[pn] & (np.sqrt(inp.t_area[pn])
@@ -365,36 +369,32 @@ class Rounds:
             touched[self.pairs[self.first[t]:self.first[t + 1]].ravel()] = True
         return todo, touched
 
-    def refine(self, client, prev: dict, progress: bool = False) -> dict:
+    def refine(self, client, prev: dict, progress: bool = False) -> "RoundFigures":
         """One round from the last solve (previous_solution's `prev`): new weights and spreads
         from the solved radiance, the nodes above rows past one forced, the link tasks they
-        raise refined again, the node table rebuilt. Returns the round's figures ({"tasks": 0}:
-        nothing to refine)."""
+        raise refined again (RoundStage), the node table rebuilt. Returns the round's figures
+        (tasks 0: nothing to refine)."""
         from dask.base import tokenize
 
-        from radiosity.methods.hierarchical.links.master import link_figures, node_table_of, task_links
-        from radiosity.methods.hierarchical.links.refine import COUNTERS
         from radiosity.methods.hierarchical.store import LinkStore
-        from radiosity.runtime.cluster import Scattered
-        from radiosity.runtime.stage import StagePlan, run_stage
-        from radiosity.runtime.store import RunStore, update_report
+        from radiosity.runtime.store import RunStore
 
         t0 = time.perf_counter()
         new, var = self.weights(prev["radiance"])
         force = self.force | self.row_flags(prev)
         todo, raised = self.tasks(new, var, force, prev["table"])
-        fig = {"round": len(self.figures) + 1, "originals": int(raised.sum()),
-               "tasks": int(len(todo)), "forced_nodes": int(force.sum())}
+        head = dict(round=len(self.figures) + 1, originals=int(raised.sum()), tasks=int(len(todo)),
+                    forced_nodes=int(force.sum()))
         # what the links not made again were checked against, too
         self.used, self.used_var, self.force = new, var, force
         if not len(todo):
-            fig["time_s"] = round(time.perf_counter() - t0, 4)
+            fig = RoundFigures(**head, time_s=round(time.perf_counter() - t0, 4))
             self.figures.append(fig)
             return fig
         rs = RunStore(self.run_dir, "r+")
         ls = LinkStore(rs)
         old = ls.token()
-        token = tokenize(old, "rounds", fig["round"], new)
+        token = tokenize(old, "rounds", head["round"], new)
         done = ls.finished(old)
         keep = {t: e for t, e in done.items() if t not in set(todo.tolist())}
         # the plan's token names the round: the stage's resume keeps the other tasks
@@ -405,33 +405,78 @@ class Rounds:
         self.inp.nhat = np.ascontiguousarray(new)
         self.inp.nvar = np.ascontiguousarray(var)
         self.inp.force = np.ascontiguousarray(force)
-        shared = Scattered(client, self.inp)
-        s, lp = self.s, self.lp
-        cpu = [0.0, 0.0, 0.0]
+        links = RoundStage(self, rs, ls, token, client, progress=progress).run()
+        fig = RoundFigures(**head, links=int(links.links), leaves=int(links.leaves),
+                           rays=int(links.rays), time_s=round(time.perf_counter() - t0, 4))
+        self.figures.append(fig)
+        return fig
 
-        def on_result(task, res, done):
-            for k, v in enumerate(res["cpu"]):
-                cpu[k] += v
 
-        def create():  # never: the token was just written
-            raise RadiosityError(f"rounds: the links of {self.run_dir} changed under the round")
+@dataclass(frozen=True)
+class RoundFigures(StageFigures):
+    """One refinement round (report.json, section "rounds", one of "rounds"): the originals
+    whose links were made again, the link tasks, the nodes forced to split, and where tasks
+    ran the links, leaves and rays after it."""
 
-        pairs, first = self.pairs, self.first
-        plan = StagePlan("links (round)", token, rs.path, len(first) - 1, self.cost,
+    OPTIONAL = ("links", "leaves", "rays")
+    round: int
+    originals: int
+    tasks: int
+    forced_nodes: int
+    links: int | None = None
+    leaves: int | None = None
+    rays: int | None = None
+    time_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class RoundLinkFigures(StageFigures):
+    """What a round changes in the link stage's figures (report.json, section "links")."""
+
+    SECTION = "links"
+    links: int
+    links_per_leaf: float
+    leaves: int
+    nodes: int
+    split_off_nodes: int
+    rays: int
+    ray_links: int
+    refined: int
+    evaluated: int
+    exact: int
+    shaft_visible: int
+    shaft_blocked: int
+
+
+class RoundStage(LinkStage):
+    """A round's link tasks on the one stage master: the link stage's tasks, inputs (with the
+    round's node weights) and ledger, under the round's token, resuming every task the round
+    keeps; reports RoundLinkFigures."""
+
+    monitor_stage = None
+
+    def __init__(self, rounds: Rounds, rs, ls, token: str, client, progress: bool):
+        super().__init__(rounds.run_dir, client, rounds.s, rounds.unit, rounds.occlusion,
+                         resume=True, progress=progress)
+        self.rounds, self.rs, self.ls, self.token = rounds, rs, ls, token
+
+    def plan(self) -> StagePlan:
+        r, s = self.rounds, self.s
+        self.part, self.el, self.tree, self.lp = r.part, r.el, r.tree, r.lp
+        self.pairs, self.first = r.pairs, r.first
+        return StagePlan("links (round)", self.token, self.rs.path, len(r.first) - 1, r.cost,
                          f"rerun with: radiosity visibility {self.run_dir} --method hierarchical",
                          int(s.visibility.window_per_worker), int(s.visibility.retries))
-        run = run_stage(client, plan, task_links,
-                        lambda t: (shared.future(), pairs[first[t]:first[t + 1]], rs.path, t),
-                        ls, resume=True, create=create, ncounters=len(COUNTERS),
-                        on_result=on_result, progress=progress)
-        table, split = node_table_of(rs, self.tree, self.part, run.done, plan.ntasks, token)
-        links = link_figures(s, lp, run, len(self.part), table, split, cpu, self.occlusion,
-                             client)
-        fig.update(links=int(links["links"]), leaves=int(links["leaves"]),
-                   rays=int(links["rays"]), time_s=round(time.perf_counter() - t0, 4))
-        self.figures.append(fig)
-        keep_keys = ("links", "links_per_leaf", "leaves", "nodes", "split_off_nodes", "rays",
-                     "ray_links", "refined", "evaluated", "exact", "shaft_visible",
-                     "shaft_blocked")
-        update_report(self.run_dir, "links", {k: links[k] for k in keep_keys if k in links})
-        return fig
+
+    def create(self) -> None:  # never: the token was just written
+        raise RadiosityError(f"rounds: the links of {self.run_dir} changed under the round")
+
+    def inputs(self):
+        return self.rounds.inp
+
+    def report(self, fig) -> None:
+        RoundLinkFigures(links=fig.links, links_per_leaf=fig.links_per_leaf, leaves=fig.leaves,
+                         nodes=fig.nodes, split_off_nodes=fig.split_off_nodes, rays=fig.rays,
+                         ray_links=fig.ray_links, refined=fig.refined, evaluated=fig.evaluated,
+                         exact=fig.exact, shaft_visible=fig.shaft_visible,
+                         shaft_blocked=fig.shaft_blocked).write(self.run_dir)

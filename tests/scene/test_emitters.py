@@ -15,6 +15,7 @@ from radiosity.errors import RadiosityError
 from radiosity.scene.emitters import (EMITTER_TYPES, NO_EMITTER, AreaEmitters, Emitter,
                                       area_emission, emitter_type, irradiance)
 from radiosity.scene.load import load_scene
+from radiosity.settings import options
 from helpers import scene_path
 
 
@@ -61,7 +62,7 @@ def test_power_is_le_pi_area_per_channel(rng):
     np.testing.assert_allclose(AreaEmitters(el).power(), want, rtol=1e-14)
     np.testing.assert_array_equal(AreaEmitters(el).emitting(), [True, True, False])
     # the power of the cornell box's lamp: a built-in scene read through the loader
-    box = load_scene(scene_path("cornell-box")).elements
+    box = load_scene(scene_path("cornell-box"), settings=options()).elements
     lamp = box.emission.max(axis=(1, 2)) > 0
     want = math.pi * (box.emission[lamp] * box.area[lamp, None, None]).sum(axis=(0, 1))
     np.testing.assert_allclose(AreaEmitters(box).power(), want, rtol=1e-12)

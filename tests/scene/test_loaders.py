@@ -305,7 +305,7 @@ def test_stl_is_read_as_the_same_triangles_in_obj(tmp_path, ascii):
     (tmp_path / "box.obj").write_text(
         "".join("v %r %r %r\n" % tuple(map(float, p)) for p in v)
         + "".join(f"f {3 * k + 1} {3 * k + 2} {3 * k + 3}\n" for k in range(12)))
-    got, want = (load_scene(str(tmp_path / f"{s}.toml")).elements for s in ("stl", "obj")
+    got, want = (load_scene(str(tmp_path / f"{s}.toml"), settings=settings_of()).elements for s in ("stl", "obj")
                  if (tmp_path / f"{s}.toml").write_text(
                      f'[[mesh]]\npath = "box.{s}"\nmaterial = "grey"\n'
                      '[material.grey]\nreflectance = [0.3, 0.4, 0.5]\n' + CAMERA) or True)

@@ -323,3 +323,33 @@ def test_the_method_name_check_finds_a_comparison():
                                                   'y == "other"')
              for n in ast.walk(ast.parse(src)) if isinstance(n, ast.Compare)]
     assert found == [["pairs"], ["hierarchical"], []]
+
+
+MODULE_MAX_LINES = 600
+FUNCTION_MAX_LINES = 120  # numba kernels excepted: a kernel is one loop nest, split it and it slows
+
+
+def _is_numba(fn) -> bool:
+    for d in fn.decorator_list:
+        target = d.func if isinstance(d, ast.Call) else d
+        name = target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", "")
+        if name in ("njit", "jit", "vectorize", "guvectorize", "generated_jit"):
+            return True
+    return False
+
+
+def test_modules_and_functions_stay_short():
+    """No module over 600 lines and no Python (non-numba) function over 120: a newcomer reads
+    one concern at a time (issue 49)."""
+    long_modules, long_functions = [], []
+    for name, path in _modules().items():
+        text = open(path).read()
+        if text.count("\n") > MODULE_MAX_LINES:
+            long_modules.append(f"{name} ({text.count(chr(10))} lines)")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and not _is_numba(node):
+                n = node.end_lineno - node.lineno + 1
+                if n > FUNCTION_MAX_LINES:
+                    long_functions.append(f"{name}.{node.name} ({n} lines)")
+    assert not long_modules, long_modules
+    assert not long_functions, long_functions

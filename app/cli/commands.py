@@ -12,13 +12,13 @@ import time
 
 import click
 
-from radiosity.cli.options import (POSITIVE, POSITIVE_INT, _Finite,
-                                   _resolution, cluster_options,
+from radiosity.cli.options import (POSITIVE, POSITIVE_INT, Finite,
+                                   parse_resolution_flag, cluster_options,
                                    force_option, image_options, kernel_options, method_options,
-                                   settings_from_flags, solve_options, _client)
-from radiosity.cli.summary import (_ARGV, _REAL, _T0, INTERRUPTED, NOT_CONVERGED, _command_line,
-                                   _finish, _friendly, _record_run, _started, _table,
-                                   _viewfactors_summary)
+                                   settings_from_flags, solve_options, run_client)
+from radiosity.cli.summary import (ARGV, REAL, T0, INTERRUPTED, NOT_CONVERGED, command_line,
+                                   finish_lines, friendly, record_run, mark_started, table_text,
+                                   viewfactors_summary)
 from radiosity.cli.studies import study
 from radiosity.errors import RadiosityError
 from radiosity.runtime.precompile import with_helper
@@ -58,14 +58,14 @@ class OneLineGroup(click.Group):
         return self._main(args, prog_name, complete_var, standalone_mode, **extra)
 
     def _main(self, args, prog_name, complete_var, standalone_mode, **extra):
-        _ARGV[:] = list(sys.argv[1:] if args is None else args)
-        _T0[0] = time.time()
-        _REAL[0] = args is None
+        ARGV[:] = list(sys.argv[1:] if args is None else args)
+        T0[0] = time.time()
+        REAL[0] = args is None
         if args is None:  # a real command: count the interpreter's start and imports too
             try:
                 import psutil
 
-                _T0[0] = min(_T0[0], psutil.Process().create_time())
+                T0[0] = min(T0[0], psutil.Process().create_time())
             except Exception:
                 pass
         if not standalone_mode:
@@ -98,7 +98,7 @@ def main():
 @main.command()
 @click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Run directory to create.")
-@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+@click.option("--resolution", default=None, metavar="N|WxH", callback=parse_resolution_flag,
               help="Override the camera resolution.")
 @click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--variant", type=click.Choice(["exact", "seed", "none"]), default=None,
@@ -107,7 +107,7 @@ def main():
 @click.option("--subscenes", type=POSITIVE_INT, default=None, help="Number of subscene tasks.")
 @force_option
 @cluster_options
-@_friendly
+@friendly
 def preprocess(scene, out, resolution, subpixel, variant, subscenes, force, workers, scheduler,
                cluster_kind):
     """Camera-driven subdivision of SCENE (seed §3) into the run directory OUT."""
@@ -121,14 +121,14 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, force, work
     sc = _load_scene(scene, resolution, st)
     check_scene(sc, st, stated_method(st))
     check_new_run_dir(out, force)
-    _started(out, resume=False)
+    mark_started(out, resume=False)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
-    with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind, st,
+    with run_lock(out, command_line()), run_client(workers, scheduler, cluster_kind, st,
                                                  _samples(sc.cameras, st.subdivide.subpixel)) as client:
         fig = run(sc, out, client, settings=st)
-        _record_run(out, sc.name)
-    click.echo(_table(_finish(out, fig.rows())))
+        record_run(out, sc.name)
+    click.echo(table_text(finish_lines(out, fig.rows())))
     click.echo(f"wrote {out}/store.zarr and {out}/report.json")
 
 
@@ -141,7 +141,7 @@ def preprocess(scene, out, resolution, subpixel, variant, subscenes, force, work
                                 "sample pair (default: radiosity.solve.kernel).")
 @method_options
 @cluster_options
-@_friendly
+@friendly
 def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_kind):
     """The visibility matrix of a preprocessed RUN_DIR (seed §4.3), bit-packed in its store;
     with --method hierarchical, the links between nodes of its split trees instead."""
@@ -158,12 +158,12 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     method = get_method(name)
     click.echo(f"method: {why}")
     method.check(rs, st)  # bad settings fail before a cluster starts
-    _started(run_dir)
-    with run_lock(run_dir, _command_line()), _client(workers, scheduler, cluster_kind, st,
+    mark_started(run_dir)
+    with run_lock(run_dir, command_line()), run_client(workers, scheduler, cluster_kind, st,
                                                      _run_samples(rs)) as client:
-        _record_run(run_dir)
+        record_run(run_dir)
         fig = method.build(run_dir, client, st, unit=task_unit, resume=resume)
-    click.echo(_table(_finish(run_dir, method.rows(fig))))
+    click.echo(table_text(finish_lines(run_dir, method.rows(fig))))
 
 
 @main.command()
@@ -171,7 +171,7 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
 @solve_options
 @lambda fn: method_options(fn, links=False)
 @cluster_options
-@_friendly
+@friendly
 def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, workers, scheduler,
           cluster_kind):
     """Solve the radiosity system of RUN_DIR (after visibility): form factors on the fly;
@@ -191,13 +191,13 @@ def solve(run_dir, solver, kernel, tol, max_iterations, keep_unconverged, worker
     rs.load_partition()
     method = stated_method(st) or method_of_run(rs)
     method.require(rs)
-    _started(run_dir, resume=False)
-    with run_lock(run_dir, _command_line()), _client(workers, scheduler, cluster_kind, st,
+    mark_started(run_dir, resume=False)
+    with run_lock(run_dir, command_line()), run_client(workers, scheduler, cluster_kind, st,
                                                      _run_samples(rs)) as client:
         fig = run_solve(run_dir, client, st, preview=previewer(run_dir),
                         keep_unconverged=keep_unconverged, method=method.name)
-        _record_run(run_dir)
-    click.echo(_table(_finish(run_dir, fig.rows())))
+        record_run(run_dir)
+    click.echo(table_text(finish_lines(run_dir, fig.rows())))
     if not fig.converged:
         sys.exit(NOT_CONVERGED)
 
@@ -224,10 +224,10 @@ def _xyz(ctx, param, value):
 @click.option("--up", callback=_xyz, default=None, metavar="X,Y,Z", help="The new view's up (0,1,0).")
 @click.option("--fov", type=click.FloatRange(0, 180, min_open=True, max_open=True), default=None,
               help="The new view's vertical field of view, degrees (default: the run's).")
-@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+@click.option("--resolution", default=None, metavar="N|WxH", callback=parse_resolution_flag,
               help="The new view's resolution (default: the camera file's, else the run's).")
 @click.option("--name", default=None, help="The new view's folder under RUN_DIR/views (default view-N).")
-@_friendly
+@friendly
 def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up, fov, resolution,
           name):
     """Write image.exr, image.png, mesh.glb, mesh.ply and viewer.html of a solved RUN_DIR; with
@@ -245,10 +245,10 @@ def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up,
 
         cam = view_camera(RunStore(run_dir).load_camera(), camera_file, position, look_at, up, fov,
                           resolution)
-        with run_lock(run_dir, _command_line()):
+        with run_lock(run_dir, command_line()):
             v = render_view(run_dir, cam, name, settings=st, exposure=exposure)
         g = v.figures["gather"]
-        click.echo(_table([("view", f"{cam.width}x{cam.height}, {v.figures['samples_per_pixel']} "
+        click.echo(table_text([("view", f"{cam.width}x{cam.height}, {v.figures['samples_per_pixel']} "
                                     f"rays a pixel, {v.figures['method']} solution"),
                            ("gathered", f"{g.get('gathered_points', 0)} points in leaves coarser "
                                         f"than their pixels, {g.get('evaluations', 0)} link "
@@ -256,12 +256,12 @@ def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up,
                            ("time", f"{v.figures['time_s']:.1f} s")]))
         click.echo(f"wrote {v.out}/image.exr, image.png, view.json")
         return
-    _started(run_dir, resume=False)
-    with run_lock(run_dir, _command_line()):
+    mark_started(run_dir, resume=False)
+    with run_lock(run_dir, command_line()):
         fig = render_outputs(run_dir, filter=filter_, sigma=sigma, exposure=exposure,
                              settings=st, progress=True)
-        _record_run(run_dir)
-        _finish(run_dir, [])
+        record_run(run_dir)
+        finish_lines(run_dir, [])
     click.echo(f"wrote {run_dir}/image.exr, image.png, mesh.glb, mesh.ply, viewer.html, "
                f"elements.csv, surfaces.csv, materials.csv "
                f"({fig.width}x{fig.height}, exposure {fig.exposure:.3g})")
@@ -280,13 +280,13 @@ def image(run_dir, filter_, sigma, exposure, camera_file, position, look_at, up,
                    "file's name).")
 @click.option("--frames", type=POSITIVE_INT, default=None, help="Number of frames (replaces the file's).")
 @click.option("--fps", type=POSITIVE, default=None, help="Frames per second (replaces the file's).")
-@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+@click.option("--resolution", default=None, metavar="N|WxH", callback=parse_resolution_flag,
               help="The frames' resolution (default: the path file's, else the run's).")
 @click.option("--exposure", type=POSITIVE, default=None,
               help="Exposure of the frames (default: the run's, so that they match its image).")
 @click.option("--keep-frames/--no-keep-frames", default=True, show_default=True,
               help="Keep every frame as a PNG beside walkthrough.json.")
-@_friendly
+@friendly
 def walkthrough(run_dir, path_file, out, name, frames, fps, resolution, exposure, keep_frames):
     """Render a camera path through a solved RUN_DIR into a video: every frame a view of its
     one solution (no re-solve; the run opened once for all frames), with progress."""
@@ -299,11 +299,11 @@ def walkthrough(run_dir, path_file, out, name, frames, fps, resolution, exposure
     if out is not None:
         check_output(out)
     check_run_dir(run_dir)
-    with run_lock(run_dir, _command_line()):
+    with run_lock(run_dir, command_line()):
         w = render_walkthrough(run_dir, path, out, name, settings=settings_from_flags(),
                                exposure=exposure, keep_frames=keep_frames)
     f = w.figures
-    click.echo(_table([("frames", f"{f['frames']} at {f['resolution'][0]}x{f['resolution'][1]}, "
+    click.echo(table_text([("frames", f"{f['frames']} at {f['resolution'][0]}x{f['resolution'][1]}, "
                                   f"{f['samples_per_pixel']} rays a pixel, {f['method']} solution"),
                        ("gathered", f"{f['gathered_points']} points in leaves coarser than "
                                     "their pixels"),
@@ -323,7 +323,7 @@ def walkthrough(run_dir, path_file, out, name, frames, fps, resolution, exposure
                    "(16x16), with an empty numba cache (NUMBA_CACHE_DIR) and write the kernels "
                    "they compile, in order, into runtime/kernels.txt (the first run's compile "
                    "helper reads it).")
-@_friendly
+@friendly
 def warmup(methods, json_path, record):
     """Compile the kernels of a render into numba's cache now (a tiny render of the built-in
     Cornell box per method, in this process), with progress; later runs load them. Prints
@@ -348,7 +348,7 @@ def warmup(methods, json_path, record):
             for name, sec, n in log.top(10)]
     rows.append(("compiled", f"{len(log.seconds)} kernels, {log.total_s:.1f} s of "
                              f"{time.perf_counter() - t0:.1f} s (0 when the cache was warm)"))
-    click.echo(_table(rows))
+    click.echo(table_text(rows))
     if json_path:
         with open(json_path, "w") as f:
             json.dump(log.to_dict(), f, indent=1)
@@ -386,12 +386,12 @@ def _builtin_cornell() -> str:
 
 @main.command()
 @click.argument("scene", type=click.Path())
-@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+@click.option("--resolution", default=None, metavar="N|WxH", callback=parse_resolution_flag,
               help="Override the camera resolution.")
 @click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--tol", type=float, default=None, help="Solver tolerance (for the pass estimate).")
 @lambda fn: method_options(fn, links=False)
-@_friendly
+@friendly
 def plan(scene, resolution, subpixel, tol):
     """Print which effects SCENE calls for, which are skipped and why, before any heavy work."""
     from radiosity.methods.base import choose_method, get_method, stated_method
@@ -419,7 +419,7 @@ def plan(scene, resolution, subpixel, tol):
 @main.command()
 @click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Run directory.")
-@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+@click.option("--resolution", default=None, metavar="N|WxH", callback=parse_resolution_flag,
               help="Override the camera resolution.")
 @click.option("--subpixel", type=int, default=None, help="Criterion on a K-times finer raster.")
 @click.option("--task-unit", type=click.Choice(["block", "stripe", "auto"]), default=None)
@@ -432,7 +432,7 @@ def plan(scene, resolution, subpixel, tol):
 @method_options
 @image_options
 @cluster_options
-@_friendly
+@friendly
 @with_helper  # a first run: a helper process compiles from the other end of the kernels
 def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, force, solver, kernel,
            tol, max_iterations, keep_unconverged, filter_, sigma, exposure, workers, scheduler,
@@ -452,15 +452,15 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
     check_solve(st)
     check_scene(sc, st, stated_method(st))
     check_new_run_dir(out, force)
-    _started(out)
+    mark_started(out)
     click.echo(f"scene {sc.name}: {len(sc.elements)} original elements, camera "
                f"{sc.camera.width}x{sc.camera.height}")
-    with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind, st,
+    with run_lock(out, command_line()), run_client(workers, scheduler, cluster_kind, st,
                                                  _samples(sc.cameras, st.subdivide.subpixel)) as client:
         rep = render_scene(sc, out, client, st, resume=resume, preview=preview, echo=click.echo,
                            full=full, keep_unconverged=keep_unconverged)
-        _record_run(out, sc.name)
-    click.echo(_table(_finish(out, rep.rows())))
+        record_run(out, sc.name)
+    click.echo(table_text(finish_lines(out, rep.rows())))
     click.echo(f"wrote {out}/image.exr, image.png, {'preview.png, ' if preview else ''}mesh.glb, "
                "mesh.ply, viewer.html, elements.csv, surfaces.csv, materials.csv, report.json")
     if not rep["solve"].get("converged", True):
@@ -476,13 +476,13 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
 @click.option("--passes", type=POSITIVE_INT, default=None,
               help="Independent passes the samples are split into, for the standard error "
                    "(default: radiosity.reference.passes).")
-@click.option("--resolution", default=None, metavar="N|WxH", callback=_resolution,
+@click.option("--resolution", default=None, metavar="N|WxH", callback=parse_resolution_flag,
               help="Override the camera resolution.")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Seed of the first pass.")
 @click.option("--variant", type=click.Choice(["auto", "llvm_ad_rgb", "scalar_rgb"]), default=None,
               help="Mitsuba variant (default: radiosity.reference.variant, auto).")
 @force_option
-@_friendly
+@friendly
 def reference(scene, out, spp, passes, resolution, seed, variant, force):
     """Ground truth: SCENE path-traced by Mitsuba 3 (the same elements, materials, sides and
     camera); mean radiance, per-pixel standard error and figures into OUT."""
@@ -494,7 +494,7 @@ def reference(scene, out, spp, passes, resolution, seed, variant, force):
     check_new_run_dir(out, force)
     fig = make_reference(sc, out, spp=spp, passes=passes, seed=seed, variant=variant,
                          echo=click.echo, settings=st)
-    click.echo(_table([
+    click.echo(table_text([
         ("samples", f"{fig['spp']} spp in {fig['passes']} passes ({fig['variant']}, Mitsuba "
                     f"{fig['mitsuba_version']})"),
         ("path depth", f"{fig['max_depth']} (max reflectance {fig['max_reflectance']:.3g}: light "
@@ -511,7 +511,7 @@ def reference(scene, out, spp, passes, resolution, seed, variant, force):
 @click.option("--out", "-o", default=None, type=click.Path(),
               help="Directory for compare.png (false-colour relative difference) and compare.json.")
 @force_option
-@_friendly
+@friendly
 def compare(a, b, out, force):
     """Error of image A against reference B (EXR, linear RGB): mean absolute relative error,
     max, per channel; B's noise when B-stderr.exr lies beside it."""
@@ -528,7 +528,7 @@ def compare(a, b, out, force):
             ("per channel R, G, B", f"{pc['R']:.4g}, {pc['G']:.4g}, {pc['B']:.4g}")]
     if "noise_floor" in fig:
         rows.append(("B's own noise", f"{fig['noise_floor']:.4g} (the error an exact image would show)"))
-    click.echo(_table(rows))
+    click.echo(table_text(rows))
     if out:
         click.echo(f"wrote {out}/compare.png (scale +-{fig['scale']:.3g}), {out}/compare.json")
 
@@ -543,12 +543,12 @@ def compare(a, b, out, force):
                    "normals), on, off (default: radiosity.viewfactors.enclosure).")
 @click.option("--format", "fmt", type=click.Choice(["npz", "csv"]), default="npz", show_default=True,
               help="viewfactors.npz always; csv adds viewfactors.csv (small meshes).")
-@click.option("--cutoff", type=_Finite(min=0.0), default=None,
+@click.option("--cutoff", type=Finite(min=0.0), default=None,
               help="Drop cluster pairs whose form-factor bound is at most this (default 0: none).")
 @click.option("--resume", is_flag=True, help="Keep the finished tasks of an interrupted run in OUT.")
 @force_option
 @cluster_options
-@_friendly
+@friendly
 def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, workers, scheduler,
                 cluster_kind):
     """View factors between the facets of MESH (OBJ, glTF, PLY or a scene TOML): sparse,
@@ -562,12 +562,12 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, work
     resolve_params(settings=st)  # bad values fail before the cluster starts
     fac = load_facets(mesh, settings=st)
     check_new_run_dir(out, force)
-    _started(out)
+    mark_started(out)
     click.echo(f"{len(fac)} facets from {', '.join(fac.sources)}")
-    with run_lock(out, _command_line()), _client(workers, scheduler, cluster_kind) as client:
+    with run_lock(out, command_line()), run_client(workers, scheduler, cluster_kind) as client:
         res = compute_viewfactors(fac, out, client, fmt=fmt, resume=resume, settings=st)
-        _record_run(out, os.path.basename(mesh))
-    click.echo(_viewfactors_summary(res.figures, _finish(out, [])))
+        record_run(out, os.path.basename(mesh))
+    click.echo(viewfactors_summary(res.figures, finish_lines(out, [])))
     click.echo(f"wrote {out}/" + f", {out}/".join(res.figures["files"] + ["report.json"]))
 
 

@@ -15,7 +15,7 @@ OVERRIDES = "radiosity.overrides"  # ctx.meta key: {"section.key": value} of the
 CLUSTER = "radiosity.cluster"      # ctx.meta key: open_client keywords of the cluster flags
 
 
-class _Finite(click.FloatRange):
+class Finite(click.FloatRange):
     """A float in a range that is also finite (click's FloatRange lets NaN through)."""
 
     def convert(self, value, param, ctx):
@@ -26,10 +26,10 @@ class _Finite(click.FloatRange):
 
 
 POSITIVE_INT = click.IntRange(min=1)
-POSITIVE = _Finite(min=0.0, min_open=True)
+POSITIVE = Finite(min=0.0, min_open=True)
 
 
-def _resolution(ctx, param, value):
+def parse_resolution_flag(ctx, param, value):
     """--resolution N|WxH, checked before anything starts (the scene loader takes the pair)."""
     from radiosity.errors import SceneError
     from radiosity.scene.load import parse_resolution
@@ -66,7 +66,7 @@ def _adaptive(ctx, param, value):
     return value
 
 
-def _number_list(kind, lo, what):
+def number_list(kind, lo, what):
     """A callback for comma-separated lists (study accuracy): every item a `kind` > lo."""
 
     def cb(ctx, param, value):
@@ -243,7 +243,7 @@ def force_option(fn):
                              "run directory (its files of the same names are replaced).")(fn)
 
 
-def _client(workers, scheduler, cluster_kind, st=None, samples: int | None = None, **kw):
+def run_client(workers, scheduler, cluster_kind, st=None, samples: int | None = None, **kw):
     """open_client with the cluster flags (adaptive, tls, batch-job options) and the command's
     settings `st` (None: the flags' own, settings_from_flags); with `st`, a local cluster's
     workers are threads or processes by radiosity.cluster.processes for a scene of `samples`

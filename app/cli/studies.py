@@ -7,9 +7,9 @@ import os
 
 import click
 
-from radiosity.cli.options import (POSITIVE_INT, _client, _number_list, cluster_options,
+from radiosity.cli.options import (POSITIVE_INT, run_client, number_list, cluster_options,
                                    force_option, settings_from_flags)
-from radiosity.cli.summary import _friendly
+from radiosity.cli.summary import friendly
 from radiosity.errors import RadiosityError
 
 
@@ -37,13 +37,13 @@ def _floats(s: str, kind=float):
 @click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Directory for results.")
 @click.option("--resolutions", default="8,16,32", show_default=True, help="Camera resolutions.",
-              callback=_number_list(int, 0, "positive integers"))
+              callback=number_list(int, 0, "positive integers"))
 @click.option("--subpixels", default="1", show_default=True, help="Sub-pixel factors.",
-              callback=_number_list(int, 0, "positive integers"))
+              callback=number_list(int, 0, "positive integers"))
 @click.option("--kernels", default="point,disc", show_default=True,
               help="Form-factor kernels; the sampled ones may name their sample count: nxm:16, mc:64.")
 @click.option("--tols", default="1e-6", show_default=True, help="Solver tolerances.",
-              callback=_number_list(float, 0.0, "tolerances > 0"))
+              callback=number_list(float, 0.0, "tolerances > 0"))
 @click.option("--reference", default=None, metavar="auto|PATH.exr",
               help="auto: ground truth path-traced by Mitsuba 3 (made once in OUT/reference, "
                    "reused), and the path tracer itself in the sweep; or a reference image (EXR).")
@@ -54,15 +54,15 @@ def _floats(s: str, kind=float):
               help="--reference auto: the path tracer's sample counts (default: 1, 4, 16, ... "
                    "up to the reference's / 16).")
 @click.option("--epsilons", default=None, metavar="E,E,...",
-              callback=_number_list(float, -1e-300, "numbers >= 0"),
+              callback=number_list(float, -1e-300, "numbers >= 0"),
               help="Also sweep --method hierarchical at these epsilons (x --link-rays).")
 @click.option("--link-rays", "link_rays", default="4", show_default=True, metavar="K,K,...",
-              callback=_number_list(int, 0, "positive integers"),
+              callback=number_list(int, 0, "positive integers"),
               help="With --epsilons: the hierarchical method's rays per link (squares).")
 @click.option("--solver", default=None, help="Solver (default: radiosity.solve.solver).")
 @force_option
 @cluster_options
-@_friendly
+@friendly
 def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, reference_spp,
                    path_tracer_spp, epsilons, link_rays, solver, force, workers, scheduler,
                    cluster_kind):
@@ -85,7 +85,7 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
         raise RadiosityError(f"--reference {reference}: no such file (give an EXR image, or auto)")
     pts = _floats(path_tracer_spp, int) if path_tracer_spp else None
     _check_study_out(out, force, "results.md")
-    with _client(workers, scheduler, cluster_kind) as client:
+    with run_client(workers, scheduler, cluster_kind) as client:
         rows = accuracy(scene, out, client, _floats(resolutions, int), _floats(subpixels, int), ks,
                         _floats(tols), reference=reference, solver=solver, echo=click.echo,
                         reference_spp=reference_spp, path_tracer_spp=pts, settings=st)
@@ -97,11 +97,11 @@ def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference,
 @click.argument("scene", type=click.Path())
 @click.option("--out", "-o", required=True, type=click.Path(), help="Directory for plots and tables.")
 @click.option("--resolutions", default="32,64,128,256", show_default=True,
-              callback=_number_list(int, 0, "positive integers"))
+              callback=number_list(int, 0, "positive integers"))
 @click.option("--speedup-resolution", type=POSITIVE_INT, default=96, show_default=True)
 @click.option("--max-workers", type=POSITIVE_INT, default=None, help="Largest LocalCluster for the speedup.")
 @force_option
-@_friendly
+@friendly
 def study_seed(scene, out, resolutions, speedup_resolution, max_workers, force):
     """Reproduce the seed's experiments on SCENE: Fig. 3, Fig. 4, the speedup table and the image
     series; writes PNG plots and seed.md into OUT."""

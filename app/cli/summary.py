@@ -24,22 +24,22 @@ NOT_CONVERGED = 3
 #: What the running command works on, for the line an interrupted or failed run prints:
 #: run_dir, and again: the command that continues it (set by each command as it starts).
 _RUN: dict = {}
-_ARGV: list = []
-_REAL: list = [False]  # a real command (the `radiosity` process), not a test's CliRunner
-_T0: list = [time.time()]  # when the command started (the process's start for a real command)
+ARGV: list = []
+REAL: list = [False]  # a real command (the `radiosity` process), not a test's CliRunner
+T0: list = [time.time()]  # when the command started (the process's start for a real command)
 
 
-def _command_line(resume: bool = False) -> str:
+def command_line(resume: bool = False) -> str:
     """The command being run, as the user can type it again (with --resume if asked)."""
     import shlex
 
-    args = list(_ARGV)
+    args = list(ARGV)
     if resume and "--resume" not in args:
         args.append("--resume")
     return "radiosity " + shlex.join(args)
 
 
-def _friendly(fn):
+def friendly(fn):
     """Every way a command can stop, as one line: RadiosityError (exit 2; a failed task's
     worker traceback goes to a log file the line names), a filesystem fault (exit 2), Ctrl-C
     (exit INTERRUPTED, 130: what was kept and the command that continues). Our warnings
@@ -107,7 +107,7 @@ def _ignore_sigint() -> None:
     import signal
     import threading
 
-    if _REAL[0] and threading.current_thread() is threading.main_thread():
+    if REAL[0] and threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -120,7 +120,7 @@ def _exit_interrupted() -> None:
     line is out: the lock is released and the workers stopped by then, but an in-process
     worker's threads may still be in a kernel call, or a cluster still starting, and Python's
     shutdown would wait for them (seconds to minutes) where Ctrl-C must stop within 2 s."""
-    if not _REAL[0]:
+    if not REAL[0]:
         sys.exit(INTERRUPTED)
     import os
     from multiprocessing import util
@@ -137,9 +137,9 @@ def _exit_interrupted() -> None:
     os._exit(INTERRUPTED)
 
 
-def _started(run_dir: str, resume: bool = True) -> None:
+def mark_started(run_dir: str, resume: bool = True) -> None:
     """Say which run directory the command works on and how to continue it if it stops."""
-    _RUN.update(run_dir=run_dir, again=_command_line(resume))
+    _RUN.update(run_dir=run_dir, again=command_line(resume))
 
 
 def _version() -> str:
@@ -151,9 +151,9 @@ def _version() -> str:
         return "unknown"
 
 
-def _record_run(run_dir: str, scene_name: str | None = None) -> None:
+def record_run(run_dir: str, scene_name: str | None = None) -> None:
     """report.json's "run" section: who made this run directory and how (version, command
-    line, date, scene); the command's wall time is added when it ends (_finish)."""
+    line, date, scene); the command's wall time is added when it ends (finish_lines)."""
     import datetime
     import socket
 
@@ -165,15 +165,15 @@ def _record_run(run_dir: str, scene_name: str | None = None) -> None:
         except Exception:
             scene_name = None
     update_report(run_dir, "run", {
-        "version": _version(), "command": _command_line(), "stage": _ARGV[0] if _ARGV else "",
+        "version": _version(), "command": command_line(), "stage": ARGV[0] if ARGV else "",
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
         "scene": scene_name, "host": socket.gethostname()})
 
 
-def _finish(run_dir: str | None, rows: list) -> list:
+def finish_lines(run_dir: str | None, rows: list) -> list:
     """The summary's last row: the wall time of the whole command (start-up, imports, cluster
     start and stop, every stage), also written to report.json's "run" section."""
-    wall = time.time() - _T0[0]
+    wall = time.time() - T0[0]
     if run_dir is not None:
         from radiosity.runtime.store import update_report
 
@@ -210,13 +210,13 @@ def kept(run_dir: str | None) -> str:
     return ", ".join(parts)
 
 
-def _table(rows: list[tuple[str, object]]) -> str:
+def table_text(rows: list[tuple[str, object]]) -> str:
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
 
 
 
-def _viewfactors_summary(fig: dict, extra: list = ()) -> str:
+def viewfactors_summary(fig: dict, extra: list = ()) -> str:
     """The view-factor stage's summary table (extra: rows after it, e.g. the wall time)."""
     pt = max(1, fig["pairs_total"])
 
@@ -244,4 +244,4 @@ def _viewfactors_summary(fig: dict, extra: list = ()) -> str:
             ("reciprocity residual", f"{fig['reciprocity_residual_max']:.3g}"),
             ("obstructed > unobstructed", fig["obstructed_over_unobstructed"]),
             ("time", f"{fig['time_s']:.2f} s"), *extra]
-    return _table(rows)
+    return table_text(rows)

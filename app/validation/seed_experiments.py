@@ -21,74 +21,101 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
     Gaussian filter, §6). `open_cluster(n)` is a context manager giving a Client of n workers.
     Writes seed-fig3.png, seed-fig4.png, seed-speedup.png, seed-images.png and seed.md.
     settings: the runs'."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from radiosity.pipeline import render_preview, render_scene
-    from radiosity.stages.preprocess import preprocess
-    from radiosity.scene.load import load_scene
-    from radiosity.methods.base import all_pairs_method
-
-    compute_visibility = all_pairs_method().build  # the seed's visibility matrix (seed §4.3)
-
-    s = settings
     os.makedirs(out, exist_ok=True)
     runs = os.path.join(out, "runs")
-    rows = []
     with open_cluster(max(workers)) as client:
-        warm = os.path.join(runs, "warm")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            preprocess(load_scene(scene_path, resolution=min(resolutions), settings=s), warm, client,
-                       progress=False, settings=s)
-        compute_visibility(warm, client, s, progress=False)
-        for res in resolutions:
-            d = os.path.join(runs, f"r{res}")
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                t = time.perf_counter()
-                pre = preprocess(load_scene(scene_path, resolution=res, settings=s), d, client,
-                                 progress=False, settings=s)
-                t_pre = time.perf_counter() - t
-            t = time.perf_counter()
-            vis = compute_visibility(d, client, s, progress=False)
-            rows.append({"resolution": res, "sub_elements": pre["sub_elements"], "preprocess_s": t_pre,
-                         "visibility_s": time.perf_counter() - t, "rays": vis["rays"]})
-            echo(f"  {res}x{res}: {pre['sub_elements']} sub-elements, preprocess {t_pre:.2f} s, "
-                 f"visibility {rows[-1]['visibility_s']:.2f} s")
-        # the image series
-        series = []
-        sc = load_scene(scene_path, resolution=70, settings=s)
-        render_preview(sc, os.path.join(runs, "series"), client, s)
-        series.append(("no preprocessing", os.path.join(runs, "series", "preview", "image.png")))
-        for res, k, filt, label in ((50, 1, "box", "50 x 50"), (70, 2, "gaussian", "70 x 70, Gaussian")):
-            d = os.path.join(runs, f"series{res}")
-            render_scene(load_scene(scene_path, resolution=res, settings=s), d, client,
-                         s.replace({"subdivide.subpixel": k, "render.filter": filt}),
-                         preview=False, progress=False, echo=lambda *a: None)
-            series.append((label, os.path.join(d, "image.png")))
+        rows = _scaling(scene_path, runs, client, resolutions, echo, settings)
+        series = _series(scene_path, runs, client, settings)
     speed = []
     for w in workers:
         with open_cluster(w) as client:
-            d = os.path.join(runs, f"speed{w}")
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                preprocess(load_scene(scene_path, resolution=speedup_res, settings=s), d, client,
-                           progress=False, settings=s)
-            compute_visibility(d, client, s, progress=False)  # warm
-            t = time.perf_counter()
-            compute_visibility(d, client, s, progress=False)
-            speed.append({"workers": w, "visibility_s": time.perf_counter() - t})
-    for s in speed:
-        s["speedup"] = speed[0]["visibility_s"] / s["visibility_s"]
-        s["efficiency"] = s["speedup"] / s["workers"]
-
+            speed.append(_speed(scene_path, runs, client, w, speedup_res, settings))
+    for sp in speed:
+        sp["speedup"] = speed[0]["visibility_s"] / sp["visibility_s"]
+        sp["efficiency"] = sp["speedup"] / sp["workers"]
     name = os.path.basename(os.path.dirname(os.path.abspath(scene_path)))
     m = np.array([r["sub_elements"] for r in rows], float)
     tv = np.array([r["visibility_s"] for r in rows])
     order = float(np.polyfit(np.log(m[-3:]), np.log(tv[-3:]), 1)[0]) if len(m) >= 3 else float("nan")
+    _plots(out, name, rows, speed, series, m, tv, order)
+    _write_markdown(out, name, rows, speed, order)
+    return {"rows": rows, "speedup": speed, "order": order}
+
+
+def _preprocessed(scene_path: str, run: str, client, res: int, s: Settings):
+    """The scene at `res` preprocessed into `run` (warnings off): its PreprocessFigures."""
+    from radiosity.scene.load import load_scene
+    from radiosity.stages.preprocess import preprocess
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return preprocess(load_scene(scene_path, resolution=res, settings=s), run, client, s,
+                          progress=False)
+
+
+def _scaling(scene_path: str, runs: str, client, resolutions, echo, s: Settings) -> list[dict]:
+    """Preprocessing and visibility time at each resolution (seed Figs. 3 and 4), after one
+    warm-up run at the smallest."""
+    from radiosity.methods.base import all_pairs_method
+
+    compute_visibility = all_pairs_method().build  # the seed's visibility matrix (seed §4.3)
+    warm = os.path.join(runs, "warm")
+    _preprocessed(scene_path, warm, client, min(resolutions), s)
+    compute_visibility(warm, client, s, progress=False)
+    rows = []
+    for res in resolutions:
+        d = os.path.join(runs, f"r{res}")
+        t = time.perf_counter()
+        pre = _preprocessed(scene_path, d, client, res, s)
+        t_pre = time.perf_counter() - t
+        t = time.perf_counter()
+        vis = compute_visibility(d, client, s, progress=False)
+        rows.append({"resolution": res, "sub_elements": pre["sub_elements"], "preprocess_s": t_pre,
+                     "visibility_s": time.perf_counter() - t, "rays": vis["rays"]})
+        echo(f"  {res}x{res}: {pre['sub_elements']} sub-elements, preprocess {t_pre:.2f} s, "
+             f"visibility {rows[-1]['visibility_s']:.2f} s")
+    return rows
+
+
+def _series(scene_path: str, runs: str, client, s: Settings) -> list[tuple[str, str]]:
+    """The seed's image series (seed §6): (label, PNG path) for the original elements alone,
+    50 x 50 and 70 x 70 with a Gaussian filter."""
+    from radiosity.pipeline import render_preview, render_scene
+    from radiosity.scene.load import load_scene
+
+    sc = load_scene(scene_path, resolution=70, settings=s)
+    render_preview(sc, os.path.join(runs, "series"), client, s)
+    series = [("no preprocessing", os.path.join(runs, "series", "preview", "image.png"))]
+    for res, k, filt, label in ((50, 1, "box", "50 x 50"), (70, 2, "gaussian", "70 x 70, Gaussian")):
+        d = os.path.join(runs, f"series{res}")
+        render_scene(load_scene(scene_path, resolution=res, settings=s), d, client,
+                     s.replace({"subdivide.subpixel": k, "render.filter": filt}),
+                     preview=False, progress=False, echo=lambda *a: None)
+        series.append((label, os.path.join(d, "image.png")))
+    return series
+
+
+def _speed(scene_path: str, runs: str, client, w: int, res: int, s: Settings) -> dict:
+    """The visibility stage's time on `w` workers (a second run: caches warm)."""
+    from radiosity.methods.base import all_pairs_method
+
+    compute_visibility = all_pairs_method().build
+    d = os.path.join(runs, f"speed{w}")
+    _preprocessed(scene_path, d, client, res, s)
+    compute_visibility(d, client, s, progress=False)  # warm
+    t = time.perf_counter()
+    compute_visibility(d, client, s, progress=False)
+    return {"workers": w, "visibility_s": time.perf_counter() - t}
+
+
+def _plots(out: str, name: str, rows, speed, series, m, tv, order: float) -> None:
+    """seed-fig3.png, seed-fig4.png, seed-speedup.png and seed-images.png."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
     fig, ax = plt.subplots(figsize=(5, 3.6), dpi=110)
     ax.plot([r["resolution"] for r in rows], [r["preprocess_s"] for r in rows], "o-")
     ax.set_xlabel("camera resolution (N x N)")
@@ -110,8 +137,8 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
     fig.savefig(os.path.join(out, "seed-fig4.png"))
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(4.2, 3.4), dpi=110)
-    ax.plot([s["workers"] for s in speed], [s["speedup"] for s in speed], "o-", label="measured")
-    ax.plot([s["workers"] for s in speed], [s["workers"] for s in speed], "--", color="grey", label="linear")
+    ax.plot([sp["workers"] for sp in speed], [sp["speedup"] for sp in speed], "o-", label="measured")
+    ax.plot([sp["workers"] for sp in speed], [sp["workers"] for sp in speed], "--", color="grey", label="linear")
     ax.set_xlabel("workers")
     ax.set_ylabel("speedup")
     ax.set_title("visibility speedup (seed §5.2)")
@@ -129,6 +156,10 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
     fig.tight_layout()
     fig.savefig(os.path.join(out, "seed-images.png"))
     plt.close(fig)
+
+
+def _write_markdown(out: str, name: str, rows, speed, order: float) -> None:
+    """seed.md: the tables and the figures."""
     with open(os.path.join(out, "seed.md"), "w") as f:
         f.write(f"# The seed's experiments on {name}\n\n| resolution | sub-elements | preprocess s | "
                 "visibility s | rays |\n|---:|---:|---:|---:|---:|\n")
@@ -140,8 +171,8 @@ def seed(scene_path: str, out: str, open_cluster, resolutions=(32, 64, 128, 256)
                 "a user waits for); the speedup table times a second run on a directory already "
                 "computed once (caches warm), so the two differ at the same size.\n\n"
                 "| workers | visibility s | speedup | efficiency |\n|---:|---:|---:|---:|\n")
-        for s in speed:
-            f.write(f"| {s['workers']} | {s['visibility_s']:.2f} | {s['speedup']:.2f} | {s['efficiency']:.2f} |\n")
+        for sp in speed:
+            f.write(f"| {sp['workers']} | {sp['visibility_s']:.2f} | {sp['speedup']:.2f} | "
+                    f"{sp['efficiency']:.2f} |\n")
         f.write("\n![Fig. 3](seed-fig3.png) ![Fig. 4](seed-fig4.png) ![speedup](seed-speedup.png)\n\n"
                 "![images](seed-images.png)\n")
-    return {"rows": rows, "speedup": speed, "order": order}

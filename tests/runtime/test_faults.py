@@ -340,9 +340,9 @@ def test_a_failed_task_prints_one_line_naming_its_log(tmp_path):
     from radiosity.runtime.runner import TaskFailed
 
     @click.command()
-    @cli_mod._friendly
+    @cli_mod.friendly
     def boom():
-        cli_mod._started(str(tmp_path))
+        cli_mod.mark_started(str(tmp_path))
         raise TaskFailed("visibility task 7 failed (the same error twice): ValueError: x; the "
                          "finished tasks are kept", "Traceback (most recent call last):\n  worker "
                          "frames\nValueError: x\n")

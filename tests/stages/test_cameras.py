@@ -19,7 +19,7 @@ ABOVE = dict(position=[278.0, 540.0, 280.0], look_at=[278.0, 0.0, 280.0], up=[0.
              fov_y=80.0)
 
 
-def _table(header: str, cam: dict, name: str | None = None) -> str:
+def table_text(header: str, cam: dict, name: str | None = None) -> str:
     lines = [header] + ([f'name = "{name}"'] if name else [])
     return "\n".join(lines + [f"{k} = {v}" for k, v in cam.items()] + [f"resolution = {R}", ""])
 
@@ -40,8 +40,8 @@ def test_camera_entries_are_named_and_the_first_is_the_runs_own(tmp_path):
     from radiosity.scene.load import load_scene
 
     f = tmp_path / "two.toml"
-    f.write_text(cornell_with(_table("[[camera]]", FRONT, "front") + "\n"
-                              + _table("[[camera]]", ABOVE)))
+    f.write_text(cornell_with(table_text("[[camera]]", FRONT, "front") + "\n"
+                              + table_text("[[camera]]", ABOVE)))
     sc = load_scene(str(f), settings=settings_of())
     assert [n for n, _ in sc.views] == ["camera-2"]
     assert np.allclose(sc.camera.center, FRONT["position"])
@@ -52,8 +52,8 @@ def test_camera_entries_are_named_and_the_first_is_the_runs_own(tmp_path):
 
 
 @pytest.mark.parametrize("second, says", [
-    (_table("[[camera]]", ABOVE, "front"), "used twice"),
-    (_table("[[camera]]", ABOVE, "a b"), "letters, digits"),
+    (table_text("[[camera]]", ABOVE, "front"), "used twice"),
+    (table_text("[[camera]]", ABOVE, "a b"), "letters, digits"),
     ("[[camera]]\nname = \"x\"\nposition = [0, 0, 0]\nresolution = 8\n", "look_at"),
 ])
 def test_bad_camera_entries_are_one_line_naming_the_entry(tmp_path, second, says):
@@ -61,7 +61,7 @@ def test_bad_camera_entries_are_one_line_naming_the_entry(tmp_path, second, says
     from radiosity.scene.load import load_scene
 
     f = tmp_path / "bad.toml"
-    f.write_text(cornell_with(_table("[[camera]]", FRONT, "front") + "\n" + second))
+    f.write_text(cornell_with(table_text("[[camera]]", FRONT, "front") + "\n" + second))
     with pytest.raises(SceneError, match=says) as e:
         load_scene(str(f), settings=settings_of())
     assert str(f) in str(e.value) and "\n" not in str(e.value)
@@ -83,8 +83,8 @@ def test_a_camera_that_would_make_a_black_image_is_refused_by_name(tmp_path, loo
     from radiosity.settings import resolve
 
     f = tmp_path / "two.toml"
-    f.write_text(cornell_with(_table("[[camera]]", FRONT, "front") + "\n"
-                              + _table("[[camera]]", {**look, "fov_y": 40.0}, "bad")))
+    f.write_text(cornell_with(table_text("[[camera]]", FRONT, "front") + "\n"
+                              + table_text("[[camera]]", {**look, "fov_y": 40.0}, "bad")))
     with pytest.raises(RadiosityError, match=says) as e:
         check_scene(load_scene(str(f), settings=settings_of()), resolve())
     assert type(e.value).__name__ == error and "'bad'" in str(e.value)
@@ -142,10 +142,10 @@ def test_each_cameras_image_matches_its_single_camera_render(tmp_path):
     from radiosity.runtime.store import RunStore
 
     two = tmp_path / "two.toml"
-    two.write_text(cornell_with(_table("[[camera]]", FRONT, "front") + "\n"
-                                + _table("[[camera]]", ABOVE, "above")))
+    two.write_text(cornell_with(table_text("[[camera]]", FRONT, "front") + "\n"
+                                + table_text("[[camera]]", ABOVE, "above")))
     alone = tmp_path / "above.toml"
-    alone.write_text(cornell_with(_table("[camera]", ABOVE)))
+    alone.write_text(cornell_with(table_text("[camera]", ABOVE)))
     kw = dict(method="hierarchical")
     both = radiosity.render(str(two), out=str(tmp_path / "both"), **kw)
     front = radiosity.render(scene_path("cornell-box"), out=str(tmp_path / "front"), resolution=R,

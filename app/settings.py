@@ -43,7 +43,11 @@ class _Section:
 
 def _coerce(value, kind: str, where: str):
     """int and float keys as numbers (environment variables and YAML give '1e7' or 3 for
-    either); the other kinds as given."""
+    either); null (None) stays None, "not set" (the YAML says what each key's null means); the
+    other kinds as given."""
+    if value is None:
+        return None
+    kind = kind.replace(" | None", "")
     try:
         if kind == "int" and not isinstance(value, bool):
             return int(float(value))
@@ -212,8 +216,8 @@ class ClusterSettings(_Section):
     worker_timeout: int
     processes: bool | str
     in_process_samples: int
-    malloc_trim_threshold: int
-    malloc_mmap_threshold: int
+    malloc_trim_threshold: int | None
+    malloc_mmap_threshold: int | None
     direct_scatter: str
 
 

@@ -96,7 +96,8 @@ def test_trim_malloc_hands_back_the_pages_of_arrays_freed_in_the_middle_of_the_h
     code = textwrap.dedent("""
         import os, numpy as np
         import radiosity.runtime.cluster as rc
-        rc.tune_malloc()
+        from radiosity.settings import options
+        rc.tune_malloc(options().cluster)
         def rss():
             return int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
         held = [np.ones(1 << 17) for _ in range(400)]   # 400 x 1 MiB on the heap

@@ -228,7 +228,8 @@ def test_printed_links_answer_for_workers_as_threads():
     from radiosity.runtime.dashboard import PATH
 
     lines: list[str] = []
-    with open_client(1, kind="local", in_process=True, echo=lines.append) as client:
+    with open_client(1, kind="local", in_process=True, echo=lines.append,
+                     settings=settings_of().cluster) as client:
         assert client.scheduler.address.startswith("inproc://")
         links = {line.split(": ", 1)[0]: line.split(": ", 1)[1] for line in lines if ": http" in line}
         assert links["dashboard"].startswith("http://127.0.0.1:"), lines

@@ -73,7 +73,7 @@ def test_worker_killed_during_solve_gives_the_same_answer(killable, tmp_path, so
     c.cluster.scale(2)  # the last run's victim: its nanny restarts it (or, if it gave up, this)
     c.wait_for_workers(2, timeout=180)  # a worker's start takes long on a loaded machine
     out = prepared(c, tmp_path, scene_path("cornell-box"), 12, visibility=False)
-    get_method(method).build(out, c, None, progress=False)
+    get_method(method).build(out, c, settings_of(), progress=False)
     ref = run_solve(out, c, settings_of(solver=solver, tol=1e-10), progress=False, where="cluster")
     L_ref = radiance(out)
     workers = sorted(c.scheduler_info()["workers"])

@@ -364,8 +364,8 @@ def test_facets_load_as_the_scene_loader_would(recwarn):
     with pytest.raises(SceneError, match="face 1 .* zero area"):
         polygons_from_raw(flat, "flat.obj", merge=False, settings=settings)
     with pytest.raises(SceneError, match=r"face 1 \[0, 1, 5\] refers to vertices"):
-        load_facets((tri.vertices, [[0, 1, 2], [0, 1, 5]]))
-    two = load_facets((tri.vertices, tri.faces))
+        load_facets((tri.vertices, [[0, 1, 2], [0, 1, 5]]), settings)
+    two = load_facets((tri.vertices, tri.faces), settings)
     assert [two.describe(i) for i in range(2)] == ["facet 0 (face 0 of (vertices, faces))",
                                                    "facet 1 (face 1 of (vertices, faces))"]
 

@@ -110,7 +110,7 @@ def scene_plan(scene: Scene, settings: Settings, full: bool = False, run_dir: st
     else:
         k = int(s.subdivide.subpixel)
         cam = scene.camera
-        rc = RayCaster(el.verts, el.nverts, float(s.rays.epsilon))
+        rc = RayCaster(el.verts, el.nverts, float(s.rays.offset))
         elem, _ = raster_band(rc, el.normal, el.center, cam, k, slice(0, cam.height * k))
         pix = np.bincount(elem[elem >= 0], minlength=len(el))
         sizes = np.maximum(1.0, 1.4 * pix)
@@ -118,7 +118,7 @@ def scene_plan(scene: Scene, settings: Settings, full: bool = False, run_dir: st
                                     max_pairs=int(s.plan.max_facing_pairs),
                                     leaf=int(s.plan.leaf_size), where=scene.path),
                        closure if closure is not None
-                       else resolve_closure(s.solve.closure, el, s.rays.epsilon),
+                       else resolve_closure(s.solve.closure, el, s.rays.offset),
                        int((pix == 0).sum()), int(sizes.sum()), estimated=run_dir is None)
 
 
@@ -159,7 +159,7 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     # the closure test needs only the scene: its rays run beside the preprocess, whose driver
     # steps leave a core idle (docs/src/design/pipeline.md: what it saves)
     pool = ThreadPoolExecutor(1, thread_name_prefix="closure")
-    closure = pool.submit(resolve_closure, s.solve.closure, scene.elements, s.rays.epsilon)
+    closure = pool.submit(resolve_closure, s.solve.closure, scene.elements, s.rays.offset)
     pool.shutdown(wait=False)
     if reuse:
         echo("preprocess: reusing the partition in the run directory")

@@ -23,12 +23,26 @@ class _Section:
     """One radiosity.<SECTION>.* table; field names are the YAML keys with '_' for '-'."""
 
     SECTION: ClassVar[str] = ""
+    #: field -> YAML key where the two differ (a user-facing key kept for users' configurations
+    #: while the code says what the value is)
+    KEYS: ClassVar[dict] = {}
+
+    @classmethod
+    def key_of(cls, field: str) -> str:
+        """The YAML key of `field`."""
+        return cls.KEYS.get(field, field.replace("_", "-"))
+
+    @classmethod
+    def field_of(cls, key: str) -> str:
+        """The field of YAML key `key` (or of the field's own name)."""
+        name = key.replace("-", "_")
+        return next((f for f, k in cls.KEYS.items() if k == key or k == name), name)
 
     @classmethod
     def from_dict(cls, values: dict) -> "_Section":
         kw = {}
         for f in dataclasses.fields(cls):
-            key = f.name.replace("_", "-")
+            key = cls.key_of(f.name)
             # environment variables (DASK_RADIOSITY__PLAN__LEAF_SIZE) arrive as leaf_size
             name = key if key in values else f.name
             if name not in values:
@@ -38,7 +52,7 @@ class _Section:
         return cls(**kw)
 
     def to_dict(self) -> dict:
-        return {f.name.replace("_", "-"): getattr(self, f.name) for f in dataclasses.fields(self)}
+        return {self.key_of(f.name): getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 def _coerce(value, kind: str, where: str):
@@ -70,10 +84,12 @@ class SceneSettings(_Section):
 
 @dataclass(frozen=True)
 class RaySettings(_Section):
-    """radiosity.rays.*"""
+    """radiosity.rays.*: `offset`, how far a ray starts off the surface it leaves (YAML key
+    `epsilon`, kept for users' configurations; epsilon in code is the links' threshold)."""
 
     SECTION: ClassVar[str] = "rays"
-    epsilon: float
+    KEYS: ClassVar[dict] = {"offset": "epsilon"}
+    offset: float
 
 
 @dataclass(frozen=True)
@@ -287,7 +303,7 @@ class Settings:
                 continue
             section, _, name = key.partition(".")
             cls = SECTIONS.get(section)
-            field = name.replace("-", "_")
+            field = cls.field_of(name) if cls is not None else name
             if cls is None or field not in {f.name for f in dataclasses.fields(cls)}:
                 raise RadiosityError(f"unknown setting radiosity.{key}: see radiosity.yaml for "
                                      "the keys")

@@ -71,7 +71,7 @@ def link_rays_vs_raw(run_dir: str, workers: int, stage_rays_per_s: float) -> dic
     prm, weight = resolve_params(el, settings_of())
     seen = seen_originals(rs.read_arrays("raster")["orig"], len(el))
     inp = LinkInputs(tree_nodes(part, el), part, el, seen, prm, weight, "bench",
-                     float(settings_of().rays.epsilon))
+                     float(settings_of().rays.offset))
     pairs, first = LinkStore(rs).plan()
     rc = RayCaster(el.verts, el.nverts)
     kept: list = []

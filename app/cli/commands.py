@@ -551,7 +551,7 @@ def compare(a, b, out, force):
 @friendly
 def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, workers, scheduler,
                 cluster_kind):
-    """View factors between the facets of MESH (OBJ, glTF, PLY or a scene TOML): sparse,
+    """View factors between the facets of MESH (OBJ, glTF, PLY, STL or a scene TOML): sparse,
     obstructed, reciprocal; rows balanced to 1 for enclosures."""
     from radiosity.runtime.checks import check_new_run_dir
     from radiosity.runtime.runlock import run_lock

@@ -156,7 +156,7 @@ def check_scene(scene, settings, method=None) -> dict:
                       "material an emission ([material.NAME] emission = [r, g, b])", stacklevel=2)
     est = method.check_scene(scene, settings) if method is not None else None
     subpixel = int(settings.subdivide.subpixel)
-    rc = caster_of(el.verts, el.nverts, float(settings.rays.epsilon))
+    rc = caster_of(el.verts, el.nverts, float(settings.rays.offset))
     seen = _camera_hits(scene, rc, cam, subpixel)
     for name, view in scene.views:  # the other cameras ([[camera]] entries): seen and lit
         _check_view(scene, rc, view, name, _camera_hits(scene, rc, view, subpixel, name))

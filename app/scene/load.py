@@ -367,7 +367,7 @@ def load_scene(path: str, resolution=None, *, settings: Settings) -> Scene:
         require_emitter(elements, path)
         res = (DEFAULT_RESOLUTION,) * 2 if resolution is None else \
             parse_resolution(resolution, "resolution")
-        camera, table, why = default_camera(elements, res, float(s.rays.epsilon), path,
+        camera, table, why = default_camera(elements, res, float(s.rays.offset), path,
                                             parse_camera)
         chosen = (f"camera: {os.path.basename(path)} has none, so {why}; to change it, put this "
                   f"in a scene file (see {MESH_DOCS}):\n{camera_toml(table)}")

@@ -192,9 +192,9 @@ def _image_and_meshes(rs, st, part, elements, camera, k: int, raster, radiance, 
         from radiosity.tracing.rays import caster_of
 
         # the link stage's caster where this process built it (in-process workers)
-        caster = caster_of(elements.verts, elements.nverts, float(st.rays.epsilon))
+        caster = caster_of(elements.verts, elements.nverts, float(st.rays.offset))
         raster_or_samples = sample_raster(part, elements, camera, k, per_side,
-                                          float(st.rays.epsilon), caster=caster)
+                                          float(st.rays.offset), caster=caster)
     else:
         raster_or_samples = raster
     lum = seen_radiance(part, elements, camera, radiance)

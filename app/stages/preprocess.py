@@ -341,7 +341,7 @@ def preprocess(scene: Scene, out: str, client, settings, progress: bool = True) 
     store.set_attrs(scene=scene.path, scene_name=scene.name, camera=cam.to_dict(),
                     subpixel=subpixel, views={name: c.to_dict() for name, c in scene.views})
     key = tokenize(el.verts, el.nverts)
-    inp = RasterInputs(el, tuple(cams), subpixel, key, float(st.rays.epsilon))
+    inp = RasterInputs(el, tuple(cams), subpixel, key, float(st.rays.offset))
     shared = Scattered(client, inp)
     # task keys: deterministic per run directory and inputs (never shared between two runs)
     token = tokenize(key, [c.to_dict() for c in cams], subpixel, variant, max_depth, ntasks,

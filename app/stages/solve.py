@@ -99,8 +99,8 @@ def row_mode(mode, closure) -> str:
     return mode
 
 
-def resolve_closure(setting, elements, epsilon: float):
-    """closure.Closure for solve.closure = auto (detected with rays offset by `epsilon`, the
+def resolve_closure(setting, elements, ray_offset: float):
+    """closure.Closure for solve.closure = auto (detected with rays offset by `ray_offset`, the
     rays.epsilon setting), on or off (stated; contact sides are found all the same)."""
     from radiosity.scene.contact import find_contacts
 
@@ -108,9 +108,9 @@ def resolve_closure(setting, elements, epsilon: float):
     if setting not in ("auto", "on", "off"):
         raise RadiosityError(f"radiosity.solve.closure must be auto, on or off, got {setting!r}")
     if setting == "auto":
-        return detect_closure(elements, float(epsilon))
+        return detect_closure(elements, float(ray_offset))
     closed = setting == "on"
-    contact = find_contacts(elements, float(epsilon)) if len(elements) else np.zeros((0, 2), bool)
+    contact = find_contacts(elements, float(ray_offset)) if len(elements) else np.zeros((0, 2), bool)
     k = int(contact.sum())
     return Closure(closed, 0, 0, -1, 0.0, f"{'closed' if closed else 'open'}: stated "
                    f"(closure: {setting})" + (f"; {k} contact sides take no part" if k else "")
@@ -253,7 +253,7 @@ def run_solve(run_dir: str, client, settings: Settings, *, progress: bool = True
     Le, rho, area = opened.Le, opened.rho, opened.area
     mode = s.solve.normalise_rows
     if mode in ("auto", None) and closure is None:
-        closure = resolve_closure(s.solve.closure, rs.load_elements(), s.rays.epsilon)
+        closure = resolve_closure(s.solve.closure, rs.load_elements(), s.rays.offset)
     sided = (effects.two_sided if effects is not None
              else rs.load_elements().two_sided.astype(bool))[opened.orig]
     targets = RowTargets.of(closure, opened.orig, sided)

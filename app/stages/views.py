@@ -140,7 +140,7 @@ class Viewer:
                                  "first")
         self.method = method_of_run(rs)
         self.elements = el = rs.load_elements()
-        self.ray_offset = float(s.rays.epsilon)
+        self.ray_offset = float(s.rays.offset)
         self.caster = RayCaster(el.verts, el.nverts, self.ray_offset)
         self.two_sided = np.asarray(el.two_sided, bool)
         self.source = self.method.open_views(rs, s)

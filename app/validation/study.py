@@ -320,7 +320,7 @@ def _against_finest(scene_path: str, rows: list[dict], images: dict, echo, s: Se
     key = max(images, key=lambda q: (q[0] * q[1], -q[3], q[2] == "point-nf", q[2] == "point"))
     echo(f"  reference: the finest setting {key[0]}x{key[0]} K={key[1]} {key[2]} tol={key[3]:g}")
     fine = load_scene(scene_path, resolution=key[0], settings=s)
-    rc = RayCaster(fine.elements.verts, fine.elements.nverts, float(s.rays.epsilon))
+    rc = RayCaster(fine.elements.verts, fine.elements.nverts, float(s.rays.offset))
     h = fine.camera.height * key[1]
     orig, pts = raster_band(rc, fine.elements.normal, fine.elements.center, fine.camera, key[1],
                             slice(0, h))

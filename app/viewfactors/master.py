@@ -49,9 +49,9 @@ def params_of(vf: ViewFactorSettings) -> Params:
 
 # ----------------------------------------------------------------------------- inputs and plan
 
-def make_inputs(fac: Facets, leaf_size: int, epsilon: float):
+def make_inputs(fac: Facets, leaf_size: int, ray_offset: float):
     """The tree (scene/originals.build_tree, leaves of at most `leaf_size` facets) and the
-    worker inputs of facets `fac`, in the tree's leaf order; epsilon: the ray offset
+    worker inputs of facets `fac`, in the tree's leaf order; ray_offset: the ray offset
     (radiosity.rays.epsilon). Boxes and the plane tolerance of the occlusion tests are the
     render's (tracing/shafts.occluders: padded boxes)."""
     from dask.base import tokenize
@@ -85,7 +85,7 @@ def make_inputs(fac: Facets, leaf_size: int, epsilon: float):
     inp = Inputs(verts=v, nv=nv, normal=normal, center=center, area=area, doff=doff,
                  flo=flo, fhi=fhi, gid=p, J=J, R=R, qn=qn, qw=qw, qc=qc,
                  nodes=nodes, n_leaves=len(tree.leaves()), tol=tol, pad=pad,
-                 key="vf-" + tokenize(v, nv), epsilon=float(epsilon))
+                 key="vf-" + tokenize(v, nv), ray_offset=float(ray_offset))
     return tree, inp
 
 
@@ -180,7 +180,7 @@ class ViewFactorStage(StageMaster):
         s, vf, prm = self.s, self.s.viewfactors, self.prm
         self.fac = fac = load_facets(self.mesh, settings=s)
         n = len(fac)
-        self.tree, self.inp = tree, _ = make_inputs(fac, vf.leaf_size, s.rays.epsilon)
+        self.tree, self.inp = tree, _ = make_inputs(fac, vf.leaf_size, s.rays.offset)
         threads = sum(self.client.nthreads().values()) or 1
         self.tasks = tasks = plan_tasks(tree, n, vf.task_pairs, vf.tasks_per_worker * threads)
         self.token = tokenize(VERSION, fac.verts, fac.nverts, asdict(prm), vf.leaf_size,
@@ -226,7 +226,7 @@ class ViewFactorStage(StageMaster):
                        {t: run.done[t] for t in range(len(self.tasks))})
         t_asm = time.perf_counter() - t_asm
         outputs = finish(self.vfl.rs, self.out, fac, asm, s.viewfactors, self.fmt,
-                         float(s.rays.epsilon))
+                         float(s.rays.offset))
         self.matrix = outputs.pop("_matrix")
         return ViewFactorFigures(
             outputs=outputs, facets=len(fac), accuracy=prm.accuracy, cutoff=prm.cutoff,

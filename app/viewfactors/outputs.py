@@ -30,12 +30,12 @@ def _worst(fac: Facets, values: np.ndarray, idx: np.ndarray, k: int = 5) -> str:
     return "; ".join(f"{fac.describe(int(i))}: {values[i]:.6g}" for i in idx[:k])
 
 
-def facet_closure(fac: Facets, epsilon: float):
+def facet_closure(fac: Facets, ray_offset: float):
     """The render's closure test (scene/closure.detect_closure: rays per element side) on the
     facets as one-sided elements: per facet front, contact (covered by a touching surface), the
     fraction of its hemisphere that reaches geometry (target) and whether that is exactly 1 or
     0 (exact). Touching furniture, T-junctions and winding that does not match across an edge
-    do not make a closed room open, as an edge-topology test would. epsilon: rays.epsilon."""
+    do not make a closed room open, as an edge-topology test would. ray_offset: rays.epsilon."""
     from radiosity.core.bundles import Elements
     from radiosity.scene.closure import detect_closure
 
@@ -45,7 +45,7 @@ def facet_closure(fac: Facets, epsilon: float):
                   two_sided=np.zeros(n, bool), material=np.zeros(n, np.int32),
                   source=fac.source, face=fac.face, material_names=("facet",),
                   sources=tuple(os.path.basename(x) for x in fac.sources))
-    return detect_closure(el, float(epsilon))
+    return detect_closure(el, float(ray_offset))
 
 
 def balance_matrix(F, rows, tol: float, max_iterations: int):
@@ -73,7 +73,7 @@ def balance_matrix(F, rows, tol: float, max_iterations: int):
 
 
 def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
-           epsilon: float = 1e-6) -> dict:
+           ray_offset: float = 1e-6) -> dict:
     """Closure test and row handling of the assembled matrix `asm` (master.Assembled), checks
     and warnings against vf.accuracy, outputs (fmt: npz | csv). vf.enclosure: auto balances
     the rows whose side the closure finds closed to 1 (in a closed scene every side it snapped
@@ -91,7 +91,7 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
     F = asm.matrix
     n = F.shape[0]
     A = fac.area
-    cl = facet_closure(fac, epsilon)
+    cl = facet_closure(fac, ray_offset)
     rt = RowTargets.of(cl, np.arange(n), np.zeros(n, bool))
     # a facet partly inside a solid (under a block whose bottom faces the wrong way) sees less
     # than its hemisphere, as a partly covered one: capped, not balanced; one wholly inside

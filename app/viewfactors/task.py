@@ -70,7 +70,7 @@ class Inputs:
     tol: float
     pad: float
     key: str
-    epsilon: float  # the ray offset (radiosity.rays.epsilon), resolved on the driver
+    ray_offset: float  # the ray offset (radiosity.rays.epsilon), resolved on the driver
 
 
 def task_viewfactors(inp: Inputs, prm: Params, leaves: np.ndarray, store_path: str,
@@ -82,7 +82,7 @@ def task_viewfactors(inp: Inputs, prm: Params, leaves: np.ndarray, store_path: s
     from radiosity.viewfactors.store import write_vf_task
 
     t0, c0 = time.time(), time.process_time()
-    caster = caster_for(inp.key, inp.verts, inp.nv, inp.epsilon)
+    caster = caster_for(inp.key, inp.verts, inp.nv, inp.ray_offset)
     counts = np.zeros(len(COUNTERS), np.int64)
     times = np.zeros(len(STAGES))
     parts, drops = [], []

@@ -393,7 +393,7 @@ def test_cutoff_drops_far_clusters_within_the_reported_bound(client, tmp_path):
     from radiosity.viewfactors.master import assemble, make_inputs
 
     fac = load_facets(mesh, settings_of())
-    tree, _ = make_inputs(fac, 4, resolve().rays.epsilon)
+    tree, _ = make_inputs(fac, 4, resolve().rays.offset)
     lines = (tmp_path / "cut" / "viewfactors.manifest.jsonl").read_text().splitlines()[1:]
     entries = {e["task"]: e for e in map(json.loads, lines)}
     asm = assemble(RunStore(str(tmp_path / "cut")), fac, tree, entries)

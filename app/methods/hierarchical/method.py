@@ -115,7 +115,7 @@ class HierarchicalMethod(TransportMethod):
         Le, rho, area = leaf_vectors(table, el)
         m = len(part)
         s = settings
-        live = live_leaves(table, el, s.rays.epsilon) if s.hierarchy.inside_solids else None
+        live = live_leaves(table, el, s.rays.offset) if s.hierarchy.inside_solids else None
         return Opened(op, Le, rho, area, table["orig"][table["leaf_node"]], m,
                       lambda L: to_sub_elements(L, table, m), originals=len(el), live=live,
                       state={"table": table})

@@ -89,7 +89,7 @@ class VisInputs:
     center, normal (m, 3) float64; two_sided (m,) bool; orig (m,) int32; lo, hi (m, 3) float64
     sub-element boxes; offsets (n + 1,) int64; elo, ehi (n, 3) padded boxes of the originals
     (the occluders), enormal (n, 3), eoffset (n,) their planes, pad the plane tolerance;
-    verts (n, 4, 3), nverts (n,) for the Embree scene; key: the Embree cache key; epsilon: the
+    verts (n, 4, 3), nverts (n,) for the Embree scene; key: the Embree cache key; ray_offset: the
     ray offset; occlusion: False when nothing can block (effects.py); sampling (kernels.Sampling
     or None) with kid, pts (m, S, 3), w (m, S): the sample points of a sampled kernel.
     """
@@ -109,7 +109,7 @@ class VisInputs:
     verts: np.ndarray
     nverts: np.ndarray
     key: str
-    epsilon: float
+    ray_offset: float
     occlusion: bool
     sampling: Sampling | None
     kid: int
@@ -125,7 +125,7 @@ class VisInputs:
         return np.repeat(self.orig, self.pts.shape[1])
 
 
-def vis_inputs(part, elements, key: str, epsilon: float, occlusion: bool = True,
+def vis_inputs(part, elements, key: str, ray_offset: float, occlusion: bool = True,
                sampling: Sampling | None = None) -> VisInputs:
     """The VisInputs of a partition (all values resolved here, on the driver)."""
     v = np.where(part.nverts[:, None, None] == 3, part.verts[:, [0, 1, 2, 2]], part.verts)
@@ -135,7 +135,7 @@ def vis_inputs(part, elements, key: str, epsilon: float, occlusion: bool = True,
         center=part.center, normal=part.normal, two_sided=elements.two_sided[part.orig],
         orig=part.orig, lo=v.min(axis=1), hi=v.max(axis=1), offsets=part.offsets,
         elo=elo, ehi=ehi, enormal=enormal, eoffset=eoffset, pad=pad, verts=elements.verts, nverts=elements.nverts,
-        key=key, epsilon=float(epsilon), occlusion=occlusion, sampling=sampling,
+        key=key, ray_offset=float(ray_offset), occlusion=occlusion, sampling=sampling,
         kid=0 if sampling is None else (NXM if sampling.kind == "nxm" else MC), pts=pts, w=w)
 
 
@@ -215,7 +215,7 @@ def task_visibility(inp: VisInputs, tiles: np.ndarray, store_path: str, tstart: 
     (crc32 and length of the partial pairs), worker (its address), start, stop.
     """
     t0 = time.time()
-    caster = caster_for(inp.key, inp.verts, inp.nverts, inp.epsilon)
+    caster = caster_for(inp.key, inp.verts, inp.nverts, inp.ray_offset)
     buf = np.zeros(tbytes, np.uint8)
     counts = np.zeros(len(COUNTERS), np.int64)
     partials = []
@@ -307,7 +307,7 @@ class VisibilityStage(StageMaster):
         super().__init__(client, report_dir=run_dir, **kw)
         self.s, self.unit, self.occlusion = s, unit, occlusion
         self.sampling = sampling_of(s.solve)
-        self.epsilon = float(s.rays.epsilon)
+        self.ray_offset = float(s.rays.offset)
 
     def plan(self) -> StagePlan:
         s, run_dir = self.s, self.report_dir
@@ -316,7 +316,7 @@ class VisibilityStage(StageMaster):
         self.vplan = plan = plan_for(part, el, self.unit, s, where=rs.attrs.get("scene") or run_dir)
         self.sampled = None if self.sampling is None else self.sampling.to_dict()
         self.token = tokenize(plan.tiles, plan.tasks, plan.chunk, part.center, part.normal,
-                              el.verts, self.epsilon, self.occlusion, self.sampled)
+                              el.verts, self.ray_offset, self.occlusion, self.sampled)
         self.vs = VisibilityStore(rs)
         return StagePlan("visibility", self.token, rs.path, len(plan.tasks), plan.task_bits(),
                          f"rerun with: radiosity visibility {run_dir} --resume",
@@ -324,7 +324,7 @@ class VisibilityStage(StageMaster):
 
     def create(self) -> None:
         self.rs.drop_after("raster")
-        self.vs.create(self.vplan, self.token, {"rays_epsilon": self.epsilon,
+        self.vs.create(self.vplan, self.token, {"rays_epsilon": self.ray_offset,
                                                 "sampling": self.sampled})
 
     def ledger(self):
@@ -332,7 +332,7 @@ class VisibilityStage(StageMaster):
 
     def inputs(self) -> VisInputs:
         el = self.el
-        return vis_inputs(self.part, el, tokenize(el.verts, el.nverts), self.epsilon,
+        return vis_inputs(self.part, el, tokenize(el.verts, el.nverts), self.ray_offset,
                           self.occlusion, self.sampling)
 
     def args(self, task: int, shared) -> tuple:

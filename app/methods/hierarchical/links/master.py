@@ -304,7 +304,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
         outside = ~np.asarray(raster.get("footprint", seen_any), bool)
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon * ce,
                                          cluster_weights(el, weight, seen_any, imp), prm.rays,
-                                         occlusion, s.rays.epsilon, client, progress,
+                                         occlusion, s.rays.offset, client, progress,
                                          prm.shadow * ce, prm.solids, unseen=outside,
                                          min_size=prm.min_size)
         cfig = dataclasses.replace(cfig, why=why_clusters, epsilon=prm.epsilon * ce,
@@ -322,7 +322,7 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
         hit = np.zeros(len(part), bool)
         hit[sub[sub >= 0]] = True
     token = tokenize(pairs, first, part.center, part.offsets, el.verts, el.reflectance,
-                     AreaEmitters(el).radiance(), seen, hit, prm.to_dict(), weight, s.rays.epsilon,
+                     AreaEmitters(el).radiance(), seen, hit, prm.to_dict(), weight, s.rays.offset,
                      *cl_inputs)
     return LinkPlan(pairs, first, cost, unit, prm, weight, why, seen, hit, token, cl, cfig)
 
@@ -375,7 +375,7 @@ class LinkStage(StageMaster):
 
         lp, el = self.lp, self.el
         return LinkInputs(self.tree, self.part, el, lp.seen, lp.prm, lp.weight,
-                          tokenize(el.verts, el.nverts), self.s.rays.epsilon, lp.hit)
+                          tokenize(el.verts, el.nverts), self.s.rays.offset, lp.hit)
 
     def args(self, task: int, shared) -> tuple:
         return (shared, self.pairs[self.first[task]:self.first[task + 1]], self.rs.path, task)

@@ -227,7 +227,7 @@ class PointGather:
                          np.zeros(0), Sbuf).copy()
         self.ends = directed_ends(inp)
         self.nodes, self.geo = inp.nodes(), inp.geometry()
-        self.caster = RayCaster(el.verts, el.nverts, float(settings.rays.epsilon))
+        self.caster = RayCaster(el.verts, el.nverts, float(settings.rays.offset))
         # cluster links add their final gather at each leaf's centroid, as the render's image
         # (solve/transport.cluster_final), once per leaf here (and their share of the rows, for
         # balancing)

@@ -264,7 +264,7 @@ class Rounds:
         prm = dataclasses.replace(self.lp.prm, rays=k)  # the rays of the links made again
         self.inp = LinkInputs(self.tree, self.part, self.el, self.lp.seen, prm,
                               self.lp.weight, tokenize(self.el.verts, self.el.nverts),
-                              settings.rays.epsilon, self.lp.hit)
+                              settings.rays.offset, self.lp.hit)
         self.apriori = self.inp.lhat[np.asarray(self.tree.orig, np.int64)]  # (k, 2)
         self.used = self.apriori.copy()
         self.used_var = np.zeros_like(self.used)

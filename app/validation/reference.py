@@ -333,7 +333,7 @@ def mitsuba_scene(scene: Scene, depth: int, spp: int = 1, meters=(), mi=None,
          "integrator": {"type": "path", "max_depth": int(depth), "rr_depth": int(depth),
                         "hide_emitters": False},
          "sensor": sensor_dict(scene, spp)}
-    for k, idx in enumerate(shape_groups(scene, meters, per_element)):
+    for j, idx in enumerate(shape_groups(scene, meters, per_element)):
         i = int(idx[0])  # every element of a shape has this one's material
         props = mi.Properties()
         props["bsdf"] = bsdf(i)
@@ -352,12 +352,12 @@ def mitsuba_scene(scene: Scene, depth: int, spp: int = 1, meters=(), mi=None,
                 "sampler": {"type": "independent", "sample_count": int(spp)}})
             props["sensor"] = sensors[i]
         verts, faces = _mesh_arrays(el, idx)
-        mesh = mi.Mesh(f"shape{k}", len(verts), len(faces), props, False, False)
+        mesh = mi.Mesh(f"shape{j}", len(verts), len(faces), props, False, False)
         p = mi.traverse(mesh)
         p["vertex_positions"] = type(p["vertex_positions"])(verts.ravel())
         p["faces"] = type(p["faces"])(faces.ravel())
         p.update()
-        d[f"shape{k:07d}"] = mesh
+        d[f"shape{j:07d}"] = mesh
     try:
         return mi.load_dict(d, optimize=False), sensors
     except RuntimeError as e:  # Mitsuba's own message, on one line

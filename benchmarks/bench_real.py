@@ -19,9 +19,11 @@ For each scene:
    one shape per material; path tracer with Russian roulette from depth 5, unbiased;
    max_depth from path_depth) at --ref-spp in --passes independent passes (per-pixel standard
    error from their spread).
-3. Errors of our image against it: per pixel (the mean over the pixels it sees of
-   |sum ours - sum ref| / sum ref, RGB sums, the reference's noise included), the image mean
-   (signed, luminance), and per object: a material the engine's own pixel-centre rays see in
+3. Errors of our image against it: per pixel (`rel_error`: the RMS over the pixels it sees
+   of the relative difference of the RGB sums, the reference's own variance subtracted, so
+   that neither renderer is charged for the reference's noise; the plain mean of
+   |sum ours - sum ref| / sum ref, noise included, is kept too), the image mean (signed,
+   luminance), and per object: a material the engine's own pixel-centre rays see in
    at least 100 pixels (compare.element_raster), the signed relative error of its mean
    luminance, with the reference's standard error of that mean.
 4. Mitsuba's per-pixel error at a ladder of sample counts, the count at which it equals ours
@@ -43,7 +45,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 
 import numpy as np
@@ -57,7 +58,7 @@ INTERIORS = ("modern-hall", "white-room", "wooden-staircase", "veach-ajar")
 TERRAINS = {"terrain-smooth-200k": (200_000, 0.0), "terrain-rough-200k": (200_000, 1.5),
             "terrain-smooth-1m": (1_000_000, 0.0), "terrain-rough-1m": (1_000_000, 1.5)}
 #: the order they run in: the quick ones first
-ALL = ("veach-ajar", "modern-hall", "terrain-smooth-200k", "terrain-rough-200k", "white-room",
+ALL = ("veach-ajar", "terrain-smooth-200k", "modern-hall", "terrain-rough-200k", "white-room",
        "wooden-staircase", "terrain-smooth-1m", "terrain-rough-1m")
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 MIN_OBJECT_PIXELS = 100
@@ -183,7 +184,8 @@ def report_figures(run: str) -> dict:
 # ----------------------------------------------------------------------------- Mitsuba
 
 def mitsuba_reference(sc, spp: int, passes: int, limit_s: float, seed: int = 7919):
-    """(mean (H, W, 3), stderr (H, W, 3), seconds, depth, spp done, handle): `passes`
+    """(mean (H, W, 3), stderr (H, W, 3), stderr of the RGB sum (H, W), seconds, depth, spp
+    done, handle): `passes`
     independent renders of spp / passes samples each, Russian roulette from depth 5; fewer
     passes (at least 4) when they would run past `limit_s` seconds."""
     from radiosity.validation.reference import load_mitsuba, mitsuba_scene, path_depth
@@ -208,11 +210,25 @@ def mitsuba_reference(sc, spp: int, passes: int, limit_s: float, seed: int = 791
         if len(imgs) >= 4 and el * (len(imgs) + 1) / len(imgs) > limit_s:
             break
     a = np.stack(imgs)
-    return (a.mean(0), a.std(0, ddof=1) / math.sqrt(len(imgs)), time.perf_counter() - t, D,
-            per * len(imgs), (mi, msc, integ))
+    se = a.std(0, ddof=1) / math.sqrt(len(imgs))
+    se_sum = a.sum(-1).std(0, ddof=1) / math.sqrt(len(imgs))  # the channels share paths
+    return (a.mean(0), se, se_sum, time.perf_counter() - t, D, per * len(imgs), (mi, msc, integ))
 
 
-def ladder(handle, ref, rungs, limit_s: float) -> list[dict]:
+def rel_error(img: np.ndarray, ref: np.ndarray, se_sum: np.ndarray) -> float:
+    """Per-pixel RMS relative error against the truth, estimated against a noisy reference:
+    sqrt(mean over the pixels the reference sees of ((A - B)^2 - s^2) / B^2), with A, B the RGB
+    sums of the image and the reference and s the reference's standard error of B. Subtracting
+    s^2 removes the reference's own noise from the expected squared difference, so an image is
+    not charged for the reference's noise (0 for an exact image, on average), and a path
+    tracer's error falls as 1/sqrt(spp) down to 0, not to the reference's noise floor."""
+    a, b = img.sum(-1), ref.sum(-1)
+    seen = b > 0
+    v = ((a[seen] - b[seen]) ** 2 - se_sum[seen] ** 2) / b[seen] ** 2
+    return float(math.sqrt(max(0.0, float(v.mean()))))
+
+
+def ladder(handle, ref, se_sum, rungs, limit_s: float) -> list[dict]:
     mi, msc, integ = handle
     np.asarray(mi.render(msc, spp=1, seed=3, integrator=integ))  # compiles (drjit is lazy)
     out = []
@@ -220,7 +236,8 @@ def ladder(handle, ref, rungs, limit_s: float) -> list[dict]:
         t = time.perf_counter()
         img = np.asarray(mi.render(msc, spp=int(s), seed=12345 + s, integrator=integ), np.float64)
         dt = time.perf_counter() - t
-        out.append({"spp": int(s), "error": pixel_error(img, ref), "time_s": dt})
+        out.append({"spp": int(s), "error": rel_error(img, ref, se_sum),
+                    "mean_abs_error": pixel_error(img, ref), "time_s": dt})
         if dt * 4 > limit_s:  # the next rung would take about 4x longer
             break
     return out
@@ -284,8 +301,9 @@ def measure(name: str, work: str, args) -> dict:
                              "--force"], d, args.timeout, args.mem_limit * 2**30,
                             os.path.join(d, "ours.log"))
         ours["loadavg"] = [round(x, 2) for x in os.getloadavg()]
-        with open(kept, "w") as f:
-            json.dump(ours, f)
+        if ours["rc"] == 0 or ours["stopped"]:  # not one killed from outside
+            with open(kept, "w") as f:
+                json.dump(ours, f)
     row.update(ours_s=round(ours["wall_s"], 1), ours_cpu_s=round(ours["cpu_s"], 1),
                ours_loadavg=ours.get("loadavg"),
                peak_gib=round(ours["peak_bytes"] / 2**30, 2), stopped=ours["stopped"],
@@ -293,27 +311,28 @@ def measure(name: str, work: str, args) -> dict:
     done = ours["rc"] == 0 and os.path.isfile(os.path.join(run, "image.exr"))
     if not done and not ours["stopped"]:
         row["stopped"] = f"exit {ours['rc']} (see {os.path.join(d, 'ours.log')})"
-    print(f"  ours: {row['ours_s']} s, {row['peak_gib']} GiB{', ' + row['stopped'] if row['stopped'] else ''}",
-          flush=True)
+    why = f", {row['stopped']}" if row["stopped"] else ""
+    print(f"  ours: {row['ours_s']} s, {row['peak_gib']} GiB{why}", flush=True)
     print(f"  Mitsuba reference at {args.ref_spp} spp", flush=True)
-    ref, se, t_ref, D, done_spp, handle = mitsuba_reference(sc, args.ref_spp, args.passes,
-                                                            args.ref_limit)
+    ref, se, se_sum, t_ref, D, done_spp, handle = mitsuba_reference(sc, args.ref_spp, args.passes,
+                                                                    args.ref_limit)
     row.update(ref_spp=done_spp, ref_s=round(t_ref, 1), depth=D,
                ref_noise=round(float(np.mean(se.sum(-1)[ref.sum(-1) > 0] / ref.sum(-1)[ref.sum(-1) > 0])), 5))
-    lad = ladder(handle, ref, [int(x) for x in args.ladder.split(",")], args.rung_limit)
+    lad = ladder(handle, ref, se_sum, [int(x) for x in args.ladder.split(",")], args.rung_limit)
     row["ladder"] = [{k: round(v, 5) if isinstance(v, float) else v for k, v in r.items()} for r in lad]
     if not done:
         return row
     img = read_exr(os.path.join(run, "image.exr")).astype(np.float64)
-    err = pixel_error(img, ref)
+    err = rel_error(img, ref, se_sum)
     objs = object_errors(sc, img, ref, se)
-    row.update(pixel_error=round(err, 5),
+    row.update(pixel_error=round(err, 5), pixel_mean_abs_error=round(pixel_error(img, ref), 5),
                image_mean=round(float((img @ LUMA).mean() / (ref @ LUMA).mean() - 1.0), 5),
                worst_object=objs[0]["object"] if objs else None,
                worst_object_error=round(objs[0]["error"], 5) if objs else None,
                objects=[{k: round(v, 5) if isinstance(v, float) else v for k, v in o.items()}
                         for o in objs])
-    need = max(1, math.ceil(spp_for(err, lad)))
+    rungs = [r for r in lad if r["error"] > 0]
+    need = max(1, math.ceil(spp_for(err, rungs))) if err > 0 and rungs else 1
     print(f"  our per-pixel error {err:.4f}: Mitsuba needs {need} spp; timing it", flush=True)
     script = os.path.join(work, "mitsuba_render.py")
     with open(script, "w") as f:
@@ -329,7 +348,7 @@ def measure(name: str, work: str, args) -> dict:
     m = json.loads(r.stdout.strip().splitlines()[-1])
     mit_s = m["load_s"] + m["render_s"]
     row.update(mitsuba_spp=need, mitsuba_s=round(mit_s, 2), mitsuba_process_s=round(whole, 1),
-               mitsuba_error=round(pixel_error(read_exr(exr).astype(np.float64), ref), 5),
+               mitsuba_error=round(rel_error(read_exr(exr).astype(np.float64), ref, se_sum), 5),
                ratio=round(ours["wall_s"] / mit_s, 2))
     return row
 
@@ -373,7 +392,8 @@ def export_timing(work: str, triangles: int = 200_000, spp: int = 32) -> dict:
     mi, _ = load_mitsuba()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sc = load_scene(scene_file("terrain-smooth-200k" if triangles == 200_000 else "terrain-smooth-1m", work))
+        sc = load_scene(scene_file("terrain-smooth-1m" if triangles > 200_000 else
+                                   "terrain-smooth-200k", work))
     D, _ = path_depth(sc)
     out = {"elements": len(sc.elements), "spp": spp}
     for per_element in (False, True):
@@ -399,7 +419,7 @@ def main():
     ap.add_argument("--passes", type=int, default=8)
     ap.add_argument("--ref-limit", type=float, default=600.0,
                     help="fewer reference passes (at least 4) past this time (s)")
-    ap.add_argument("--ladder", default="4,16,64,256,1024")
+    ap.add_argument("--ladder", default="4,16,64,256,1024,4096")
     ap.add_argument("--rung-limit", type=float, default=120.0,
                     help="stop the ladder when its next rung would take longer (s)")
     ap.add_argument("--timeout", type=float, default=1500.0, help="stop our render after (s)")

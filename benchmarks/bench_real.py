@@ -19,11 +19,10 @@ For each scene:
    one shape per material; path tracer with Russian roulette from depth 5, unbiased;
    max_depth from path_depth) at --ref-spp in --passes independent passes (per-pixel standard
    error from their spread).
-3. Errors of our image against it: per pixel (`rel_error`: the RMS over the pixels it sees
-   of the relative difference of the RGB sums, the reference's own variance subtracted, so
-   that neither renderer is charged for the reference's noise; the plain mean of
-   |sum ours - sum ref| / sum ref, noise included, is kept too), the image mean (signed,
-   luminance), and per object: a material the engine's own pixel-centre rays see in
+3. Errors of our image against it: per pixel (`rel_error`: the mean over the pixels it sees
+   of |sum ours - sum ref| / sum ref, RGB sums, with the reference's own noise taken out in
+   quadrature, so that neither renderer is charged for it; the plain figure is kept too), the
+   image mean (signed, luminance), and per object: a material the engine's own pixel-centre rays see in
    at least 100 pixels (compare.element_raster), the signed relative error of its mean
    luminance, with the reference's standard error of that mean.
 4. Mitsuba's per-pixel error at a ladder of sample counts, the count at which it equals ours
@@ -216,16 +215,18 @@ def mitsuba_reference(sc, spp: int, passes: int, limit_s: float, seed: int = 791
 
 
 def rel_error(img: np.ndarray, ref: np.ndarray, se_sum: np.ndarray) -> float:
-    """Per-pixel RMS relative error against the truth, estimated against a noisy reference:
-    sqrt(mean over the pixels the reference sees of ((A - B)^2 - s^2) / B^2), with A, B the RGB
-    sums of the image and the reference and s the reference's standard error of B. Subtracting
-    s^2 removes the reference's own noise from the expected squared difference, so an image is
-    not charged for the reference's noise (0 for an exact image, on average), and a path
-    tracer's error falls as 1/sqrt(spp) down to 0, not to the reference's noise floor."""
+    """Per-pixel error against the truth, estimated against a noisy reference: with m the mean
+    over the pixels the reference sees of |A - B| / B (A, B the RGB sums of the image and the
+    reference) and n = sqrt(2/pi) mean(s / B) the part of it an exact image would show (s the
+    reference's standard error of B: the mean of |N(0, s)|), sqrt(max(0, m^2 - n^2)). The
+    mean absolute errors of independent normal errors add in quadrature, so this takes the
+    reference's own noise out, and a path tracer's error falls as 1/sqrt(spp) instead of to
+    the reference's noise floor."""
     a, b = img.sum(-1), ref.sum(-1)
     seen = b > 0
-    v = ((a[seen] - b[seen]) ** 2 - se_sum[seen] ** 2) / b[seen] ** 2
-    return float(math.sqrt(max(0.0, float(v.mean()))))
+    m = float(np.mean(np.abs(a[seen] - b[seen]) / b[seen]))
+    n = math.sqrt(2.0 / math.pi) * float(np.mean(se_sum[seen] / b[seen]))
+    return math.sqrt(max(0.0, m * m - n * n))
 
 
 def ladder(handle, ref, se_sum, rungs, limit_s: float) -> list[dict]:
@@ -316,8 +317,9 @@ def measure(name: str, work: str, args) -> dict:
     print(f"  Mitsuba reference at {args.ref_spp} spp", flush=True)
     ref, se, se_sum, t_ref, D, done_spp, handle = mitsuba_reference(sc, args.ref_spp, args.passes,
                                                                     args.ref_limit)
+    seen = ref.sum(-1) > 0
     row.update(ref_spp=done_spp, ref_s=round(t_ref, 1), depth=D,
-               ref_noise=round(float(np.mean(se.sum(-1)[ref.sum(-1) > 0] / ref.sum(-1)[ref.sum(-1) > 0])), 5))
+               ref_noise=round(float(np.mean(se_sum[seen] / ref.sum(-1)[seen])), 5))
     lad = ladder(handle, ref, se_sum, [int(x) for x in args.ladder.split(",")], args.rung_limit)
     row["ladder"] = [{k: round(v, 5) if isinstance(v, float) else v for k, v in r.items()} for r in lad]
     if not done:

@@ -359,11 +359,15 @@ def _pct(v) -> str:
     return "" if v is None else f"{100 * v:+.2f} %"
 
 
+def _load(avg) -> str:
+    return f"{avg[0]:.0f}" if avg else "?"
+
+
 def markdown(rows: list[dict]) -> str:
     """The docs page's table (docs/src/measurements/real-scenes.md)."""
     cols = ["scene", "triangles", "ours, whole process", "peak memory", "links (a leaf)", "rays",
             "per-pixel error", "image mean", "worst object (>= 100 px)",
-            "Mitsuba to the same error", "ours / Mitsuba"]
+            "Mitsuba to the same error", "ours / Mitsuba", "load (ours; Mitsuba)"]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
         num = isinstance(r.get("links"), (int, float)) and isinstance(r.get("links_per_leaf"), (int, float))
@@ -377,7 +381,8 @@ def markdown(rows: list[dict]) -> str:
             _pct(r.get("image_mean")),
             f"{r['worst_object']} {_pct(r['worst_object_error'])}" if r.get("worst_object") else "",
             f"{r['mitsuba_s']:.1f} s ({r['mitsuba_spp']} spp)" if r.get("mitsuba_s") is not None else "",
-            f"{r['ratio']:.2f}" if r.get("ratio") is not None else ""]
+            f"{r['ratio']:.2f}" if r.get("ratio") is not None else "",
+            f"{_load(r.get('ours_loadavg'))}; {_load(r.get('loadavg'))}"]
         out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)
 

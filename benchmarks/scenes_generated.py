@@ -1,6 +1,6 @@
-"""Scenes of many small triangles, generated (bench_clusters.py): a terrain lit by a rectangular
-light, a room with a finely tessellated sphere, the Cornell box with every quad cut into
-triangles. Each writer puts an OBJ and a scene TOML into a folder and returns the TOML path."""
+"""Scenes of many small triangles, generated (bench_clusters.py, bench_real.py): a terrain lit by
+a rectangular light, smooth or rough, a room with a finely tessellated sphere, the Cornell box
+with every quad cut into triangles. Each writer puts an OBJ and a scene TOML into a folder and returns the TOML path."""
 
 from __future__ import annotations
 
@@ -43,13 +43,23 @@ def _grid_tris(nx: int, ny: int, height, size: float = 1.0):
     return np.concatenate([t1, t2])
 
 
-def terrain(folder: str, triangles: int, resolution: int = 128) -> str:
+def terrain(folder: str, triangles: int, resolution: int = 128, rough: float = 0.0,
+            seed: int = 0) -> str:
     """A rolling terrain of about `triangles` triangles, 10 x 10 units, lit by a 2 x 2 light
-    4 units above its centre facing down; the camera looks at it from a corner above."""
+    4 units above its centre facing down; the camera looks at it from a corner above.
+
+    `rough` > 0: every vertex's height gets independent normal noise of standard deviation
+    `rough` grid spacings (seeded), as photogrammetry and LiDAR meshes have: at 1.5 the noise is
+    larger than the grid spacing, so neighbouring triangles face every way and no two clusters
+    of it are flat."""
     n = max(2, int(round(np.sqrt(triangles / 2))))
+    noise = None
+    if rough > 0:
+        noise = np.random.default_rng(seed).normal(0.0, rough * 10.0 / n, (n + 1, n + 1))
 
     def h(X, Y):
-        return 0.6 * np.sin(0.9 * X) * np.cos(0.7 * Y) + 0.25 * np.sin(2.3 * X + 1.1 * Y)
+        z = 0.6 * np.sin(0.9 * X) * np.cos(0.7 * Y) + 0.25 * np.sin(2.3 * X + 1.1 * Y)
+        return z if noise is None else z + noise
 
     ground = _grid_tris(n, n, h, 10.0)
     L = [(4.0, 4.0, 4.0), (4.0, 6.0, 4.0), (6.0, 6.0, 4.0), (6.0, 4.0, 4.0)]  # facing down

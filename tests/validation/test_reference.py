@@ -142,6 +142,49 @@ def test_path_depth_bounds_the_truncation():
     assert path_depth(_scene("parallel-squares", 8), settings_of().reference.truncation) == (1, 0.0)
 
 
+# ----------------------------------------------------------------------------- shapes
+
+def test_shape_groups_are_the_materials_and_a_meter_stands_alone():
+    from radiosity.validation.reference import shape_groups
+
+    sc = _scene("cornell-box", 8)
+    el = sc.elements
+    groups = shape_groups(sc)
+    assert len(groups) == len(set(el.material.tolist())) == len(el.material_names)
+    assert sorted(np.concatenate(groups).tolist()) == list(range(len(el)))
+    for g in groups:  # one material, one set of properties a shape
+        assert len(set(el.material[g].tolist())) == 1
+        assert np.ptp(el.reflectance[g], axis=0).max() == 0 and np.ptp(el.emission[g], axis=0).max() == 0
+    white = groups[0]
+    metered = shape_groups(sc, meters=[int(white[1])])
+    assert len(metered) == len(groups) + 1 and [int(white[1])] in [g.tolist() for g in metered]
+    assert len(shape_groups(sc, per_element=True)) == len(el)
+
+
+def test_one_shape_per_material_renders_as_one_shape_per_element(mitsuba):
+    """The grouped export (one Mitsuba shape per material) is the same scene as the one shape
+    per element it replaced: with the same seed every pixel agrees within 5 standard errors of
+    the difference, and the image means within 3 (both are independent estimates where the
+    sample sequences part)."""
+    from radiosity.validation.reference import mitsuba_scene, path_depth, render_passes
+
+    mi, _ = mitsuba
+    sc = _scene("cornell-box", 24)
+    D = path_depth(sc)[0]
+    out = []
+    for per_element in (False, True):
+        msc, _ = mitsuba_scene(sc, D, mi=mi, per_element=per_element)
+        out.append((len(msc.shapes()), *render_passes(mi, msc, 64, 4, seed=3)[:2]))
+    (n_mat, a, sa), (n_el, b, sb) = out
+    assert (n_mat, n_el) == (len(sc.elements.material_names), len(sc.elements)) == (4, 20)
+    sd = np.sqrt(sa ** 2 + sb ** 2)
+    assert np.all(np.abs(a - b) <= 5 * sd + 1e-6)
+    n = a[..., 0].size
+    assert np.all(np.abs(a.mean(axis=(0, 1)) - b.mean(axis=(0, 1)))
+                  <= 3 * np.sqrt((sd ** 2).sum(axis=(0, 1))) / n + 1e-9)
+    assert a.mean() > 0.01  # a lit image, not two black ones
+
+
 # ----------------------------------------------------------------------------- exact answers
 
 def test_furnace_converges_to_le_over_one_minus_rho(mitsuba):

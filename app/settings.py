@@ -61,7 +61,6 @@ def _coerce(value, kind: str, where: str):
     other kinds as given."""
     if value is None:
         return None
-    kind = kind.replace(" | None", "")
     try:
         if kind == "int" and not isinstance(value, bool):
             return int(float(value))
@@ -232,8 +231,8 @@ class ClusterSettings(_Section):
     worker_timeout: int
     processes: bool | str
     in_process_samples: int
-    malloc_trim_threshold: int | None
-    malloc_mmap_threshold: int | None
+    malloc_trim_threshold: int
+    malloc_mmap_threshold: int
     direct_scatter: str
 
 

@@ -170,11 +170,12 @@ def test_one_shape_per_material_renders_as_one_shape_per_element(mitsuba):
 
     mi, _ = mitsuba
     sc = _scene("cornell-box", 24)
-    D = path_depth(sc)[0]
+    D = path_depth(sc, settings_of().reference.truncation)[0]
     out = []
     for per_element in (False, True):
         msc, _ = mitsuba_scene(sc, D, mi=mi, per_element=per_element)
-        out.append((len(msc.shapes()), *render_passes(mi, msc, 64, 4, seed=3)[:2]))
+        out.append((len(msc.shapes()), *render_passes(mi, msc, 64, 4, seed=3,
+                                                   max_samples=settings_of().reference.max_samples_per_call)[:2]))
     (n_mat, a, sa), (n_el, b, sb) = out
     assert (n_mat, n_el) == (len(sc.elements.material_names), len(sc.elements)) == (4, 20)
     sd = np.sqrt(sa ** 2 + sb ** 2)

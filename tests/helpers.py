@@ -45,6 +45,17 @@ def missing(component: str) -> str | None:
     raise ValueError(f"unknown component {component!r}")
 
 
+def stop_process(proc, wait_s: float) -> None:
+    """Terminate a test's subprocess (a browser, a docs server); kill it if it outlives wait_s."""
+    import subprocess
+
+    proc.terminate()
+    try:
+        proc.wait(wait_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
 def scene_path(name: str) -> str:
     return os.path.join(SCENES, name, "scene.toml")
 

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import pytest
 
+from helpers import stop_process
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOCS = os.path.join(ROOT, "docs")
 SRC = os.path.join(DOCS, "src")
@@ -258,11 +260,7 @@ def test_the_readme_serve_command_serves_the_site(tmp_path):
                 assert time.monotonic() < deadline, f"no answer on port {port}:\n{log.read()}"
                 time.sleep(1)
     finally:
-        proc.terminate()
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_process(proc, 20)
         log.close()
     assert 'id="radiosity.pipeline.render"' in api
 

@@ -16,6 +16,7 @@ from typing import Callable, ClassVar, Protocol
 import numpy as np
 
 from radiosity.runtime.runner import run_tasks
+from radiosity.runtime.store import StageFigures
 
 
 class Ledger(Protocol):
@@ -42,6 +43,20 @@ class StagePlan:
     repair: str
     window_per_worker: int = 3
     retries: int = 3
+
+
+@dataclass(frozen=True)
+class TaskFigures(StageFigures):
+    """The task figures every stage master reports (StageRun.figures): a stage's figures class
+    derives from this and adds its own."""
+
+    tasks_computed: int
+    tasks_reused: int
+    tasks_corrupted_recomputed: int
+    time_tasks_s: float
+    busy_s_per_worker: dict
+    idle_fraction: float | None
+    workers: int
 
 
 @dataclass

@@ -13,8 +13,7 @@ import numpy as np
 
 from radiosity.core.tolerances import TOL
 from radiosity.errors import RadiosityError
-from radiosity.runtime.stage import StageMaster, StagePlan
-from radiosity.runtime.store import StageFigures
+from radiosity.runtime.stage import StageMaster, StagePlan, TaskFigures
 from radiosity.settings import Settings, ViewFactorSettings
 from radiosity.viewfactors.facets import Facets, load_facets
 from radiosity.viewfactors.store import read_vf_task
@@ -118,7 +117,7 @@ def task_cost(tree, n: int, leaves: np.ndarray) -> int:
 # ----------------------------------------------------------------------------- the master
 
 @dataclass(frozen=True)
-class ViewFactorFigures(StageFigures):
+class ViewFactorFigures(TaskFigures):
     """The view-factor stage's figures (report.json, section "viewfactors"): what the outputs
     found and wrote (outputs.finish: enclosure, balancing, row sums, files), the parameters,
     the tasks' counters (task.COUNTERS) summed, the task run and the times."""
@@ -133,13 +132,6 @@ class ViewFactorFigures(StageFigures):
     max_points_per_side: int
     counters: dict
     tasks: int
-    tasks_computed: int
-    tasks_reused: int
-    tasks_corrupted_recomputed: int
-    time_tasks_s: float
-    busy_s_per_worker: dict
-    idle_fraction: float | None
-    workers: int
     leaf_size: int
     time_assembly_s: float
     task_time_by_stage_s: dict

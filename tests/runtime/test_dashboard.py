@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from helpers import CHROMIUM, ROOT, scene_path
+from helpers import CHROMIUM, ROOT, scene_path, stop_process
 from radiosity.settings import options as settings_of
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -189,11 +189,7 @@ def test_dashboard_page_in_chromium(tmp_path):
             state, live, png = asyncio.run(_browse(
                 port, url, lambda: Monitor(client).stage("image", out, "cornell-box")))
         finally:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+            stop_process(proc, 10)
         t_browser = time.perf_counter() - t0 - t_cluster - t_run
 
     (tmp_path / "dashboard.png").write_bytes(png)

@@ -18,26 +18,23 @@ from radiosity.runtime.monitor import peak_rss_mb, worker_address
 from radiosity.methods.pairs.plan import I, J, NBYTES, NCOLS, R0, R1, START, TBYTES, TSTART, make_plan
 from radiosity.runtime.packing import choose_unit
 from radiosity.tracing.rays import caster_for
-from radiosity.runtime.stage import StageMaster, StagePlan
+from radiosity.runtime.stage import StageMaster, StagePlan, TaskFigures
 from radiosity.settings import sampling_of
 from radiosity.tracing.shafts import block_candidates, classify, occluders, set_bits, small_tile_pairs
-from radiosity.runtime.store import RunStore, StageFigures
+from radiosity.runtime.store import RunStore
 from radiosity.methods.pairs.store import VisibilityStore, write_bits, write_partial
 
 SMALL_TILE_FACTOR = 8  # tiles with pairs * this < number of elements skip the shaft search
 
 
 @dataclass(frozen=True)
-class VisibilityFigures(StageFigures):
+class VisibilityFigures(TaskFigures):
     """The visibility stage's figures (report.json, section "visibility"); pair counts are of
     unordered pairs of sub-elements."""
 
     SECTION = "visibility"
     task_unit: str
     tasks: int
-    tasks_computed: int
-    tasks_reused: int
-    tasks_corrupted_recomputed: int
     tiles: int
     chunk_bytes: int
     store_bytes: int
@@ -55,10 +52,6 @@ class VisibilityFigures(StageFigures):
     rays_fraction_of_pairs: float
     naive_ordered_rays: int
     time_s: float
-    time_tasks_s: float
-    busy_s_per_worker: dict
-    idle_fraction: float | None
-    workers: int
     occlusion: bool
     sampling: str | None
     rays_per_pair: int

@@ -29,8 +29,7 @@ from radiosity.methods.hierarchical.links.sampling import SolidPoints, clear_pai
 from radiosity.runtime.cluster import scatterable
 from radiosity.runtime.monitor import worker_address
 from radiosity.runtime.packing import capped_starts, choose_unit
-from radiosity.runtime.stage import StageMaster, StagePlan
-from radiosity.runtime.store import StageFigures
+from radiosity.runtime.stage import StageMaster, StagePlan, TaskFigures
 from radiosity.tracing.shafts import OccluderTree, node_boxes, occluders
 
 @scatterable
@@ -425,7 +424,7 @@ def node_table_of(rs, tree, part, done: dict, ntasks: int, token: str):
 
 
 @dataclass(frozen=True)
-class LinkFigures(StageFigures):
+class LinkFigures(TaskFigures):
     """The link stage's figures (report.json, section "links"); the counters are the tasks'
     (refine.COUNTERS) summed; clusters: the cluster layer's (clusters/tasks.ClusterFigures)."""
 
@@ -433,13 +432,6 @@ class LinkFigures(StageFigures):
     method: str
     task_unit: str
     tasks: int
-    tasks_computed: int
-    tasks_reused: int
-    tasks_corrupted_recomputed: int
-    time_tasks_s: float
-    busy_s_per_worker: dict
-    idle_fraction: float | None
-    workers: int
     sub_elements: int
     nodes: int
     leaves: int

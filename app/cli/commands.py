@@ -163,7 +163,7 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
                                                      _run_samples(rs)) as client:
         record_run(run_dir)
         fig = method.build(run_dir, client, st, unit=task_unit, resume=resume)
-    click.echo(table_text(finish_lines(run_dir, method.rows(fig))))
+    click.echo(table_text(finish_lines(run_dir, fig.rows())))
 
 
 @main.command()

@@ -130,10 +130,6 @@ class TransportMethod(ABC):
         """Run the method's stage on a preprocessed run; returns its figures."""
 
     @abstractmethod
-    def rows(self, fig) -> list:
-        """The CLI summary rows of build's figures."""
-
-    @abstractmethod
     def built(self, rs) -> bool:
         """Whether the run store holds this method's stage."""
 

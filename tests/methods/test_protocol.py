@@ -14,7 +14,7 @@ from radiosity.methods.base import (METHODS, Refinement, TransportMethod, all_pa
 
 #: what callers outside methods/ use of a method (besides name, section, store_groups, all_pairs
 #: and refinement)
-DECLARED = {"check", "check_scene", "plan_lines", "build", "rows", "built", "require", "open",
+DECLARED = {"check", "check_scene", "plan_lines", "build", "built", "require", "open",
             "gathers", "finish", "radiance_at", "open_views", "kept", "summary_row"}
 P = inspect.Parameter
 POSITIONAL = (P.POSITIONAL_ONLY, P.POSITIONAL_OR_KEYWORD)

@@ -92,11 +92,6 @@ class HierarchicalMethod(TransportMethod):
         return compute_links(run_dir, client, settings, unit=unit, resume=resume,
                              progress=progress, occlusion=occlusion, on_done=on_done)
 
-    def rows(self, fig) -> list:
-        from radiosity.methods.hierarchical.links.master import links_rows
-
-        return links_rows(fig)
-
     def built(self, rs) -> bool:
         from radiosity.methods.hierarchical.store import LinkStore
 

@@ -56,9 +56,6 @@ class PairsMethod(TransportMethod):
         return compute_visibility(run_dir, client, settings, unit=unit, resume=resume,
                                   progress=progress, occlusion=occlusion, on_done=on_done)
 
-    def rows(self, fig) -> list:
-        return fig.rows()
-
     def built(self, rs) -> bool:
         from radiosity.methods.pairs.store import VisibilityStore
 

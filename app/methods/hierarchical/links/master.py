@@ -238,11 +238,6 @@ def link_plan(offsets: np.ndarray, bi: np.ndarray, bj: np.ndarray, unit: str, ma
     return pairs, first, cost
 
 
-def links_rows(fig: "LinkFigures") -> list[tuple[str, object]]:
-    """The CLI summary rows of the link stage's figures (report.json section "links")."""
-    return fig.rows()
-
-
 # ----------------------------------------------------------------------------- the master
 
 @dataclass(frozen=True)

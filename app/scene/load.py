@@ -23,18 +23,14 @@ from radiosity.core.tolerances import TOL
 from radiosity.scene.emitters import area_emission
 from radiosity.scene.orientation import orient_polygons
 from radiosity.formats.load import MESH_FORMATS, load_mesh
-from radiosity.formats.obj import load_obj
-from radiosity.formats.raw import RawMesh, SceneWarning, warn
-from radiosity.formats.trimeshes import load_trimesh
-from radiosity.scene.meshes import MAX_COORD, merge_parallelograms, polygons_from_raw
+from radiosity.formats.raw import warn
+from radiosity.scene.meshes import MAX_COORD, polygons_from_raw
 from radiosity.scene.meshscene import (DEFAULT_RESOLUTION, DOCS as MESH_DOCS, camera_toml,
                                        default_camera, is_mesh_path, require_emitter)
 from radiosity.settings import Settings
 
-__all__ = ["MAX_COORD", "MAX_RESOLUTION", "MESH_FORMATS", "DEFAULT_REFLECTANCE", "RawMesh",
-           "SceneWarning", "load_mesh", "load_obj", "load_trimesh", "merge_parallelograms",
-           "polygons_from_raw", "parse_resolution", "parse_camera", "parse_cameras",
-           "load_scene"]
+__all__ = ["MAX_RESOLUTION", "DEFAULT_REFLECTANCE", "parse_resolution", "parse_camera",
+           "parse_cameras", "load_scene"]
 
 #: Largest camera resolution a side (a raster of 65536^2 int32 is 16 GiB already).
 MAX_RESOLUTION = 65536

@@ -60,7 +60,8 @@ def load_facets(mesh, settings: Settings) -> Facets:
     trimesh.Scene, a (vertices (V, 3), faces) pair, a types.Elements, or Facets. Bad input
     raises SceneError.
     settings: the run's (its scene tolerances)."""
-    from radiosity.scene.load import MESH_FORMATS, RawMesh, load_mesh
+    from radiosity.formats.load import MESH_FORMATS, load_mesh
+    from radiosity.formats.raw import RawMesh
     from radiosity.core.bundles import Elements
 
     if isinstance(mesh, Facets):
@@ -106,7 +107,7 @@ def _polygons(raw, fn: str, settings: Settings):
     convex quads (the usual case) are checked with whole-array operations (with the
     tolerances settings.scene.*); any other mesh goes through polygons_from_raw, which repairs
     (with a warning) or rejects (one line naming the face) exactly as the scene loader does."""
-    from radiosity.scene.load import polygons_from_raw
+    from radiosity.scene.meshes import polygons_from_raw
 
     scene = settings.scene
 

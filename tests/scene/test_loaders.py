@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from radiosity.scene.load import SceneWarning, load_scene
+from radiosity.formats.raw import SceneWarning
+from radiosity.scene.load import load_scene
 from helpers import prepared, radiance, write_scene
 from radiosity.settings import options as settings_of
 

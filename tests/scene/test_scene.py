@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from radiosity.errors import SceneError
-from radiosity.scene.load import SceneWarning, load_scene, merge_parallelograms, parse_camera
+from radiosity.formats.raw import SceneWarning
+from radiosity.scene.load import load_scene, parse_camera
+from radiosity.scene.meshes import merge_parallelograms
 from helpers import FLOOR_AND_TRIANGLE, write_scene
 from radiosity.settings import options as settings_of
 

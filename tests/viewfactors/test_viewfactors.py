@@ -338,7 +338,8 @@ def test_facets_load_as_the_scene_loader_would(recwarn):
     """The whole-array loader gives polygons_from_raw(merge=False)'s facets for valid meshes, and
     hands any other mesh to it (repairs with a warning; errors name the face)."""
     from radiosity.errors import SceneError
-    from radiosity.scene.load import RawMesh, polygons_from_raw
+    from radiosity.formats.raw import RawMesh
+    from radiosity.scene.meshes import polygons_from_raw
     from radiosity.settings import resolve
     from radiosity.viewfactors.facets import _polygons
 

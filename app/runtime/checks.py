@@ -195,7 +195,7 @@ def _check_view(scene, rc, cam, name: str, seen: np.ndarray) -> None:
         raise OrientationError(
             f"{scene.path}: the camera {name!r} sees only the backs of one-sided elements (most "
             f"on {scene.elements.describe(e)}): its image would be black. Move it ([[camera]] "
-            f"{name!r} position), or turn the faces it looks at ({_FIX})")
+            f"{name!r} position), or turn the faces it looks at ({FIX})")
 
 
 def _hits(rc, cam, subpixel, ys, xs) -> np.ndarray:
@@ -210,8 +210,9 @@ def _hits(rc, cam, subpixel, ys, xs) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- orientation
 
-#: The fix every orientation message offers, for the [[mesh]] entry it names.
-_FIX = "set `orient = \"inward\"` (flips its faces) or `two_sided = true` on its [[mesh]] entry"
+#: The fix every orientation message offers, for the [[mesh]] entry it names (a mesh file
+#: given alone: a scene file that names it with the same keys).
+FIX = "set `orient = \"inward\"` (flips its faces) or `two_sided = true` on its [[mesh]] entry"
 
 
 def check_orientation(scene, caster, seen: np.ndarray) -> dict:
@@ -229,11 +230,18 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
     from radiosity.scene.orientation import (OrientationError, emitter_reach, facing,
                                              outward_enclosures)
 
+    from radiosity.scene.meshscene import DOCS, is_mesh_path
+
     el, cam = scene.elements, scene.camera
     where = scene.path
+    bare = bool(where) and is_mesh_path(where)  # a mesh file alone: no [[mesh]] entry to edit
+    fix = (f"write a scene.toml with [[mesh]] path = \"{os.path.basename(where)}\" and "
+            f"orient = \"inward\" (or two_sided = true) (see {DOCS})") if bare else FIX
 
     def mesh(src: int) -> str:
         """The mesh file as its [[mesh]] entry names it (relative to the scene file)."""
+        if bare:
+            return os.path.basename(where)
         fn = el.sources[src] if el.sources else "?"
         rel = os.path.relpath(fn, os.path.dirname(where)) if where else fn
         return f"{fn if rel.startswith('..') else rel} ([[mesh]] {src + 1})"
@@ -243,7 +251,7 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
         raise OrientationError(
             f"{where}: the camera is inside {mesh(enc.source)}, a {closed} mesh whose normals "
             f"point outward (winding number {enc.winding:+.2f} at the camera), and sees only "
-            f"the black backs of its faces. If it is the room, {_FIX}; if it is a solid (a wall, "
+            f"the black backs of its faces. If it is the room, {fix}; if it is a solid (a wall, "
             f"furniture), move the camera out of it")
     lit = facing(el, seen, cam.center)
     if len(seen) and not lit.any():
@@ -252,7 +260,7 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
             f"{where}: the camera sees only the backs of one-sided elements ({len(seen)} of "
             f"{len(seen)} camera rays, most on {el.describe(e)}): the image would be black. Is "
             f"the camera inside a wall or outside a closed room? Move it ([camera] position), "
-            f"or for {mesh(int(el.source[e]))} {_FIX}")
+            f"or for {mesh(int(el.source[e]))} {fix}")
     emitters = emitter_reach(el, caster)
     dark = [g for g in emitters if g.reached == 0]
     if emitters and len(dark) == len(emitters):
@@ -266,7 +274,7 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
                 f"'{el.material_names[g.material]}' of {mesh(g.source)}: {what}) and the camera "
                 f"sees no emitter: the image would be black. Is the lamp outside the room or "
                 f"facing away? Move or turn it (its front is counter-clockwise), or for the "
-                f"mesh it faces, {_FIX}")
+                f"mesh it faces, {fix}")
     # a scene of emitters alone (a geometry check) has nothing to light: nothing to say
     others = bool((~AreaEmitters(el).emitting()).any())
     for g in dark if others else [g for g in dark if g.backs]:

@@ -21,7 +21,7 @@ from radiosity.core.geometry import polygon_properties
 from radiosity.core.bundles import Camera, Elements, Scene
 from radiosity.core.tolerances import TOL
 from radiosity.scene.emitters import area_emission
-from radiosity.scene.orientation import orient_polygons
+from radiosity.scene.orientation import orient_mesh
 from radiosity.formats.load import MESH_FORMATS, load_mesh
 from radiosity.formats.raw import warn
 from radiosity.scene.meshes import MAX_COORD, polygons_from_raw
@@ -222,7 +222,7 @@ def _scene_document(path: str) -> tuple[str, dict, bool]:
     mesh_scene = is_mesh_path(path)
     if mesh_scene:  # one [[mesh]] entry, nothing overridden, the camera chosen by load_scene
         stem, _ = os.path.splitext(os.path.basename(path))
-        doc = {"name": stem, "mesh": [{"path": os.path.basename(path)}]}
+        doc = {"name": stem, "mesh": [{"path": os.path.basename(path), "orient": "auto"}]}
     else:
         doc = read_toml(path, unreadable="cannot read scene file {path}: {why}")
     unknown = set(doc) - _TOP_KEYS
@@ -253,7 +253,9 @@ def _read_meshes(meshes: list, path: str, s: Settings):
             file_mats.setdefault(name, (fn, props))
         v, n, f, mats = polygons_from_raw(raw, fn, s)
         # which way the faces point: as in the file, or fixed (scene/orientation.py, ORIENTS)
-        v = orient_polygons(v, n, m.get("orient", "as-is"), f"{path}: [[mesh]] {mi + 1}")
+        v, turned = orient_mesh(v, n, m.get("orient", "as-is"), f"{path}: [[mesh]] {mi + 1}")
+        if m.get("orient") == "auto" and any(turned.turned):  # said: the user asked for nothing
+            warn(turned.describe(fn if is_mesh_path(path) else f"{path}: [[mesh]] {mi + 1}"))
         sources.append(fn)
         all_v.append(v)
         all_n.append(n)

@@ -19,10 +19,11 @@ from radiosity.core.geometry import element_triangles
 from radiosity.errors import SceneError
 
 #: Values of a [[mesh]] entry's `orient` key. as-is: the file's winding (counter-clockwise seen
-#: from the front); flip: every face reversed; inward / outward: every face reversed when the
-#: mesh's normals point, on the whole, out of (inward) or into (outward) the volume it encloses
-#: (`facing_volume`); a room's shell is inward, a solid object outward.
-ORIENTS = ("as-is", "flip", "inward", "outward")
+#: from the front); flip: every face reversed; inward / outward / auto: each connected part of
+#: the mesh turned by what it is (`part_kinds`, `orient_mesh`): inward for a room and its
+#: furniture, outward for solid objects, auto (a bare mesh file's default) for a mesh whose
+#: kind is unknown: only what is certainly inside out is turned.
+ORIENTS = ("as-is", "flip", "inward", "outward", "auto")
 #: Sample rays per emitter (one material of one mesh): enough that a lamp whose light reaches
 #: only a small part of its hemisphere is still seen to reach something (a miss of all 256
 #: rays means under about 1 % of its light reaches any element), few enough to be free.
@@ -33,6 +34,12 @@ MAX_EMITTER_RAYS = 1 << 16
 #: normals pointing out (a closed mesh gives exactly 1, an open one less; 0: the camera is
 #: outside, -1: inside and pointing in).
 ENCLOSING = 0.5
+#: A part that is not closed still holds a volume (a box without its bottom) when its faces'
+#: |facing_volume| is at least this share of its bounding box's volume (a flat or bent sheet
+#: gives 0 to about 0.2; a box without one face 0.83, a sphere 0.52).
+SOLID = 0.4
+#: At most this many other parts are tested for lying inside the room (the largest by area).
+ROOM_PROBES = 256
 
 
 class OrientationError(SceneError):
@@ -54,31 +61,184 @@ def flip_polygons(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
     return out
 
 
-def facing_volume(verts: np.ndarray, nverts: np.ndarray) -> float:
-    """sum over faces of A n . (c - o) / 3 with o the mean vertex: the enclosed volume for a
-    closed mesh (positive when the normals point out of it, negative when in), and for an open
-    one (a room without a wall) still positive when the faces point away from its middle."""
+def facing_volume(verts: np.ndarray, nverts: np.ndarray, origin=None) -> float:
+    """sum over faces of A n . (c - o) / 3 with o the mean vertex (or `origin`): the enclosed
+    volume for a closed mesh (positive when the normals point out of it, negative when in), and
+    for an open one (a room without a wall) still positive when the faces point away from its
+    middle."""
     from radiosity.core.geometry import polygon_properties
 
     verts = np.asarray(verts, np.float64)
     area, normal, center = polygon_properties(verts, np.asarray(nverts))
-    o = verts.reshape(-1, 3).mean(axis=0)
+    o = verts.reshape(-1, 3).mean(axis=0) if origin is None else np.asarray(origin, np.float64)
     return float(np.sum(area * np.einsum("ij,ij->i", normal, center - o)) / 3.0)
 
 
 def orient_polygons(verts: np.ndarray, nverts: np.ndarray, orient: str, where: str) -> np.ndarray:
     """A mesh's polygons (n, 4, 3) wound as its `orient` key says (ORIENTS); `where` names the
-    [[mesh]] entry in the error for an unknown value."""
+    [[mesh]] entry in the error for an unknown value. orient_mesh without its account."""
+    return orient_mesh(verts, nverts, orient, where)[0]
+
+
+@dataclass(frozen=True)
+class Turned:
+    """What orient_mesh did to one mesh: its connected parts by kind and which were turned."""
+
+    kinds: tuple         # per part: "room", "solid" or "sheet" (part_kinds)
+    turned: tuple        # per part: its faces were reversed
+
+    def describe(self, name: str) -> str:
+        """One line for the user, e.g. "office.glb: turned 6 of its 7 connected parts that were
+        wound inside out (the room's shell, 5 closed solids)"; "" when nothing was turned."""
+        n = sum(self.turned)
+        if not n:
+            return ""
+        what = {k: sum(1 for kk, t in zip(self.kinds, self.turned) if t and kk == k)
+                for k in ("room", "solid", "sheet")}
+        words = [w for w in (what["room"] and "the room's shell (its normals pointed out)",
+                             what["solid"] and f"{what['solid']} closed solid"
+                             f"{'s' * (what['solid'] > 1)} (normals in)",
+                             what["sheet"] and f"{what['sheet']} open part"
+                             f"{'s' * (what['sheet'] > 1)} (with the rest)") if w]
+        return (f"{name}: turned {n} of its {len(self.kinds)} connected parts that were wound "
+                f"inside out: {', '.join(words)} (orient = \"auto\"; a scene file's [[mesh]] "
+                f"entry with orient = \"as-is\" keeps the file's winding)")
+
+
+def orient_mesh(verts: np.ndarray, nverts: np.ndarray, orient: str, where: str):
+    """A mesh's polygons (n, 4, 3) wound as `orient` says, and a Turned account.
+
+    Per connected part (`connected_parts`) and its kind (`part_kinds`): a room's shell faces
+    into its volume and a solid out of its own, for inward and auto; for outward every part
+    with a volume faces out of it (there is no room). Sheets (open parts that hold no volume)
+    have no inside of their own: for inward / outward they are turned together so that on the
+    whole they face toward / away from the mesh's middle (the rule for one sheet or a whole
+    mesh of sheets); for auto they follow the parts that have an inside (turned when most of
+    those parts' area was turned) and otherwise stay as they are. auto turns nothing in a mesh
+    of one part (a room or a solid: nothing tells which)."""
     if orient not in ORIENTS:
         raise SceneError(f"{where}: orient = {orient!r} is not one of {', '.join(ORIENTS)}")
+    verts = np.asarray(verts, np.float64)
+    nverts = np.asarray(nverts)
     if orient == "as-is" or not len(verts):
-        return verts
+        return verts, Turned((), ())
     if orient == "flip":
-        return flip_polygons(verts, nverts)
-    v = facing_volume(verts, nverts)
-    if (orient == "inward") == (v > 0.0):
-        return flip_polygons(verts, nverts)
-    return verts
+        return flip_polygons(verts, nverts), Turned((), ())
+    label, count = connected_parts(verts, nverts)
+    if orient == "auto" and count < 2:
+        return verts, Turned(("room",) * count, (False,) * count)
+    kinds = part_kinds(verts, nverts, label, count, room=orient != "outward")
+    turn = np.zeros(count, bool)
+    area = np.zeros(count)
+    for p in range(count):
+        sel = label == p
+        if kinds[p] == "sheet":
+            continue
+        v = facing_volume(verts[sel], nverts[sel])
+        turn[p] = (v > 0.0) if kinds[p] == "room" else (v < 0.0)
+        area[p] = _polygon_areas(verts[sel], nverts[sel]).sum()
+    sheets = np.array([k == "sheet" for k in kinds])
+    if sheets.any():
+        sel = sheets[label]
+        if orient == "auto":
+            flip_sheets = area.sum() > 0 and area[turn].sum() > 0.5 * area.sum()
+        else:
+            middle = verts.reshape(-1, 3).mean(axis=0)
+            v = facing_volume(verts[sel], nverts[sel], middle)
+            flip_sheets = (v > 0.0) if orient == "inward" else (v < 0.0)
+        turn[sheets] = flip_sheets
+    out = verts
+    if turn.any():
+        out = verts.copy()
+        sel = turn[label]
+        out[sel] = flip_polygons(verts[sel], nverts[sel])
+    return out, Turned(tuple(kinds), tuple(bool(t) for t in turn))
+
+
+def _vertex_ids(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
+    """Each polygon's corners as ids of distinct positions (n, 4) int64, positions equal to
+    1e-9 of the mesh's size counting as one (separately exported walls meet at their corners); a
+    triangle's slot 3 repeats slot 2."""
+    pts = verts.reshape(-1, 3)
+    scale = float(np.abs(pts).max()) or 1.0
+    key = np.round(pts / (1e-9 * scale)).astype(np.int64)
+    _, ids = np.unique(key, axis=0, return_inverse=True)
+    return ids.reshape(len(verts), 4)
+
+
+def connected_parts(verts: np.ndarray, nverts: np.ndarray):
+    """The mesh's connected parts: polygons that share a corner position belong together.
+    Returns (label (n,) int, count), labels 0.. in order of first appearance."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(verts)
+    ids = _vertex_ids(verts, nverts)
+    m = int(ids.max()) + 1 if n else 0
+    rows = np.repeat(np.arange(n), 4)
+    g = coo_matrix((np.ones(4 * n, np.int8), (rows, n + ids.ravel())), shape=(n + m, n + m))
+    count, lab = connected_components(g, directed=False)
+    lab = lab[:n]
+    _, first, label = np.unique(lab, return_index=True, return_inverse=True)
+    order = np.argsort(np.argsort(first))  # renumber by first polygon
+    return order[label].astype(np.int64), len(first)
+
+
+def _closed(ids: np.ndarray, nverts: np.ndarray) -> bool:
+    """Every edge of the polygons (corner ids (k, 4)) shared by exactly two of them."""
+    tri = nverts == 3
+    nxt = np.where(tri[:, None], ids[:, [1, 2, 0, 0]], ids[:, [1, 2, 3, 0]])
+    keep = np.ones(ids.shape, bool)
+    keep[tri, 3] = False
+    e = np.sort(np.stack([ids[keep], nxt[keep]], axis=1), axis=1)
+    e = e[e[:, 0] != e[:, 1]]
+    if not len(e):
+        return False
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return bool((counts == 2).all())
+
+
+def part_kinds(verts: np.ndarray, nverts: np.ndarray, label: np.ndarray, count: int,
+               room: bool = True) -> list:
+    """What each connected part is: "room", "solid" or "sheet".
+
+    room (only when `room`): of two or more parts, the one of the largest bounding box, when it
+    holds a volume (as a solid does, below; a room may have openings) and the middles of the others (their bounding boxes' centres; the ROOM_PROBES largest by area) lie
+    inside it (its winding number there ENCLOSING or more in size), a room with its furniture;
+    a mesh of one part is a room. solid: any other part that holds a volume: closed (every
+    edge shared by two of its faces) or nearly (|facing_volume| at least SOLID of its bounding
+    box's). sheet: the rest (a panel, a bent sheet, a wall on its own)."""
+    ids = _vertex_ids(verts, nverts)
+    lo = np.full((count, 3), np.inf)
+    hi = np.full((count, 3), -np.inf)
+    pts = verts.reshape(-1, 4, 3)
+    np.minimum.at(lo, label, pts.min(axis=1))
+    np.maximum.at(hi, label, pts.max(axis=1))
+    kinds = []
+    for p in range(count):
+        sel = label == p
+        vol = float(np.prod(hi[p] - lo[p]))
+        has_volume = _closed(ids[sel], nverts[sel]) or (
+            vol > 0 and abs(facing_volume(verts[sel], nverts[sel])) >= SOLID * vol)
+        kinds.append("solid" if has_volume else "sheet")
+    if room and count == 1:
+        return ["room"]
+    if room and count > 1:
+        big = int(np.argmax(np.linalg.norm(hi - lo, axis=1)))
+        others = np.array([p for p in range(count) if p != big])
+        areas = np.bincount(label, weights=_polygon_areas(verts, nverts), minlength=count)
+        others = others[np.argsort(-areas[others], kind="stable")][:ROOM_PROBES]
+        sel = label == big
+        mids = (lo[others] + hi[others]) / 2
+        if kinds[big] == "solid" and all(abs(winding_number(verts[sel], nverts[sel], m)) >= ENCLOSING for m in mids):
+            kinds[big] = "room"
+    return kinds
+
+
+def _polygon_areas(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
+    from radiosity.core.geometry import polygon_properties
+
+    return polygon_properties(verts, nverts)[0]
 
 
 # ----------------------------------------------------------------------------- the camera
@@ -165,7 +325,7 @@ class EmitterReach:
     elements: int        # emitting elements of the group
     example: int         # one of them (the largest), for the message
     rays: int            # rays cast from their emitting sides
-    reached: int         # rays that met the lit side of another element
+    reached: int         # rays that met the lit side of an element of another group
     backs: int           # rays that met the back of a one-sided element
     escaped: int         # rays that met nothing
 
@@ -174,8 +334,10 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
                   max_rays: int = MAX_EMITTER_RAYS, seed: int = 0) -> list:
     """Where the light of each emitter goes: cosine-distributed rays from area-uniform points
     on the emitting sides of each group (one material of one [[mesh]] entry), against the
-    scene (`caster`: a tracing.rays.RayCaster of `elements`). Returns [EmitterReach]; empty when
-    nothing emits."""
+    scene (`caster`: a tracing.rays.RayCaster of `elements`). A ray counts as reaching the
+    scene when it meets the lit side of an element of another group (of any element, when the
+    group is the whole scene): a lamp box wound inside out lights only its own inside.
+    Returns [EmitterReach]; empty when nothing emits."""
     from radiosity.scene.closure import stratified_directions, tangent_frame
     from radiosity.scene.emitters import AreaEmitters
 
@@ -188,6 +350,9 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
     for i in np.nonzero(side_emits.any(axis=1))[0]:
         groups.setdefault((int(elements.source[i]), int(elements.material[i])), []).append(i)
     per = max(16, min(rays, max_rays // max(1, len(groups))))
+    # a group whose light can only light itself does not count as lighting the scene, unless the
+    # scene is that group (a furnace: everything emits)
+    alone = {g: bool((~_in_group(elements, np.arange(len(elements)), *g)).any()) for g in groups}
     lo = elements.verts.reshape(-1, 3).min(0)
     hi = elements.verts.reshape(-1, 3).max(0)
     # off the surface beyond Embree's float32 rounding (rays.epsilon is relative to the scene)
@@ -214,6 +379,8 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
         lit = facing(elements, hit, pts)
         # a hit on the emitter itself (rounding at the start) says nothing: not counted
         own = hit == e
+        if alone[(src, mat)]:  # light that stays in its own group (a lamp box inside out)
+            lit &= ~_in_group(elements, hit, src, mat)
         reached = int((lit & ~own).sum())
         escaped = int((hit < 0).sum())
         backs = int(((hit >= 0) & ~lit & ~own).sum())
@@ -221,6 +388,13 @@ def emitter_reach(elements: Elements, caster, rays: int = EMITTER_RAYS,
         out.append(EmitterReach(src, mat, len(ids), int(big), int(per - own.sum()), reached,
                                 backs, escaped))
     return out
+
+
+def _in_group(elements: Elements, elem: np.ndarray, source: int, material: int) -> np.ndarray:
+    """Whether each element `elem` (k,) int (-1: none) is of material `material` in [[mesh]]
+    entry `source`: (k,) bool."""
+    e = np.maximum(elem, 0)
+    return (elem >= 0) & (elements.source[e] == source) & (elements.material[e] == material)
 
 
 def _points_on(verts: np.ndarray, nverts: np.ndarray, rng) -> np.ndarray:

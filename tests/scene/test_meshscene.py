@@ -70,7 +70,7 @@ def test_an_open_room_is_seen_from_its_open_side_and_resolution_overrides(tmp_pa
 
     sc = load_scene(write_room(tmp_path, closed=False), resolution=(24, 16),
                     settings=settings_of())
-    assert "outside: not a closed room; from the -z side" in sc.chosen
+    assert "outside: not a room (" in sc.chosen and "); from the -z side" in sc.chosen
     assert sc.camera.center[2] < 0 and (sc.camera.width, sc.camera.height) == (24, 16)
     _same_camera(parse_camera(_table_of(sc.chosen), "printed"), sc.camera)
     assert check_scene(sc, resolve())["hits"] > 0  # it sees the room

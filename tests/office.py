@@ -28,7 +28,7 @@ def _grid_wall(xs, ys, z, skip=()):
     return np.array(vs, float), np.array(fs)
 
 
-def office_parts(window=True):
+def office_parts(window=True, panel=PANEL):
     """{name: trimesh.Trimesh} of the office: 'room' (one connected shell, normals inward),
     'top' and 'leg0'..'leg3' (the table), 'panel' (the lamp)."""
     import trimesh
@@ -51,13 +51,14 @@ def office_parts(window=True):
                                 (b[0] - 0.08, b[2] - 0.08)]):
         parts[f"leg{k}"] = trimesh.creation.box(bounds=[[x, 0.0, z], [x + 0.08, b[1] - 0.05,
                                                                     z + 0.08]])
-    parts["panel"] = trimesh.creation.box(bounds=np.array(PANEL))
+    parts["panel"] = trimesh.creation.box(bounds=np.array(panel))
     return parts
 
 
-def glb_office(flipped=False, window=True, emission=8.0) -> bytes:
+def glb_office(flipped=False, window=True, emission=8.0, panel=PANEL) -> bytes:
     """The office as GLB bytes; `flipped`: every face wound the other way (an exporter's
-    mistake). Materials: 'wall' (0.7), 'wood' (0.4, 0.25, 0.1) for the table, 'lamp' emitting
+    mistake; True: every part, or the names of some, e.g. {"room"}: a room modelled from a box
+    whose normals point out); `panel`: the lamp box's corners. Materials: 'wall' (0.7), 'wood' (0.4, 0.25, 0.1) for the table, 'lamp' emitting
     `emission` (KHR_materials_emissive_strength)."""
     import trimesh
     from trimesh.visual.material import PBRMaterial
@@ -67,8 +68,8 @@ def glb_office(flipped=False, window=True, emission=8.0) -> bytes:
     mats = {"wall": [0.7, 0.7, 0.7, 1.0], "wood": [0.4, 0.25, 0.1, 1.0],
             "lamp": [0.5, 0.5, 0.5, 1.0]}
     s = trimesh.Scene()
-    for name, m in office_parts(window).items():
-        if flipped:
+    for name, m in office_parts(window, panel).items():
+        if flipped is True or name in (flipped or ()):
             m.invert()
         mat = "wall" if name == "room" else "lamp" if name == "panel" else "wood"
         m.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(
@@ -78,3 +79,17 @@ def glb_office(flipped=False, window=True, emission=8.0) -> bytes:
     return edit_glb(s.export(file_type="glb"), lambda doc: [m.setdefault("extensions", {}).update(
         KHR_materials_emissive_strength={"emissiveStrength": emission})
         for m in doc["materials"] if m.get("name") == "lamp"])
+
+
+def office_polygons(flipped=False, window=True):
+    """The office's triangles as Elements-style polygons: verts (n, 4, 3) (slot 3 repeats slot
+    2), nverts (n,) all 3, and the name of the part (office_parts) of each."""
+    verts, names = [], []
+    for name, m in office_parts(window).items():
+        if flipped:
+            m.invert()
+        t = m.triangles
+        verts.append(t[:, [0, 1, 2, 2]])
+        names += [name] * len(t)
+    verts = np.concatenate(verts)
+    return verts, np.full(len(verts), 3, np.int8), np.array(names)

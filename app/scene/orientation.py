@@ -108,14 +108,16 @@ class Turned:
 def orient_mesh(verts: np.ndarray, nverts: np.ndarray, orient: str, where: str):
     """A mesh's polygons (n, 4, 3) wound as `orient` says, and a Turned account.
 
-    Per connected part (`connected_parts`) and its kind (`part_kinds`): a room's shell faces
-    into its volume and a solid out of its own, for inward and auto; for outward every part
-    with a volume faces out of it (there is no room). Sheets (open parts that hold no volume)
-    have no inside of their own: for inward / outward they are turned together so that on the
-    whole they face toward / away from the mesh's middle (the rule for one sheet or a whole
-    mesh of sheets); for auto they follow the parts that have an inside (turned when most of
-    those parts' area was turned) and otherwise stay as they are. auto turns nothing in a mesh
-    of one part (a room or a solid: nothing tells which)."""
+    Per connected part (`connected_parts`) and its kind (`part_kinds`): the room's shell faces
+    into its volume and every solid out of its own. inward: the room is the largest part that
+    holds a volume; outward: there is none; auto (a bare mesh file): only a room with things
+    inside it, and nothing is turned in any other mesh (a room or a solid alone, objects side by
+    side: nothing tells which way is meant). Sheets (open parts that hold no volume) have no
+    inside of their own: for inward / outward they are turned together so that on the whole
+    they face toward / away from the mesh's middle (the old rule for a whole mesh, right for a
+    ceiling panel or walls modelled apart); for auto they follow the parts that have an inside
+    (turned when most of those parts' area was turned).
+    """
     if orient not in ORIENTS:
         raise SceneError(f"{where}: orient = {orient!r} is not one of {', '.join(ORIENTS)}")
     verts = np.asarray(verts, np.float64)
@@ -125,9 +127,10 @@ def orient_mesh(verts: np.ndarray, nverts: np.ndarray, orient: str, where: str):
     if orient == "flip":
         return flip_polygons(verts, nverts), Turned((), ())
     label, count = connected_parts(verts, nverts)
-    if orient == "auto" and count < 2:
-        return verts, Turned(("room",) * count, (False,) * count)
-    kinds = part_kinds(verts, nverts, label, count, room=orient != "outward")
+    kinds = part_kinds(verts, nverts, label, count,
+                       room={"inward": "largest", "outward": "none", "auto": "holds"}[orient])
+    if orient == "auto" and "room" not in kinds:  # not a room with things in it: nothing is sure
+        return verts, Turned(tuple(kinds), (False,) * count)
     turn = np.zeros(count, bool)
     area = np.zeros(count)
     for p in range(count):
@@ -199,15 +202,17 @@ def _closed(ids: np.ndarray, nverts: np.ndarray) -> bool:
 
 
 def part_kinds(verts: np.ndarray, nverts: np.ndarray, label: np.ndarray, count: int,
-               room: bool = True) -> list:
+               room: str = "largest") -> list:
     """What each connected part is: "room", "solid" or "sheet".
 
-    room (only when `room`): of two or more parts, the one of the largest bounding box, when it
-    holds a volume (as a solid does, below; a room may have openings) and the middles of the others (their bounding boxes' centres; the ROOM_PROBES largest by area) lie
-    inside it (its winding number there ENCLOSING or more in size), a room with its furniture;
-    a mesh of one part is a room. solid: any other part that holds a volume: closed (every
-    edge shared by two of its faces) or nearly (|facing_volume| at least SOLID of its bounding
-    box's). sheet: the rest (a panel, a bent sheet, a wall on its own)."""
+    solid: a part that holds a volume: closed (every edge shared by two of its faces) or nearly
+    (|facing_volume| at least SOLID of its bounding box's); a room may have openings. sheet: the
+    rest (a panel, a bent sheet, a wall on its own). room, by `room`: "largest": the part of
+    the largest bounding box, when it holds a volume (a mesh of one part: that part, whatever
+    it holds); "holds": that part only when the middles of the others (their bounding boxes'
+    centres; the ROOM_PROBES largest by area) lie inside it (its winding number there ENCLOSING
+    or more in size): a room with its furniture, not a solid beside other things; "none": no
+    room."""
     ids = _vertex_ids(verts, nverts)
     lo = np.full((count, 3), np.inf)
     hi = np.full((count, 3), -np.inf)
@@ -221,17 +226,22 @@ def part_kinds(verts: np.ndarray, nverts: np.ndarray, label: np.ndarray, count: 
         has_volume = _closed(ids[sel], nverts[sel]) or (
             vol > 0 and abs(facing_volume(verts[sel], nverts[sel])) >= SOLID * vol)
         kinds.append("solid" if has_volume else "sheet")
-    if room and count == 1:
-        return ["room"]
-    if room and count > 1:
-        big = int(np.argmax(np.linalg.norm(hi - lo, axis=1)))
+    if room == "none" or not count:
+        return kinds
+    if count == 1:
+        return ["room"] if room == "largest" else kinds
+    big = int(np.argmax(np.linalg.norm(hi - lo, axis=1)))
+    if kinds[big] != "solid":
+        return kinds
+    if room == "holds":
         others = np.array([p for p in range(count) if p != big])
         areas = np.bincount(label, weights=_polygon_areas(verts, nverts), minlength=count)
         others = others[np.argsort(-areas[others], kind="stable")][:ROOM_PROBES]
         sel = label == big
         mids = (lo[others] + hi[others]) / 2
-        if kinds[big] == "solid" and all(abs(winding_number(verts[sel], nverts[sel], m)) >= ENCLOSING for m in mids):
-            kinds[big] = "room"
+        if not all(abs(winding_number(verts[sel], nverts[sel], m)) >= ENCLOSING for m in mids):
+            return kinds
+    kinds[big] = "room"
     return kinds
 
 

@@ -174,3 +174,32 @@ def test_orient_inward_renders_the_outward_room_as_the_inward_one(client, tmp_pa
         means[name] = img.mean()
         assert json.loads((out / "report.json").read_text())["solve"]["converged"]
     assert means["fixed"] == pytest.approx(means["inward"], rel=0.01), means
+
+
+def test_a_lamp_box_wound_inside_out_stops_before_any_cluster(tmp_path):
+    """The office (tests/office.py) whose ceiling lamp, a closed box, is wound inside out: its
+    light stays inside the box, which used to count as lighting the scene (a black image, exit
+    0); in a scene file `orient` is as-is, so nothing turns it."""
+    from office import glb_office
+
+    (tmp_path / "office.glb").write_bytes(glb_office(flipped={"panel"}))
+    (tmp_path / "scene.toml").write_text('[[mesh]]\npath = "office.glb"\n' + CAMERA.replace(
+        "position = [2.0, 1.5, 4.5]", "position = [0.3, 1.5, 2.0]").replace(
+        "look_at = [2.0, 1.2, 0.0]", "look_at = [5.0, 1.2, 2.0]"))
+    stopped_up_front(tmp_path, str(tmp_path / "scene.toml"),
+                     "no emitter's light reaches any element", "office.glb ([[mesh]] 1)")
+
+
+def test_a_mesh_alone_is_told_to_write_a_scene_file(tmp_path):
+    """A bare mesh file whose lamp sits above the ceiling: the check stops it, and the fix it
+    offers is a scene file naming the mesh (it has no [[mesh]] entry to edit)."""
+    from office import glb_office
+
+    fn = tmp_path / "office.glb"
+    fn.write_bytes(glb_office(panel=((2.0, 3.2, 1.5), (3.0, 3.25, 2.5))))
+    line = stopped_up_front(tmp_path, str(fn), "no emitter's light reaches any element",
+                            "(material 'lamp' of office.glb:",
+                            'write a scene.toml with [[mesh]] path = "office.glb" and orient = '
+                            '"inward" (or two_sided = true) (see docs/src/how-to/'
+                            'meshes-as-scenes.md)')
+    assert "[[mesh]] 1" not in line

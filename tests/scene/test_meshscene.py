@@ -165,3 +165,75 @@ def test_the_cornell_box_loads_without_a_warning():
         warnings.simplefilter("error")
         el = load_scene(scene_path("cornell-box"), settings=settings_of()).elements
     assert len(el) == 20 and (el.nverts == 3).sum() == 2  # the red wall's two triangles
+
+
+# ----------------------------------------------------------------------------- as users bring them
+
+def _office(tmp_path, name="office.glb", **kw) -> str:
+    from office import glb_office
+
+    fn = tmp_path / name
+    fn.write_bytes(glb_office(**kw))
+    return str(fn)
+
+
+def test_a_room_with_a_window_is_seen_from_inside(tmp_path):
+    """A window opening lets a few of the camera's rays out: still a room, the camera goes
+    inside (it used to go outside, "not a closed room", and look at the walls' backs); the
+    summary says why."""
+    from office import OFFICE
+    from radiosity.runtime.checks import check_scene
+    from radiosity.settings import resolve
+
+    sc = load_scene(_office(tmp_path), settings=settings_of())
+    assert "inside: a room with openings (" in sc.chosen, sc.chosen
+    assert "rays from the camera leave through them), looking along +x" in sc.chosen
+    assert np.all((sc.camera.center > 0) & (sc.camera.center < OFFICE))
+    _same_camera(parse_camera(_table_of(sc.chosen), "printed"), sc.camera)
+    fig = check_scene(sc, resolve())["orientation"]
+    assert fig["camera_lit"] == fig["camera_rays"] > 0  # only fronts: no wall backs
+
+
+def test_a_mesh_wound_inside_out_is_turned_and_said(tmp_path):
+    """The office exported inside out, given alone: its parts are turned by what they are (the
+    room in, the table and lamp out: the elements are the right file's), in one warning line
+    naming the file; it used to render black with exit 0 and no word."""
+    good = load_scene(_office(tmp_path), settings=settings_of())
+    with pytest.warns(UserWarning) as said:
+        bad = load_scene(_office(tmp_path, "flipped.glb", flipped=True), settings=settings_of())
+    lines = [str(w.message) for w in said if "turned" in str(w.message)]
+    assert len(lines) == 1 and "\n" not in lines[0], lines
+    assert "flipped.glb: turned 3 of its 3 connected parts that were wound inside out: the " \
+           "room's shell (its normals pointed out), 2 closed solids (normals in)" in lines[0]
+    assert 'orient = "as-is" keeps the file' in lines[0]
+    a, b = good.elements, bad.elements
+    np.testing.assert_allclose(_by_centre(b), _by_centre(a), atol=1e-12)
+    ia, ib = (np.lexsort(np.round(e.center, 9).T) for e in (a, b))
+    np.testing.assert_array_equal(b.emission[ib], a.emission[ia])
+    _same_camera(bad.camera, good.camera)
+
+
+@pytest.mark.parametrize("flipped", [{"room"}, True])
+def test_orient_inward_in_a_scene_file_turns_each_part(tmp_path, flipped):
+    """`orient = "inward"` in a scene file on the office whose room's shell points out (a box
+    turned into a room; the furniture as modelled) or that is inside out as a whole: the shell
+    in, the table and the lamp out of their own volumes (turning the whole mesh at once by its
+    total volume, the room's, turned the right furniture inside out)."""
+    from office import TABLE
+
+    _office(tmp_path, "flipped.glb", flipped=flipped)
+    good = load_scene(_office(tmp_path), settings=settings_of()).elements
+    (tmp_path / "scene.toml").write_text(
+        '[[mesh]]\npath = "flipped.glb"\norient = "inward"\n[camera]\nposition = [0.3, 1.5, 2]\n'
+        'look_at = [5, 1.2, 2]\nfov_y = 60\nresolution = 16\n')
+    el = load_scene(str(tmp_path / "scene.toml"), settings=settings_of()).elements
+    lo, hi = np.array(TABLE)
+    top = np.isclose(el.center[:, 1], hi[1]) & np.all((el.center > lo) & (el.center < hi + 1e-9),
+                                                    axis=1)
+    assert top.any() and np.allclose(el.normal[top], [0, 1, 0])  # the table top faces up
+    np.testing.assert_allclose(_by_centre(el), _by_centre(good), atol=1e-12)
+
+
+def _by_centre(el) -> np.ndarray:
+    """The elements' normals in the order of their centres (two loads of one geometry)."""
+    return el.normal[np.lexsort(np.round(el.center, 9).T)]

@@ -39,7 +39,7 @@ ENCLOSING = 0.5
 #: gives 0 to about 0.2; a box without one face 0.83, a sphere 0.52).
 SOLID = 0.4
 #: At most this many other parts are tested for lying inside the room (the largest by area).
-ROOM_PROBES = 256
+ROOM_PROBES = 64
 
 
 class OrientationError(SceneError):
@@ -126,20 +126,17 @@ def orient_mesh(verts: np.ndarray, nverts: np.ndarray, orient: str, where: str):
         return verts, Turned((), ())
     if orient == "flip":
         return flip_polygons(verts, nverts), Turned((), ())
-    label, count = connected_parts(verts, nverts)
+    ids = _vertex_ids(verts, nverts)
+    label, count = connected_parts(verts, nverts, ids)
     kinds = part_kinds(verts, nverts, label, count,
-                       room={"inward": "largest", "outward": "none", "auto": "holds"}[orient])
+                       room={"inward": "largest", "outward": "none", "auto": "holds"}[orient],
+                       ids=ids)
     if orient == "auto" and "room" not in kinds:  # not a room with things in it: nothing is sure
         return verts, Turned(tuple(kinds), (False,) * count)
-    turn = np.zeros(count, bool)
-    area = np.zeros(count)
-    for p in range(count):
-        sel = label == p
-        if kinds[p] == "sheet":
-            continue
-        v = facing_volume(verts[sel], nverts[sel])
-        turn[p] = (v > 0.0) if kinds[p] == "room" else (v < 0.0)
-        area[p] = _polygon_areas(verts[sel], nverts[sel]).sum()
+    volume, area, _ = _part_sums(verts, nverts, label, count, ids)
+    kind = np.array(kinds)
+    turn = np.where(kind == "room", volume > 0.0, volume < 0.0) & (kind != "sheet")
+    area = np.where(kind == "sheet", 0.0, area)
     sheets = np.array([k == "sheet" for k in kinds])
     if sheets.any():
         sel = sheets[label]
@@ -165,18 +162,32 @@ def _vertex_ids(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
     pts = verts.reshape(-1, 3)
     scale = float(np.abs(pts).max()) or 1.0
     key = np.round(pts / (1e-9 * scale)).astype(np.int64)
-    _, ids = np.unique(key, axis=0, return_inverse=True)
-    return ids.reshape(len(verts), 4)
+    return _row_ids(key).reshape(len(verts), 4)
 
 
-def connected_parts(verts: np.ndarray, nverts: np.ndarray):
-    """The mesh's connected parts: polygons that share a corner position belong together.
-    Returns (label (n,) int, count), labels 0.. in order of first appearance."""
+def _row_ids(rows: np.ndarray) -> np.ndarray:
+    """An id per row of `rows` (k, d) int, equal rows the same id (np.unique(axis=0)'s inverse,
+    without its slow structured sort)."""
+    if not len(rows):
+        return np.zeros(0, np.int64)
+    order = np.lexsort(rows.T[::-1])
+    r = rows[order]
+    new = np.ones(len(r), bool)
+    new[1:] = (r[1:] != r[:-1]).any(axis=1)
+    ids = np.empty(len(r), np.int64)
+    ids[order] = np.cumsum(new) - 1
+    return ids
+
+
+def connected_parts(verts: np.ndarray, nverts: np.ndarray, ids=None):
+    """The mesh's connected parts: polygons that share a corner position belong together
+    (ids: their _vertex_ids, when known). Returns (label (n,) int, count), labels 0.. in order
+    of first appearance."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
     n = len(verts)
-    ids = _vertex_ids(verts, nverts)
+    ids = _vertex_ids(verts, nverts) if ids is None else ids
     m = int(ids.max()) + 1 if n else 0
     rows = np.repeat(np.arange(n), 4)
     g = coo_matrix((np.ones(4 * n, np.int8), (rows, n + ids.ravel())), shape=(n + m, n + m))
@@ -187,22 +198,38 @@ def connected_parts(verts: np.ndarray, nverts: np.ndarray):
     return order[label].astype(np.int64), len(first)
 
 
-def _closed(ids: np.ndarray, nverts: np.ndarray) -> bool:
-    """Every edge of the polygons (corner ids (k, 4)) shared by exactly two of them."""
-    tri = nverts == 3
+def _part_sums(verts: np.ndarray, nverts: np.ndarray, label: np.ndarray, count: int, ids=None):
+    """Per part (count,): facing_volume about its own mean vertex, its area, and whether it is
+    closed (every edge shared by exactly two of its polygons), in a few passes over all the
+    polygons (a triangle soup may have as many parts as faces)."""
+    from radiosity.core.geometry import polygon_properties
+
+    area, normal, center = polygon_properties(verts, nverts)
+    an = area[:, None] * normal
+    s1 = np.bincount(label, np.einsum("ij,ij->i", an, center), count)
+    s2 = np.stack([np.bincount(label, an[:, k], count) for k in range(3)], axis=1)
+    k = np.bincount(label, minlength=count) * 4.0
+    o = np.stack([np.bincount(label, verts[:, :, j].sum(axis=1), count) for j in range(3)],
+                 axis=1) / k[:, None]
+    volume = (s1 - np.einsum("ij,ij->i", s2, o)) / 3.0
+    # edges: corner ids (and the next corner), a triangle's slot 3 left out
+    ids = _vertex_ids(verts, nverts) if ids is None else ids
+    tri = np.asarray(nverts) == 3
     nxt = np.where(tri[:, None], ids[:, [1, 2, 0, 0]], ids[:, [1, 2, 3, 0]])
     keep = np.ones(ids.shape, bool)
     keep[tri, 3] = False
     e = np.sort(np.stack([ids[keep], nxt[keep]], axis=1), axis=1)
-    e = e[e[:, 0] != e[:, 1]]
-    if not len(e):
-        return False
-    _, counts = np.unique(e, axis=0, return_counts=True)
-    return bool((counts == 2).all())
+    owner = np.broadcast_to(label[:, None], ids.shape)[keep]
+    real = e[:, 0] != e[:, 1]
+    inv = _row_ids(e[real])
+    counts = np.bincount(inv)
+    bad = np.bincount(owner[real], counts[inv] != 2, count)
+    edges = np.bincount(owner[real], minlength=count)
+    return volume, np.bincount(label, area, count), (bad == 0) & (edges > 0)
 
 
 def part_kinds(verts: np.ndarray, nverts: np.ndarray, label: np.ndarray, count: int,
-               room: str = "largest") -> list:
+               room: str = "largest", ids=None) -> list:
     """What each connected part is: "room", "solid" or "sheet".
 
     solid: a part that holds a volume: closed (every edge shared by two of its faces) or nearly
@@ -212,20 +239,16 @@ def part_kinds(verts: np.ndarray, nverts: np.ndarray, label: np.ndarray, count: 
     it holds); "holds": that part only when the middles of the others (their bounding boxes'
     centres; the ROOM_PROBES largest by area) lie inside it (its winding number there ENCLOSING
     or more in size): a room with its furniture, not a solid beside other things; "none": no
-    room."""
-    ids = _vertex_ids(verts, nverts)
+    room. ids: the polygons' _vertex_ids, when known."""
     lo = np.full((count, 3), np.inf)
     hi = np.full((count, 3), -np.inf)
     pts = verts.reshape(-1, 4, 3)
     np.minimum.at(lo, label, pts.min(axis=1))
     np.maximum.at(hi, label, pts.max(axis=1))
-    kinds = []
-    for p in range(count):
-        sel = label == p
-        vol = float(np.prod(hi[p] - lo[p]))
-        has_volume = _closed(ids[sel], nverts[sel]) or (
-            vol > 0 and abs(facing_volume(verts[sel], nverts[sel])) >= SOLID * vol)
-        kinds.append("solid" if has_volume else "sheet")
+    volume, areas, closed = _part_sums(verts, nverts, label, count, ids)
+    box = np.prod(hi - lo, axis=1)
+    solid = closed | ((box > 0) & (np.abs(volume) >= SOLID * box))
+    kinds = ["solid" if x else "sheet" for x in solid]
     if room == "none" or not count:
         return kinds
     if count == 1:
@@ -235,7 +258,6 @@ def part_kinds(verts: np.ndarray, nverts: np.ndarray, label: np.ndarray, count: 
         return kinds
     if room == "holds":
         others = np.array([p for p in range(count) if p != big])
-        areas = np.bincount(label, weights=_polygon_areas(verts, nverts), minlength=count)
         others = others[np.argsort(-areas[others], kind="stable")][:ROOM_PROBES]
         sel = label == big
         mids = (lo[others] + hi[others]) / 2
@@ -243,12 +265,6 @@ def part_kinds(verts: np.ndarray, nverts: np.ndarray, label: np.ndarray, count: 
             return kinds
     kinds[big] = "room"
     return kinds
-
-
-def _polygon_areas(verts: np.ndarray, nverts: np.ndarray) -> np.ndarray:
-    from radiosity.core.geometry import polygon_properties
-
-    return polygon_properties(verts, nverts)[0]
 
 
 # ----------------------------------------------------------------------------- the camera

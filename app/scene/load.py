@@ -255,7 +255,8 @@ def _read_meshes(meshes: list, path: str, s: Settings):
         # which way the faces point: as in the file, or fixed (scene/orientation.py, ORIENTS)
         v, turned = orient_mesh(v, n, m.get("orient", "as-is"), f"{path}: [[mesh]] {mi + 1}")
         if m.get("orient") == "auto" and any(turned.turned):  # said: the user asked for nothing
-            warn(turned.describe(fn if is_mesh_path(path) else f"{path}: [[mesh]] {mi + 1}"))
+            warn(turned.describe(os.path.basename(fn) if is_mesh_path(path)
+                                 else f"{path}: [[mesh]] {mi + 1}"))
         sources.append(fn)
         all_v.append(v)
         all_n.append(n)

@@ -1,5 +1,5 @@
-"""Which way the faces point: the per-mesh fix (`orient` in a [[mesh]] entry) and the facts the
-checks before any heavy work need (runtime/checks.py): what the camera sees of the one-sided
+"""Which way the faces point: the fix (`orient` in a [[mesh]] entry, per connected part: a room's
+shell in, its furniture out) and the facts the checks before any heavy work need (runtime/checks.py): what the camera sees of the one-sided
 elements, whether each emitter's light reaches any element, and which meshes enclose the camera
 with their normals pointing out.
 

@@ -58,8 +58,8 @@ def office_parts(window=True, panel=PANEL):
 def glb_office(flipped=False, window=True, emission=8.0, panel=PANEL) -> bytes:
     """The office as GLB bytes; `flipped`: every face wound the other way (an exporter's
     mistake; True: every part, or the names of some, e.g. {"room"}: a room modelled from a box
-    whose normals point out); `panel`: the lamp box's corners. Materials: 'wall' (0.7), 'wood' (0.4, 0.25, 0.1) for the table, 'lamp' emitting
-    `emission` (KHR_materials_emissive_strength)."""
+    whose normals point out); `panel`: the lamp box's corners. Materials: 'wall' (0.7), 'wood'
+    (0.4, 0.25, 0.1) for the table, 'lamp' emitting `emission` (KHR_materials_emissive_strength)."""
     import trimesh
     from trimesh.visual.material import PBRMaterial
 

@@ -227,10 +227,9 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
     Returns {"camera_rays", "camera_lit": rays that see a lit side, "emitters": [{source,
     material, rays, reached, backs, escaped}]}."""
     from radiosity.scene.emitters import AreaEmitters
+    from radiosity.scene.meshscene import DOCS, is_mesh_path
     from radiosity.scene.orientation import (OrientationError, emitter_reach, facing,
                                              outward_enclosures)
-
-    from radiosity.scene.meshscene import DOCS, is_mesh_path
 
     el, cam = scene.elements, scene.camera
     where = scene.path

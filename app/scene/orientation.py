@@ -1,7 +1,7 @@
-"""Which way the faces point: the fix (`orient` in a [[mesh]] entry, per connected part: a room's
-shell in, its furniture out) and the facts the checks before any heavy work need (runtime/checks.py): what the camera sees of the one-sided
-elements, whether each emitter's light reaches any element, and which meshes enclose the camera
-with their normals pointing out.
+"""Which way the faces point: the fix (`orient` in a [[mesh]] entry, per connected part: a
+room's shell in, its furniture out) and the facts the checks before any heavy work need
+(runtime/checks.py): what the camera sees of the one-sided elements, whether each emitter's
+light reaches any element, and which meshes enclose the camera with their normals pointing out.
 
 A one-sided element is black from behind, so a room modelled with its normals out, a camera
 inside a wall or a lamp outside the room renders an all-black image with no error otherwise

@@ -38,6 +38,9 @@ BATCH_POINTS = 4096
 #: elements past which the test is not tried (a terrain: every box holds receivers).
 OCCLUDER_BOXES = 8
 INNER_SHARE = 0.9
+#: Solid angle (sr, about area / distance^2) past which an emitting element is sampled
+#: uniformly in solid angle rather than by area (_sample).
+CLOSE = 0.05
 #: Luminance weights of the importance (Rec. 709).
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -217,11 +220,111 @@ def _fill(P, N, lum_e, em, lstart, n, j0, pooled, off, key, seed, Y, Ye, W, Rs):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _unit3(x, y, z):
+    r = math.sqrt(x * x + y * y + z * z)
+    return (x / r, y / r, z / r) if r > 0.0 else (0.0, 0.0, 0.0)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _norm(a):
+    return _unit3(a[0], a[1], a[2])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _spherical(A, B, C):
+    """Solid angle of the spherical triangle of unit vectors A, B, C and its angle at A and the
+    cosine of its side AB (Arvo 1995's inputs)."""
+    ab, ac = _norm(_cross(A, B)), _norm(_cross(A, C))
+    ba, bc = _norm(_cross(B, A)), _norm(_cross(B, C))
+    ca, cb = _norm(_cross(C, A)), _norm(_cross(C, B))
+    al = math.acos(min(1.0, max(-1.0, _dot(ab, ac))))
+    be = math.acos(min(1.0, max(-1.0, _dot(bc, ba))))
+    ga = math.acos(min(1.0, max(-1.0, _dot(ca, cb))))
+    return max(al + be + ga - math.pi, 0.0), al, _dot(A, B)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _arvo(A, B, C, area, al, cos_c, u1, u2):
+    """A unit direction uniform in solid angle over the spherical triangle A B C (area, the
+    angle al at A, cos_c = A.B), from (u1, u2) in the unit square (Arvo 1995, stratified)."""
+    ah = u1 * area
+    s, t = math.sin(ah - al), math.cos(ah - al)
+    u = t - math.cos(al)
+    v = s + math.sin(al) * cos_c
+    den = (v * s + u * t) * math.sin(al)
+    q = ((v * t - u * s) * math.cos(al) - v) / den if den != 0.0 else 1.0
+    q = min(1.0, max(-1.0, q))
+    d = _dot(C, A)
+    e = _unit3(C[0] - d * A[0], C[1] - d * A[1], C[2] - d * A[2])
+    r = math.sqrt(max(0.0, 1.0 - q * q))
+    Cp = (q * A[0] + r * e[0], q * A[1] + r * e[1], q * A[2] + r * e[2])
+    z = 1.0 - u2 * (1.0 - _dot(Cp, B))
+    d = _dot(Cp, B)
+    f = _unit3(Cp[0] - d * B[0], Cp[1] - d * B[1], Cp[2] - d * B[2])
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    return (z * B[0] + r * f[0], z * B[1] + r * f[1], z * B[2] + r * f[2])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _vertex(V, e, j, x):
+    """The unit direction from x to vertex j of emitter e."""
+    return _unit3(V[e, j, 0] - x[0], V[e, j, 1] - x[1], V[e, j, 2] - x[2])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _sample(P, N, i, e, u, v, V, f1, nrm, area, Le, h, k, Y, W):
-    """Y[k]: the point (u, v) of the unit square on emitter e (a parallelogram (f1[e] < 0): along
-    its sides; else its triangles by area (f1: the first's share), the square folded onto each); W[k] (3,): its ratio weights per channel, Le cos_x
-    cos_y / r^2 A / h (h the element's exact unoccluded luminance at the point: it was picked
-    with a probability in proportion to h)."""
+    """Y[k]: the point (u, v) of the unit square on emitter e; W[k] (3,): its ratio weights per
+    channel, Le cos_x / pdf / h, pdf the density of Y in solid angle (h the element's exact
+    unoccluded luminance at the point: it was picked with a probability in proportion to h).
+    An emitter that subtends more than CLOSE sr is sampled uniformly in solid angle, its
+    triangles by their solid angles (Arvo 1995: the weights stay bounded near a large emitter);
+    a smaller one by area: a parallelogram (f1[e] < 0) along its sides, else its triangles by
+    area (f1: the first's share), the square folded onto each."""
+    x = (P[i, 0], P[i, 1], P[i, 2])
+    cx = (V[e, 0, 0] + V[e, 1, 0] + V[e, 2, 0] + V[e, 3, 0]) * 0.25 - x[0]
+    cy_ = (V[e, 0, 1] + V[e, 1, 1] + V[e, 2, 1] + V[e, 3, 1]) * 0.25 - x[1]
+    cz = (V[e, 0, 2] + V[e, 1, 2] + V[e, 2, 2] + V[e, 3, 2]) * 0.25 - x[2]
+    dist2 = cx * cx + cy_ * cy_ + cz * cz
+    quad = f1[e] != 1.0
+    if area[e] > CLOSE * dist2:
+        A = _vertex(V, e, 0, x)
+        B = _vertex(V, e, 1, x)
+        C = _vertex(V, e, 2, x)
+        o1, al1, c1 = _spherical(A, B, C)
+        o2, al2, c2 = 0.0, 0.0, 0.0
+        if quad:
+            D = _vertex(V, e, 3, x)
+            o2, al2, c2 = _spherical(A, C, D)
+        om = o1 + o2
+        if om > 0.0:
+            if u * om < o1 or not quad:
+                w = _arvo(A, B, C, o1, al1, c1, min(u * om / o1, 1.0), v)
+            else:
+                D = _vertex(V, e, 3, x)
+                w = _arvo(A, C, D, o2, al2, c2, min((u * om - o1) / o2, 1.0), v)
+            pn = (nrm[e, 0], nrm[e, 1], nrm[e, 2])
+            den = _dot(w, pn)
+            t = ((V[e, 0, 0] - x[0]) * pn[0] + (V[e, 0, 1] - x[1]) * pn[1]
+                 + (V[e, 0, 2] - x[2]) * pn[2]) / den if den != 0.0 else 0.0
+            if t > 0.0:
+                for q in range(3):
+                    Y[k, q] = x[q] + t * w[q]
+                cosx = _dot(w, (N[i, 0], N[i, 1], N[i, 2]))
+                side = 0 if den < 0.0 else 1
+                g = max(cosx, 0.0) * om / h
+                for c3 in range(3):
+                    W[k, c3] = Le[e, side, c3] * g
+                return
     if f1[e] < 0.0:                     # a parallelogram: (u, v) along its two sides
         b, c, b1, b2 = 1, 3, u, v
     else:
@@ -244,13 +347,13 @@ def _sample(P, N, i, e, u, v, V, f1, nrm, area, Le, h, k, Y, W):
             dz = y - P[i, 2]
     r2 = dx * dx + dy * dy + dz * dz
     cy = dx * nrm[e, 0] + dy * nrm[e, 1] + dz * nrm[e, 2]   # < 0: x on the front side
-    cx = dx * N[i, 0] + dy * N[i, 1] + dz * N[i, 2]
-    if r2 <= 0.0 or cx <= 0.0:
+    cxn = dx * N[i, 0] + dy * N[i, 1] + dz * N[i, 2]
+    if r2 <= 0.0 or cxn <= 0.0:
         for c3 in range(3):
             W[k, c3] = 0.0
         return
     side = 0 if cy < 0.0 else 1
-    g = cx * abs(cy) / (r2 * r2) * area[e] / h
+    g = cxn * abs(cy) / (r2 * r2) * area[e] / h
     for c3 in range(3):
         W[k, c3] = Le[e, side, c3] * g
 

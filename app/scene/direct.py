@@ -7,13 +7,16 @@ share of it, as a ratio: H1 = sum_slots H0_slot * sum_k w_k V_k / sum_k w_k, so 
 blocks (V = 1) the answer is exact whatever the ray count: the furnace and every unshadowed point.
 
 Rays are spent by importance. Emitting elements are grouped into lights (connected elements of
-one Le); a point's budget of `samples` rays is split over the lights it sees by their exact
-unoccluded share, and the lights that would get less than one ray share one pooled slot. Within a
-slot the rays are systematic over the elements' shares and stratified (a golden-ratio lattice)
-inside each element, rotated by offsets hashed from (point index, slot, pass, seed): the same
-points give the same bits in every process and batch. A second pass adds (refine - 1) times the
-first pass's rays to every slot whose rays disagree (a penumbra). A light whose box and the point
-lie apart from every occluder box (RayCaster.occluder_boxes, shafts.clear_of) needs no ray.
+one Le); a light gets samples * sqrt(its share of the point's exact unoccluded H1) first-pass
+rays (the square root: a penumbra's error falls slower than 1 / rays, so weak lights get
+relatively more), and the lights due less than one ray share one pooled slot. Within a slot ray
+j is Sobol point j, rotated by offsets hashed from (point index, slot, seed): its first
+coordinate picks the element by its share (elements in Morton order) and the point on it; an
+element that subtends much is sampled uniformly in solid angle (Arvo 1995), a small one by area.
+The same points give the same bits in every process and batch. A second pass continues the
+sequence to `refine` times the first pass's rays in every slot whose rays disagree (a
+penumbra). Weights are per channel (a pooled slot mixes colours). A light whose box and the
+point lie apart from every occluder box (shafts.clear_of) needs no ray.
 Design note and figures: docs/src/design/scene-direct.md.
 """
 
@@ -41,6 +44,8 @@ INNER_SHARE = 0.9
 #: Solid angle (sr, about area / distance^2) past which an emitting element is sampled
 #: uniformly in solid angle rather than by area (_sample).
 CLOSE = 0.05
+#: First-pass rays of a light that is not pooled, at least: fewer cannot tell a penumbra.
+MIN_RAYS = 4
 #: Luminance weights of the importance (Rec. 709).
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -112,9 +117,10 @@ def _clear(P, elem, lo, hi, flat, LO, HI, out):
 
 @numba.njit(cache=True, nogil=True)
 def _plan(lum, clear, budget, n, pooled):
-    """Rays per slot: n (pb, nL + 1) int64, slot nL the pooled one; pooled (pb, nL) bool. The
-    budget goes over a point's lights with luminance lum (pb, nL) > 0 that are not clear, by
-    share; a light due less than one ray joins the pooled slot, which gets at least one."""
+    """Rays per slot: n (pb, nL + 1) int64, slot nL the pooled one; pooled (pb, nL) bool. A
+    point's light with luminance lum (pb, nL) > 0 that is not clear is due budget * sqrt(its
+    share) rays (at least MIN_RAYS); one due less than one ray joins the pooled slot, which gets
+    at least one."""
     nL = lum.shape[1]
     for i in range(lum.shape[0]):
         T = 0.0
@@ -127,9 +133,9 @@ def _plan(lum, clear, budget, n, pooled):
         for L in range(nL):
             if clear[i, L] or lum[i, L] <= 0.0:
                 continue
-            m = budget * lum[i, L] / T
+            m = budget * math.sqrt(lum[i, L] / T)
             if m >= 1.0:
-                n[i, L] = int(m + 0.5)
+                n[i, L] = max(MIN_RAYS, int(m + 0.5))
             else:
                 pooled[i, L] = True
                 tail += m

@@ -1,0 +1,127 @@
+"""Direct light at points (scene/direct.py, issue 50): H1 at N points of a scene, its speed
+against Embree's on the same shadow rays, and its error against a many-ray reference.
+
+    python benchmarks/bench_direct.py [--points 20000] [--ref-points 400] [--scenes a,b]
+
+Scenes: the Cornell box (scenes/cornell-box), modern-hall (benchmarks/real/modern-hall: 168
+emitting elements in 13 lights) and a terrain of scenes_generated.terrain (--terrain triangles,
+one 2 x 2 light). Points: uniform by area over the elements that reflect, on a side that
+reflects (its normal), numbered for their sample offsets. For each scene:
+- points/s and shadow rays/s of DirectLight.irradiance (default settings, numba warm);
+- Embree alone on the same rays (RayCaster.occluded_pairs replayed on the recorded batches):
+  rays/s, and the share of the time spent outside Embree;
+- error against samples=1024, refine=1 on the first --ref-points points: the mean absolute
+  luminance error over the mean luminance, and the 99th percentile of the per-point error
+  relative to the point's own unoccluded H1.
+Writes benchmarks/results/direct.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from common import HERE, ROOT, table, write  # noqa: E402
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+SCENES = {"cornell-box": os.path.join(ROOT, "scenes", "cornell-box", "scene.toml"),
+          "modern-hall": os.path.join(HERE, "real", "modern-hall", "scene.toml")}
+
+
+def points_of(el, n: int, seed: int = 0):
+    """n points uniform by area over the elements that reflect, with the normal of a side that
+    reflects and their element: (P (n, 3), N (n, 3), E (n,))."""
+    rng = np.random.default_rng(seed)
+    refl = el.reflectance.max(axis=2)                             # (m, 2)
+    w = el.area * (refl.max(axis=1) > 0)
+    e = rng.choice(len(w), n, p=w / w.sum())
+    back = (refl[e, 1] > 0) & ((refl[e, 0] <= 0) | (rng.random(n) < 0.5))
+    V = el.verts[e]
+    u, v = rng.random((2, n, 1))
+    tri = el.nverts[e] == 3
+    fold = u + v > 1
+    u, v = np.where(fold, 1 - u, u), np.where(fold, 1 - v, v)
+    c = np.where(tri[:, None], V[:, 2], V[:, 3])
+    P = np.where(tri[:, None], V[:, 0] + u * (V[:, 1] - V[:, 0]) + v * (V[:, 2] - V[:, 0]),
+                 V[:, 0] + u * (V[:, 1] - V[:, 0]) + v * (c - V[:, 0]))
+    N = el.normal[e] * np.where(back, -1.0, 1.0)[:, None]
+    return P, N, e
+
+
+def measure(name: str, path: str, n: int, n_ref: int) -> dict:
+    from radiosity.scene.direct import DirectLight
+    from radiosity.scene.load import load_scene
+    from radiosity.settings import options
+
+    st = options()
+    t = time.perf_counter()
+    el = load_scene(path, settings=st).elements
+    t_load = time.perf_counter() - t
+    P, N, E = points_of(el, n)
+    dl = DirectLight(el, st.rays.offset)
+    dl.irradiance(P[:64], N[:64], E[:64])                          # compile, build the caster
+    caster = dl.caster
+    calls = []
+    inner = caster.occluded_pairs
+
+    def recorded(*a, **k):
+        calls.append(a)
+        return inner(*a, **k)
+
+    caster.occluded_pairs = recorded
+    dl.rays = 0
+    t = time.perf_counter()
+    H = dl.irradiance(P, N, E)
+    t_all = time.perf_counter() - t
+    caster.occluded_pairs = inner
+    t = time.perf_counter()
+    for a in calls:
+        inner(*a)
+    t_embree = time.perf_counter() - t
+    ref_dl = DirectLight(el, st.rays.offset, samples=1024, refine=1)
+    Pr, Nr, Er = P[:n_ref], N[:n_ref], E[:n_ref]
+    ref = ref_dl.irradiance(Pr, Nr, Er) @ LUMA
+    got = H[:n_ref] @ LUMA
+    h0 = dl.unoccluded(Pr, Nr) @ LUMA
+    lit = h0 > 0
+    rel = np.abs(got - ref)[lit] / h0[lit]
+    return {"scene": name, "elements": len(el.area), "emitting": len(dl.ids), "lights": dl.lights,
+            "points": n, "load_s": round(t_load, 2), "seconds": round(t_all, 3),
+            "points_per_s": n / t_all, "rays": dl.rays, "rays_per_point": dl.rays / n,
+            "rays_per_s": dl.rays / t_all, "embree_rays_per_s": dl.rays / max(t_embree, 1e-9),
+            "outside_embree": 1.0 - t_embree / t_all,
+            "mean_error": float(np.abs(got - ref).mean() / max(ref.mean(), 1e-300)),
+            "p99_error": float(np.percentile(rel, 99)) if lit.any() else 0.0,
+            "ref_points": n_ref}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--points", type=int, default=20000)
+    ap.add_argument("--ref-points", type=int, default=400)
+    ap.add_argument("--terrain", type=int, default=20000, help="the terrain's triangles")
+    ap.add_argument("--scenes", default="cornell-box,modern-hall,terrain")
+    a = ap.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        from scenes_generated import terrain
+
+        scenes = dict(SCENES, terrain=terrain(tmp, a.terrain))
+        for name in a.scenes.split(","):
+            rows.append(measure(name, scenes[name], a.points, a.ref_points))
+            print(rows[-1], flush=True)
+    fn = write("direct", rows, {"points": a.points, "terrain_triangles": a.terrain})
+    print(table(rows, ["scene", "emitting", "lights", "points", "seconds", "points_per_s",
+                       "rays_per_point", "rays_per_s", "embree_rays_per_s", "outside_embree",
+                       "mean_error", "p99_error"]))
+    print("wrote", fn)
+
+
+if __name__ == "__main__":
+    main()

@@ -185,6 +185,8 @@ def _fill(P, N, lum_e, em, lstart, n, j0, pooled, off, key, seed, Y, Ye, W, Rs):
     nL = lstart.shape[0] - 1
     ce = np.empty(lum_e.shape[1], np.int64)
     cc = np.empty(lum_e.shape[1] + 1)
+    sph = np.zeros((lum_e.shape[1], 7))        # close?, then (omega, angle, cos side) x 2
+    dirs = np.zeros((lum_e.shape[1], 4, 3))
     for i in range(P.shape[0]):
         for s in range(nL + 1):
             m = n[i, s]
@@ -203,6 +205,8 @@ def _fill(P, N, lum_e, em, lstart, n, j0, pooled, off, key, seed, Y, Ye, W, Rs):
                         q += 1
             if q == 0:
                 continue
+            for k in range(q):
+                _spherical_of(P, i, ce[k], V, f1, area, sph[k], dirs[k])
             S = cc[q]
             o0 = _unit(key[i] * (nL + 1) + s, seed)
             o1 = _unit(key[i] * (nL + 1) + s, seed + 7919)
@@ -220,7 +224,8 @@ def _fill(P, N, lum_e, em, lstart, n, j0, pooled, off, key, seed, Y, Ye, W, Rs):
                 h = cc[lo + 1] - cc[lo]
                 r = min(max((t - cc[lo]) / h, 0.0), 1.0 - 1e-12)
                 k = off[i, s] + j
-                _sample(P, N, i, e, r, (v + o1) % 1.0, V, f1, nrm, area, Le, h, k, Y, W)
+                _sample(P, N, i, e, r, (v + o1) % 1.0, V, f1, nrm, area, Le, h, k, Y, W,
+                        sph[lo], dirs[lo])
                 Ye[k] = e
                 Rs[k] = i * (nL + 1) + s
 
@@ -287,50 +292,66 @@ def _vertex(V, e, j, x):
     return _unit3(V[e, j, 0] - x[0], V[e, j, 1] - x[1], V[e, j, 2] - x[2])
 
 
+@numba.njit(cache=True, nogil=True)
+def _spherical_of(P, i, e, V, f1, area, sph, dirs):
+    """sph (7,): whether emitter e subtends more than CLOSE sr from P[i] and, if so, its
+    triangles' (solid angle, angle at the first vertex, cosine of the first side); dirs (4, 3):
+    the unit directions to its vertices."""
+    x = (P[i, 0], P[i, 1], P[i, 2])
+    cx = (V[e, 0, 0] + V[e, 1, 0] + V[e, 2, 0] + V[e, 3, 0]) * 0.25 - x[0]
+    cy = (V[e, 0, 1] + V[e, 1, 1] + V[e, 2, 1] + V[e, 3, 1]) * 0.25 - x[1]
+    cz = (V[e, 0, 2] + V[e, 1, 2] + V[e, 2, 2] + V[e, 3, 2]) * 0.25 - x[2]
+    sph[0] = 0.0
+    if area[e] <= CLOSE * (cx * cx + cy * cy + cz * cz):
+        return
+    for j in range(4):
+        d = _vertex(V, e, j, x)
+        for q in range(3):
+            dirs[j, q] = d[q]
+    A = (dirs[0, 0], dirs[0, 1], dirs[0, 2])
+    B = (dirs[1, 0], dirs[1, 1], dirs[1, 2])
+    C = (dirs[2, 0], dirs[2, 1], dirs[2, 2])
+    D = (dirs[3, 0], dirs[3, 1], dirs[3, 2])
+    sph[1], sph[2], sph[3] = _spherical(A, B, C)
+    sph[4] = sph[5] = sph[6] = 0.0
+    if f1[e] != 1.0:
+        sph[4], sph[5], sph[6] = _spherical(A, C, D)
+    sph[0] = 1.0 if sph[1] + sph[4] > 0.0 else 0.0
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
-def _sample(P, N, i, e, u, v, V, f1, nrm, area, Le, h, k, Y, W):
+def _sample(P, N, i, e, u, v, V, f1, nrm, area, Le, h, k, Y, W, sph, dirs):
     """Y[k]: the point (u, v) of the unit square on emitter e; W[k] (3,): its ratio weights per
     channel, Le cos_x / pdf / h, pdf the density of Y in solid angle (h the element's exact
     unoccluded luminance at the point: it was picked with a probability in proportion to h).
-    An emitter that subtends more than CLOSE sr is sampled uniformly in solid angle, its
-    triangles by their solid angles (Arvo 1995: the weights stay bounded near a large emitter);
-    a smaller one by area: a parallelogram (f1[e] < 0) along its sides, else its triangles by
-    area (f1: the first's share), the square folded onto each."""
-    x = (P[i, 0], P[i, 1], P[i, 2])
-    cx = (V[e, 0, 0] + V[e, 1, 0] + V[e, 2, 0] + V[e, 3, 0]) * 0.25 - x[0]
-    cy_ = (V[e, 0, 1] + V[e, 1, 1] + V[e, 2, 1] + V[e, 3, 1]) * 0.25 - x[1]
-    cz = (V[e, 0, 2] + V[e, 1, 2] + V[e, 2, 2] + V[e, 3, 2]) * 0.25 - x[2]
-    dist2 = cx * cx + cy_ * cy_ + cz * cz
-    quad = f1[e] != 1.0
-    if area[e] > CLOSE * dist2:
-        A = _vertex(V, e, 0, x)
-        B = _vertex(V, e, 1, x)
-        C = _vertex(V, e, 2, x)
-        o1, al1, c1 = _spherical(A, B, C)
-        o2, al2, c2 = 0.0, 0.0, 0.0
-        if quad:
-            D = _vertex(V, e, 3, x)
-            o2, al2, c2 = _spherical(A, C, D)
-        om = o1 + o2
-        if om > 0.0:
-            if u * om < o1 or not quad:
-                w = _arvo(A, B, C, o1, al1, c1, min(u * om / o1, 1.0), v)
-            else:
-                D = _vertex(V, e, 3, x)
-                w = _arvo(A, C, D, o2, al2, c2, min((u * om - o1) / o2, 1.0), v)
-            pn = (nrm[e, 0], nrm[e, 1], nrm[e, 2])
-            den = _dot(w, pn)
-            t = ((V[e, 0, 0] - x[0]) * pn[0] + (V[e, 0, 1] - x[1]) * pn[1]
-                 + (V[e, 0, 2] - x[2]) * pn[2]) / den if den != 0.0 else 0.0
-            if t > 0.0:
-                for q in range(3):
-                    Y[k, q] = x[q] + t * w[q]
-                cosx = _dot(w, (N[i, 0], N[i, 1], N[i, 2]))
-                side = 0 if den < 0.0 else 1
-                g = max(cosx, 0.0) * om / h
-                for c3 in range(3):
-                    W[k, c3] = Le[e, side, c3] * g
-                return
+    An emitter that subtends more than CLOSE sr (sph[0], from _spherical_of) is sampled
+    uniformly in solid angle, its triangles by their solid angles (Arvo 1995: the weights stay
+    bounded near a large emitter); a smaller one by area: a parallelogram (f1[e] < 0) along its
+    sides, else its triangles by area (f1: the first's share), the square folded onto each."""
+    if sph[0] > 0.0:
+        x = (P[i, 0], P[i, 1], P[i, 2])
+        A = (dirs[0, 0], dirs[0, 1], dirs[0, 2])
+        C = (dirs[2, 0], dirs[2, 1], dirs[2, 2])
+        om = sph[1] + sph[4]
+        if u * om < sph[1] or f1[e] == 1.0:
+            B = (dirs[1, 0], dirs[1, 1], dirs[1, 2])
+            w = _arvo(A, B, C, sph[1], sph[2], sph[3], min(u * om / sph[1], 1.0), v)
+        else:
+            D = (dirs[3, 0], dirs[3, 1], dirs[3, 2])
+            w = _arvo(A, C, D, sph[4], sph[5], sph[6], min((u * om - sph[1]) / sph[4], 1.0), v)
+        pn = (nrm[e, 0], nrm[e, 1], nrm[e, 2])
+        den = _dot(w, pn)
+        t = ((V[e, 0, 0] - x[0]) * pn[0] + (V[e, 0, 1] - x[1]) * pn[1]
+             + (V[e, 0, 2] - x[2]) * pn[2]) / den if den != 0.0 else 0.0
+        if t > 0.0:
+            for q in range(3):
+                Y[k, q] = x[q] + t * w[q]
+            cosx = _dot(w, (N[i, 0], N[i, 1], N[i, 2]))
+            side = 0 if den < 0.0 else 1
+            g = max(cosx, 0.0) * om / h
+            for c3 in range(3):
+                W[k, c3] = Le[e, side, c3] * g
+            return
     if f1[e] < 0.0:                     # a parallelogram: (u, v) along its two sides
         b, c, b1, b2 = 1, 3, u, v
     else:

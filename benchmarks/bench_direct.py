@@ -12,7 +12,10 @@ reflects (its normal), numbered for their sample offsets. For each scene:
   rays/s, and the share of the time spent outside Embree;
 - error against samples=1024, refine=1 on the first --ref-points points: the mean absolute
   luminance error over the mean luminance, and the 99th percentile of the per-point error
-  relative to the point's own unoccluded H1.
+  relative to the point's own unoccluded H1;
+- the same for the first version of the module (git revision --first, the per-element loop
+  with `samples` rays to every emitting element a point sees) on the first --first-points
+  points, in the same run.
 Writes benchmarks/results/direct.json and prints a table.
 """
 
@@ -54,7 +57,32 @@ def points_of(el, n: int, seed: int = 0):
     return P, N, e
 
 
-def measure(name: str, path: str, n: int, n_ref: int) -> dict:
+def first_version(rev: str, folder: str):
+    """scene/direct.py as of git revision rev, as a module (written into folder: numba caches
+    next to the file)."""
+    import importlib.util
+    import subprocess
+
+    src = subprocess.run(["git", "show", f"{rev}:app/scene/direct.py"], cwd=ROOT, check=True,
+                         capture_output=True, text=True).stdout
+    fn = os.path.join(folder, "direct_first.py")
+    with open(fn, "w") as f:
+        f.write(src)
+    spec = importlib.util.spec_from_file_location("direct_first", fn)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def errors(got, ref, h0) -> tuple[float, float]:
+    """(mean absolute luminance error over the mean, p99 of |error| / unoccluded)."""
+    lit = h0 > 0
+    rel = np.abs(got - ref)[lit] / h0[lit]
+    return (float(np.abs(got - ref).mean() / max(ref.mean(), 1e-300)),
+            float(np.percentile(rel, 99)) if lit.any() else 0.0)
+
+
+def measure(name: str, path: str, n: int, n_ref: int, first=None, n_first: int = 2000) -> dict:
     from radiosity.scene.direct import DirectLight
     from radiosity.scene.load import load_scene
     from radiosity.settings import options
@@ -89,16 +117,23 @@ def measure(name: str, path: str, n: int, n_ref: int) -> dict:
     ref = ref_dl.irradiance(Pr, Nr, Er) @ LUMA
     got = H[:n_ref] @ LUMA
     h0 = dl.unoccluded(Pr, Nr) @ LUMA
-    lit = h0 > 0
-    rel = np.abs(got - ref)[lit] / h0[lit]
-    return {"scene": name, "elements": len(el.area), "emitting": len(dl.ids), "lights": dl.lights,
-            "points": n, "load_s": round(t_load, 2), "seconds": round(t_all, 3),
-            "points_per_s": n / t_all, "rays": dl.rays, "rays_per_point": dl.rays / n,
-            "rays_per_s": dl.rays / t_all, "embree_rays_per_s": dl.rays / max(t_embree, 1e-9),
-            "outside_embree": 1.0 - t_embree / t_all,
-            "mean_error": float(np.abs(got - ref).mean() / max(ref.mean(), 1e-300)),
-            "p99_error": float(np.percentile(rel, 99)) if lit.any() else 0.0,
-            "ref_points": n_ref}
+    mean_error, p99_error = errors(got, ref, h0)
+    row = {"scene": name, "elements": len(el.area), "emitting": len(dl.ids), "lights": dl.lights,
+           "points": n, "load_s": round(t_load, 2), "seconds": round(t_all, 3),
+           "points_per_s": n / t_all, "rays": dl.rays, "rays_per_point": dl.rays / n,
+           "rays_per_s": dl.rays / t_all, "embree_rays_per_s": dl.rays / max(t_embree, 1e-9),
+           "outside_embree": 1.0 - t_embree / t_all, "mean_error": mean_error,
+           "p99_error": p99_error, "ref_points": n_ref}
+    if first is not None:
+        old = first.DirectLight(el, st.rays.offset)
+        old.irradiance(P[:64], N[:64], E[:64])
+        k = min(n_first, n)
+        t = time.perf_counter()
+        Ho = old.irradiance(P[:k], N[:k], E[:k])
+        row["first_points_per_s"] = k / (time.perf_counter() - t)
+        row["first_mean_error"], row["first_p99_error"] = errors(Ho[:n_ref] @ LUMA, ref, h0)
+        row["speedup"] = row["points_per_s"] / row["first_points_per_s"]
+    return row
 
 
 def main():
@@ -107,6 +142,8 @@ def main():
     ap.add_argument("--ref-points", type=int, default=400)
     ap.add_argument("--terrain", type=int, default=20000, help="the terrain's triangles")
     ap.add_argument("--scenes", default="cornell-box,modern-hall,terrain")
+    ap.add_argument("--first", default="2f68088", help="the first version's git revision ('': none)")
+    ap.add_argument("--first-points", type=int, default=2000)
     a = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -114,12 +151,15 @@ def main():
 
         scenes = dict(SCENES, terrain=terrain(tmp, a.terrain))
         for name in a.scenes.split(","):
-            rows.append(measure(name, scenes[name], a.points, a.ref_points))
+            first = first_version(a.first, tmp) if a.first else None
+            rows.append(measure(name, scenes[name], a.points, a.ref_points, first, a.first_points))
             print(rows[-1], flush=True)
-    fn = write("direct", rows, {"points": a.points, "terrain_triangles": a.terrain})
+    fn = write("direct", rows, {"points": a.points, "terrain_triangles": a.terrain,
+                                "first": a.first})
     print(table(rows, ["scene", "emitting", "lights", "points", "seconds", "points_per_s",
                        "rays_per_point", "rays_per_s", "embree_rays_per_s", "outside_embree",
-                       "mean_error", "p99_error"]))
+                       "mean_error", "p99_error", "first_points_per_s", "speedup",
+                       "first_mean_error", "first_p99_error"]))
     print("wrote", fn)
 
 

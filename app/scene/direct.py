@@ -31,6 +31,7 @@ from radiosity.core.exact import point_ff
 from radiosity.scene.emitters import AreaEmitters
 from radiosity.tracing.rays import caster_of
 from radiosity.core.geometry import on_hull_planes
+from radiosity.core.spherical import arvo, dot, spherical_triangle, unit3
 from radiosity.tracing.shafts import box_apart, clear_of
 
 #: Entries of the per-batch (points x emitting elements) arrays (about 40 bytes each in flight).
@@ -73,6 +74,12 @@ def _unoccluded(P, N, V, nv, Lf, Lb, out):
                 continue
             L = Lf if s > 0.0 else Lb
             if L[e, 0] <= 0.0 and L[e, 1] <= 0.0 and L[e, 2] <= 0.0:
+                continue
+            up = False                  # some vertex above the point's horizon?
+            for j in range(nv[e]):
+                up = up or ((V[e, j, 0] - P[i, 0]) * N[i, 0] + (V[e, j, 1] - P[i, 1]) * N[i, 1]
+                            + (V[e, j, 2] - P[i, 2]) * N[i, 2]) > 0.0
+            if not up:
                 continue
             f = point_ff(P[i, 0], P[i, 1], P[i, 2], N[i, 0], N[i, 1], N[i, 2], V[e], nv[e], Qc)
             if f <= 0.0:
@@ -231,65 +238,9 @@ def _fill(P, N, lum_e, em, lstart, n, j0, pooled, off, key, seed, Y, Ye, W, Rs):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _unit3(x, y, z):
-    r = math.sqrt(x * x + y * y + z * z)
-    return (x / r, y / r, z / r) if r > 0.0 else (0.0, 0.0, 0.0)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _norm(a):
-    return _unit3(a[0], a[1], a[2])
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _spherical(A, B, C):
-    """Solid angle of the spherical triangle of unit vectors A, B, C and its angle at A and the
-    cosine of its side AB (Arvo 1995's inputs)."""
-    ab, ac = _norm(_cross(A, B)), _norm(_cross(A, C))
-    ba, bc = _norm(_cross(B, A)), _norm(_cross(B, C))
-    ca, cb = _norm(_cross(C, A)), _norm(_cross(C, B))
-    al = math.acos(min(1.0, max(-1.0, _dot(ab, ac))))
-    be = math.acos(min(1.0, max(-1.0, _dot(bc, ba))))
-    ga = math.acos(min(1.0, max(-1.0, _dot(ca, cb))))
-    return max(al + be + ga - math.pi, 0.0), al, _dot(A, B)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _arvo(A, B, C, area, al, cos_c, u1, u2):
-    """A unit direction uniform in solid angle over the spherical triangle A B C (area, the
-    angle al at A, cos_c = A.B), from (u1, u2) in the unit square (Arvo 1995, stratified)."""
-    ah = u1 * area
-    s, t = math.sin(ah - al), math.cos(ah - al)
-    u = t - math.cos(al)
-    v = s + math.sin(al) * cos_c
-    den = (v * s + u * t) * math.sin(al)
-    q = ((v * t - u * s) * math.cos(al) - v) / den if den != 0.0 else 1.0
-    q = min(1.0, max(-1.0, q))
-    d = _dot(C, A)
-    e = _unit3(C[0] - d * A[0], C[1] - d * A[1], C[2] - d * A[2])
-    r = math.sqrt(max(0.0, 1.0 - q * q))
-    Cp = (q * A[0] + r * e[0], q * A[1] + r * e[1], q * A[2] + r * e[2])
-    z = 1.0 - u2 * (1.0 - _dot(Cp, B))
-    d = _dot(Cp, B)
-    f = _unit3(Cp[0] - d * B[0], Cp[1] - d * B[1], Cp[2] - d * B[2])
-    r = math.sqrt(max(0.0, 1.0 - z * z))
-    return (z * B[0] + r * f[0], z * B[1] + r * f[1], z * B[2] + r * f[2])
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
 def _vertex(V, e, j, x):
     """The unit direction from x to vertex j of emitter e."""
-    return _unit3(V[e, j, 0] - x[0], V[e, j, 1] - x[1], V[e, j, 2] - x[2])
+    return unit3(V[e, j, 0] - x[0], V[e, j, 1] - x[1], V[e, j, 2] - x[2])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -312,10 +263,10 @@ def _spherical_of(P, i, e, V, f1, area, sph, dirs):
     B = (dirs[1, 0], dirs[1, 1], dirs[1, 2])
     C = (dirs[2, 0], dirs[2, 1], dirs[2, 2])
     D = (dirs[3, 0], dirs[3, 1], dirs[3, 2])
-    sph[1], sph[2], sph[3] = _spherical(A, B, C)
+    sph[1], sph[2], sph[3] = spherical_triangle(A, B, C)
     sph[4] = sph[5] = sph[6] = 0.0
     if f1[e] != 1.0:
-        sph[4], sph[5], sph[6] = _spherical(A, C, D)
+        sph[4], sph[5], sph[6] = spherical_triangle(A, C, D)
     sph[0] = 1.0 if sph[1] + sph[4] > 0.0 else 0.0
 
 
@@ -335,18 +286,18 @@ def _sample(P, N, i, e, u, v, V, f1, nrm, area, Le, h, k, Y, W, sph, dirs):
         om = sph[1] + sph[4]
         if u * om < sph[1] or f1[e] == 1.0:
             B = (dirs[1, 0], dirs[1, 1], dirs[1, 2])
-            w = _arvo(A, B, C, sph[1], sph[2], sph[3], min(u * om / sph[1], 1.0), v)
+            w = arvo(A, B, C, sph[1], sph[2], sph[3], min(u * om / sph[1], 1.0), v)
         else:
             D = (dirs[3, 0], dirs[3, 1], dirs[3, 2])
-            w = _arvo(A, C, D, sph[4], sph[5], sph[6], min((u * om - sph[1]) / sph[4], 1.0), v)
+            w = arvo(A, C, D, sph[4], sph[5], sph[6], min((u * om - sph[1]) / sph[4], 1.0), v)
         pn = (nrm[e, 0], nrm[e, 1], nrm[e, 2])
-        den = _dot(w, pn)
+        den = dot(w, pn)
         t = ((V[e, 0, 0] - x[0]) * pn[0] + (V[e, 0, 1] - x[1]) * pn[1]
              + (V[e, 0, 2] - x[2]) * pn[2]) / den if den != 0.0 else 0.0
         if t > 0.0:
             for q in range(3):
                 Y[k, q] = x[q] + t * w[q]
-            cosx = _dot(w, (N[i, 0], N[i, 1], N[i, 2]))
+            cosx = dot(w, (N[i, 0], N[i, 1], N[i, 2]))
             side = 0 if den < 0.0 else 1
             g = max(cosx, 0.0) * om / h
             for c3 in range(3):

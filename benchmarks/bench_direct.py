@@ -2,12 +2,14 @@
 against Embree's on the same shadow rays, and its error against a many-ray reference.
 
     python benchmarks/bench_direct.py [--points 20000] [--ref-points 400] [--scenes a,b]
+                                      [--samples 16 --refine 4]
 
 Scenes: the Cornell box (scenes/cornell-box), modern-hall (benchmarks/real/modern-hall: 168
 emitting elements in 13 lights) and a terrain of scenes_generated.terrain (--terrain triangles,
 one 2 x 2 light). Points: uniform by area over the elements that reflect, on a side that
 reflects (its normal), numbered for their sample offsets. For each scene:
-- points/s and shadow rays/s of DirectLight.irradiance (default settings, numba warm);
+- points/s and shadow rays/s of DirectLight.irradiance (default settings, numba warm), and the
+  share of the (point, light) pairs that the shaft test proved clear (no ray);
 - Embree alone on the same rays (RayCaster.occluded_pairs replayed on the recorded batches):
   rays/s, and the share of the time spent outside Embree;
 - error against samples=1024, refine=1 on the first --ref-points points: the mean absolute
@@ -82,7 +84,8 @@ def errors(got, ref, h0) -> tuple[float, float]:
             float(np.percentile(rel, 99)) if lit.any() else 0.0)
 
 
-def measure(name: str, path: str, n: int, n_ref: int, first=None, n_first: int = 2000) -> dict:
+def measure(name: str, path: str, n: int, n_ref: int, first=None, n_first: int = 2000,
+            samples: int = 16, refine: int = 4) -> dict:
     from radiosity.scene.direct import DirectLight
     from radiosity.scene.load import load_scene
     from radiosity.settings import options
@@ -92,7 +95,7 @@ def measure(name: str, path: str, n: int, n_ref: int, first=None, n_first: int =
     el = load_scene(path, settings=st).elements
     t_load = time.perf_counter() - t
     P, N, E = points_of(el, n)
-    dl = DirectLight(el, st.rays.offset)
+    dl = DirectLight(el, st.rays.offset, samples=samples, refine=refine)
     dl.irradiance(P[:64], N[:64], E[:64])                          # compile, build the caster
     caster = dl.caster
     calls = []
@@ -103,7 +106,7 @@ def measure(name: str, path: str, n: int, n_ref: int, first=None, n_first: int =
         return inner(*a, **k)
 
     caster.occluded_pairs = recorded
-    dl.rays = 0
+    dl.rays = dl.pairs = dl.cleared = 0
     t = time.perf_counter()
     H = dl.irradiance(P, N, E)
     t_all = time.perf_counter() - t
@@ -121,7 +124,8 @@ def measure(name: str, path: str, n: int, n_ref: int, first=None, n_first: int =
     row = {"scene": name, "elements": len(el.area), "emitting": len(dl.ids), "lights": dl.lights,
            "points": n, "load_s": round(t_load, 2), "seconds": round(t_all, 3),
            "points_per_s": n / t_all, "rays": dl.rays, "rays_per_point": dl.rays / n,
-           "rays_per_s": dl.rays / t_all, "embree_rays_per_s": dl.rays / max(t_embree, 1e-9),
+           "rays_per_s": dl.rays / t_all, "shaft_clear": dl.cleared / max(dl.pairs, 1),
+           "embree_rays_per_s": dl.rays / max(t_embree, 1e-9),
            "outside_embree": 1.0 - t_embree / t_all, "mean_error": mean_error,
            "p99_error": p99_error, "ref_points": n_ref}
     if first is not None:
@@ -144,6 +148,8 @@ def main():
     ap.add_argument("--scenes", default="cornell-box,modern-hall,terrain")
     ap.add_argument("--first", default="2f68088", help="the first version's git revision ('': none)")
     ap.add_argument("--first-points", type=int, default=2000)
+    ap.add_argument("--samples", type=int, default=16, help="DirectLight's samples")
+    ap.add_argument("--refine", type=int, default=4, help="DirectLight's refine")
     a = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -152,12 +158,15 @@ def main():
         scenes = dict(SCENES, terrain=terrain(tmp, a.terrain))
         for name in a.scenes.split(","):
             first = first_version(a.first, tmp) if a.first else None
-            rows.append(measure(name, scenes[name], a.points, a.ref_points, first, a.first_points))
+            rows.append(measure(name, scenes[name], a.points, a.ref_points, first, a.first_points,
+                                a.samples, a.refine))
             print(rows[-1], flush=True)
-    fn = write("direct", rows, {"points": a.points, "terrain_triangles": a.terrain,
-                                "first": a.first})
+    extra = {"points": a.points, "terrain_triangles": a.terrain, "first": a.first,
+             "samples": a.samples, "refine": a.refine}
+    fn = write("direct" if (a.samples, a.refine) == (16, 4) else
+               f"direct-s{a.samples}-r{a.refine}", rows, extra)
     print(table(rows, ["scene", "emitting", "lights", "points", "seconds", "points_per_s",
-                       "rays_per_point", "rays_per_s", "embree_rays_per_s", "outside_embree",
+                       "rays_per_point", "shaft_clear", "rays_per_s", "embree_rays_per_s", "outside_embree",
                        "mean_error", "p99_error", "first_points_per_s", "speedup",
                        "first_mean_error", "first_p99_error"]))
     print("wrote", fn)

@@ -356,7 +356,8 @@ class DirectLight:
         self.shafts = bool(shafts)
         self._caster = None
         self._occ = None
-        self.rays = 0                 # shadow rays cast so far (the benchmark's count)
+        self.rays = 0                 # shadow rays cast so far (the benchmark's counts)
+        self.pairs = self.cleared = 0  # (point, light) pairs with light; proven clear by shafts
         ids, self.light_of, self.lstart = _group(elements, np.flatnonzero(self.emitters.emitting()))
         self.ids = ids
         V = np.ascontiguousarray(elements.verts[ids], np.float64)
@@ -460,6 +461,9 @@ class DirectLight:
         boxes = self._boxes() if self.shafts else None
         if boxes is not None:
             _clear(P, E, self._llo, self._lhi, self._flat, boxes[0], boxes[1], clear)
+        seen = HL.max(axis=2) > 0
+        self.pairs += int(seen.sum())
+        self.cleared += int((clear & seen).sum())
         n = np.zeros((len(P), nL + 1), np.int64)
         pooled = np.zeros((len(P), nL), bool)
         _plan(np.ascontiguousarray(HL @ LUMA), clear, float(self.samples), n, pooled)

@@ -417,6 +417,10 @@ class DirectLight:
                          np.array([v.max(0) + pad for v in V]).reshape(-1, 3))
         return None if self._occ[0] is None else self._occ
 
+    def __getstate__(self):
+        """Pickled without the Embree scene (not picklable): a worker builds its own on use."""
+        return {**self.__dict__, "_caster": None}
+
     @property
     def lights(self) -> int:
         """How many lights (connected emitting elements of one Le) the scene has."""

@@ -5,6 +5,7 @@ sides, points on emitters, many-element and many-light emitters."""
 from __future__ import annotations
 
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -151,6 +152,9 @@ def test_same_points_same_bits_in_any_order_and_batch(rng, monkeypatch):
     assert np.array_equal(H2, H[o])
     H3 = DirectLight(el, 1e-6, seed=1).irradiance(P, N, E)
     assert not np.array_equal(H3, H)                  # the seed moves the samples
+    dl = DirectLight(el, 1e-6)
+    dl.irradiance(P[:5], N[:5], E[:5])                # its Embree scene built, then pickled
+    assert np.array_equal(pickle.loads(pickle.dumps(dl)).irradiance(P, N, E), H)
 
 
 def test_back_sides_and_two_sided_emitters():

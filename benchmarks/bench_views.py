@@ -147,6 +147,8 @@ def main():
                     help="a fast check: 6 frames, reference 2048 spp, ladder 16..1024, 2 Mitsuba "
                          "frames, one run per command")
     ap.add_argument("--keep", default=None, help="keep the runs in this folder")
+    ap.add_argument("--second-only", action="store_true",
+                    help="only (a, b): the fresh render from above and the second view")
     args = ap.parse_args()
     if args.quick:
         args.frames, args.ref_spp, args.ladder = 6, 2048, "16,64,256,1024"
@@ -200,6 +202,9 @@ def main():
     out["fresh_render_run"] = stages  # its report.json "run": wall_s of the command
     out["second_view"] = second
     print(table([second], list(second)), flush=True)
+    if args.second_only:
+        print("wrote", write("views-second", [second], out))
+        return
 
     # (c): the walkthrough, as a whole process and in this process
     print(f"(c) walkthrough: {args.frames} frames at {R}^2", flush=True)

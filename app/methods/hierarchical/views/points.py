@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from radiosity.core.exact import point_ff
+from radiosity.scene.direct import DirectLight
 from radiosity.scene.emitters import AreaEmitters
 
 
@@ -178,6 +179,11 @@ LATTICE_PIXELS = 2.0
 #: is one ray to the source's centroid instead of 4 (inf: always 4).
 #: MEASURED: see docs/src/how-to/views.md (bench_views.py).
 RAY_FAR = 6.0
+#: Where a run solved with direct light at points (SPEC §10) takes H1 for the points of coarse
+#: leaves: "points", at each of the view's points (shadows as sharp as the pixels), or
+#: "lattice", at the lattice's nodes, interpolated with the gathered light.
+#: MEASURED: see docs/src/measurements/views.md (bench_views.py).
+DIRECT_AT = "points"
 #: Finest lattice level (2^LEVELS nodes along an original's longer side).
 LEVELS = 18
 
@@ -198,7 +204,7 @@ class PointGather:
     gathered so far (radiance_at adds to it: one caller at a time)."""
 
     def __init__(self, rs, settings, lattice_pixels: float = LATTICE_PIXELS,
-                 ray_far: float = RAY_FAR):
+                 ray_far: float = RAY_FAR, direct_at: str = DIRECT_AT):
         import time
 
         from radiosity.methods.hierarchical.solve.passes import pull
@@ -240,6 +246,13 @@ class PointGather:
             self.rc = rc[:, 0, :]
         self.lattice_pixels = float(lattice_pixels)
         self.ray_far = float(ray_far)
+        # SPEC §10: a run solved with direct light at points stores R = L1 + Lr at its leaves;
+        # a point then shows Le + rho (gather(R) + H1 / pi), H1 at the point itself
+        self.light = None
+        if rs.group_attrs("solution").get("direct") == "points":
+            self.light = DirectLight(el, float(settings.rays.offset),
+                                     samples=int(settings.direct.samples))
+        self.direct_at = direct_at
         self.lattice = Lattice(inp.verts[inp.noff[:-1]], inp.nverts[inp.noff[:-1]], inp.normal)
         self.time_open_s = round(time.perf_counter() - t0, 4)
 
@@ -291,9 +304,13 @@ class PointGather:
                 locate_leaves(P, no, inp.noff, inp.child, inp.verts, inp.nverts, inp.normal,
                               inp.node_leaf, nl)
                 val, evals, rays = self.gather(P, nl, ns)
+                if self.light and self.direct_at == "lattice":
+                    val += self.direct(P, no, ns, uk[new])
                 self.lattice.add(uk[new], val)
             vals = self.lattice.values(uk)[inv].reshape(len(idx), 4, 3)
             out[idx] = np.einsum("kc,kcj->kj", w, vals)
+            if self.light and self.direct_at == "points":
+                out[idx] += self.direct(pts[idx], o, sd, idx)
         elif len(idx):
             # one gather per (pixel, leaf, side), at the mean of its points
             key = (np.asarray(pixel, np.int64)[idx] * M + leaf[idx]) * 2 + side[idx]
@@ -304,9 +321,21 @@ class PointGather:
             P /= np.bincount(inv, minlength=G)[:, None]
             val, evals, rays = self.gather(P, (uk // 2) % M, uk % 2)
             out[idx] = val[inv]
+            if self.light and self.direct_at == "points":
+                out[idx] += self.direct(pts[idx], np.asarray(porig, np.int64)[idx], side[idx], idx)
         return out, {"points": K, "gathered_points": int(G), "reused_points": int(reused),
                      "coarse_samples": int(len(idx)), "evaluations": evals, "rays": int(rays),
                      "time_s": round(time.perf_counter() - t0, 4)}
+
+    def direct(self, P: np.ndarray, orig: np.ndarray, side: np.ndarray,
+               index: np.ndarray) -> np.ndarray:
+        """rho / pi H1 (G, 3): the first bounce at points P (G, 3) on originals `orig` (G,),
+        sides `side` (G,), H1 from the run's emitters (scene/direct.DirectLight; `index` (G,):
+        the points' stable numbers for its sample offsets)."""
+        sign = np.where(side == 0, 1.0, -1.0)[:, None]
+        H = self.light.irradiance(P, sign * self.el.normal[orig], orig,
+                                  index=np.asarray(index, np.int64) * 2 + side)
+        return self.el.reflectance[orig, side] * H / math.pi
 
     def gather(self, P: np.ndarray, gleaf: np.ndarray, gside: np.ndarray):
         """Radiance (G, 3) leaving points P (G, 3) in leaves `gleaf` (G,) on sides `gside`

@@ -8,6 +8,10 @@ centroid (as the render's image).
 The points gathered at are the nodes of a lattice on each original's plane (about
 LATTICE_PIXELS pixels apart, dyadic levels that nest), interpolated bilinearly at the view's
 points: a PointGather keeps them, so the frames of a walkthrough gather each node once.
+A run solved with direct light at points (SPEC §10: the solution's attrs say direct =
+points, its leaves hold R = L1 + Lr) is gathered the same way over R, and each point adds its
+own first bounce rho / pi H1(x), shadow rays from the point itself (scene/direct.DirectLight):
+the gathered light after the first bounce is smooth, the shadows stay as sharp as the pixels.
 """
 
 from __future__ import annotations
@@ -271,8 +275,10 @@ class PointGather:
         0) on side `side` (K,) (0 front, 1 back), and the figures. A point whose leaf is at
         most COARSE_FOOTPRINTS times its pixel's footprint there (`footprint` (K,), m^2) and
         was seen by the run's camera takes the leaf's stored radiance (the solve's final
-        gather); in a coarser leaf the points of one pixel (`pixel` (K,)) share one gather at
-        their mean, over the leaf's links (point_pairs)."""
+        gather); the others interpolate the Lattice's nodes gathered over their leaf's links
+        (point_pairs; LATTICE_PIXELS 0: the points of one pixel (`pixel` (K,)) share one
+        gather at their mean), and in a run with direct light at points add rho / pi H1 at
+        the point itself (DIRECT_AT)."""
         import time
 
         t0 = time.perf_counter()

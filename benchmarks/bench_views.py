@@ -131,6 +131,88 @@ def spp_for(error: float, ladder: list[dict]) -> float:
     return float(math.exp(math.log(s[k - 1]) + f * (math.log(s[k]) - math.log(s[k - 1]))))
 
 
+class WithDirect:
+    """Settings with SPEC §10's `direct` section (its defaults where the settings have none
+    yet: issue 50's part 3 adds it)."""
+
+    def __init__(self, s):
+        import types
+
+        self._s = s
+        self.direct = getattr(s, "direct", None) or types.SimpleNamespace(
+            mode="points", samples=16, leaf_points=4)
+
+    def __getattr__(self, k):
+        return getattr(self._s, k)
+
+
+def mark_points(src: str, dst: str, settings) -> None:
+    """A copy of the solved run `src` as a run solved with direct light at points stores it
+    (tests/stages/test_views._mark_points): leaf_radiance R = L - Le, attrs direct = points."""
+    import shutil
+
+    from radiosity.methods.hierarchical.solve.transport import open_link_operator
+    from radiosity.runtime.store import RunStore
+    from radiosity.scene.emitters import AreaEmitters
+
+    shutil.rmtree(dst, ignore_errors=True)
+    shutil.copytree(src, dst)
+    rs = RunStore(dst, "r+")
+    op, _, el, _ = open_link_operator(rs, None, "driver", settings)
+    sol, attrs = rs.read_arrays("solution"), rs.group_attrs("solution")
+    sol["leaf_radiance"] = sol["leaf_radiance"] - AreaEmitters(el).radiance()[op.inp.leaf_orig]
+    rs.write_arrays("solution", sol, {**attrs, "direct": "points"})
+
+
+def points_mode(run: str, d: str, fresh: str) -> list[dict]:
+    """(e) the view from above of `run` and of its copy marked as solved with direct light at
+    points, in this process (CPU seconds, nothing reused between rows), against the fresh
+    render `fresh` from there: H1 at the view's points with PIXEL_SHADOW_RAYS 16, 4, 1 or at
+    the lattice's nodes; and a 1024-ray-a-pixel H1 as the rows' noise-free reference. CPU
+    seconds of the image alone (the run opened before)."""
+    import types
+
+    from radiosity.formats.images import read_exr
+    from radiosity.methods.hierarchical.views.points import PointGather
+    from radiosity.runtime.store import RunStore
+    from radiosity.stages.views import Viewer
+
+    s = WithDirect(settings_of())
+    pts = os.path.join(d, "run-points")
+    mark_points(run, pts, s)
+    ref = read_exr(os.path.join(fresh, "image.exr"))[..., :3].astype(np.float64)
+    rs = RunStore(fresh)
+    cam, orig = rs.load_camera(), rs.read_arrays("raster")["orig"]
+    fine = WithDirect(settings_of())
+    fine.direct = types.SimpleNamespace(mode="points", samples=64, leaf_points=4)
+    v = Viewer(pts, s)
+    v.source = PointGather(v.store, fine, pixel_shadow_rays=16)
+    quiet, _ = v.image(cam)
+    rows = []
+    for name, at, rays in (("links", "points", 16), ("points", "points", 16),
+                           ("points", "points", 4), ("points", "points", 1),
+                           ("points", "lattice", 16)):
+        v = Viewer(run if name == "links" else pts, s)
+        v.source = PointGather(v.store, s, direct_at=at, pixel_shadow_rays=rays)
+        c = time.process_time()
+        img, fig = v.image(cam)
+        a, b, q = img.sum(-1), ref.sum(-1), quiet.sum(-1)
+        seen = (b > 0) & (q > 0)
+        surf = [img[orig == o].sum() / ref[orig == o].sum() - 1 for o in np.unique(orig[orig >= 0])
+                if (orig == o).sum() >= 40]
+        rows.append({"run": name, "H1_at": at if name == "points" else "-",
+                     "pixel_shadow_rays": rays if name == "points" else "-",
+                     "cpu_s": round(time.process_time() - c, 3),
+                     "error_vs_fresh": round(pixel_error(img, ref), 5),
+                     "image_mean": round(float(img.mean() / ref.mean() - 1), 5),
+                     "worst_surface": round(float(max(np.abs(surf))), 5),
+                     "noise_p99": round(float(np.quantile(np.abs(a[seen] - q[seen]) / q[seen], 0.99)), 4)
+                     if name == "points" else "-"})
+    print("(e) the view from above, links and points runs (in process)")
+    print(table(rows, list(rows[0])), flush=True)
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--res", type=int, default=128)
@@ -147,6 +229,8 @@ def main():
                     help="a fast check: 6 frames, reference 2048 spp, ladder 16..1024, 2 Mitsuba "
                          "frames, one run per command")
     ap.add_argument("--keep", default=None, help="keep the runs in this folder")
+    ap.add_argument("--second-only", action="store_true",
+                    help="only (a, b): the fresh render from above and the second view")
     args = ap.parse_args()
     if args.quick:
         args.frames, args.ref_spp, args.ladder = 6, 2048, "16,64,256,1024"
@@ -200,6 +284,10 @@ def main():
     out["fresh_render_run"] = stages  # its report.json "run": wall_s of the command
     out["second_view"] = second
     print(table([second], list(second)), flush=True)
+    out["points"] = points_mode(run, d, os.path.join(d, "above-0"))
+    if args.second_only:
+        print("wrote", write("views-second", [second], out))
+        return
 
     # (c): the walkthrough, as a whole process and in this process
     print(f"(c) walkthrough: {args.frames} frames at {R}^2", flush=True)

@@ -22,7 +22,7 @@ from radiosity.runtime.store import RunStore, update_report
 from radiosity.core.colour import tonemap
 from radiosity.formats.images import write_exr, write_png
 from radiosity.stages.pixels import area_offsets, sample_directions
-from radiosity.tracing.rays import RayCaster
+from radiosity.tracing.rays import caster_of
 
 #: Rays per pixel side of a view (K x K per pixel on the image stage's sheared lattice,
 #: box-averaged: the render.area-samples default).
@@ -90,7 +90,7 @@ def hit_points(elements, camera: Camera, samples: int, ray_offset: float, caster
     RayCaster of `elements` to reuse (None: built here)."""
     offsets = area_offsets(samples)
     S = len(offsets)
-    rc = caster if caster is not None else RayCaster(elements.verts, elements.nverts, ray_offset)
+    rc = caster if caster is not None else caster_of(elements.verts, elements.nverts, ray_offset)
     origin = np.asarray(camera.center, np.float64)
     band = max(1, ROWS_PER_BATCH * 64 // (camera.width * S))
     orig, pts = [], []
@@ -141,7 +141,7 @@ class Viewer:
         self.method = method_of_run(rs)
         self.elements = el = rs.load_elements()
         self.ray_offset = float(s.rays.offset)
-        self.caster = RayCaster(el.verts, el.nverts, self.ray_offset)
+        self.caster = caster_of(el.verts, el.nverts, self.ray_offset)
         self.two_sided = np.asarray(el.two_sided, bool)
         self.source = self.method.open_views(rs, s)
         # the run's own exposure, so that views of one run compare

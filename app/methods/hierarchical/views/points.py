@@ -8,6 +8,10 @@ centroid (as the render's image).
 The points gathered at are the nodes of a lattice on each original's plane (about
 LATTICE_PIXELS pixels apart, dyadic levels that nest), interpolated bilinearly at the view's
 points: a PointGather keeps them, so the frames of a walkthrough gather each node once.
+A run solved with direct light at points (SPEC §10: the solution's attrs say direct =
+points, its leaves hold R = L1 + Lr) is gathered the same way over R, and each point adds its
+own first bounce rho / pi H1(x), shadow rays from the point itself (scene/direct.DirectLight):
+the gathered light after the first bounce is smooth, the shadows stay as sharp as the pixels.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import numba
 import numpy as np
 
 from radiosity.core.exact import point_ff
+from radiosity.scene.direct import DirectLight
 from radiosity.scene.emitters import AreaEmitters
 
 
@@ -178,6 +183,17 @@ LATTICE_PIXELS = 2.0
 #: is one ray to the source's centroid instead of 4 (inf: always 4).
 #: MEASURED: see docs/src/how-to/views.md (bench_views.py).
 RAY_FAR = 6.0
+#: Where a run solved with direct light at points (SPEC §10) takes H1 for the points of coarse
+#: leaves: "points", at each of the view's points (shadows as sharp as the pixels), or
+#: "lattice", at the lattice's nodes, interpolated with the gathered light.
+#: MEASURED: see docs/src/measurements/views.md (bench_views.py).
+DIRECT_AT = "points"
+#: A view's pixel takes this many times settings.direct.samples shadow rays per emitting
+#: element, shared among its points (each point at least one, at most direct.samples; a
+#: square): the pixel's points are stratified by their own hashed offsets, so the pixel's
+#: mean is as smooth as one point's with all the rays.
+#: MEASURED: see docs/src/measurements/views.md (bench_views.py).
+PIXEL_SHADOW_RAYS = 16.0
 #: Finest lattice level (2^LEVELS nodes along an original's longer side).
 LEVELS = 18
 
@@ -198,13 +214,14 @@ class PointGather:
     gathered so far (radiance_at adds to it: one caller at a time)."""
 
     def __init__(self, rs, settings, lattice_pixels: float = LATTICE_PIXELS,
-                 ray_far: float = RAY_FAR):
+                 ray_far: float = RAY_FAR, direct_at: str = DIRECT_AT,
+                 pixel_shadow_rays: float = PIXEL_SHADOW_RAYS):
         import time
 
         from radiosity.methods.hierarchical.solve.passes import pull
         from radiosity.methods.hierarchical.solve.transport import (directed_ends, cluster_final,
                                                              open_link_operator, scratch)
-        from radiosity.tracing.rays import RayCaster
+        from radiosity.tracing.rays import caster_of
 
         t0 = time.perf_counter()
         op, table, el, part = open_link_operator(rs, None, "driver", settings)
@@ -227,7 +244,7 @@ class PointGather:
                          np.zeros(0), Sbuf).copy()
         self.ends = directed_ends(inp)
         self.nodes, self.geo = inp.nodes(), inp.geometry()
-        self.caster = RayCaster(el.verts, el.nverts, float(settings.rays.offset))
+        self.caster = caster_of(el.verts, el.nverts, float(settings.rays.offset))  # the Viewer's
         # cluster links add their final gather at each leaf's centroid, as the render's image
         # (solve/transport.cluster_final), once per leaf here (and their share of the rows, for
         # balancing)
@@ -240,6 +257,15 @@ class PointGather:
             self.rc = rc[:, 0, :]
         self.lattice_pixels = float(lattice_pixels)
         self.ray_far = float(ray_far)
+        # SPEC §10: a run solved with direct light at points stores R = L1 + Lr at its leaves;
+        # a point then shows Le + rho (gather(R) + H1 / pi), H1 at the point itself
+        self.light, self.lights = None, {}
+        if rs.group_attrs("solution").get("direct") == "points":
+            self.light = DirectLight(el, float(settings.rays.offset),
+                                     samples=int(settings.direct.samples))
+            self.lights[self.light.samples] = self.light
+        self.direct_at = direct_at
+        self.pixel_shadow_rays = float(pixel_shadow_rays)
         self.lattice = Lattice(inp.verts[inp.noff[:-1]], inp.nverts[inp.noff[:-1]], inp.normal)
         self.time_open_s = round(time.perf_counter() - t0, 4)
 
@@ -249,8 +275,10 @@ class PointGather:
         0) on side `side` (K,) (0 front, 1 back), and the figures. A point whose leaf is at
         most COARSE_FOOTPRINTS times its pixel's footprint there (`footprint` (K,), m^2) and
         was seen by the run's camera takes the leaf's stored radiance (the solve's final
-        gather); in a coarser leaf the points of one pixel (`pixel` (K,)) share one gather at
-        their mean, over the leaf's links (point_pairs)."""
+        gather); the others interpolate the Lattice's nodes gathered over their leaf's links
+        (point_pairs; LATTICE_PIXELS 0: the points of one pixel (`pixel` (K,)) share one
+        gather at their mean), and in a run with direct light at points add rho / pi H1 at
+        the point itself (DIRECT_AT)."""
         import time
 
         t0 = time.perf_counter()
@@ -274,6 +302,7 @@ class PointGather:
         flat = ok & ~coarse
         out[flat] = self.radiance[self.table["leaf_sub"][leaf[flat]], side[flat]]
         idx = np.nonzero(coarse)[0]
+        per_pixel = K / max(1, len(np.unique(pixel))) if len(idx) and self.light else 1.0
         evals = rays = G = reused = 0
         if len(idx) and self.lattice_pixels > 0:
             # coarse leaves: the lattice nodes around each point, gathered once (for every view
@@ -291,9 +320,13 @@ class PointGather:
                 locate_leaves(P, no, inp.noff, inp.child, inp.verts, inp.nverts, inp.normal,
                               inp.node_leaf, nl)
                 val, evals, rays = self.gather(P, nl, ns)
+                if self.light and self.direct_at == "lattice":
+                    val += self.direct(P, no, ns, uk[new])
                 self.lattice.add(uk[new], val)
             vals = self.lattice.values(uk)[inv].reshape(len(idx), 4, 3)
             out[idx] = np.einsum("kc,kcj->kj", w, vals)
+            if self.light and self.direct_at == "points":
+                out[idx] += self.direct(pts[idx], o, sd, idx, per_pixel)
         elif len(idx):
             # one gather per (pixel, leaf, side), at the mean of its points
             key = (np.asarray(pixel, np.int64)[idx] * M + leaf[idx]) * 2 + side[idx]
@@ -304,9 +337,29 @@ class PointGather:
             P /= np.bincount(inv, minlength=G)[:, None]
             val, evals, rays = self.gather(P, (uk // 2) % M, uk % 2)
             out[idx] = val[inv]
+            if self.light and self.direct_at == "points":
+                out[idx] += self.direct(pts[idx], np.asarray(porig, np.int64)[idx], side[idx], idx,
+                                        per_pixel)
         return out, {"points": K, "gathered_points": int(G), "reused_points": int(reused),
                      "coarse_samples": int(len(idx)), "evaluations": evals, "rays": int(rays),
                      "time_s": round(time.perf_counter() - t0, 4)}
+
+    def direct(self, P: np.ndarray, orig: np.ndarray, side: np.ndarray, index: np.ndarray,
+               per_pixel: float = 1.0) -> np.ndarray:
+        """rho / pi H1 (G, 3): the first bounce at points P (G, 3) on originals `orig` (G,),
+        sides `side` (G,), H1 from the run's emitters (scene/direct.DirectLight; `index` (G,):
+        the points' stable numbers for its sample offsets). Points that share a pixel
+        `per_pixel` at a time take fewer shadow rays each (PIXEL_SHADOW_RAYS)."""
+        full = self.light.samples
+        k = max(1, min(full, round(self.pixel_shadow_rays * full / max(per_pixel, 1.0))))
+        k = max(1, math.isqrt(k)) ** 2
+        if k not in self.lights:
+            self.lights[k] = DirectLight(self.el, self.light.ray_offset, samples=k,
+                                         seed=self.light.seed)
+        sign = np.where(side == 0, 1.0, -1.0)[:, None]
+        H = self.lights[k].irradiance(P, sign * self.el.normal[orig], orig,
+                                  index=np.asarray(index, np.int64) * 2 + side)
+        return self.el.reflectance[orig, side] * H / math.pi
 
     def gather(self, P: np.ndarray, gleaf: np.ndarray, gside: np.ndarray):
         """Radiance (G, 3) leaving points P (G, 3) in leaves `gleaf` (G,) on sides `gside`

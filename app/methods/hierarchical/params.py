@@ -45,7 +45,8 @@ class LinkParams:
     splitting unseen originals; rays: sample rays per link (1: centroids); kid: 0 point, 1 disc
     (kept far links); exact: kept near links get the exact polygon form factor; plane_tol:
     distance (scene units) within which a vertex counts as on a plane; occlusion: False when
-    nothing can block (scene/effects.py)."""
+    nothing can block (scene/effects.py); hull_shafts: links prove visibility by their
+    polygons' tight shafts before rays (refine.RefineParams.hull; False: the boxes' alone)."""
 
     epsilon: float
     shadow: float
@@ -61,6 +62,7 @@ class LinkParams:
     far_polygon: int = 1
     weighted_rays: bool = True
     solids: bool = True
+    hull_shafts: bool = True
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -69,7 +71,7 @@ class LinkParams:
         """The scalars the refinement kernels read (refine.RefineParams)."""
         return RefineParams(self.epsilon, self.shadow, self.near, self.min_size, self.kid,
                             self.exact, self.plane_tol, self.oracle, self.gauss_gap,
-                            self.far_polygon, self.occlusion)
+                            self.far_polygon, self.occlusion, self.hull_shafts)
 
 
 def oracle_weights(elements, weight: str):

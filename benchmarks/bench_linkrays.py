@@ -12,7 +12,7 @@ its preprocess (a large clustered scene, whose cluster layer alone takes many mi
 gives near pairs of originals instead of its link plan (near_pairs).
 
     python benchmarks/bench_linkrays.py [--scene cornell-box:64] [--scene PATH:RES ...]
-                                        [--run DIR ...] [--max-pairs 20000] [--repeat 2]
+                                        [--run DIR ...] [--max-pairs 20000] [--repeat 2] [--hull 0,1,16]
 
 Writes benchmarks/results/linkrays.json and prints the table.
 """
@@ -44,12 +44,11 @@ def render(scene: str, res: int, out: str) -> str:
     return out
 
 
-def inputs(run_dir: str):
-    """LinkInputs as the link stage made them for the run (its settings' defaults), the pairs
-    of its plan and a ray caster."""
+def inputs(run_dir: str, max_pairs: int):
+    """LinkInputs as the link stage made them for the run (its settings' defaults), at most
+    max_pairs of its plan's pairs (evenly strided), their total and a ray caster."""
     from radiosity.methods.hierarchical.links.master import LinkInputs
     from radiosity.methods.hierarchical.params import resolve_params
-    from radiosity.methods.hierarchical.store import LinkStore
     from radiosity.runtime.store import RunStore
     from radiosity.scene.splittrees import seen_originals, tree_nodes
     from radiosity.tracing.rays import RayCaster
@@ -67,11 +66,16 @@ def inputs(run_dir: str):
     seen = seen_originals(raster["orig"], len(el))
     inp = LinkInputs(tree_nodes(part, el), part, el, seen, prm, weight, "bench",
                      float(s.rays.offset), hit)
-    if "links" in rs.root:
-        pairs, _ = LinkStore(rs).plan()
+    if "links" in rs.root:  # strided in the store: a large plan is gigabytes
+        stored = rs.root["links"]["pairs"]
+        total = stored.shape[0]
+        pairs = stored[::max(1, -(-total // max_pairs))]
     else:  # no link plan yet (a run stopped after its preprocess): near pairs instead
         pairs = near_pairs(el)
-    return inp, pairs, RayCaster(el.verts, el.nverts, float(s.rays.offset)), len(el)
+        total = len(pairs)
+        pairs = pairs[::max(1, -(-total // max_pairs))]
+    pairs = np.ascontiguousarray(pairs, np.int64)
+    return inp, pairs, total, RayCaster(el.verts, el.nverts, float(s.rays.offset)), len(el)
 
 
 def near_pairs(el, originals: int = 2000, near: int = 8, seed: int = 0) -> np.ndarray:
@@ -93,8 +97,9 @@ def near_pairs(el, originals: int = 2000, near: int = 8, seed: int = 0) -> np.nd
     return np.unique(p, axis=0).astype(np.int64)
 
 
-def one_way(inp, pairs, caster, n: int, hull: bool, chunk: int = 64) -> dict:
-    """The pairs' links with or without the tight shafts: counters, time, row sums."""
+def one_way(inp, pairs, caster, n: int, hull: int, chunk: int = 4096) -> dict:
+    """The pairs' links with the tight shafts' setting `hull` (LinkParams.hull_shafts: 0 off,
+    1 lists only, more: the tree walk's budget): counters, time, row sums."""
     from radiosity.methods.hierarchical.links.master import COUNTERS, refine_pairs
 
     inp.params = dataclasses.replace(inp.params, hull_shafts=hull)
@@ -124,7 +129,11 @@ def main() -> None:
                     help="an already rendered run directory for the scene of the same place")
     ap.add_argument("--max-pairs", type=int, default=20000,
                     help="at most this many of the plan's pairs, evenly strided")
-    ap.add_argument("--repeat", type=int, default=2, help="rounds of both ways, alternating")
+    ap.add_argument("--repeat", type=int, default=2, help="rounds of all ways, alternating")
+    ap.add_argument("--hull", type=lambda t: [int(x) for x in t.split(",")], default=[0, 1, 16],
+                    help="LinkParams.hull_shafts values to compare, the first the baseline "
+                         "(0: the boxes' shafts alone, the code before; 1: the tight shafts "
+                         "on candidate lists; N: and the tree walk of N nodes; default 0,1,16)")
     a = ap.parse_args()
     scenes = a.scene or ["cornell-box:64", "modern-hall:32"]
     tmp = tempfile.mkdtemp(prefix="linkrays-")
@@ -135,31 +144,32 @@ def main() -> None:
         t = time.perf_counter()
         run = a.run[i] if i < len(a.run) else render(path, int(res), os.path.join(tmp, f"r{i}"))
         t_render = time.perf_counter() - t
-        inp, pairs, caster, n = inputs(run)
-        step = max(1, -(-len(pairs) // a.max_pairs))
-        sub = pairs[::step]
-        one_way(inp, sub[:8], caster, n, True)  # compiled and warm before timing
+        inp, sub, total, caster, n = inputs(run, a.max_pairs)
+        one_way(inp, sub[:8], caster, n, 16)  # compiled and warm before timing
         ways = {}
         for _ in range(a.repeat):  # alternating, the faster of each (a shared machine)
-            for way in ("boxes", "tight"):
-                w = one_way(inp, sub, caster, n, way == "tight")
-                if way not in ways or w["time_s"] < ways[way]["time_s"]:
-                    ways[way] = w
-        r0, r1 = ways["boxes"].pop("rows"), ways["tight"].pop("rows")
-        change = float(np.max(np.abs(r1 - r0) / np.maximum(np.abs(r0), 1e-12), initial=0.0))
-        rec = {"scene": name, "resolution": int(res), "pairs": int(len(pairs)),
+            for hull in a.hull:
+                w = one_way(inp, sub, caster, n, hull)
+                if hull not in ways or w["time_s"] < ways[hull]["time_s"]:
+                    ways[hull] = w
+        r0 = ways[a.hull[0]]["rows"]
+        for w in ways.values():
+            r1 = w.pop("rows")
+            w["row_sum_change"] = float(np.max(np.abs(r1 - r0) / np.maximum(np.abs(r0), 1e-12),
+                                               initial=0.0))
+        rec = {"scene": name, "resolution": int(res), "pairs": int(total),
                "pairs_used": int(len(sub)), "render_s": round(t_render, 1) if i >= len(a.run)
-               else None, "row_sum_change": change, **{k: v for k, v in ways.items()}}
+               else None, "ways": {str(k): v for k, v in ways.items()}}
         out.append(rec)
         for way, w in ways.items():
-            rows.append({"scene": name, "res": int(res), "pairs": f"{len(sub)}/{len(pairs)}",
-                         "shafts": way, "links": w["links"], "ray links": w["ray_links"],
+            rows.append({"scene": name, "res": int(res), "pairs": f"{len(sub)}/{total}",
+                         "hull_shafts": way, "links": w["links"], "ray links": w["ray_links"],
                          "rays": w["rays"], "rays/link": round(w["rays_per_link"], 3),
                          "box vis/blk": f"{w['shaft_visible']}/{w['shaft_blocked']}",
                          "tight vis/blk": f"{w['hull_visible']}/{w['hull_blocked']}",
                          "s (1 thread)": w["time_s"],
                          "Mrays/s": round(w["rays_per_s"] / 1e6, 3),
-                         "row change": f"{change:.1e}" if way == "tight" else ""})
+                         "row change": f"{w['row_sum_change']:.1e}"})
     write("linkrays", out)
     print(table(rows, list(rows[0])))
 

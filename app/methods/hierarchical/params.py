@@ -46,7 +46,8 @@ class LinkParams:
     (kept far links); exact: kept near links get the exact polygon form factor; plane_tol:
     distance (scene units) within which a vertex counts as on a plane; occlusion: False when
     nothing can block (scene/effects.py); hull_shafts: links prove visibility by their
-    polygons' tight shafts before rays (refine.RefineParams.hull; False: the boxes' alone)."""
+    polygons' tight shafts before rays, those without a candidate list walking at most this
+    many occluder-tree nodes (refine.RefineParams.hull; 1: lists only; 0: the boxes' alone)."""
 
     epsilon: float
     shadow: float
@@ -62,7 +63,7 @@ class LinkParams:
     far_polygon: int = 1
     weighted_rays: bool = True
     solids: bool = True
-    hull_shafts: bool = True
+    hull_shafts: int = 1
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -71,7 +72,7 @@ class LinkParams:
         """The scalars the refinement kernels read (refine.RefineParams)."""
         return RefineParams(self.epsilon, self.shadow, self.near, self.min_size, self.kid,
                             self.exact, self.plane_tol, self.oracle, self.gauss_gap,
-                            self.far_polygon, self.occlusion, self.hull_shafts)
+                            self.far_polygon, self.occlusion, int(self.hull_shafts))
 
 
 def oracle_weights(elements, weight: str):

@@ -51,14 +51,11 @@ Waiting = namedtuple("Waiting", "p q lists pool")
 # this many, and are unchanged.
 MAX_OCCLUDERS = 64
 # The scalar settings (params.LinkParams.kernel_params).
-# hull: a link about to wait for rays first tests its candidates against the tight shaft of its
-# two polygons (shafts.hull_axes), or, without a list, walks the occluder tree for one in it
-# (shafts.first_in_hull, at most HULL_BUDGET tree nodes).
+# hull > 0: a link about to wait for rays first tests its candidates against the tight shaft of
+# its two polygons (shafts.hull_axes), or, without a list, walks the occluder tree for one in it
+# (shafts.first_in_hull, at most `hull` tree nodes: params.LinkParams.hull_shafts); 0: off.
 RefineParams = namedtuple("RefineParams", "eps shadow near min_size kid exact plane_tol oracle "
                                           "gauss_gap far_polygon occlusion hull")
-# The most occluder-tree nodes a link without a candidate list visits looking for an occluder
-# in its tight shaft before it leaves its visibility to rays.
-HULL_BUDGET = 64
 
 
 # counters of a link task (links.py sums and reports them)
@@ -360,15 +357,15 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
             continue
         if frac < 0.0 and (l1 > l0 or l0 < 0):  # wait for rays, with the filtered occluders
             verdict = 0  # 0: rays, 1: visible, -1: blocked (the tight shaft, prm.hull)
-            if prm.hull:
+            if prm.hull > 0:
                 m = hull_axes(Lv, p, Ln[p], q, Ln[q], axes, alo, ahi)
-            if l0 < 0 and prm.hull:  # no list: one occluder in the tight shaft, from the tree
+            if l0 < 0 and prm.hull > 1:  # no list: one occluder in the tight shaft, from the tree
                 for k in range(3):
                     A[0, k], A[1, k] = Llo[p, k], Lhi[p, k]
                     B[0, k], B[1, k] = Llo[q, k], Lhi[q, k]
                 o = first_in_hull(A, B, Lv, p, Ln[p], q, Ln[q], occ.tree, elo, ehi, everts,
                                   envert, enormal, eoffset, pad, op, oq, axes, alo, ahi, m,
-                                  HULL_BUDGET, walk)
+                                  prm.hull, walk)
                 if o == -1:
                     verdict = 1
                 elif o >= 0 and _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal,
@@ -382,7 +379,7 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                     n0 = npool
                     for c in range(l0, l1):
                         o = stk_pool[c]
-                        if not (prm.hull and outside_hull(everts, envert, o, axes, alo, ahi, m,
+                        if not (prm.hull > 0 and outside_hull(everts, envert, o, axes, alo, ahi, m,
                                                           pad)):
                             wpool[npool] = o
                             npool += 1

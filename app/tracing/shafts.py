@@ -444,19 +444,23 @@ HULL_AXES = 34   # 2 planes + 4 edges of P x 4 vertices of Q + 4 edges of Q x 4 
 
 
 @numba.njit(cache=True, nogil=True)
-def hull_axes(V, a, na, b, nb, axes, lo, hi):
+def hull_axes(V, a, na, b, nb, axes, lo, hi, full):
     """The axes (unit normals) of the hull planes of polygons a and b of V (na, nb vertices)
-    into axes (HULL_AXES, 3) and the hull's extent along each into lo, hi (HULL_AXES,); returns
-    how many (degenerate planes left out)."""
+    into axes (HULL_AXES, 3) and the hull's extent along each into lo, hi (HULL_AXES,): the
+    two polygons' own planes first, then with `full` the edge-vertex planes; returns how many
+    (degenerate planes left out)."""
     m = 0
-    for first in range(2):
-        x, nx, y, ny = (a, na, b, nb) if first == 0 else (b, nb, a, na)
-        # the polygon's own plane, from two of its edges
+    for first in range(2):  # the polygon's own plane, from two of its edges
+        x, nx = (a, na) if first == 0 else (b, nb)
         e1x, e1y, e1z = V[x, 1, 0] - V[x, 0, 0], V[x, 1, 1] - V[x, 0, 1], V[x, 1, 2] - V[x, 0, 2]
         e2x, e2y, e2z = (V[x, nx - 1, 0] - V[x, 0, 0], V[x, nx - 1, 1] - V[x, 0, 1],
                          V[x, nx - 1, 2] - V[x, 0, 2])
         m = _add_axis(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x,
                       V, a, na, b, nb, axes, lo, hi, m)
+    if not full:
+        return m
+    for first in range(2):
+        x, nx, y, ny = (a, na, b, nb) if first == 0 else (b, nb, a, na)
         for i in range(nx):
             j = (i + 1) % nx
             ex, ey, ez = V[x, j, 0] - V[x, i, 0], V[x, j, 1] - V[x, i, 1], V[x, j, 2] - V[x, i, 2]

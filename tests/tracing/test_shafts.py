@@ -84,7 +84,7 @@ def test_the_tight_shaft_drops_only_occluders_no_segment_crosses(tmp_path, which
         A = np.stack([V[a, :nv[a]].min(0), V[a, :nv[a]].max(0)])
         B = np.stack([V[b, :nv[b]].min(0), V[b, :nv[b]].max(0)])
         got = tree_candidates(A, B, V, a, nv[a], b, nv[b], tree, elo, ehi, en, eo, pad, a, b, 0)
-        m = hull_axes(V, a, nv[a], b, nv[b], axes, lo, hi)
+        m = hull_axes(V, a, nv[a], b, nv[b], axes, lo, hi, True)
         out = np.array([outside_hull(V, nv, o, axes, lo, hi, m, pad) for o in got], bool)
         x, y = _points(V, nv, a, rng, 256), _points(V, nv, b, rng, 256)
         for o in got[out]:

@@ -432,7 +432,7 @@ def test_a_pair_of_originals_with_few_leaves_leaves_visibility_to_rays(tmp_path,
     # the tight shafts with the tree walk (off by default: on a real mesh it seldom proves
     # anything, docs/src/design/methods-hierarchical-links.md): the occluder tree holds nothing
     # between them, so no link waits for rays
-    inp.params = dataclasses.replace(hull, hull_shafts=16)
+    inp.params = dataclasses.replace(hull, hull_shafts=16)  # > 2: the walk
     tight, _, counts_tight = refine_pairs(inp, np.array([[0, 1]]), caster)
     assert np.array_equal(tight, links) and _count(counts_tight, "ray_links") == 0
     assert _count(counts_tight, "hull_visible") == len(links)

@@ -51,11 +51,15 @@ Waiting = namedtuple("Waiting", "p q lists pool")
 # this many, and are unchanged.
 MAX_OCCLUDERS = 64
 # The scalar settings (params.LinkParams.kernel_params).
-# hull > 0: a link about to wait for rays first tests its candidates against the tight shaft of
-# its two polygons (shafts.hull_axes), or, without a list, walks the occluder tree for one in it
-# (shafts.first_in_hull, at most `hull` tree nodes: params.LinkParams.hull_shafts); 0: off.
+# hull (params.LinkParams.hull_shafts): a link about to wait for rays first tests its candidates
+# against its two polygons' planes (1), or the whole tight shaft of the two (2: shafts.hull_axes),
+# or also, without a list, walks the occluder tree for one in it (> 2: shafts.first_in_hull, at
+# most `hull` tree nodes); 0: off.
 RefineParams = namedtuple("RefineParams", "eps shadow near min_size kid exact plane_tol oracle "
                                           "gauss_gap far_polygon occlusion hull")
+# Lists longer than this skip the tight shaft: one of their occluders is almost always in it,
+# and the test costs more than the rays it saves.
+HULL_LIST = 4
 
 
 # counters of a link task (links.py sums and reports them)
@@ -357,9 +361,10 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
             continue
         if frac < 0.0 and (l1 > l0 or l0 < 0):  # wait for rays, with the filtered occluders
             verdict = 0  # 0: rays, 1: visible, -1: blocked (the tight shaft, prm.hull)
-            if prm.hull > 0:
-                m = hull_axes(Lv, p, Ln[p], q, Ln[q], axes, alo, ahi)
-            if l0 < 0 and prm.hull > 1:  # no list: one occluder in the tight shaft, from the tree
+            tight = prm.hull > 2 if l0 < 0 else prm.hull > 0 and l1 - l0 <= HULL_LIST
+            if tight:
+                m = hull_axes(Lv, p, Ln[p], q, Ln[q], axes, alo, ahi, prm.hull > 1)
+            if l0 < 0 and prm.hull > 2:  # no list: one occluder in the tight shaft, from the tree
                 for k in range(3):
                     A[0, k], A[1, k] = Llo[p, k], Lhi[p, k]
                     B[0, k], B[1, k] = Llo[q, k], Lhi[q, k]
@@ -375,14 +380,15 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
                 wp[nw], wq[nw] = p, q
                 if l0 < 0:  # too many to list: the children are left to rays too
                     wc[nw, 0], wc[nw, 1] = -1, 0
-                else:  # the list less the occluders outside the tight shaft
-                    n0 = npool
+                else:  # the list less the occluders outside the tight shaft, up to the
+                    n0 = npool  # first one inside it (then rays: the rest are not tested)
+                    inside = not tight
                     for c in range(l0, l1):
                         o = stk_pool[c]
-                        if not (prm.hull > 0 and outside_hull(everts, envert, o, axes, alo, ahi, m,
-                                                          pad)):
+                        if inside or not outside_hull(everts, envert, o, axes, alo, ahi, m, pad):
                             wpool[npool] = o
                             npool += 1
+                            inside = True
                     wc[nw, 0], wc[nw, 1] = n0, npool - n0
                     if npool == n0:
                         verdict = 1

@@ -477,8 +477,10 @@ class LinkFigures(TaskFigures):
                 ("clusters", "off" if self.clusters is None else self.clusters.row()),
                 ("proven by shafts", f"{self.shaft_visible + self.hull_visible} visible, "
                                      f"{self.shaft_blocked + self.hull_blocked} blocked (no "
-                                     f"ray; {self.hull_visible + self.hull_blocked} by the "
-                                     "polygons' tight shafts)"),
+                                     "ray" + (f"; {self.hull_visible + self.hull_blocked} by "
+                                              "the polygons' tight shafts)"
+                                              if self.hull_visible + self.hull_blocked
+                                              else ")")),
                 ("rays cast", f"{self.rays} ({self.link_rays} per link on {self.ray_links} "
                               "links)"),
                 ("tasks", f"{self.tasks} ({self.task_unit}), {self.tasks_reused} reused"),

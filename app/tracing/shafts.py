@@ -432,3 +432,127 @@ def set_bits(buf, bits):
     """Set bit positions `bits` in the uint8 buffer (little-endian within bytes)."""
     for k in range(bits.shape[0]):
         buf[bits[k] >> 3] |= np.uint8(1 << (bits[k] & 7))
+
+
+# The tight shaft of two polygons P, Q: their convex hull, bounded by P's and Q's planes and the
+# planes through an edge of one and a vertex of the other (Haines & Wallace's plane-bounded
+# shaft). As a separating-axis test: along each plane's normal the hull spans [lo, hi] (both
+# signs at once); an occluder polygon whose vertices all lie beyond one of them (by pad) meets
+# no segment between P and Q. Tighter than the boxes' shaft for tilted polygons and for the
+# slanted links between them.
+HULL_AXES = 34   # 2 planes + 4 edges of P x 4 vertices of Q + 4 edges of Q x 4 vertices of P
+
+
+@numba.njit(cache=True, nogil=True)
+def hull_axes(V, a, na, b, nb, axes, lo, hi, full):
+    """The axes (unit normals) of the hull planes of polygons a and b of V (na, nb vertices)
+    into axes (HULL_AXES, 3) and the hull's extent along each into lo, hi (HULL_AXES,): the
+    two polygons' own planes first, then with `full` the edge-vertex planes; returns how many
+    (degenerate planes left out)."""
+    m = 0
+    for first in range(2):  # the polygon's own plane, from two of its edges
+        x, nx = (a, na) if first == 0 else (b, nb)
+        e1x, e1y, e1z = V[x, 1, 0] - V[x, 0, 0], V[x, 1, 1] - V[x, 0, 1], V[x, 1, 2] - V[x, 0, 2]
+        e2x, e2y, e2z = (V[x, nx - 1, 0] - V[x, 0, 0], V[x, nx - 1, 1] - V[x, 0, 1],
+                         V[x, nx - 1, 2] - V[x, 0, 2])
+        m = _add_axis(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x,
+                      V, a, na, b, nb, axes, lo, hi, m)
+    if not full:
+        return m
+    for first in range(2):
+        x, nx, y, ny = (a, na, b, nb) if first == 0 else (b, nb, a, na)
+        for i in range(nx):
+            j = (i + 1) % nx
+            ex, ey, ez = V[x, j, 0] - V[x, i, 0], V[x, j, 1] - V[x, i, 1], V[x, j, 2] - V[x, i, 2]
+            for k in range(ny):
+                wx, wy, wz = V[y, k, 0] - V[x, i, 0], V[y, k, 1] - V[x, i, 1], V[y, k, 2] - V[x, i, 2]
+                m = _add_axis(ey * wz - ez * wy, ez * wx - ex * wz, ex * wy - ey * wx,
+                              V, a, na, b, nb, axes, lo, hi, m)
+    return m
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_axis(nx, ny, nz, V, a, na, b, nb, axes, lo, hi, m):
+    """Append the axis (nx, ny, nz), normalised, with the extent of polygons a, b along it;
+    a near-zero axis (an edge and a vertex in line) is left out."""
+    ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if ln <= 1e-300 or m >= axes.shape[0]:
+        return m
+    nx, ny, nz = nx / ln, ny / ln, nz / ln
+    mn, mx = np.inf, -np.inf
+    for x, n in ((a, na), (b, nb)):
+        for v in range(n):
+            d = nx * V[x, v, 0] + ny * V[x, v, 1] + nz * V[x, v, 2]
+            mn = min(mn, d)
+            mx = max(mx, d)
+    axes[m, 0], axes[m, 1], axes[m, 2] = nx, ny, nz
+    lo[m], hi[m] = mn, mx
+    return m + 1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def outside_hull(everts, envert, o, axes, lo, hi, m, pad):
+    """Does some hull axis (hull_axes) separate occluder polygon o (everts, envert) from the
+    hull by more than pad? Then it meets no segment between the two polygons."""
+    for k in range(m):
+        mn, mx = np.inf, -np.inf
+        for v in range(envert[o]):
+            d = axes[k, 0] * everts[o, v, 0] + axes[k, 1] * everts[o, v, 1] \
+                + axes[k, 2] * everts[o, v, 2]
+            mn = min(mn, d)
+            mx = max(mx, d)
+        if mn > hi[k] + pad or mx < lo[k] - pad:
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _box_outside_hull(lo_, hi_, x, axes, lo, hi, m, pad):
+    """outside_hull for box x of (lo_, hi_) (a tree node's box)."""
+    for k in range(m):
+        c = 0.0
+        r = 0.0
+        for j in range(3):
+            c += axes[k, j] * 0.5 * (lo_[x, j] + hi_[x, j])
+            r += abs(axes[k, j]) * 0.5 * (hi_[x, j] - lo_[x, j])
+        if c - r > hi[k] + pad or c + r < lo[k] - pad:
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def first_in_hull(A, B, V, a, na, b, nb, tree, olo, ohi, everts, envert, on, od, pad, skip_a,
+                  skip_b, axes, lo, hi, m, budget, stack):
+    """The first occluder (an id) found in the tight shaft of polygons a and b of V (A, B their
+    boxes; axes, lo, hi, m: hull_axes') by a walk of the occluder tree (shafts.OccluderTree);
+    -1: none (no segment between the two can be blocked); -2: not known within `budget` tree
+    nodes. An occluder whose plane holds both polygons on one closed side is none. stack:
+    scratch (int64, at least the tree's depth x 2)."""
+    ns = 1
+    stack[0] = 0
+    seen = 0
+    while ns > 0:
+        ns -= 1
+        x = stack[ns]
+        seen += 1
+        if seen > budget:
+            return -2
+        if shaft_excludes(A, B, tree.lo, tree.hi, x) or \
+                _box_outside_hull(tree.lo, tree.hi, x, axes, lo, hi, m, pad):
+            continue
+        if tree.left[x] >= 0:
+            if ns + 2 > stack.shape[0]:
+                return -2
+            stack[ns] = tree.left[x]
+            stack[ns + 1] = tree.right[x]
+            ns += 2
+            continue
+        for j in range(tree.start[x], tree.end[x]):
+            o = tree.order[j]
+            if o == skip_a or o == skip_b:
+                continue
+            if not (same_side_polys(V, a, na, b, nb, on, od, o, pad)
+                    or shaft_excludes(A, B, olo, ohi, o)
+                    or outside_hull(everts, envert, o, axes, lo, hi, m, pad)):
+                return o
+    return -1

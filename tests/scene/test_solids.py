@@ -82,6 +82,14 @@ def test_a_floor_node_half_under_a_block_sees_the_ceiling_by_its_live_half():
                                                         [1, 0, 4])]),
                           nverts, center, np.array([6, 0]), p, q, None, normal, s2)
     assert free[0] == 1.0 and (s2.mask < 0).all()
+    # nor does a link whose every ray is blocked (wholly under the block: v = 0 either way)
+    s3 = SolidPoints(rc, normal, two)
+    under = _quad([3.5, 0, 4], [3.5, 0, 5], [5.5, 0, 5], [5.5, 0, 4])
+    shut = link_fractions(rc, 16, np.array([under, ceil]), nverts, center, orig, p, q, None,
+                          normal, s3)
+    assert shut[0] == 0.0 and (s3.mask < 0).all()
+    assert link_fractions(rc, 16, np.array([under, ceil]), nverts, center, orig, p, q, None,
+                          normal)[0] == 0.0
 
 
 def test_a_cluster_link_leaves_out_the_rays_of_elements_under_a_block():

@@ -52,6 +52,54 @@ def test_tree_candidates_equal_the_linear_scan(tmp_path, which, rng):
     assert dropped > 0  # coplanar neighbours of tilted triangles: their boxes straddle
 
 
+@pytest.mark.parametrize("which", ["cornell-box", "terrain"])
+def test_the_tight_shaft_drops_only_occluders_no_segment_crosses(tmp_path, which, rng):
+    """The polygons' tight shaft (hull_axes, outside_hull) drops, of the boxes' shaft
+    candidates, only occluders that no segment between the two polygons crosses, and drops
+    some (it is tighter); first_in_hull finds one of the rest, or -1 exactly when none is left,
+    or -2 when its budget of tree nodes runs out."""
+    from radiosity.methods.hierarchical.links.master import occluder_tree
+    from radiosity.scene.load import load_scene
+    from radiosity.tracing.shafts import (HULL_AXES, first_in_hull, hull_axes, occluders,
+                                          outside_hull, tree_candidates)
+
+    if which == "terrain":
+        sys.path.insert(0, f"{ROOT}/benchmarks")
+        import scenes_generated
+
+        path = scenes_generated.terrain(str(tmp_path / "t"), 3000, 8)
+    else:
+        path = scene_path(which)
+    el = load_scene(path, settings=settings_of()).elements
+    elo, ehi, en, eo, pad = occluders(el)
+    tree = occluder_tree(el, elo, ehi)
+    V, nv = el.verts, el.nverts.astype(np.int64)
+    axes, lo, hi = np.empty((HULL_AXES, 3)), np.empty(HULL_AXES), np.empty(HULL_AXES)
+    stack = np.empty(256, np.int64)
+    dropped = kept = 0
+    for _ in range(300 if which == "terrain" else 2000):
+        a, b = rng.integers(0, len(el), 2)
+        if a == b:
+            continue
+        A = np.stack([V[a, :nv[a]].min(0), V[a, :nv[a]].max(0)])
+        B = np.stack([V[b, :nv[b]].min(0), V[b, :nv[b]].max(0)])
+        got = tree_candidates(A, B, V, a, nv[a], b, nv[b], tree, elo, ehi, en, eo, pad, a, b, 0)
+        m = hull_axes(V, a, nv[a], b, nv[b], axes, lo, hi, True)
+        out = np.array([outside_hull(V, nv, o, axes, lo, hi, m, pad) for o in got], bool)
+        x, y = _points(V, nv, a, rng, 256), _points(V, nv, b, rng, 256)
+        for o in got[out]:
+            dropped += 1
+            assert not _crosses(x, y, V, nv, o).any(), (a, b, o)
+        kept += int((~out).sum())
+        first = first_in_hull(A, B, V, a, nv[a], b, nv[b], tree, elo, ehi, V, nv, en, eo, pad,
+                              a, b, axes, lo, hi, m, 10 ** 9, stack)
+        assert (first == -1) == (not (~out).any()) and (first < 0 or first in got[~out])
+        if len(tree.left) > 1:
+            assert first_in_hull(A, B, V, a, nv[a], b, nv[b], tree, elo, ehi, V, nv, en, eo,
+                                 pad, a, b, axes, lo, hi, m, 1, stack) in (-2, -1)
+    assert dropped > 0 and kept > 0
+
+
 def _points(V, nv, i, rng, k=64):
     """k random points inside polygon i (a fan of triangles)."""
     t = rng.integers(0, nv[i] - 2, k)

@@ -45,7 +45,11 @@ class LinkParams:
     splitting unseen originals; rays: sample rays per link (1: centroids); kid: 0 point, 1 disc
     (kept far links); exact: kept near links get the exact polygon form factor; plane_tol:
     distance (scene units) within which a vertex counts as on a plane; occlusion: False when
-    nothing can block (scene/effects.py)."""
+    nothing can block (scene/effects.py); hull_shafts: before rays, links test their candidate
+    occluders against their polygons' planes (1) or tight shaft (2), and with N > 2 those
+    without a list walk N occluder-tree nodes for one in it (refine.RefineParams.hull); 0 (the
+    default: none pays for its cost, docs/src/design/methods-hierarchical-links.md): the
+    boxes' shafts alone."""
 
     epsilon: float
     shadow: float
@@ -61,6 +65,7 @@ class LinkParams:
     far_polygon: int = 1
     weighted_rays: bool = True
     solids: bool = True
+    hull_shafts: int = 0
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -69,7 +74,7 @@ class LinkParams:
         """The scalars the refinement kernels read (refine.RefineParams)."""
         return RefineParams(self.epsilon, self.shadow, self.near, self.min_size, self.kid,
                             self.exact, self.plane_tol, self.oracle, self.gauss_gap,
-                            self.far_polygon, self.occlusion)
+                            self.far_polygon, self.occlusion, int(self.hull_shafts))
 
 
 def oracle_weights(elements, weight: str):

@@ -3,6 +3,7 @@ link visibility, the push-pull operator, and exact answers it must reach."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 
@@ -417,6 +418,8 @@ def test_a_pair_of_originals_with_few_leaves_leaves_visibility_to_rays(tmp_path,
     leaves = max(1.0, 1.0 / inp.params.min_size ** 2)  # unit squares: area / min_size^2
     np.testing.assert_allclose(inp.reach, [leaves, leaves], rtol=1e-9)
     assert inp.reach[0] * inp.reach[1] < SHAFT_MIN_LEAVES
+    hull = inp.params
+    inp.params = dataclasses.replace(hull, hull_shafts=0)  # the boxes' shafts alone
     caster = RayCaster(sc.elements.verts, sc.elements.nverts)
     assert caster.occluder_boxes()[0].shape == (0, 3)  # nothing can block
     clear, _, counts_clear = refine_pairs(inp, np.array([[0, 1]]), caster)
@@ -426,6 +429,13 @@ def test_a_pair_of_originals_with_few_leaves_leaves_visibility_to_rays(tmp_path,
     assert _count(counts, "shaft_visible") == 0
     assert _count(counts, "rays") == 4 * _count(counts, "ray_links") > 0
     assert np.array_equal(clear, links) and _count(counts_clear, "rays") == 0
+    # the tight shafts with the tree walk (off by default: on a real mesh it seldom proves
+    # anything, docs/src/design/methods-hierarchical-links.md): the occluder tree holds nothing
+    # between them, so no link waits for rays
+    inp.params = dataclasses.replace(hull, hull_shafts=16)  # > 2: the walk
+    tight, _, counts_tight = refine_pairs(inp, np.array([[0, 1]]), caster)
+    assert np.array_equal(tight, links) and _count(counts_tight, "ray_links") == 0
+    assert _count(counts_tight, "hull_visible") == len(links)
 
 
 @pytest.mark.parametrize("height", [0.6, 1.3])

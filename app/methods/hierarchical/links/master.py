@@ -464,6 +464,8 @@ class LinkFigures(TaskFigures):
     peak_rss_mb: dict
     time_s: float
     time_node_table_s: float
+    hull_visible: int = 0
+    hull_blocked: int = 0
 
     def rows(self):
         return [("sub-elements", f"{self.sub_elements} ({self.leaves} leaves, "
@@ -473,8 +475,12 @@ class LinkFigures(TaskFigures):
                 ("links", f"{self.links} ({self.links_per_leaf:.1f} per leaf, "
                           f"{self.bytes_per_link} bytes each)"),
                 ("clusters", "off" if self.clusters is None else self.clusters.row()),
-                ("proven by shafts", f"{self.shaft_visible} visible, {self.shaft_blocked} "
-                                     "blocked (no ray)"),
+                ("proven by shafts", f"{self.shaft_visible + self.hull_visible} visible, "
+                                     f"{self.shaft_blocked + self.hull_blocked} blocked (no "
+                                     "ray" + (f"; {self.hull_visible + self.hull_blocked} by "
+                                              "the polygons' tight shafts)"
+                                              if self.hull_visible + self.hull_blocked
+                                              else ")")),
                 ("rays cast", f"{self.rays} ({self.link_rays} per link on {self.ray_links} "
                               "links)"),
                 ("tasks", f"{self.tasks} ({self.task_unit}), {self.tasks_reused} reused"),
@@ -501,7 +507,7 @@ def link_figures(s, lp: LinkPlan, run, sub_elements: int, table, xn, cpu: list, 
         dropped_orientation=c["dropped_orientation"], shaft_visible=c["shaft_visible"],
         shaft_blocked=c["shaft_blocked"], ray_links=c["ray_links"], rays=c["rays"],
         ray_blocked=c["ray_blocked"], partial_refined=c["partial_refined"], exact=c["exact"],
-        rounds=c["rounds"],
+        rounds=c["rounds"], hull_visible=c["hull_visible"], hull_blocked=c["hull_blocked"],
         links_per_leaf=(c["links"] + nclusters) / max(1, table.leaves),
         bytes_per_link=LINK_DTYPE.itemsize, link_bytes=c["links"] * LINK_DTYPE.itemsize,
         epsilon=lp.prm.epsilon, epsilon_reason=lp.epsilon_reason, link_rays=lp.prm.rays,

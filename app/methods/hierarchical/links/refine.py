@@ -16,7 +16,9 @@ from radiosity.methods.hierarchical.links.formfactors import disc_spread, centro
 from radiosity.methods.hierarchical.links.nodes import (NodeTable, copy_tree_node, is_forced, grow_rows,
                                                        grown_copy, new_node, part_of)
 from radiosity.scene.splittrees import MAX_DEPTH, depth_bit, split_one
-from radiosity.tracing.shafts import faces_along, shaft_excludes, same_side_polys, tree_candidates
+from radiosity.tracing.shafts import (HULL_AXES, faces_along, first_in_hull, hull_axes,
+                                      outside_hull, same_side_polys, shaft_excludes,
+                                      tree_candidates)
 
 # The partition's node table (splittrees.TreeNodes, k nodes): verts (k, 4, 3), nverts, area,
 # center, lo / hi (node boxes), child (k, 2), orig, depth, path (uint64); ext (k,): leaves that
@@ -49,16 +51,23 @@ Waiting = namedtuple("Waiting", "p q lists pool")
 # this many, and are unchanged.
 MAX_OCCLUDERS = 64
 # The scalar settings (params.LinkParams.kernel_params).
+# hull (params.LinkParams.hull_shafts): a link about to wait for rays first tests its candidates
+# against its two polygons' planes (1), or the whole tight shaft of the two (2: shafts.hull_axes),
+# or also, without a list, walks the occluder tree for one in it (> 2: shafts.first_in_hull, at
+# most `hull` tree nodes); 0: off.
 RefineParams = namedtuple("RefineParams", "eps shadow near min_size kid exact plane_tol oracle "
-                                          "gauss_gap far_polygon occlusion")
+                                          "gauss_gap far_polygon occlusion hull")
+# Lists longer than this skip the tight shaft: one of their occluders is almost always in it,
+# and the test costs more than the rays it saves.
+HULL_LIST = 4
 
 
 # counters of a link task (links.py sums and reports them)
 COUNTERS = ("pairs", "links", "evaluated", "refined", "dropped_orientation", "shaft_visible",
             "shaft_blocked", "ray_links", "rays", "ray_blocked", "partial_refined", "exact",
-            "split_off_nodes", "rounds")
+            "split_off_nodes", "rounds", "hull_visible", "hull_blocked")
 C_PAIRS, C_LINKS, C_EVAL, C_REFINED, C_ORIENT, C_SVIS, C_SBLOCK, C_RAYLINKS, C_RAYS, C_RBLOCK, \
-    C_PARTIAL, C_EXACT, C_SPLITOFF, C_ROUNDS = range(len(COUNTERS))
+    C_PARTIAL, C_EXACT, C_SPLITOFF, C_ROUNDS, C_HVIS, C_HBLOCK = range(len(COUNTERS))
 
 @numba.njit(cache=True, nogil=True)
 def _blocks(o, V, p, nP, q, nQ, everts, envert, enormal, eoffset, pad, sp, sq):
@@ -175,6 +184,11 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
     s4q = np.empty(4)
     S = np.empty((4, 3))
     Sc = np.empty((10, 3))
+    axes = np.empty((HULL_AXES, 3))
+    alo = np.empty(HULL_AXES)
+    ahi = np.empty(HULL_AXES)
+    walk = np.empty(2 * MAX_DEPTH + 64, np.int64)
+    m = 0
     while ns > 0:
         # room for two new nodes, two stack entries, a kept link, a waiting link and its list
         if cnt + 4 > cap or ns + 4 > scap or nk >= kcap or nw >= wcap \
@@ -346,16 +360,46 @@ def _refine_loop(st, stack, kept, waiting, tab, pmap, tree, elem, occ, prm, coun
             counts[C_ORIENT] += 1
             continue
         if frac < 0.0 and (l1 > l0 or l0 < 0):  # wait for rays, with the filtered occluders
-            wp[nw], wq[nw] = p, q
-            if l0 < 0:  # too many to list: the children are left to rays too
-                wc[nw, 0], wc[nw, 1] = -1, 0
-            else:
-                wc[nw, 0], wc[nw, 1] = npool, l1 - l0
-                for c in range(l0, l1):
-                    wpool[npool] = stk_pool[c]
-                    npool += 1
-            nw += 1
-            continue
+            verdict = 0  # 0: rays, 1: visible, -1: blocked (the tight shaft, prm.hull)
+            tight = prm.hull > 2 if l0 < 0 else prm.hull > 0 and l1 - l0 <= HULL_LIST
+            if tight:
+                m = hull_axes(Lv, p, Ln[p], q, Ln[q], axes, alo, ahi, prm.hull > 1)
+            if l0 < 0 and prm.hull > 2:  # no list: one occluder in the tight shaft, from the tree
+                for k in range(3):
+                    A[0, k], A[1, k] = Llo[p, k], Lhi[p, k]
+                    B[0, k], B[1, k] = Llo[q, k], Lhi[q, k]
+                o = first_in_hull(A, B, Lv, p, Ln[p], q, Ln[q], occ.tree, elo, ehi, everts,
+                                  envert, enormal, eoffset, pad, op, oq, axes, alo, ahi, m,
+                                  prm.hull, walk)
+                if o == -1:
+                    verdict = 1
+                elif o >= 0 and _blocks(o, Lv, p, Ln[p], q, Ln[q], everts, envert, enormal,
+                                        eoffset, pad, s4p, s4q):
+                    verdict = -1
+            if verdict == 0:
+                wp[nw], wq[nw] = p, q
+                if l0 < 0:  # too many to list: the children are left to rays too
+                    wc[nw, 0], wc[nw, 1] = -1, 0
+                else:  # the list less the occluders outside the tight shaft, up to the
+                    n0 = npool  # first one inside it (then rays: the rest are not tested)
+                    inside = not tight
+                    for c in range(l0, l1):
+                        o = stk_pool[c]
+                        if inside or not outside_hull(everts, envert, o, axes, alo, ahi, m, pad):
+                            wpool[npool] = o
+                            npool += 1
+                            inside = True
+                    wc[nw, 0], wc[nw, 1] = n0, npool - n0
+                    if npool == n0:
+                        verdict = 1
+                if verdict == 0:
+                    nw += 1
+                    continue
+            if verdict < 0:
+                counts[C_HBLOCK] += 1
+                continue
+            counts[C_HVIS] += 1
+            frac = 1.0  # proven visible: kept below with v = 1, no ray
         v = 1.0 if frac < 0.0 else frac
         if frac < 0.0:
             counts[C_SVIS] += 1

@@ -152,12 +152,15 @@ class SolidPoints:
 
     def void(self, verts, nverts, center, orig, p, q, occ, s, tri_uv, perm) -> np.ndarray:
         """(2 n k,) bool: the rays' ends (link_points' order) inside a solid, for links (p, q)
-        with a blocked ray (occ (n k,)); False elsewhere."""
+        with some rays blocked and some not (occ (n k,)); False elsewhere: a link whose rays are
+        all blocked has v = 0 whichever are left out (_fractions counts only the visible ones),
+        and in a mesh of small triangles most links the refinement hands to rays are."""
         from radiosity.scene.contact import inside_solid
 
         n, k = len(p), s * s
         void = np.zeros(2 * n * k, np.bool_)
-        hit = np.nonzero(occ.reshape(n, k).any(axis=1))[0]
+        blocked = occ.reshape(n, k).sum(axis=1)
+        hit = np.nonzero((blocked > 0) & (blocked < k))[0]
         if not len(hit) or k > 62:
             return void
         if len(self.mask) < len(verts):

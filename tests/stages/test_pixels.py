@@ -229,8 +229,9 @@ def _area_image(checker, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_adaptive_sampling_converges_to_the_supersampled_image(checker):
-    """Over many tiny triangles of two brightnesses, pixels.refine (4 x 4 rays, the pixels whose
-    rays differ again at 12, then 24 and 48 a side while its error estimate is above 1 %) comes
+    """Over many tiny triangles of two brightnesses, pixels.refine without a budget (4 x 4 rays,
+    the pixels whose rays differ again at 12, then 24 and 48 a side while its error estimate is
+    above 1 %) comes
     within 1 % of each pixel's true mean on average, where 4 x 4 rays alone are off by several
     %, 12 x 12 by more than twice refine's; the truth: 96 x 96 rays a pixel (within 0.07 % of
     128 x 128 on average)."""
@@ -244,7 +245,7 @@ def test_adaptive_sampling_converges_to_the_supersampled_image(checker):
     plain, s4 = _area_image(checker, 4)
     fixed = _area_image(checker, 12)[0]
     fine = plain.copy()
-    levels = pixels.refine(part, el, cam, 1, lum, fine, s4, 12, rc)
+    levels = pixels.refine(part, el, cam, 1, lum, fine, s4, 12, rc, budget=1e9)
     # every pixel's 16 rays see both brightnesses: all are cast again, then fewer at each level
     assert levels[0] == (12, 256) and [side for side, _ in levels] == [12, 24, 48][:len(levels)]
     assert len(levels) >= 2 and all(a[1] > b[1] for a, b in zip(levels, levels[1:]))
@@ -257,8 +258,15 @@ def test_adaptive_sampling_converges_to_the_supersampled_image(checker):
     assert ea.mean() < 0.4 * e12.mean()
     # deterministic: the same image to the bit
     again = plain.copy()
-    assert pixels.refine(part, el, cam, 1, lum, again, s4, 12, rc) == levels
+    assert pixels.refine(part, el, cam, 1, lum, again, s4, 12, rc, budget=1e9) == levels
     np.testing.assert_array_equal(again, fine)
+    # the default budget: at most twice the first rays after the edge level, the pixels with
+    # the largest estimates first (here 2 x 16 x 16 x 16 rays: 14 pixels at 24 x 24)
+    bounded = plain.copy()
+    lv = pixels.refine(part, el, cam, 1, lum, bounded, s4, 12, rc)
+    assert lv[0] == (12, 256) and 0 < sum(n * k * k for k, n in lv[1:]) <= 2 * s4.size
+    eb = err(bounded)
+    assert ea.mean() < eb.mean() < e12.mean() and eb.max() < e12.max()
 
 
 def test_refine_leaves_a_flat_pixel_and_a_soft_gradient_alone():

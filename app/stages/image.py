@@ -81,7 +81,9 @@ class ImageFigures(StageFigures):
                           + (f" ({self.area_samples * self.subpixel}^2 rays a pixel"
                              + (f", {self.edge_rays // max(self.edge_pixels, 1)} at each of "
                                 f"{self.edge_pixels} on an edge" if self.edge_pixels else "")
-                             + "".join(f", {side * side} at {n}" for side, n in self.refined)
+                             + (", then " + ", ".join(f"{side * side} at {n}"
+                                                      for side, n in self.refined)
+                                if self.refined else "")
                              + ")" if self.sampling == "area" else "")
                           + f", exposure {self.exposure:.3g}")]
 

@@ -93,9 +93,11 @@ def sampling_rows(run: str, truth: int) -> list[dict]:
         dt = time.perf_counter() - t
         a = fine.sum(-1)
         rows.append({"sampling": name, "levels": levels,
-                     "rays_a_pixel": round((s.size + sum(n * q * q for q, n in levels)) / a.size, 1),
+                     "rays_a_pixel": round((s.size + sum(n * q * q for q, n in levels))
+                                           / a.size, 1),
                      "time_s": round(dt, 2),
-                     "error": float(np.mean(np.abs(a[seen] - b[seen]) / np.maximum(b[seen], floor))),
+                     "error": float(np.mean(np.abs(a[seen] - b[seen])
+                                            / np.maximum(b[seen], floor))),
                      "error_plain": float(np.mean(np.abs(a[seen] - b[seen]) / b[seen]))})
     print(f"{run}: {len(el)} elements, {cam.width}x{cam.height}; truth {truth}^2 rays a pixel "
           f"({truth_s:.0f} s)")

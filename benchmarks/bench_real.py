@@ -30,9 +30,9 @@ For each scene:
    at least 100 pixels (compare.element_raster), the signed relative error of its mean
    luminance, with the reference's standard error of that mean.
 4. Mitsuba's per-pixel error (the same floored figure) at a ladder of sample counts, the count
-   at which it equals ours (log-log interpolation; 1/sqrt(spp) beyond the ladder), and Mitsuba at that count as a user
-   runs it, in a fresh process: the scene's conversion and load plus the render, the kernel
-   compilation left out (a warm-up render first, as the engine's numba cache is warm).
+   at which it equals ours (log-log interpolation; 1/sqrt(spp) beyond the ladder), and Mitsuba
+   at that count as a user runs it, in a fresh process: the scene's conversion and load plus
+   the render, the kernel compilation left out (a warm-up render first, as the engine's numba cache is warm).
 
 Each scene's row is kept in DIR/NAME/row.json, so a later run with the same --keep skips the
 scenes it holds (--redo to measure them again). Writes benchmarks/results/real.json and prints a
@@ -382,7 +382,8 @@ def measure(name: str, work: str, args) -> dict:
     img = read_exr(os.path.join(run, "image.exr")).astype(np.float64)
     err = rel_error(img, ref, se_sum)
     objs = object_errors(sc, img, ref, se)
-    row.update(pixel_error=round(err, 5), pixel_error_plain=round(rel_error(img, ref, se_sum, 0.0), 5),
+    row.update(pixel_error=round(err, 5),
+               pixel_error_plain=round(rel_error(img, ref, se_sum, 0.0), 5),
                pixel_mean_abs_error=round(pixel_error(img, ref), 5),
                image_mean=round(float((img @ LUMA).mean() / (ref @ LUMA).mean() - 1.0), 5),
                worst_object=objs[0]["object"] if objs else None,
@@ -397,8 +398,8 @@ def measure(name: str, work: str, args) -> dict:
         f.write(MITSUBA_PROCESS)
     exr = os.path.join(d, "mitsuba.exr")
     t = time.perf_counter()
-    r = subprocess.run([sys.executable, script, toml, str(need), exr, json.dumps(res)], cwd=d, capture_output=True,
-                       text=True)
+    r = subprocess.run([sys.executable, script, toml, str(need), exr, json.dumps(res)], cwd=d,
+                       capture_output=True, text=True)
     whole = time.perf_counter() - t
     if r.returncode:
         row["mitsuba_failed"] = r.stderr[-500:]
@@ -524,7 +525,8 @@ def main():
             json.dump(row, f, indent=1)
         rows.append(row)
     cols = ["scene", "triangles", "direct", "ours_s", "peak_gib", "links", "links_per_leaf", "rays",
-            "pixel_error", "pixel_error_plain", "image_mean", "worst_object_error", "mitsuba_spp", "mitsuba_s", "ratio"]
+            "pixel_error", "pixel_error_plain", "image_mean", "worst_object_error", "mitsuba_spp",
+            "mitsuba_s", "ratio"]
     print(table(rows, cols))
     print(markdown(rows))
     from radiosity.validation.reference import load_mitsuba, mitsuba_version

@@ -164,7 +164,7 @@ def test_the_flags_choose_the_sampling_and_the_report_says_which(edge_run):
     assert dask.config.get("radiosity.render.sampling") == "area"
 
 
-# ----------------------------------------------------------------------------- many triangles a pixel
+# ----------------------------------------------------------------------- many triangles a pixel
 
 # A floor of N x N squares turned 23 degrees, each cut into a bright and a dark triangle (a
 # radiance of 1.0 and 0.1), seen from above at 16 x 16 pixels: about 30 triangles a pixel, as

@@ -14,7 +14,7 @@ The image stage's time beside each. Writes benchmarks/results/pixels.json.
 
 The image's own sampling error alone (no light error) on a solved run, e.g. a terrain of
 benchmarks/scenes_generated.py, whose pixels cover many small triangles: the pixel-area image
-with 4 x 4 rays, with the edge pass (12 x 12) and with pixels.refine at budgets 1, 2 (the
+with 4 x 4 rays, with the edge pass (12 x 12) and with pixels.refine at budgets 2, 8 (the
 default) and unbounded, against --truth x --truth rays a pixel of the same solution; per pixel
 |A - B| / max(B, 5 % of the mean) on the RGB sum (bench_real's floor) and plain. Writes
 benchmarks/results/pixels-sampling.json.
@@ -84,7 +84,7 @@ def sampling_rows(run: str, truth: int) -> list[dict]:
     floor = 0.05 * b[seen].mean()
     rows = []
     for name, edge, budget in (("4x4", 0, 0.0), ("edges 12x12", 12, 0.0),
-                               ("refine, budget 1", 12, 1.0), ("refine, budget 2", 12, 2.0),
+                               ("refine, budget 2", 12, 2.0), ("refine, budget 8", 12, 8.0),
                                ("refine, unbounded", 12, 1e9)):
         t = time.perf_counter()
         s = P.sample_raster(part, el, cam, k, 4, 1e-6, caster=rc)
@@ -108,6 +108,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--sampling-of", metavar="RUN", help="a solved run: its sampling error alone")
     ap.add_argument("--truth", type=int, default=64, help="rays a side of --sampling-of's truth")
+    ap.add_argument("--out", default="pixels-sampling", help="--sampling-of's results/NAME.json")
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--spp", type=int, default=4096, help="reference samples per pixel at 2x res")
     ap.add_argument("--run", help="a solved run of the Cornell box at --res (else rendered)")
@@ -116,7 +117,7 @@ def main():
     if args.sampling_of:
         rows = sampling_rows(args.sampling_of, args.truth)
         print(table(rows, ["sampling", "rays_a_pixel", "time_s", "error", "error_plain", "levels"]))
-        print("wrote", write("pixels-sampling", rows, {"run": args.sampling_of, "truth": args.truth,
+        print("wrote", write(args.out, rows, {"run": args.sampling_of, "truth": args.truth,
                                                         "floor": 0.05}))
         return
 

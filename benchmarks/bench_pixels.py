@@ -9,6 +9,15 @@ K = 1, 2, 4, 8 rays per side. Errors per pixel as |ours - ref| / ref on the RGB 
 over: all cells the reference sees; interior cells (compare.interior: wholly inside one
 element); edge cells (the others); the light's border cells (edge cells next to the light).
 The image stage's time beside each. Writes benchmarks/results/pixels.json.
+
+    python benchmarks/bench_pixels.py --sampling-of RUN [--truth 64]
+
+The image's own sampling error alone (no light error) on a solved run, e.g. a terrain of
+benchmarks/scenes_generated.py, whose pixels cover many small triangles: the pixel-area image
+with 4 x 4 rays, with the edge pass (12 x 12) and with pixels.refine at budgets 2, 8 (the
+default) and unbounded, against --truth x --truth rays a pixel of the same solution; per pixel
+|A - B| / max(B, 5 % of the mean) on the RGB sum (bench_real's floor) and plain. Writes
+benchmarks/results/pixels-sampling.json.
 """
 
 from __future__ import annotations
@@ -57,13 +66,60 @@ def errors(img: np.ndarray, ref: np.ndarray, masks: dict) -> dict:
     return out
 
 
+def sampling_rows(run: str, truth: int) -> list[dict]:
+    """The rows of --sampling-of (see the module's docstring)."""
+    from radiosity.runtime.store import RunStore
+    from radiosity.stages import pixels as P
+    from radiosity.tracing.rays import RayCaster
+
+    rs = RunStore(run, "r")
+    part, el, cam = rs.load_partition(), rs.load_elements(), rs.load_camera()
+    k = int(rs.attrs.get("subpixel", 1))
+    lum = P.seen_radiance(part, el, cam, rs.read_arrays("solution")["radiance"])
+    rc = RayCaster(el.verts, el.nverts, 1e-6)
+    t = time.perf_counter()
+    b = P.samples_radiance(lum, P.sample_raster(part, el, cam, k, truth, 1e-6, caster=rc)).sum(-1)
+    truth_s = time.perf_counter() - t
+    seen = b > 0
+    floor = 0.05 * b[seen].mean()
+    rows = []
+    for name, edge, budget in (("4x4", 0, 0.0), ("edges 12x12", 12, 0.0),
+                               ("refine, budget 2", 12, 2.0), ("refine, budget 8", 12, 8.0),
+                               ("refine, unbounded", 12, 1e9)):
+        t = time.perf_counter()
+        s = P.sample_raster(part, el, cam, k, 4, 1e-6, caster=rc)
+        fine = P.samples_radiance(lum, s)
+        levels = P.refine(part, el, cam, k, lum, fine, s, edge, rc, budget=budget) if edge else []
+        dt = time.perf_counter() - t
+        a = fine.sum(-1)
+        rows.append({"sampling": name, "levels": levels,
+                     "rays_a_pixel": round((s.size + sum(n * q * q for q, n in levels))
+                                           / a.size, 1),
+                     "time_s": round(dt, 2),
+                     "error": float(np.mean(np.abs(a[seen] - b[seen])
+                                            / np.maximum(b[seen], floor))),
+                     "error_plain": float(np.mean(np.abs(a[seen] - b[seen]) / b[seen]))})
+    print(f"{run}: {len(el)} elements, {cam.width}x{cam.height}; truth {truth}^2 rays a pixel "
+          f"({truth_s:.0f} s)")
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser()
+    ap.add_argument("--sampling-of", metavar="RUN", help="a solved run: its sampling error alone")
+    ap.add_argument("--truth", type=int, default=64, help="rays a side of --sampling-of's truth")
+    ap.add_argument("--out", default="pixels-sampling", help="--sampling-of's results/NAME.json")
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--spp", type=int, default=4096, help="reference samples per pixel at 2x res")
     ap.add_argument("--run", help="a solved run of the Cornell box at --res (else rendered)")
     ap.add_argument("--reference", help="a `radiosity reference` directory at 2x --res")
     args = ap.parse_args()
+    if args.sampling_of:
+        rows = sampling_rows(args.sampling_of, args.truth)
+        print(table(rows, ["sampling", "rays_a_pixel", "time_s", "error", "error_plain", "levels"]))
+        print("wrote", write(args.out, rows, {"run": args.sampling_of, "truth": args.truth,
+                                                        "floor": 0.05}))
+        return
 
     from radiosity.runtime.cluster import open_client
     from radiosity.pipeline import render_scene

@@ -2,10 +2,11 @@
 Mitsuba 3's time to the same per-pixel error, in one run, on public interiors and on generated
 terrains.
 
-    python benchmarks/bench_real.py [--scenes a,b] [--keep DIR] [--ref-spp 4096]
+    python benchmarks/bench_real.py [--only a,b] [--resolution N|WxH] [--keep DIR] [--ref-spp 4096]
 
-Scenes (`--scenes`, default all): the converted public interiors of benchmarks/real/
-(README.md there: sources, licences, what the conversion changed) and the terrains of
+Scenes (`--only` or `--scenes`, default all; a scene file's path is a scene too): the converted
+public interiors of benchmarks/real/ (README.md there: sources, licences, what the conversion
+changed) and the terrains of
 scenes_generated.terrain, smooth and rough (per-vertex noise of 1.5 grid spacings), of 2e5 and
 1e6 triangles, generated into the work directory.
 
@@ -13,22 +14,25 @@ For each scene:
 1. Ours: `radiosity render SCENE --out D --force`, no options (the scene's 128^2 camera), as a
    whole process: wall and CPU time, peak memory of the process tree (the sum of the resident
    sets of the command and all its descendants, the Dask workers included, sampled every
-   0.2 s), and from report.json links, links a leaf, rays and the stage times. A render past
+   0.2 s), and from report.json links, links a leaf, rays, the stage times and the direct
+   light's mode where the report names one (`direct`: points or links, issue 50). A render past
    --timeout seconds or --mem-limit GiB is stopped and said so.
 2. A Mitsuba reference of the same scene and camera (the `radiosity reference` conversion:
    one shape per material; path tracer with Russian roulette from depth 5, unbiased;
    max_depth from path_depth) at --ref-spp in --passes independent passes (per-pixel standard
    error from their spread).
 3. Errors of our image against it: per pixel (`rel_error`: the mean over the pixels it sees
-   of |sum ours - sum ref| / sum ref, RGB sums, with the reference's own noise taken out in
-   quadrature, so that neither renderer is charged for it; the plain figure is kept too), the
+   of |sum ours - sum ref| / max(sum ref, FLOOR * its mean over the image), RGB sums: a floor
+   of 5 % of the image mean under near-black pixels; with the reference's own noise taken out
+   in quadrature, so that neither renderer is charged for it; `pixel_error_plain` is the same
+   without the floor, `pixel_mean_abs_error` without the floor nor the noise correction), the
    image mean (signed, luminance), and per object: a material the engine's own pixel-centre rays see in
    at least 100 pixels (compare.element_raster), the signed relative error of its mean
    luminance, with the reference's standard error of that mean.
-4. Mitsuba's per-pixel error at a ladder of sample counts, the count at which it equals ours
-   (log-log interpolation; 1/sqrt(spp) beyond the ladder), and Mitsuba at that count as a user
-   runs it, in a fresh process: the scene's conversion and load plus the render, the kernel
-   compilation left out (a warm-up render first, as the engine's numba cache is warm).
+4. Mitsuba's per-pixel error (the same floored figure) at a ladder of sample counts, the count
+   at which it equals ours (log-log interpolation; 1/sqrt(spp) beyond the ladder), and Mitsuba
+   at that count as a user runs it, in a fresh process: the scene's conversion and load plus
+   the render, the kernel compilation left out (a warm-up render first, as the engine's numba cache is warm).
 
 Each scene's row is kept in DIR/NAME/row.json, so a later run with the same --keep skips the
 scenes it holds (--redo to measure them again). Writes benchmarks/results/real.json and prints a
@@ -66,15 +70,18 @@ MITSUBA_PROCESS = """
 import json, sys, time, warnings
 import numpy as np
 warnings.simplefilter("ignore")
+from radiosity.formats.images import write_exr
 from radiosity.scene.load import load_scene
+from radiosity.settings import options
 from radiosity.validation.reference import load_mitsuba, mitsuba_scene, path_depth
-from radiosity.stages.pixels import write_exr
 scene, spp, out = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+res = json.loads(sys.argv[4]) if len(sys.argv) > 4 else None
+st = options()
 mi, _ = load_mitsuba()
 t = time.perf_counter()
-sc = load_scene(scene)
+sc = load_scene(scene, resolution=res, settings=st)
 t_ours = time.perf_counter() - t
-D, _ = path_depth(sc)
+D, _ = path_depth(sc, st.reference.truncation)
 integ = mi.load_dict({"type": "path", "max_depth": D, "rr_depth": 5})
 t = time.perf_counter()
 msc, _ = mitsuba_scene(sc, D, mi=mi)
@@ -177,7 +184,25 @@ def report_figures(run: str) -> dict:
         for k in ("links", "links_per_leaf", "rays", "leaves", "sub_elements", "method"):
             if k in d and k not in out:
                 out[k] = d[k]
+        mode = direct_mode(d)
+        if mode is not None and "direct" not in out:
+            out["direct"] = mode
     return out
+
+
+def direct_mode(section: dict):
+    """The direct-light mode a report section names (settings.direct.mode's choice: points or
+    links, with "auto"'s reason where given), or None: read defensively, reports before
+    issue 50 have none; a dict {"mode": ..., ...} or a string under "direct" or
+    "direct_mode"."""
+    for k in ("direct", "direct_mode"):
+        v = section.get(k)
+        if isinstance(v, str):
+            return v
+        if isinstance(v, dict) and isinstance(v.get("mode"), str):
+            why = v.get("reason") or v.get("why")
+            return v["mode"] + (f" ({why})" if isinstance(why, str) else "")
+    return None
 
 
 # ----------------------------------------------------------------------------- Mitsuba
@@ -189,8 +214,10 @@ def mitsuba_reference(sc, spp: int, passes: int, limit_s: float, seed: int = 791
     passes (at least 4) when they would run past `limit_s` seconds."""
     from radiosity.validation.reference import load_mitsuba, mitsuba_scene, path_depth
 
+    from radiosity.settings import options
+
     mi, _ = load_mitsuba()
-    D, _ = path_depth(sc)
+    D, _ = path_depth(sc, options().reference.truncation)
     msc, _ = mitsuba_scene(sc, D, mi=mi)
     integ = mi.load_dict({"type": "path", "max_depth": D, "rr_depth": 5})
     per = max(1, spp // passes)
@@ -214,18 +241,30 @@ def mitsuba_reference(sc, spp: int, passes: int, limit_s: float, seed: int = 791
     return (a.mean(0), se, se_sum, time.perf_counter() - t, D, per * len(imgs), (mi, msc, integ))
 
 
-def rel_error(img: np.ndarray, ref: np.ndarray, se_sum: np.ndarray) -> float:
+#: The per-pixel error's floor under its denominator, a share of the reference image's mean
+#: (over the pixels it sees): a near-black pixel (a self-shadowed pit of the rough terrain, a
+#: dark corner) is measured against FLOOR * mean(B) instead of its own B, so that an error
+#: nobody sees there does not dominate the mean (411 % on the rough terrain without it).
+FLOOR = 0.05
+
+
+def rel_error(img: np.ndarray, ref: np.ndarray, se_sum: np.ndarray, floor: float = FLOOR) -> float:
     """Per-pixel error against the truth, estimated against a noisy reference: with m the mean
-    over the pixels the reference sees of |A - B| / B (A, B the RGB sums of the image and the
-    reference) and n = sqrt(2/pi) mean(s / B) the part of it an exact image would show (s the
+    over the pixels the reference sees of |A - B| / D (A, B the RGB sums of the image and the
+    reference, D = max(B, floor * mean(B)): a floor under near-black pixels, 0 for the plain
+    figure) and n = sqrt(2/pi) mean(s / D) the part of it an exact image would show (s the
     reference's standard error of B: the mean of |N(0, s)|), sqrt(max(0, m^2 - n^2)). The
     mean absolute errors of independent normal errors add in quadrature, so this takes the
     reference's own noise out, and a path tracer's error falls as 1/sqrt(spp) instead of to
     the reference's noise floor."""
     a, b = img.sum(-1), ref.sum(-1)
     seen = b > 0
-    m = float(np.mean(np.abs(a[seen] - b[seen]) / b[seen]))
-    n = math.sqrt(2.0 / math.pi) * float(np.mean(se_sum[seen] / b[seen]))
+    if not seen.any():
+        return 0.0
+    a, b, s = a[seen], b[seen], se_sum[seen]
+    d = np.maximum(b, floor * float(b.mean()))
+    m = float(np.mean(np.abs(a - b) / d))
+    n = math.sqrt(2.0 / math.pi) * float(np.mean(s / d))
     return math.sqrt(max(0.0, m * m - n * n))
 
 
@@ -238,6 +277,7 @@ def ladder(handle, ref, se_sum, rungs, limit_s: float) -> list[dict]:
         img = np.asarray(mi.render(msc, spp=int(s), seed=12345 + s, integrator=integ), np.float64)
         dt = time.perf_counter() - t
         out.append({"spp": int(s), "error": rel_error(img, ref, se_sum),
+                    "error_plain": rel_error(img, ref, se_sum, 0.0),
                     "mean_abs_error": pixel_error(img, ref), "time_s": dt})
         if dt * 4 > limit_s:  # the next rung would take about 4x longer
             break
@@ -270,6 +310,18 @@ def object_errors(sc, ours, ref, se) -> list[dict]:
 
 # ----------------------------------------------------------------------------- one scene
 
+def _resolution(text: str) -> tuple[int, int]:
+    """--resolution N or WxH -> (W, H)."""
+    w, _, h = text.lower().partition("x")
+    try:
+        size = (int(w), int(h or w))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--resolution must be N or WxH, got {text!r}") from None
+    if min(size) < 1:
+        raise argparse.ArgumentTypeError(f"--resolution must be positive, got {text!r}")
+    return size
+
+
 def _label(name: str) -> str:
     """A scene's row name: its suite name, or the folder of a scene file."""
     return os.path.basename(os.path.dirname(os.path.abspath(name))) if name.endswith(".toml") else name
@@ -278,15 +330,17 @@ def _label(name: str) -> str:
 def measure(name: str, work: str, args) -> dict:
     import warnings
 
+    from radiosity.formats.images import read_exr
     from radiosity.scene.load import load_scene
-    from radiosity.stages.pixels import read_exr
+    from radiosity.settings import options
 
     d = os.path.join(work, _label(name))
     os.makedirs(d, exist_ok=True)
     toml = scene_file(name, work)
+    res = list(args.resolution) if args.resolution else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sc = load_scene(toml)
+        sc = load_scene(toml, resolution=res, settings=options())
     el = sc.elements
     row = {"scene": name, "triangles": int(np.sum(el.nverts.astype(np.int64) - 2)),
            "elements": len(el),
@@ -298,8 +352,9 @@ def measure(name: str, work: str, args) -> dict:
         with open(kept) as f:
             ours = json.load(f)
     else:
+        size = ["--resolution", f"{res[0]}x{res[1]}"] if res else []
         ours = run_measured([sys.executable, "-m", "radiosity.cli", "render", toml, "--out", run,
-                             "--force"], d, args.timeout, args.mem_limit * 2**30,
+                             "--force", *size], d, args.timeout, args.mem_limit * 2**30,
                             os.path.join(d, "ours.log"))
         ours["loadavg"] = [round(x, 2) for x in os.getloadavg()]
         if ours["rc"] == 0 or ours["stopped"]:  # not one killed from outside
@@ -327,7 +382,9 @@ def measure(name: str, work: str, args) -> dict:
     img = read_exr(os.path.join(run, "image.exr")).astype(np.float64)
     err = rel_error(img, ref, se_sum)
     objs = object_errors(sc, img, ref, se)
-    row.update(pixel_error=round(err, 5), pixel_mean_abs_error=round(pixel_error(img, ref), 5),
+    row.update(pixel_error=round(err, 5),
+               pixel_error_plain=round(rel_error(img, ref, se_sum, 0.0), 5),
+               pixel_mean_abs_error=round(pixel_error(img, ref), 5),
                image_mean=round(float((img @ LUMA).mean() / (ref @ LUMA).mean() - 1.0), 5),
                worst_object=objs[0]["object"] if objs else None,
                worst_object_error=round(objs[0]["error"], 5) if objs else None,
@@ -341,8 +398,8 @@ def measure(name: str, work: str, args) -> dict:
         f.write(MITSUBA_PROCESS)
     exr = os.path.join(d, "mitsuba.exr")
     t = time.perf_counter()
-    r = subprocess.run([sys.executable, script, toml, str(need), exr], cwd=d, capture_output=True,
-                       text=True)
+    r = subprocess.run([sys.executable, script, toml, str(need), exr, json.dumps(res)], cwd=d,
+                       capture_output=True, text=True)
     whole = time.perf_counter() - t
     if r.returncode:
         row["mitsuba_failed"] = r.stderr[-500:]
@@ -394,14 +451,15 @@ def export_timing(work: str, triangles: int = 200_000, spp: int = 32) -> dict:
     import warnings
 
     from radiosity.scene.load import load_scene
+    from radiosity.settings import options
     from radiosity.validation.reference import load_mitsuba, mitsuba_scene, path_depth
 
     mi, _ = load_mitsuba()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sc = load_scene(scene_file("terrain-smooth-1m" if triangles > 200_000 else
-                                   "terrain-smooth-200k", work))
-    D, _ = path_depth(sc)
+                                   "terrain-smooth-200k", work), settings=options())
+    D, _ = path_depth(sc, options().reference.truncation)
     out = {"elements": len(sc.elements), "spp": spp}
     for per_element in (False, True):
         t = time.perf_counter()
@@ -419,7 +477,10 @@ def export_timing(work: str, triangles: int = 200_000, spp: int = 32) -> dict:
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenes", default=",".join(ALL), help=f"comma-separated, of {', '.join(ALL)}")
+    ap.add_argument("--scenes", "--only", default=",".join(ALL),
+                    help=f"comma-separated, of {', '.join(ALL)}, or scene files")
+    ap.add_argument("--resolution", type=_resolution, default=None, metavar="N|WxH",
+                    help="override the scenes' camera resolution (ours and Mitsuba's)")
     ap.add_argument("--keep", default=None, help="work directory (default: a temporary one)")
     ap.add_argument("--redo", action="store_true", help="measure scenes the work directory holds")
     ap.add_argument("--ref-spp", type=int, default=4096)
@@ -463,15 +524,17 @@ def main():
         with open(fn, "w") as f:
             json.dump(row, f, indent=1)
         rows.append(row)
-    cols = ["scene", "triangles", "ours_s", "peak_gib", "links", "links_per_leaf", "rays",
-            "pixel_error", "image_mean", "worst_object_error", "mitsuba_spp", "mitsuba_s", "ratio"]
+    cols = ["scene", "triangles", "direct", "ours_s", "peak_gib", "links", "links_per_leaf", "rays",
+            "pixel_error", "pixel_error_plain", "image_mean", "worst_object_error", "mitsuba_spp",
+            "mitsuba_s", "ratio"]
     print(table(rows, cols))
     print(markdown(rows))
     from radiosity.validation.reference import load_mitsuba, mitsuba_version
 
     _, variant = load_mitsuba()
     print("wrote", write(args.out, rows, {
-        "resolution": 128, "reference_spp": args.ref_spp, "passes": args.passes,
+        "resolution": list(args.resolution) if args.resolution else "the scenes' own (128^2)",
+        "floor": FLOOR, "reference_spp": args.ref_spp, "passes": args.passes,
         "mitsuba": mitsuba_version(), "variant": variant, "ladder": args.ladder,
         "min_object_pixels": MIN_OBJECT_PIXELS, "work": work}))
 

@@ -29,9 +29,8 @@ from radiosity.formats.viewer import VIEWER_GROW_PX, VIEWER_MAX_TRIANGLES, write
 from radiosity.runtime.store import StageFigures
 from radiosity.settings import Settings
 from radiosity.stages.tables import light_tables, write_light_tables
-from radiosity.stages.pixels import (SAMPLINGS, downsample, edge_pixels, facing_side,
-                                     pixel_radiance, plane_ids, sample_pixels, sample_raster,
-                                     samples_radiance, seen_radiance)
+from radiosity.stages.pixels import (SAMPLINGS, downsample, facing_side, pixel_radiance, refine,
+                                     sample_raster, samples_radiance, seen_radiance)
 
 __all__ = ["ImageFigures", "render_outputs", "previewer",
            "AUTO_KEY", "AUTO_PERCENTILE", "LUMA", "SAMPLINGS", "RenderError", "sample_raster",
@@ -62,6 +61,8 @@ class ImageFigures(StageFigures):
     rays: int                    # sample rays cast for the image (0 with point: the raster's)
     edge_pixels: int             # fine pixels on a silhouette or corner, sampled again
     edge_rays: int               # their rays (render.edge-samples per side)
+    refined: list                # [rays a side, fine pixels] of each later level (pixels.refine)
+    refined_rays: int            # their rays
     filter: str
     sigma: float
     mean_radiance: list
@@ -80,6 +81,9 @@ class ImageFigures(StageFigures):
                           + (f" ({self.area_samples * self.subpixel}^2 rays a pixel"
                              + (f", {self.edge_rays // max(self.edge_pixels, 1)} at each of "
                                 f"{self.edge_pixels} on an edge" if self.edge_pixels else "")
+                             + (", then " + ", ".join(f"{side * side} at {n}"
+                                                      for side, n in self.refined)
+                                if self.refined else "")
                              + ")" if self.sampling == "area" else "")
                           + f", exposure {self.exposure:.3g}")]
 
@@ -99,11 +103,13 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     "auto" here) is automatic (`auto_exposure` of the final image). progress: a bar (or a
     started and a done line) over the four outputs: image, meshes, viewer, tables. sampling
     "area": each fine pixel is the mean of ceil(area-samples / subpixel)^2 rays over its area
-    (pixels.sample_raster), and one whose rays see two planes or materials the mean of
-    ceil(edge-samples / subpixel)^2 (pixels.edge_pixels); "point": the sub-element at its
-    centre (the run's ID raster). Returns the figures: paths, exposure,
+    (pixels.sample_raster), and one whose rays see two planes or materials, or values far
+    apart, the mean of ceil(edge-samples / subpixel)^2, then of twice and four times as many
+    a side while its estimated error is above 1 % (pixels.refine); "point": the sub-element at
+    its centre (the run's ID raster). Returns the figures: paths, exposure,
     width, height, subpixel, sampling, area_samples, rays, edge_pixels, edge_rays (the pixels
-    sampled again and their rays), filter, sigma, mean_radiance (RGB mean
+    sampled again and their rays), refined, refined_rays (the later levels), filter, sigma,
+    mean_radiance (RGB mean
     over the image, black pixels included), hit_fraction (fine pixels whose centre sees an
     element), triangles, time_s.
     """
@@ -199,15 +205,13 @@ def _image_and_meshes(rs, st, part, elements, camera, k: int, raster, radiance, 
         raster_or_samples = raster
     lum = seen_radiance(part, elements, camera, radiance)
     fine = samples_radiance(lum, raster_or_samples)
-    edges = edge_rays = 0
+    levels = []
     edge_side = max(0, -(-int(r.edge_samples) // k))
     if r.sampling == "area" and edge_side > per_side:
-        # pixels on a silhouette or a corner: their covered fractions from more rays
-        rows, cols = np.nonzero(edge_pixels(raster_or_samples, part, plane_ids(elements)))
-        if len(rows):
-            sub = sample_pixels(part, elements, camera, k, edge_side, rows, cols, caster)
-            fine[rows, cols] = samples_radiance(lum, sub[:, None, :])[:, 0]
-            edges, edge_rays = len(rows), int(sub.size)
+        # pixels on an edge, or over pieces of different brightness: more rays, adaptively
+        levels = refine(part, elements, camera, k, lum, fine, raster_or_samples, edge_side,
+                        caster)
+    edges, edge_rays = (levels[0][1], levels[0][1] * levels[0][0] ** 2) if levels else (0, 0)
     img = downsample(fine, k, filter, sigma)
     e = auto_exposure(img) if auto else exposure
     t_image = time.perf_counter() - t0
@@ -236,6 +240,8 @@ def _image_and_meshes(rs, st, part, elements, camera, k: int, raster, radiance, 
         "sampling": r.sampling, "area_samples": per_side,
         "rays": int(raster_or_samples.size) if r.sampling == "area" else 0,
         "edge_pixels": edges, "edge_rays": edge_rays,
+        "refined": [[int(side), int(n)] for side, n in levels[1:]],
+        "refined_rays": int(sum(n * side ** 2 for side, n in levels[1:])),
         "filter": filter, "sigma": sigma,
         "mean_radiance": [float(x) for x in img.reshape(-1, 3).mean(axis=0)],
         "hit_fraction": float(np.mean(raster >= 0)),

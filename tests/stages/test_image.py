@@ -254,19 +254,25 @@ def test_render_outputs_writes_deterministic_images(cornell_run):
     assert (f1["sampling"], f1["area_samples"], f1["rays"]) == ("area", 2, 32 * 32 * 4)
     rays = render.sample_raster(part, el, cam, 2, 2, 1e-6)
     fine = render.pixel_radiance(part, el, cam, rays, L)
-    # fine pixels whose rays see two planes or materials (and their neighbours): the mean of
-    # ceil(edge-samples 12 / 2)^2 = 36 rays over their area
+    # fine pixels whose rays see two planes or materials or values far apart (and their
+    # neighbours): the mean of ceil(edge-samples 12 / 2)^2 = 36 rays over their area, then
+    # more where the error estimate says so (pixels.refine)
     from radiosity.stages import pixels
     from radiosity.tracing.rays import RayCaster
 
-    rows, cols = np.nonzero(pixels.edge_pixels(rays, part, pixels.plane_ids(el)))
+    lum = pixels.seen_radiance(part, el, cam, L)
+    plane = pixels.plane_ids(el)
+    busy = pixels.busy_pixels(rays, part, plane, lum.sum(1))
+    assert (busy >= pixels.edge_pixels(rays, part, plane)).all()
+    rows, cols = np.nonzero(busy)
     assert 0 < len(rows) < 32 * 32
     assert (f1["edge_pixels"], f1["edge_rays"]) == (len(rows), 36 * len(rows))
     rc = RayCaster(el.verts, el.nverts, 1e-6)
-    sub = pixels.sample_pixels(part, el, cam, 2, 6, rows, cols, rc)
-    edge = pixels.samples_radiance(pixels.seen_radiance(part, el, cam, L), sub[:, None, :])[:, 0]
-    assert np.abs(edge - fine[rows, cols]).max() > 0  # they change the image
-    fine[rows, cols] = edge
+    before = fine.copy()
+    levels = pixels.refine(part, el, cam, 2, lum, fine, rays, 6, rc)
+    assert levels[0] == (6, len(rows)) and [list(v) for v in levels[1:]] == f1["refined"]
+    assert f1["refined_rays"] == sum(n * k * k for k, n in levels[1:])
+    assert np.abs(fine - before).max() > 0  # they change the image
     want = render.downsample(fine, 2, "box")
     np.testing.assert_array_equal(img, want.astype(np.float32))
     # the seed's point samples: the ID raster of the fine pixels' centres

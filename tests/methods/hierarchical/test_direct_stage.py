@@ -145,6 +145,51 @@ def test_a_large_leaf_near_the_emitter_takes_more_points_and_gets_closer(tmp_pat
     assert e_more < 0.5 * e_fixed and e_more < 0.02
 
 
+def test_more_points_only_where_an_emitter_can_light_the_leaf(tmp_path):
+    """A 0.2 m lamp (one-sided, facing down) in a ceiling: the 1 m floor 0.5 m below gets more
+    than 2 x 2 points; the ceiling beside the lamp (in its plane), a board above it (behind it)
+    and a black floor tile keep 2 x 2."""
+    obj = """
+    v 0.4 1 0.4
+    v 0.6 1 0.4
+    v 0.6 1 0.6
+    v 0.4 1 0.6
+    v 0.6 1 0.4
+    v 1.6 1 0.4
+    v 1.6 1 0.6
+    v 0.6 1 0.6
+    v 0 0.5 0
+    v 1 0.5 0
+    v 1 0.5 1
+    v 0 0.5 1
+    v 0.4 1.1 0.4
+    v 0.6 1.1 0.4
+    v 0.6 1.1 0.6
+    v 0.4 1.1 0.6
+    v 1.2 0.5 0
+    v 1.3 0.5 0
+    v 1.3 0.5 0.1
+    v 1.2 0.5 0.1
+    usemtl emitter
+    f 1 2 3 4
+    usemtl wall
+    f 5 6 7 8
+    f 9 12 11 10
+    f 13 16 15 14
+    usemtl black
+    f 17 20 19 18
+    """
+    mtl = FLOOR_MATERIALS.replace("[material.receiver]", "[material.wall]").replace(
+        "[material.blocker]", "[material.black]")
+    el = load_scene(write_scene(tmp_path, obj, mtl), settings=settings_of()).elements
+    assert el.normal[0, 1] == -1 and el.normal[1, 1] == -1 and el.normal[2, 1] == 1
+    table = {"verts": el.verts, "nverts": el.nverts, "orig": np.arange(len(el)),
+             "leaf_node": np.arange(len(el))}
+    s = leaf_strata(table, el, 4)
+    assert s[2] > 2 and s[1] == s[3] == s[4] == 2
+    assert (leaf_strata(table, el, 4, adaptive=False) == 2).all()
+
+
 def test_leaf_points_lie_in_their_leaves_and_are_stratified():
     """Per-leaf strata: s^2 points a leaf, each inside its leaf, none repeated, means at the
     leaf's centroid (the strata are symmetric)."""

@@ -56,19 +56,23 @@ def direct_settings(settings) -> tuple[int, int]:
 
 def leaf_strata(table: dict, elements, k: int = LEAF_POINTS, adaptive: bool = True) -> np.ndarray:
     """(M,) int64 strata a side s per leaf (s^2 points): isqrt(k), more on a leaf whose size
-    (sqrt of its area) exceeds STRATUM_OVER_DISTANCE s times its distance to the nearest emitter
-    (over the 8 nearest emitters' centres, less their radii), up to MAX_STRATA. H1 varies over a
-    leaf on the scale of that distance: a wall's one leaf next to a lamp needs more than 4 points
-    to average it, a pixel-sized leaf does not."""
+    (its polygon's diameter) exceeds STRATUM_OVER_DISTANCE s times its gap to the nearest
+    emitter that can light it (of the 8 nearest emitters' centres, less their radii and half
+    the leaf; not one whose plane holds the leaf, nor one the leaf is wholly behind), up to
+    MAX_STRATA. H1 varies over a leaf on the scale of that gap: a wall's one leaf next to a lamp
+    needs more than 4 points to average it, a pixel-sized leaf does not. A leaf that reflects
+    nothing keeps isqrt(k) (its points are never lit)."""
     ln = np.asarray(table["leaf_node"], np.int64)
     s0 = max(1, int(math.isqrt(max(1, int(k)))))
     s = np.full(len(ln), s0, np.int64)
-    em = np.flatnonzero(np.asarray(elements.emission).max(axis=(1, 2)) > 0)
+    Le = np.asarray(elements.emission, np.float64).max(axis=2)          # (n, 2)
+    em = np.flatnonzero(Le.max(axis=1) > 0)
     if not adaptive or not len(em) or not len(ln) or s0 >= MAX_STRATA:
         return s
     from scipy.spatial import cKDTree
 
     ec = np.asarray(elements.center, np.float64)[em]
+    en = np.asarray(elements.normal, np.float64)[em]
     er = np.linalg.norm(np.asarray(elements.verts, np.float64)[em] - ec[:, None], axis=2).max(axis=1)
     V = np.asarray(table["verts"], np.float64)[ln]
     nv = np.asarray(table["nverts"], np.int64)[ln]
@@ -78,9 +82,16 @@ def leaf_strata(table: dict, elements, k: int = LEAF_POINTS, adaptive: bool = Tr
     nn = min(8, len(em))
     d, j = cKDTree(ec).query(c, k=nn)
     d, j = d.reshape(len(c), nn), j.reshape(len(c), nn)
-    gap = np.maximum((d - er[j]).min(axis=1) - 0.5 * size, 0.0)
+    # the leaf's corners' heights over each emitter's plane: lit by a side it is in front of
+    h = np.einsum("mvc,mjc->mjv", V4, en[j]) - np.einsum("mjc,mjc->mj", ec[j], en[j])[..., None]
+    tol = 1e-9 * (1.0 + d)
+    lights = ((h.max(axis=2) > tol) & (Le[em[j], 0] > 0)) \
+        | ((h.min(axis=2) < -tol) & (Le[em[j], 1] > 0))
+    gap = np.where(lights, d - er[j], np.inf).min(axis=1) - 0.5 * size
     want = np.ceil(size / (STRATUM_OVER_DISTANCE * np.maximum(gap, 1e-300)))
-    return np.clip(np.maximum(want, s0), s0, MAX_STRATA).astype(np.int64)
+    lo = np.asarray(table["orig"], np.int64)[ln]
+    reflects = np.asarray(elements.reflectance, np.float64)[lo].max(axis=(1, 2)) > 0
+    return np.where(reflects, np.clip(want, s0, MAX_STRATA), s0).astype(np.int64)
 
 
 def leaf_points(table: dict, strata):

@@ -60,7 +60,8 @@ def main():
         r.update({"leaves": f.leaves, "points": f.points, "max_a_leaf": f.points_per_leaf_max,
                   "more_points": f.leaves_more_points, "emitters": f.emitters,
                   "shadow_rays": f.shadow_rays, "tasks": f.tasks, "reused": f.tasks_reused,
-                  "rays_per_s": round(f.shadow_rays / max(r["seconds"], 1e-9))})
+                  "rays_per_s": "" if f.tasks_reused else
+                  round(f.shadow_rays / max(r["seconds"], 1e-9))})
     print(table(rows, ["where", "leaves", "points", "max_a_leaf", "more_points", "emitters",
                        "shadow_rays", "tasks", "reused", "seconds", "rays_per_s", "same_bits"]))
     print("wrote", write("direct", rows, {"scene": args.scene, "resolution": args.res,

@@ -253,10 +253,3 @@ class DirectStore:
         except StoreError:
             return False
         return True
-
-    def read(self, first: np.ndarray, done: dict) -> np.ndarray:
-        """L1 (M, 2, 3) of every leaf from the finished tasks `done` (task -> entry)."""
-        out = np.zeros((int(first[-1]), 2, 3))
-        for t in range(len(first) - 1):
-            out[first[t]:first[t + 1]] = read_direct(self.rs.path, t, done[t])
-        return out

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from radiosity.methods.hierarchical.solve.direct import (_Prepared, first_bounce, leaf_points,
-                                                         leaf_strata)
+                                                         leaf_strata, polygon_distance)
 from radiosity.scene.load import load_scene
 from radiosity.settings import options as settings_of
 from radiosity.tracing.rays import RayCaster
@@ -190,6 +190,22 @@ def test_more_points_only_where_an_emitter_can_light_the_leaf(tmp_path):
     assert (leaf_strata(table, el, 4, adaptive=False) == 2).all()
 
 
+def test_polygon_distance_against_a_dense_grid(rng):
+    """Point to quad and to triangle distance within the grid's step of the nearest of 401^2
+    points on the polygon."""
+    V = np.array([[[0, 0, 0], [1, 0, 0], [1, 1, 0.2], [0, 1, 0.2]],
+                  [[0, 0, 1], [1, 0, 1], [0, 1, 1], [0, 1, 1]]], float)
+    c = rng.uniform(-1, 2, (30, 3))
+    d = polygon_distance(c, V, np.tile([0, 1], (30, 1)))
+    u, v = (g.ravel() for g in np.meshgrid(np.linspace(0, 1, 401), np.linspace(0, 1, 401)))
+    quad = V[0, 0] + u[:, None] * (V[0, 1] - V[0, 0]) + v[:, None] * (V[0, 3] - V[0, 0])
+    t = u + v <= 1
+    tri = V[1, 0] + u[t, None] * (V[1, 1] - V[1, 0]) + v[t, None] * (V[1, 2] - V[1, 0])
+    for k, pts in enumerate((quad, tri)):
+        ref = np.linalg.norm(pts[None] - c[:, None], axis=2).min(axis=1)
+        assert (d[:, k] <= ref + 1e-12).all() and (ref - d[:, k]).max() < 5e-3
+
+
 def test_leaf_points_lie_in_their_leaves_and_are_stratified():
     """Per-leaf strata: s^2 points a leaf, each inside its leaf, none repeated, means at the
     leaf's centroid (the strata are symmetric)."""
@@ -220,8 +236,7 @@ def test_furnace_cube_l1_is_rho_le_everywhere():
 
 def test_the_token_follows_samples_leaf_points_offset_and_emitters(floor):
     """The same inputs give the same token (reused); samples, points, the rays' offset and the
-    emitters each change it (recomputed). With leaf_strata on, leaf_points changes the token only
-    where it changes the points (here every leaf is near the emitter: 8 x 8 either way)."""
+    emitters each change it (recomputed)."""
     table = grid_table(floor, 0, 4)
     s = settings_of()
 
@@ -231,7 +246,6 @@ def test_the_token_follows_samples_leaf_points_offset_and_emitters(floor):
     base = token()
     assert token() == base
     assert token(samples=4) != base and token(leaf_points=9) != base
-    assert token(adaptive=True) == token(adaptive=True, leaf_points=9) != base
     moved = SimpleNamespace(rays=SimpleNamespace(offset=1e-5), visibility=s.visibility,
                             direct=SimpleNamespace(samples=16, leaf_points=4))
     assert _Prepared(table, floor, moved, None, False).token != base

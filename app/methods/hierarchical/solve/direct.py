@@ -34,6 +34,10 @@ SAMPLES = 16
 MAX_STRATA = 8
 #: A leaf takes strata of at most this fraction of its distance to the nearest emitter.
 STRATUM_OVER_DISTANCE = 0.5
+#: The points leaf_strata may add, as a fraction of the default points of all the leaves.
+EXTRA_POINTS = 1.0
+#: ... or at least this many (a scene of few leaves).
+EXTRA_MIN = 1 << 14
 #: Point x emitter pairs per task at most (about SAMPLES shadow rays each: ~1 s of one thread).
 TASK_PAIRS = 1 << 19
 #: Tasks at least, when the pairs allow (for the master to balance).
@@ -57,11 +61,13 @@ def direct_settings(settings) -> tuple[int, int]:
 def leaf_strata(table: dict, elements, k: int = LEAF_POINTS, adaptive: bool = True) -> np.ndarray:
     """(M,) int64 strata a side s per leaf (s^2 points): isqrt(k), more on a leaf whose size
     (its polygon's diameter) exceeds STRATUM_OVER_DISTANCE s times its gap to the nearest
-    emitter that can light it (of the 8 nearest emitters' centres, less their radii and half
-    the leaf; not one whose plane holds the leaf, nor one the leaf is wholly behind), up to
-    MAX_STRATA. H1 varies over a leaf on the scale of that gap: a wall's one leaf next to a lamp
-    needs more than 4 points to average it, a pixel-sized leaf does not. A leaf that reflects
-    nothing keeps isqrt(k) (its points are never lit)."""
+    emitter that can light it (the distance from its centre to the polygons of the 8 emitters
+    nearest by centre, less half the leaf; not one whose plane holds the leaf, nor one the leaf
+    is wholly behind), up to
+    MAX_STRATA, the largest leaves first while the added points stay within EXTRA_POINTS of the
+    default ones (or EXTRA_MIN). H1 varies over a leaf on the scale of that gap: a wall's one
+    leaf next to a lamp needs more than 4 points to average it, a pixel-sized leaf does not. A
+    leaf that reflects nothing keeps isqrt(k) (its points are never lit)."""
     ln = np.asarray(table["leaf_node"], np.int64)
     s0 = max(1, int(math.isqrt(max(1, int(k)))))
     s = np.full(len(ln), s0, np.int64)
@@ -73,7 +79,8 @@ def leaf_strata(table: dict, elements, k: int = LEAF_POINTS, adaptive: bool = Tr
 
     ec = np.asarray(elements.center, np.float64)[em]
     en = np.asarray(elements.normal, np.float64)[em]
-    er = np.linalg.norm(np.asarray(elements.verts, np.float64)[em] - ec[:, None], axis=2).max(axis=1)
+    EV = np.asarray(elements.verts, np.float64)[em]
+    EV = np.where((np.asarray(elements.nverts)[em] == 3)[:, None, None], EV[:, [0, 1, 2, 2]], EV)
     V = np.asarray(table["verts"], np.float64)[ln]
     nv = np.asarray(table["nverts"], np.int64)[ln]
     V4 = np.where(nv[:, None, None] == 3, V[:, [0, 1, 2, 2]], V)
@@ -87,11 +94,42 @@ def leaf_strata(table: dict, elements, k: int = LEAF_POINTS, adaptive: bool = Tr
     tol = 1e-9 * (1.0 + d)
     lights = ((h.max(axis=2) > tol) & (Le[em[j], 0] > 0)) \
         | ((h.min(axis=2) < -tol) & (Le[em[j], 1] > 0))
-    gap = np.where(lights, d - er[j], np.inf).min(axis=1) - 0.5 * size
+    gap = np.where(lights, polygon_distance(c, EV, j), np.inf).min(axis=1) - 0.5 * size
     want = np.ceil(size / (STRATUM_OVER_DISTANCE * np.maximum(gap, 1e-300)))
     lo = np.asarray(table["orig"], np.int64)[ln]
     reflects = np.asarray(elements.reflectance, np.float64)[lo].max(axis=(1, 2)) > 0
-    return np.where(reflects, np.clip(want, s0, MAX_STRATA), s0).astype(np.int64)
+    want = np.where(reflects, np.clip(want, s0, MAX_STRATA), s0).astype(np.int64)
+    # within the budget, the largest leaves first (they carry the most light): the leaves that
+    # touch a lamp's housing would otherwise all take MAX_STRATA
+    extra = want * want - s0 * s0
+    order = np.argsort(-(size * size) * (extra > 0), kind="stable")
+    ok = np.cumsum(extra[order]) <= max(EXTRA_POINTS * s0 * s0 * len(ln), EXTRA_MIN)
+    s[order[ok]] = want[order[ok]]
+    return s
+
+
+def polygon_distance(c: np.ndarray, V: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """(m, q) distance from points c (m, 3) to the polygons V[j[i, :]] (quads (., 4, 3), a
+    triangle's last corner repeated): the nearer of the triangles v0 v1 v2 and v0 v2 v3."""
+    P = c[:, None]
+    out = np.full(j.shape, np.inf)
+    for a, b, e in ((0, 1, 2), (0, 2, 3)):
+        A, B, C = V[j, a], V[j, b], V[j, e]
+        n = np.cross(B - A, C - A)
+        nn = np.einsum("mqc,mqc->mq", n, n)
+        inside = np.ones(j.shape, bool)
+        for X, Y in ((A, B), (B, C), (C, A)):
+            inside &= np.einsum("mqc,mqc->mq", np.cross(Y - X, P - X), n) >= 0
+        plane = np.abs(np.einsum("mqc,mqc->mq", P - A, n)) / np.sqrt(np.where(nn > 0, nn, 1.0))
+        best = np.where(inside & (nn > 0), plane, np.inf)
+        for X, Y in ((A, B), (B, C), (C, A)):
+            XY = Y - X
+            t = np.einsum("mqc,mqc->mq", P - X, XY) / np.maximum(
+                np.einsum("mqc,mqc->mq", XY, XY), 1e-300)
+            Q = X + np.clip(t, 0.0, 1.0)[..., None] * XY
+            best = np.minimum(best, np.linalg.norm(P - Q, axis=2))
+        out = np.minimum(out, best)
+    return out
 
 
 def leaf_points(table: dict, strata):

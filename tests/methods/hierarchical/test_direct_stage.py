@@ -102,7 +102,8 @@ def brute_l1(el, table, side_points=24, emitter_points=24, seed=1):
 
 @pytest.fixture
 def floor(tmp_path):
-    return load_scene(write_scene(tmp_path, FLOOR, FLOOR_MATERIALS), settings=settings_of()).elements
+    path = write_scene(tmp_path, FLOOR, FLOOR_MATERIALS)
+    return load_scene(path, settings=settings_of()).elements
 
 
 def test_l1_under_a_half_blocked_emitter_matches_brute_force(floor):

@@ -41,18 +41,18 @@ def main():
     sc = load_scene(path, resolution=args.res, settings=s)
     el = sc.elements
     part = subdivide_scene(el, sc.camera)[0]
-    table = {"verts": part.verts, "nverts": part.nverts, "orig": part.orig,
-             "leaf_node": np.arange(len(part))}
+    leaves = {"verts": part.verts, "nverts": part.nverts, "orig": part.orig,
+              "leaf_node": np.arange(len(part))}
     rows, figs = [], []
     t = time.perf_counter()
-    here = first_bounce(table, el, s, figures=figs)
+    here = first_bounce(leaves, el, s, figures=figs)
     rows.append({"where": "driver", "seconds": round(time.perf_counter() - t, 2)})
     with open_client(args.workers, quiet=True, settings=s.cluster) as client, \
             tempfile.TemporaryDirectory() as d:
         rs = RunStore(d, "w")
         for _ in range(2):  # the second: every task reused
             t = time.perf_counter()
-            there = first_bounce(table, el, s, rs=rs, client=client, where="workers",
+            there = first_bounce(leaves, el, s, rs=rs, client=client, where="workers",
                                  figures=figs)
             rows.append({"where": "workers", "seconds": round(time.perf_counter() - t, 2),
                          "same_bits": bool(np.array_equal(here, there))})

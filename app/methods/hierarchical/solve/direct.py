@@ -373,14 +373,16 @@ class DirectStage(StageMaster):
         return _figures(p, "workers", run.figures(), run.counts, self.t_start)
 
 
-def _figures(p: _Prepared, where: str, task_figures: dict, counts, t0: float) -> DirectFigures:
+def _figures(p: _Prepared, where: str, task_figures: dict, counts, t0: float,
+             tasks: int | None = None) -> DirectFigures:
     c = dict(zip(COUNTERS, np.asarray(counts).tolist()))
     n = np.diff(p.pfirst)
     return DirectFigures(**task_figures, where=where, leaves=len(p.rho), points=int(c["points"]),
                          points_per_leaf_max=int(n.max(initial=0)),
                          leaves_more_points=int((n > p.k).sum()), emitters=p.emitters,
                          samples=p.samples, leaf_points=p.k, shadow_rays=int(c["shadow_rays"]),
-                         tasks=len(p.first) - 1, time_s=round(time.perf_counter() - t0, 4))
+                         tasks=len(p.first) - 1 if tasks is None else tasks,
+                         time_s=round(time.perf_counter() - t0, 4))
 
 
 def first_bounce(table: dict, elements, settings, k: int | None = None, *, rs=None, client=None,
@@ -421,7 +423,7 @@ def first_bounce(table: dict, elements, settings, k: int | None = None, *, rs=No
                                  "tasks_corrupted_recomputed": 0,
                                  "time_tasks_s": round(time.perf_counter() - t0, 4),
                                  "busy_s_per_worker": {}, "idle_fraction": None, "workers": 1},
-                   (len(p.pts) if light is not None else 0, counted.rays), t0)
+                   (len(p.pts) if light is not None else 0, counted.rays), t0, tasks=1)
     if rs is not None:
         fig.write(rs.run_dir)
     if figures is not None:

@@ -213,6 +213,10 @@ class _Counted:
         self.rays += len(x)
         return self.caster.occluded(x, *args, **kw)
 
+    def occluded_pairs(self, points, ia, *args, **kw):
+        self.rays += len(ia)
+        return self.caster.occluded_pairs(points, ia, *args, **kw)
+
     def __getattr__(self, name):
         return getattr(self.caster, name)
 
@@ -233,6 +237,12 @@ class DirectInputs:
         el = self.elements
         return _light(el, self.ray_offset, self.samples, self.seed,
                       caster_for(self.key, el.verts, el.nverts, self.ray_offset))
+
+
+def _rays(light, counted: _Counted) -> int:
+    """Shadow rays the light cast: its own count where it keeps one, else the caster's."""
+    own = getattr(light, "rays", None)
+    return int(own) if isinstance(own, (int, np.integer)) else counted.rays
 
 
 def _light(elements, ray_offset: float, samples: int, seed: int, caster):
@@ -257,7 +267,7 @@ def task_direct(inp: DirectInputs, pts, e, first, rho, p0: int, store_path: str 
         from radiosity.methods.hierarchical.store import write_direct
 
         out.update(write_direct(store_path, task, l1))
-    out.update({"counts": np.array([len(pts), counted.rays], np.int64), "start": t0,
+    out.update({"counts": np.array([len(pts), _rays(light, counted)], np.int64), "start": t0,
                 "stop": time.time(), "worker": worker_address()})
     return out
 
@@ -423,7 +433,7 @@ def first_bounce(table: dict, elements, settings, k: int | None = None, *, rs=No
                                  "tasks_corrupted_recomputed": 0,
                                  "time_tasks_s": round(time.perf_counter() - t0, 4),
                                  "busy_s_per_worker": {}, "idle_fraction": None, "workers": 1},
-                   (len(p.pts) if light is not None else 0, counted.rays), t0, tasks=1)
+                   (0, 0) if light is None else (len(p.pts), _rays(light, counted)), t0, tasks=1)
     if rs is not None:
         fig.write(rs.run_dir)
     if figures is not None:

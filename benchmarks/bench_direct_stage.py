@@ -4,9 +4,9 @@ a link table without refinement below them has): leaves, points, shadow rays, se
 way (the stage on cold workers, on warm ones, and again on its own store: every task reused by
 the token), the stage's tasks, and that both give the same bits.
 
-    python benchmarks/bench_direct.py [--scene modern-hall] [--res 64] [--workers 2]
+    python benchmarks/bench_direct_stage.py [--scene modern-hall] [--res 64] [--workers 2]
 
-docs/src/measurements/direct.md's table comes from this script.
+docs/src/measurements/direct-stage.md's table comes from this script.
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ def main():
                   round(f.shadow_rays / max(r["seconds"], 1e-9))})
     print(table(rows, ["where", "leaves", "points", "max_a_leaf", "more_points", "emitters",
                        "shadow_rays", "tasks", "reused", "seconds", "rays_per_s", "same_bits"]))
-    print("wrote", write("direct", rows, {"scene": args.scene, "resolution": args.res,
+    print("wrote", write("direct-stage", rows, {"scene": args.scene, "resolution": args.res,
                                           "workers": args.workers, "triangles": len(el)}))
 
 

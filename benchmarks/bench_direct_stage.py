@@ -66,7 +66,7 @@ def main():
                   round(f.shadow_rays / max(r["seconds"], 1e-9))})
     print(table(rows, ["where", "leaves", "points", "max_a_leaf", "more_points", "emitters",
                        "shadow_rays", "tasks", "reused", "seconds", "rays_per_s", "same_bits"]))
-    print("wrote", write("direct-stage", rows, {"scene": args.scene, "resolution": args.res,
+    print("wrote", write(f"direct-stage-{args.scene}", rows, {"scene": args.scene, "resolution": args.res,
                                           "workers": args.workers, "triangles": len(el)}))
 
 

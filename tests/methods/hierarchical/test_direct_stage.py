@@ -109,8 +109,8 @@ def floor(tmp_path):
 def test_l1_under_a_half_blocked_emitter_matches_brute_force(floor):
     """8 x 8 leaves of the floor, lit, penumbra and umbra. Unoccluded leaves (x > 0.75) within
     0.5 % (the contour integral; 4 points a leaf), the floor's mean within 1.5 %; the penumbra's
-    leaves are noisy with 16 shadow rays (4 strata a side across a shadow edge: up to half the
-    mean) and converge: with 1024 rays and 16 points every leaf within 4 % of the mean."""
+    leaves carry the shadow rays' noise (design/methods-hierarchical-direct.md) and converge:
+    with 1024 rays and 16 points every leaf within 4 % of the mean."""
     el, table = floor, grid_table(floor, 0, 8)
     ref = brute_l1(el, table)
     assert ref.min() < 0.05 * ref.max()  # the blocker's shadow is there

@@ -45,7 +45,7 @@ class HierarchicalRounds(Refinement):
 class HierarchicalMethod(TransportMethod):
     name = "hierarchical"
     section = "links"
-    store_groups = ("links", "clusters", "hierarchy")
+    store_groups = ("links", "clusters", "hierarchy", "direct")
     all_pairs = False
     refinement = HierarchicalRounds()
 

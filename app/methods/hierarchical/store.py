@@ -5,6 +5,8 @@ the task plan, the manifest, and the node table.
                  hierarchy.py), F_pq, F_qp (unoccluded form factors, p -> q and q -> p), the
                  visible fraction v and the sides sp, sq (0 front, 1 back) that face
    <task>-nodes  (j,) NODE_DTYPE: the nodes the task split below the camera's partition (12 bytes each)
+ The leaves' first bounce (solve/direct.py), per direct task, in group `direct/`:
+   <task>        (n, 2, 3) float64 L1 of the task's leaves, per side and colour
 
 Design notes and measurements: docs/src/design/methods-hierarchical-store.md.
 """
@@ -24,6 +26,7 @@ LINK_DTYPE = np.dtype([("po", "<i4"), ("pc", "<u8"), ("qo", "<i4"), ("qc", "<u8"
                        ("fpq", "<f8"), ("fqp", "<f8"), ("v", "<f4"), ("sp", "i1"), ("sq", "i1")])
 NODE_DTYPE = np.dtype([("o", "<i4"), ("c", "<u8")])
 LINKS_MANIFEST = "links.manifest.jsonl"
+DIRECT_MANIFEST = "direct.manifest.jsonl"
 
 
 #: The cluster layer that this process last wrote, handed to the next read of the same store
@@ -170,3 +173,83 @@ class LinkStore:
                              f"visibility {self.rs.run_dir} --method hierarchical")
         handed = _HANDOFF.pop((os.path.realpath(self.rs.path), token), None)
         return handed if handed is not None else self.rs.read_arrays("clusters")
+
+
+# ----------------------------------------------------------------------------- the first bounce
+
+def direct_path(store_path: str) -> str:
+    return os.path.join(store_path, "direct")
+
+
+def _crc(a: np.ndarray) -> int:
+    return zlib.crc32(np.ascontiguousarray(a).view(np.uint8).tobytes())
+
+
+def write_direct(store_path: str, task: int, l1: np.ndarray) -> dict:
+    """Write one direct task's L1 (n, 2, 3) float64 as one chunk (called on the workers);
+    returns {crc, n} for the manifest."""
+    a = np.ascontiguousarray(l1, np.float64)
+    g = zarr_module().open_group(direct_path(store_path), mode="r+")
+    create_array(g, str(task), data=a, chunks=a.shape if a.size else (1, 2, 3), overwrite=True)
+    return {"crc": _crc(a), "n": int(len(a))}
+
+
+def read_direct(store_path: str, task: int, entry: dict) -> np.ndarray:
+    """One direct task's L1 (n, 2, 3), checked against its manifest entry {crc, n}; a missing or
+    altered task raises StoreError."""
+    a = None
+    try:
+        a = np.ascontiguousarray(zarr_module().open_group(direct_path(store_path), mode="r")
+                                 [str(task)][...], np.float64)
+    except Exception:  # missing or unreadable
+        pass
+    if a is None or len(a) != entry["n"] or _crc(a) != entry["crc"]:
+        raise StoreError(f"direct task {task} of {os.path.dirname(store_path)} is missing or "
+                         "corrupted (checksum): it is computed again on the next solve")
+    return a
+
+
+class DirectStore:
+    """The direct group of a run store (solve/direct.py's ledger): the task plan (first leaf of
+    each task), one array of L1 per task, the manifest."""
+
+    def __init__(self, rs: RunStore):
+        self.rs = rs
+        self.manifest = os.path.join(rs.run_dir, DIRECT_MANIFEST)
+
+    def create(self, first: np.ndarray, token: str, attrs: dict) -> None:
+        """A fresh direct group for tasks over leaves first[k]:first[k + 1]."""
+        root = self.rs.root
+        if "direct" in root:
+            del root["direct"]
+        g = root.create_group("direct")
+        a = np.ascontiguousarray(first, np.int64)
+        create_array(g, "first", data=a, chunks=chunks_of(a))
+        g.update_attributes({"token": token, **attrs})
+        Manifest(self.manifest).create(token)
+
+    def token(self) -> str | None:
+        if "direct" not in self.rs.root:
+            return None
+        return self.rs.root["direct"].attrs.get("token")
+
+    @staticmethod
+    def _line(task: int, e: dict) -> dict:
+        return {"task": int(task), "crc": int(e["crc"]), "n": int(e["n"]),
+                "counts": [int(c) for c in e["counts"]]}
+
+    def record(self, task: int, result: dict) -> None:
+        Manifest(self.manifest).record(self._line(task, result))
+
+    def rewrite_manifest(self, token: str, entries: dict) -> None:
+        Manifest(self.manifest).rewrite(token, {t: self._line(t, e) for t, e in entries.items()})
+
+    def finished(self, token: str) -> dict:
+        return Manifest(self.manifest).finished(token)
+
+    def verify(self, task: int, entry: dict) -> bool:
+        try:
+            read_direct(self.rs.path, task, entry)
+        except StoreError:
+            return False
+        return True

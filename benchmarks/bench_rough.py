@@ -55,6 +55,7 @@ def main():
     ap.add_argument("--triangles", default="20000,50000", help="terrain triangle counts")
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--rough", type=float, default=1.5, help="noise in grid spacings")
+    ap.add_argument("--name", default="rough", help="results/NAME.json")
     a = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -72,7 +73,7 @@ def main():
             "probed", "dropped_blocked", "element_pairs", "links", "links_per_leaf", "rays",
             "time_vs_smooth", "memory_vs_smooth"]
     print(table(rows, cols))
-    print("wrote", write("rough", rows, {"resolution": a.resolution, "rough": a.rough}))
+    print("wrote", write(a.name, rows, {"resolution": a.resolution, "rough": a.rough}))
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import numpy as np
 from radiosity.core.arrays import radix_order
 from radiosity.methods.hierarchical.clusters.transport import ClusterLinks
 from radiosity.methods.hierarchical.clusters.refine import ClusterTree, cluster_tree, refine_clusters
-from radiosity.methods.hierarchical.clusters.weights import link_weights, solid_ends
+from radiosity.methods.hierarchical.clusters.weights import clear_links, link_weights, solid_ends
 from radiosity.runtime.stage import StageMaster, StagePlan
 from radiosity.runtime.store import StageFigures
 
@@ -187,8 +187,8 @@ def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
 
 
 #: Rays a probed link takes (_probe): a link whose estimate is below PROBE_RAYS times epsilon and
-#: whose PROBE_RAYS rays are all blocked is dropped (docs/src/design/methods-hierarchical-clusters.md,
-#: "Rough surfaces").
+#: whose PROBE_RAYS rays are all blocked is dropped (docs/src/design/
+#: methods-hierarchical-clusters.md, "Rough surfaces").
 PROBE_RAYS = 4
 
 
@@ -221,10 +221,16 @@ def _probe(ct: ClusterTree, links, pairs, counts, caster, eps: float, solids: bo
     t = ct.tree
     solid = solid_ends(caster, ct.elems) if solids else None
     out_links, out_pairs, nrays = [links], [pairs], 0
+    boxes = caster.occluder_boxes()
     while len(probes):
-        F, v, r = link_weights(ct, probes, caster, PROBE_RAYS, solid=solid)
+        # links no segment between their boxes can block (clear_links) are split at once
+        ask = np.ones(len(probes), np.bool_) if boxes is None else \
+            ~clear_links(t.rec, probes, *boxes)
+        drop = np.zeros(len(probes), np.bool_)
+        F, v, r = link_weights(ct, probes[ask], caster, PROBE_RAYS, solid=solid)
         nrays += r
-        drop = (v <= 0.0) & (_carried(probes, F, t.rho, t.lhat, ct.lref) <= PROBE_RAYS * eps)
+        drop[ask] = (v <= 0.0) & (_carried(probes[ask], F, t.rho, t.lhat, ct.lref)
+                                  <= PROBE_RAYS * eps)
         counts[4] += len(probes)
         counts[5] += int(drop.sum())
         kids, both = _split_links(t, probes[~drop])

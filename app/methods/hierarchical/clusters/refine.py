@@ -429,7 +429,7 @@ def _error_estimate(rec, start, end, ona, p, q, d2, lref, stop):
 
 
 @numba.njit(cache=True, nogil=True)
-def refine_clusters(t, e, eps, lref, cap, init, frontier):
+def refine_clusters(t, e, eps, lref, cap, init, frontier, probe=0.0):
     """The cluster refinement from the links `init` (s, 2) int64 (the root's self-link (0, 0):
     the whole refinement): (links (k, 2) int64 node pairs kept as cluster links, pairs (j, 2)
     int64 originals I < J handed to the element-level refinement, counts [evaluated, culled by
@@ -442,15 +442,19 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
     it cannot split). eps = 0 lists exactly the facing pairs of originals. frontier > 0:
     breadth first, stop once that many links wait to be refined and return them as `pending`
     (the cut into tasks: refining each of them on its own gives the same links and pairs); 0:
-    depth first to the end (pending empty)."""
+    depth first to the end (pending empty). probe > eps: a link that could be kept but for its
+    estimate, which is below `probe`, is neither kept nor split but listed in `probes` (r, 2)
+    int64, for rays to decide (clusters/tasks._probe: dropped where every ray is blocked)."""
     left, right, start, end, order, rec, stop = t.left, t.right, t.start, t.end, t.order, \
         t.rec, t.stop
     normal, verts, offset, two_sided, ona, feps = e.normal, e.verts, e.offset, e.two_sided, \
         e.ona, e.eps
     links = np.empty((max(cap, 16), 2), np.int64)
     pairs = np.empty((max(cap, 16), 2), np.int64)
+    probes = np.empty((16, 2), np.int64)
     nl = 0
     npr = 0
+    nb = 0
     counts = np.zeros(4, np.int64)
     stack = np.empty((max(1024, 2 * init.shape[0]), 2), np.int64)
     ns = init.shape[0]
@@ -485,8 +489,15 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
             continue
         d2 = _box_distance2(rec, p, q)
         ok = d2 > 0.0 and rec[p, TWO] == 0 and rec[q, TWO] == 0 and not _near(rec, p, q, d2)
-        keep = ok and (_error_bound(rec, p, q, d2, lref) <= eps
-                       or _error_estimate(rec, start, end, ona, p, q, d2, lref, eps) < eps)
+        keep = False
+        est = np.inf
+        if ok:
+            keep = _error_bound(rec, p, q, d2, lref) <= eps
+            if not keep:
+                # stops at max(eps, probe): below eps the whole estimate, to the bit
+                est = _error_estimate(rec, start, end, ona, p, q, d2, lref, max(eps, probe))
+                keep = est < eps
+        probe_it = probe > eps and est < probe
         # an end that stays whole (stop) is not split where the link could be kept: the other
         # end is, and where neither can split the link is kept above epsilon (eps > 0 only:
         # epsilon 0 still lists every facing pair of originals)
@@ -499,6 +510,9 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
             if not (faces(normal, verts, offset, two_sided, feps, i, j)
                     and faces(normal, verts, offset, two_sided, feps, j, i)):
                 counts[1] += 1
+                continue
+            if not keep and probe_it:
+                probes, nb = _push(probes, nb, p, q)
                 continue
             if not keep:
                 if npr == pairs.shape[0]:
@@ -516,6 +530,9 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
             links[nl, 0], links[nl, 1] = p, q
             nl += 1
             continue
+        if probe_it:
+            probes, nb = _push(probes, nb, p, q)
+            continue
         # split the end with more area (the larger solid angle seen from the other)
         split_p = (not fp) and (fq or rec[p, AREA] >= rec[q, AREA])
         if split_p:
@@ -527,4 +544,15 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier):
         ns += 2
     counts[2] = nl
     counts[3] = npr
-    return links[:nl], pairs[:npr], counts, stack[head:ns].copy()
+    return links[:nl], pairs[:npr], counts, stack[head:ns].copy(), probes[:nb]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _push(rows, n, a, b):
+    """Append (a, b) to rows (m, 2) holding n, grown twice where full: (rows, n + 1)."""
+    if n == rows.shape[0]:
+        grown = np.empty((2 * n, 2), np.int64)
+        grown[:n] = rows
+        rows = grown
+    rows[n, 0], rows[n, 1] = a, b
+    return rows, n + 1

@@ -53,6 +53,7 @@ class SolveFigures(StageFigures):
     solution: str = "written"        # written | kept previous (not converged) | written unconverged
     method: str = "-"                # the transport method (methods/base.py METHODS); "-": none
     hierarchy: dict | None = None    # --method hierarchical: leaves, link terms, final gather
+    direct: str = "links"            # the emitters' light at points or through the links (SPEC §10)
 
     def rows(self):
         return [("solver", f"{self.solver} ({self.kernel} kernel, {self.method} method)"),

@@ -122,7 +122,11 @@ class HierarchicalMethod(TransportMethod):
             from radiosity.methods.hierarchical.solve.direct import first_bounce
 
             state["Le"] = Le
-            Le = np.ascontiguousarray(first_bounce(table, el, s), np.float64)
+            Le = np.asarray(first_bounce(table, el, s, k=int(s.direct.leaf_points)), np.float64)
+            if live is not None:  # H1 is 0 at points inside solids: L1 of the leaf's live part
+                # (live_leaves: the share of 4 stratified points outside solids, the same 4)
+                Le = Le / np.where(live > 0, live, 1.0)
+            Le = np.ascontiguousarray(Le)
         return Opened(op, Le, rho, area, table["orig"][table["leaf_node"]], m,
                       lambda L: to_sub_elements(L, table, m), originals=len(el), live=live,
                       state=state)

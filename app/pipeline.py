@@ -125,14 +125,10 @@ def scene_plan(scene: Scene, settings: Settings, full: bool = False, run_dir: st
 
 
 def direct_choice(method: str, elements, settings: Settings) -> tuple[str, str]:
-    """(mode, why): where the emitters' light is taken (SPEC §10; radiosity.direct.mode): the
-    hierarchical method's choice (params.choose_direct); the pairs method takes it through its
-    pairs (the seed's way)."""
-    if method != "hierarchical":
-        return "links", f"links: the {method} method carries all light through its pairs"
-    from radiosity.methods.hierarchical.params import choose_direct
-
-    return choose_direct(elements, settings)
+    """(mode, why): where method `method` takes the emitters' light (SPEC §10;
+    radiosity.direct.mode): the hierarchical method by the scene (params.choose_direct), the
+    pairs method through its pairs (the seed's way)."""
+    return get_method(method).direct(elements, settings)
 
 
 def scene_digest(scene: Scene) -> str:

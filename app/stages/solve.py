@@ -61,6 +61,7 @@ class SolveFigures(StageFigures):
                 *([("solution", self.solution)] if not self.converged else []),
                 ("final residual", f"{self.final_residual:.3g}"),
                 *([("closure", self.closure["reason"])] if self.closure else []),
+                *([("direct light", "at points (SPEC §10)")] if self.direct == "points" else []),
                 ("pair terms/s", f"{self.pair_terms_per_s / 1e6:.1f} M"),
                 ("time", f"{self.time_s:.2f} s")]
 

@@ -53,6 +53,12 @@ class HierarchicalMethod(TransportMethod):
         """Nothing to refuse: scenes of many originals are clustered (SPEC §9)."""
         return None
 
+    def direct(self, elements, settings) -> tuple[str, str]:
+        """The emitters' light at points or through the links (params.choose_direct)."""
+        from radiosity.methods.hierarchical.params import choose_direct
+
+        return choose_direct(elements, settings)
+
     def plan_lines(self, settings, sub_elements, originals, why) -> list[str]:
         """The cluster tree and its links (estimated per original) where the originals are
         clustered, else the links estimated per sub-element."""

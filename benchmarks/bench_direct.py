@@ -61,7 +61,16 @@ def render(toml: str, out: str, mode: str, res: int, workers: int | None) -> dic
             "links_per_leaf": lk.get("links_per_leaf"), "rays": lk.get("rays"),
             "link_s": round(st["visibility_s"], 1), "solve_s": round(st["solve_s"], 1),
             "total_s": round(st["total_s"], 1), "wall_s": round(wall, 1),
-            "peak_mib": round(st.get("peak_rss_mb", float("nan")), 0)}
+            "peak_mib": _peak(st.get("peak_rss_mb"))}
+
+
+def _peak(p) -> float:
+    """The process tree's peak (MiB): the driver's and every worker process's (threads in the
+    driver's process count once)."""
+    if not isinstance(p, dict):
+        return float("nan") if p is None else float(p)
+    w = {k: v for k, v in (p.get("workers") or {}).items() if not k.startswith("inproc")}
+    return float(p.get("master") or 0.0) + float(sum(w.values()))
 
 
 def main() -> None:

@@ -4,7 +4,7 @@ and --direct points, in turns; links, links a leaf, rays, stage and whole times,
 the process tree, and each surface's mean radiance (surfaces.csv, RGB sum) of the points run
 against the links run.
 
-    python benchmarks/bench_direct.py [--scenes cornell-box,real/modern-hall] [--resolution 64]
+    python benchmarks/bench_split.py [--scenes cornell-box,real/modern-hall] [--resolution 64]
         [--runs 1] [--workers N] [--name direct]
 
 A scene is a folder of scenes/ or, with real/, of benchmarks/real/. Writes
@@ -79,7 +79,7 @@ def main() -> None:
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--runs", type=int, default=1)
     ap.add_argument("--workers", type=int, default=None)
-    ap.add_argument("--name", default="direct")
+    ap.add_argument("--name", default="split")
     a = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -39,15 +39,15 @@ def _oracle_id(name: str) -> int:
 
 @dataclass(frozen=True)
 class LinkParams:
-    """The refinement settings (resolved on the driver).
+    """The refinement settings (resolved on the driver). direct: the emitters' light is taken
+    at points (choose_direct), the oracle weighs sources by their first bounce, not by Le.
 
     epsilon: oracle threshold; shadow: threshold for splitting partly visible links; near:
     near-field factor (node sizes); min_size: size limit (sqrt of area, scene units) for
     splitting unseen originals; rays: sample rays per link (1: centroids); kid: 0 point, 1 disc
     (kept far links); exact: kept near links get the exact polygon form factor; plane_tol:
     distance (scene units) within which a vertex counts as on a plane; occlusion: False when
-    nothing can block (scene/effects.py); direct: the emitters' light is taken at points
-    (choose_direct), the oracle weighs sources by their first bounce, not their emission."""
+    nothing can block (scene/effects.py)."""
 
     epsilon: float
     shadow: float
@@ -62,8 +62,8 @@ class LinkParams:
     gauss_gap: float = 2.0
     far_polygon: int = 1
     weighted_rays: bool = True
-    solids: bool = True
     direct: bool = False
+    solids: bool = True
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}

@@ -60,6 +60,8 @@ class RenderFigures(StageFigures):
                       f"{sol['final_residual']:.2g}, {sol['channels']} channel(s)"
                       + ("" if sol.get("converged", True) else f", NOT converged: solution "
                          f"{sol.get('solution', 'written')}")),
+            *([("direct light", self.report["plan"]["direct_reason"])]
+              if "direct_reason" in self.report.get("plan", {}) else []),
             ("closure", (sol.get("closure") or self.report.get("plan", {}).get("closure")
                          or {}).get("reason", "-")),
             *([("rounds", self.report["rounds"]["why"])]
@@ -122,6 +124,13 @@ def scene_plan(scene: Scene, settings: Settings, full: bool = False, run_dir: st
                        int((pix == 0).sum()), int(sizes.sum()), estimated=run_dir is None)
 
 
+def direct_choice(method: str, elements, settings: Settings) -> tuple[str, str]:
+    """(mode, why): where method `method` takes the emitters' light (SPEC §10;
+    radiosity.direct.mode): the hierarchical method by the scene (params.choose_direct), the
+    pairs method through its pairs (the seed's way)."""
+    return get_method(method).direct(elements, settings)
+
+
 def scene_digest(scene: Scene) -> str:
     """sha256 of what a run is made from: the bytes of the scene file and of every mesh file,
     and the element arrays they resolved to (so materials from an MTL file or a glTF buffer
@@ -180,7 +189,9 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
                                                    est.get("facing_original_pairs_estimate")))
     impl = get_method(name)
     echo(f"method: {why}")
-    update_report(out, "plan", {"method": name, "method_reason": why})
+    direct, direct_why = direct_choice(name, scene.elements, s)
+    update_report(out, "plan", {"method": name, "method_reason": why, "direct": direct,
+                                "direct_reason": direct_why})
     t = time.perf_counter()
     if effects.interreflection:
         impl.build(out, client, s, resume=resume and reuse, progress=progress,

@@ -204,6 +204,20 @@ class HierarchySettings(_Section):
 
 
 @dataclass(frozen=True)
+class DirectSettings(_Section):
+    """radiosity.direct.*: where the light straight from emitters is computed (SPEC §10): at
+    points (`points`: pixels, gather points, the leaves' stratified points; links carry only the
+    light after its first bounce), through the links as any other light (`links`, the seed's
+    way), or per scene (`auto`: methods/hierarchical/params.choose_direct)."""
+
+    SECTION: ClassVar[str] = "direct"
+    mode: str
+    samples: int
+    leaf_points: int
+    auto_share: float
+
+
+@dataclass(frozen=True)
 class ImageSettings(_Section):
     """radiosity.render.*"""
 
@@ -274,7 +288,7 @@ class ViewFactorSettings(_Section):
 
 SECTIONS = {c.SECTION: c for c in (SceneSettings, RaySettings, SubdivideSettings, PlanSettings,
                                    VisibilitySettings, SolveSettings, HierarchySettings,
-                                   ImageSettings, ClusterSettings, ReferenceSettings,
+                                   DirectSettings, ImageSettings, ClusterSettings, ReferenceSettings,
                                    ViewFactorSettings)}
 
 
@@ -289,6 +303,7 @@ class Settings:
     visibility: VisibilitySettings
     solve: SolveSettings
     hierarchy: HierarchySettings
+    direct: DirectSettings
     render: ImageSettings
     cluster: ClusterSettings
     reference: ReferenceSettings
@@ -343,7 +358,7 @@ OPTIONS = {
     "edge_samples": ("render.edge-samples",),
     "method": ("visibility.method",), "unit": ("visibility.task-unit", "hierarchy.task-unit"),
     "epsilon": ("hierarchy.epsilon",), "link_rays": ("hierarchy.link-rays",),
-    "processes": ("cluster.processes",),
+    "processes": ("cluster.processes",), "direct": ("direct.mode",),
     "accuracy": ("viewfactors.accuracy",), "cutoff": ("viewfactors.cutoff",),
     "enclosure": ("viewfactors.enclosure",),
 }
@@ -411,6 +426,10 @@ CHECKS = {
     "hierarchy.epsilon": (lambda v: v == "auto" or (
         isinstance(v, (int, float)) and math.isfinite(v) and v >= 0), "a number >= 0 or auto"),
     "hierarchy.link-rays": _at_least(1),
+    "direct.mode": _one_of("auto", "points", "links"), "direct.samples": _at_least(1),
+    "direct.leaf-points": (lambda v: v >= 1 and math.isqrt(int(v)) ** 2 == v,
+                           "a square (1, 4, 9, ...)"),
+    "direct.auto-share": (lambda v: math.isfinite(v) and 0 <= v <= 1, "a number in [0, 1]"),
     "cluster.processes": _one_of("auto", "true", "false", True, False),
     "viewfactors.accuracy": (lambda v: math.isfinite(v) and 0 < v < 1, "a number in (0, 1)"),
     "viewfactors.cutoff": _at_least(0), "viewfactors.enclosure": _ON_OFF,

@@ -209,7 +209,9 @@ def link_power_balance(run_dir: str) -> tuple[float, float, float]:
     """(emitted, absorbed, escaped) power of a solved hierarchical run, the escaped part from
     each leaf's total outgoing form factor summed directly from the stored links over its
     ancestors (not through the operator): they balance only if pull and push weigh by area
-    consistently."""
+    consistently. With the emitters' light at points (the solution's attrs say direct: points)
+    the leaves hold R = L1 + rho K R and what the leaves emit is the first bounce L1, the
+    solve's right-hand side (the method's open)."""
     import numpy as np
 
     from radiosity.methods.hierarchical.solve.leaves import leaf_vectors
@@ -219,6 +221,10 @@ def link_power_balance(run_dir: str) -> tuple[float, float, float]:
     rs = RunStore(run_dir)
     op, table, el, _ = open_link_operator(rs, None, "auto", settings_of())
     Le, rho, A = leaf_vectors(table, el)
+    if rs.group_attrs("solution").get("direct") == "points":
+        from radiosity.methods.hierarchical.method import HIERARCHICAL
+
+        Le = HIERARCHICAL.open(rs, None, settings_of(direct="points")).Le
     L = np.transpose(rs.read_arrays("solution")["leaf_radiance"], (1, 2, 0))
     H = op.apply(L)
     # independently: sum of F v over the links of each node, per side, then down the tree

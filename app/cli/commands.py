@@ -395,7 +395,7 @@ def _builtin_cornell() -> str:
 def plan(scene, resolution, subpixel, tol):
     """Print which effects SCENE calls for, which are skipped and why, before any heavy work."""
     from radiosity.methods.base import choose_method, get_method, stated_method
-    from radiosity.pipeline import scene_plan
+    from radiosity.pipeline import direct_choice, scene_plan
     from radiosity.scene.effects import describe
     from radiosity.runtime.checks import check_scene
 
@@ -412,6 +412,7 @@ def plan(scene, resolution, subpixel, tol):
                                 facing_pairs=est.get("facing_original_pairs",
                                                      est.get("facing_original_pairs_estimate")))
     click.echo(f"method: {why}")
+    click.echo(f"direct light: {direct_choice(method, sc.elements, st)[1]}")
     for line in get_method(method).plan_lines(st, planned.sub_elements, len(sc.elements), why):
         click.echo(line)
 

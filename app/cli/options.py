@@ -169,8 +169,9 @@ def cluster_options(fn):
 
 
 def method_options(fn, links: bool = True):
-    """--method pairs|hierarchical, and the hierarchical method's --epsilon / --link-rays
-    (overrides of radiosity.visibility.method and radiosity.hierarchy.*)."""
+    """--method pairs|hierarchical, --direct, and the hierarchical method's --epsilon /
+    --link-rays (overrides of radiosity.visibility.method, radiosity.direct.mode and
+    radiosity.hierarchy.*)."""
     if links:
         fn = click.option("--link-rays", type=int, default=None, expose_value=False,
                           help="hierarchical: sample rays per link not proven visible (a square).",
@@ -178,6 +179,13 @@ def method_options(fn, links: bool = True):
         fn = click.option("--epsilon", type=float, default=None, expose_value=False,
                           help="hierarchical: refine links while their error estimate exceeds this.",
                           callback=_setting("hierarchy.epsilon"))(fn)
+    fn = click.option("--direct", type=click.Choice(["auto", "points", "links"]), default=None,
+                      expose_value=False,
+                      help="hierarchical: the emitters' light at points, the links carrying only "
+                           "light after its first bounce (points), through the links as all "
+                           "light (links, the seed's way), or per scene (auto, the default: "
+                           "radiosity.direct.mode).",
+                      callback=_setting("direct.mode"))(fn)
     from radiosity.methods.base import METHODS
 
     return click.option("--method", type=click.Choice(["auto", *METHODS]), default=None,

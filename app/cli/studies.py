@@ -59,21 +59,26 @@ def _floats(s: str, kind=float):
 @click.option("--link-rays", "link_rays", default="4", show_default=True, metavar="K,K,...",
               callback=number_list(int, 0, "positive integers"),
               help="With --epsilons: the hierarchical method's rays per link (squares).")
+@click.option("--direct-modes", "direct_modes", default="links,points", show_default=True,
+              metavar="MODE,MODE",
+              help="With --epsilons: where the emitters' light is taken (radiosity.direct.mode), "
+                   "each a row: links (the old way) beside points (SPEC §10), or auto.")
 @click.option("--solver", default=None, help="Solver (default: radiosity.solve.solver).")
 @force_option
 @cluster_options
 @friendly
 def study_accuracy(scene, out, resolutions, subpixels, kernels, tols, reference, reference_spp,
-                   path_tracer_spp, epsilons, link_rays, solver, force, workers, scheduler,
-                   cluster_kind):
+                   path_tracer_spp, epsilons, link_rays, direct_modes, solver, force, workers,
+                   scheduler, cluster_kind):
     """Sweep resolution x sub-pixel x kernel x tolerance on SCENE (and, with --epsilons, the
-    hierarchical method's epsilon x link rays); time every stage, measure the error; write
-    results.csv, results.md and accuracy.png (error against time, Pareto front)."""
+    hierarchical method's epsilon x link rays x --direct-modes); time every stage, measure the
+    error; write results.csv, results.md and accuracy.png (error against time, Pareto front)."""
     from radiosity.validation.study import HIER, accuracy, kernel_setting
 
     ks = [k for k in kernels.split(",") if k]
     if epsilons:
-        ks += [f"{HIER}:{e:g}:{k}" for e in _floats(epsilons) for k in _floats(link_rays, int)]
+        ks += [f"{HIER}:{e:g}:{k}:{m}" for e in _floats(epsilons) for k in _floats(link_rays, int)
+               for m in direct_modes.split(",") if m]
     st = settings_from_flags(solve__solver=solver)
     for k in ks:
         kernel_setting(k, st)  # a bad name or count fails before the cluster starts

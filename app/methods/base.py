@@ -118,6 +118,11 @@ class TransportMethod(ABC):
         """A scene the stage would refuse, refused before any cluster starts (a RadiosityError
         naming the scene and the option); returns the estimates it made, or None."""
 
+    def direct(self, elements, settings) -> tuple[str, str]:
+        """(mode, why): where this method takes the emitters' light (radiosity.direct.mode,
+        SPEC §10): "links" (as all other light, the seed's way) unless it overrides this."""
+        return "links", f"links: the {self.name} method carries all light through its pairs"
+
     @abstractmethod
     def plan_lines(self, settings, sub_elements: int, originals: int, why: str) -> list[str]:
         """What `radiosity plan` says of this method's stage for a scene of this size (after

@@ -53,6 +53,7 @@ class SolveFigures(StageFigures):
     solution: str = "written"        # written | kept previous (not converged) | written unconverged
     method: str = "-"                # the transport method (methods/base.py METHODS); "-": none
     hierarchy: dict | None = None    # --method hierarchical: leaves, link terms, final gather
+    direct: str = "links"            # the emitters' light at points or through the links (SPEC §10)
 
     def rows(self):
         return [("solver", f"{self.solver} ({self.kernel} kernel, {self.method} method)"),
@@ -60,6 +61,7 @@ class SolveFigures(StageFigures):
                 *([("solution", self.solution)] if not self.converged else []),
                 ("final residual", f"{self.final_residual:.3g}"),
                 *([("closure", self.closure["reason"])] if self.closure else []),
+                *([("direct light", "at points (SPEC §10)")] if self.direct == "points" else []),
                 ("pair terms/s", f"{self.pair_terms_per_s / 1e6:.1f} M"),
                 ("time", f"{self.time_s:.2f} s")]
 

@@ -27,7 +27,7 @@ __all__ = ["COLUMNS", "PATH_TRACER", "HIER", "pareto", "resample", "image_error"
            "sampled_radiance", "kernel_setting", "overridden", "form_factor_of_run", "accuracy",
            "against_mitsuba", "write_results", "plot", "seed"]
 
-COLUMNS = ["resolution", "subpixel", "kernel", "solver", "tol", "sub_elements", "passes", "time_preprocess_s",
+COLUMNS = ["resolution", "subpixel", "kernel", "direct", "solver", "tol", "sub_elements", "passes", "time_preprocess_s",
            "time_visibility_s", "time_solve_s", "time_image_s", "time_total_s", "error", "pareto",
            "spp", "error_surface", "noise_floor"]
 PATH_TRACER = "path tracer"
@@ -75,28 +75,35 @@ def sampled_radiance(part, L: np.ndarray, orig: np.ndarray, points: np.ndarray, 
     return out
 
 
-HIER = "hier"  # a sweep label hier:EPSILON:RAYS is --method hierarchical with those settings
+HIER = "hier"  # a sweep label hier:EPSILON:RAYS[:DIRECT] is --method hierarchical with those settings
+DIRECT_MODES = ("auto", "points", "links")
 
 
 def kernel_setting(spec: str, settings: Settings):
     """A kernel of a sweep: "point", or a sampled kernel with its sample count, "nxm:16"
     (points per element) or "mc:64" (sample pairs), or the hierarchical method with its
-    epsilon and link rays, "hier:1e-3:16" (kernel: hierarchy.kernel of `settings`). Returns
-    (kernel, dask.config overrides {"radiosity.section.key": value};
-    `overridden` makes them a Settings)."""
+    epsilon, link rays and optionally where the emitters' light is taken (direct.mode, SPEC
+    §10: the old way "links" beside the new "points"), "hier:1e-3:16" or "hier:1e-3:16:points"
+    (kernel: hierarchy.kernel of `settings`). Returns (kernel, dask.config overrides
+    {"radiosity.section.key": value}; `overridden` makes them a Settings)."""
     name, _, n = spec.partition(":")
     if name == HIER:
         eps, _, k = n.partition(":")
+        k, _, mode = k.partition(":")
         try:
             eps, k = float(eps), int(k)
         except ValueError:
-            raise RadiosityError(f"setting {spec!r}: the hierarchical method is hier:EPSILON:RAYS, "
-                                 "e.g. hier:1e-3:16") from None
+            raise RadiosityError(f"setting {spec!r}: the hierarchical method is "
+                                 "hier:EPSILON:RAYS[:DIRECT], e.g. hier:1e-3:16 or "
+                                 "hier:1e-3:16:points") from None
         if not (eps >= 0 and k >= 1 and int(round(k ** 0.5)) ** 2 == k):
             raise RadiosityError(f"setting {spec!r}: epsilon >= 0 and a square number of link rays")
+        if mode and mode not in DIRECT_MODES:
+            raise RadiosityError(f"setting {spec!r}: the direct light's mode must be one of "
+                                 f"{', '.join(DIRECT_MODES)}")
         return settings.hierarchy.kernel, {
             "radiosity.visibility.method": "hierarchical", "radiosity.hierarchy.epsilon": eps,
-            "radiosity.hierarchy.link-rays": k}
+            "radiosity.hierarchy.link-rays": k, **({"radiosity.direct.mode": mode} if mode else {})}
     kid = kernel_id(name)
     if not n:
         return name, {}
@@ -239,6 +246,7 @@ def _sweep_run(scene_path: str, run: str, client, res: int, k: int, kernels, tol
     solved at every tolerance, timed, and its error measured where the scene has an exact
     answer; the others keep their image (a user's reference) or solution (the finest setting)
     in `images` for accuracy to measure."""
+    from radiosity.pipeline import direct_choice
     from radiosity.stages.preprocess import preprocess
     from radiosity.stages.image import read_exr, render_outputs
     from radiosity.scene.load import load_scene
@@ -299,6 +307,7 @@ def _sweep_run(scene_path: str, run: str, client, res: int, k: int, kernels, tol
                                                 else (run, rs.read_arrays("solution")["radiance"]))
                 err = np.nan
         rows.append({"resolution": res, "subpixel": k, "kernel": label,
+                     "direct": direct_choice(method.name, sc.elements, row)[0],
                      "solver": solve_with if "form_factor" not in val else "-", "tol": tol,
                      "sub_elements": pre["sub_elements"], "passes": passes,
                      "time_preprocess_s": t_pre, "time_visibility_s": t_vis[key],
@@ -422,13 +431,15 @@ def write_results(out: str, rows: list[dict], title: str) -> None:
             w.writerow({k: r.get(k, "") for k in COLUMNS})
     mitsuba = any("noise_floor" in r for r in rows)
     with open(os.path.join(out, "results.md"), "w") as f:
-        f.write("| resolution | K | kernel | solver | tol | sub-elements | passes | total s | error | "
-                + ("surface error | " if mitsuba else "") + "Pareto |\n")
-        f.write("|---:|---:|---|---|---:|---:|---:|---:|---:|" + ("---:|" if mitsuba else "") + ":---:|\n")
+        f.write("| resolution | K | kernel | direct light | solver | tol | sub-elements | passes | "
+                "total s | error | " + ("surface error | " if mitsuba else "") + "Pareto |\n")
+        f.write("|---:|---:|---|---|---|---:|---:|---:|---:|---:|" + ("---:|" if mitsuba else "")
+                + ":---:|\n")
         for r in rows:
             pt = r["kernel"] == PATH_TRACER
             f.write(f"| {r['resolution']} | {r['subpixel']} | "
-                    f"{r['kernel'] + (', ' + str(r['spp']) + ' spp' if pt else '')} | {r['solver']} | "
+                    f"{r['kernel'] + (', ' + str(r['spp']) + ' spp' if pt else '')} | "
+                    f"{r.get('direct', '-')} | {r['solver']} | "
                     f"{'-' if pt else format(r['tol'], 'g')} | {r['sub_elements'] if not pt else '-'} | "
                     f"{r['passes'] if not pt else '-'} | {r['time_total_s']:.2f} | {r['error']:.3g} | "
                     + (f"{r.get('error_surface', float('nan')):.3g} | " if mitsuba else "")

@@ -53,6 +53,12 @@ class HierarchicalMethod(TransportMethod):
         """Nothing to refuse: scenes of many originals are clustered (SPEC §9)."""
         return None
 
+    def direct(self, elements, settings) -> tuple[str, str]:
+        """The emitters' light at points or through the links (params.choose_direct)."""
+        from radiosity.methods.hierarchical.params import choose_direct
+
+        return choose_direct(elements, settings)
+
     def plan_lines(self, settings, sub_elements, originals, why) -> list[str]:
         """The cluster tree and its links (estimated per original) where the originals are
         clustered, else the links estimated per sub-element."""
@@ -103,6 +109,11 @@ class HierarchicalMethod(TransportMethod):
         LinkStore(rs).require()
 
     def open(self, rs, client, settings, where: str = "auto", **options) -> Opened:
+        """The link operator over the leaves. With the emitters' light at points (SPEC §10,
+        params.choose_direct), the right-hand side is the leaves' first bounce L1
+        (solve/direct.first_bounce), so that the solve's fixed point is R = L1 + rho K R, the
+        light after the emitters' (state["Le"] keeps their emission for finish)."""
+        from radiosity.methods.hierarchical.params import choose_direct
         from radiosity.methods.hierarchical.solve.leaves import leaf_vectors, live_leaves, to_sub_elements
         from radiosity.methods.hierarchical.solve.transport import open_link_operator
 
@@ -111,16 +122,30 @@ class HierarchicalMethod(TransportMethod):
         m = len(part)
         s = settings
         live = live_leaves(table, el, s.rays.offset) if s.hierarchy.inside_solids else None
+        direct, _ = choose_direct(el, s)
+        state = {"table": table, "direct": direct}
+        if direct == "points":
+            from radiosity.methods.hierarchical.solve.direct import first_bounce
+
+            state["Le"] = Le
+            Le = np.asarray(first_bounce(table, el, s, k=int(s.direct.leaf_points)), np.float64)
+            if live is not None:  # H1 is 0 at points inside solids: L1 of the leaf's live part
+                # (live_leaves: the share of 4 stratified points outside solids, the same 4)
+                Le = Le / np.where(live > 0, live, 1.0)
+            Le = np.ascontiguousarray(Le)
         return Opened(op, Le, rho, area, table["orig"][table["leaf_node"]], m,
                       lambda L: to_sub_elements(L, table, m), originals=len(el), live=live,
-                      state={"table": table})
+                      state=state)
 
     def finish(self, opened: Opened, L: np.ndarray, rows: dict, settings) -> tuple[dict, dict]:
         """With hierarchy.final-gather, one final gather that re-evaluates every link into a
         node above the leaves at each of its leaves (the uniform push leaves a saw-tooth over
         coarse receivers): solution/radiance per sub-element comes from it, and
         solution/leaf_radiance (M, 2, 3) keeps the solver's fixed point L = Le + rho K L;
-        solution/leaf_rows (M, 2) the leaves' rows of F v before any scaling (views/rounds.py)."""
+        solution/leaf_rows (M, 2) the leaves' rows of F v before any scaling (views/rounds.py).
+        With the emitters' light at points (open), Le is the first bounce L1: leaf_radiance is
+        R = L1 + Lr, without the emission, which solution/radiance adds back (the attrs say
+        direct: points)."""
         import time
 
         from radiosity.methods.hierarchical.solve.transport import LocalLinkOperator
@@ -150,6 +175,9 @@ class HierarchicalMethod(TransportMethod):
         t_fg = time.perf_counter() - t_fg
         L3 = np.broadcast_to(L, (2, 3, M)) if L.shape[1] == 1 else L
         F3 = np.broadcast_to(Lf, (2, 3, M)) if Lf.shape[1] == 1 else Lf
+        direct = opened.state.get("direct", "links")
+        if direct == "points":  # R plus the emission: what the leaves send towards a camera
+            F3 = F3 + opened.state["Le"]
         arrays = {"radiance": opened.to_sub(F3),
                   "leaf_radiance": np.ascontiguousarray(np.transpose(L3, (2, 0, 1)))}
         if opened.row_sums is not None:  # the rows of F v per leaf and side, unscaled (M, 2)
@@ -159,7 +187,8 @@ class HierarchicalMethod(TransportMethod):
                                  else "workers",
                                  "final_gather": fg if gather_final else "none",
                                  "final_gather_evaluations": int(getattr(op, "evals", 0)),
-                                 "time_final_gather_s": round(t_fg, 4)}}
+                                 "time_final_gather_s": round(t_fg, 4)},
+                   "direct": direct}
         return arrays, figures
 
     def radiance_at(self, rs, settings, pts, porig, side, pixel, footprint):

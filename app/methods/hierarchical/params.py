@@ -1,7 +1,8 @@
-"""The link stage's settings, resolved once on the driver (SPEC §8, §9): the refinement's
-parameters (LinkParams, resolve_params), the epsilon for a raster size (choose_epsilon) and the
-oracle's weights, the cluster layer's with the receivers no camera sees weighed less
-(oracle_weights, cluster_weights).
+"""The link stage's settings, resolved once on the driver (SPEC §8, §9, §10): the refinement's
+parameters (LinkParams, resolve_params), the epsilon for a raster size (choose_epsilon), where
+the emitters' light is taken (choose_direct: at points or through the links) and the oracle's
+weights, the cluster layer's with the receivers no camera sees weighed less (oracle_weights,
+cluster_weights).
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ def _oracle_id(name: str) -> int:
 
 @dataclass(frozen=True)
 class LinkParams:
-    """The refinement settings (resolved on the driver).
+    """The refinement settings (resolved on the driver). direct: the emitters' light is taken
+    at points (choose_direct), the oracle weighs sources by their first bounce, not by Le.
 
     epsilon: oracle threshold; shadow: threshold for splitting partly visible links; near:
     near-field factor (node sizes); min_size: size limit (sqrt of area, scene units) for
@@ -64,6 +66,7 @@ class LinkParams:
     gauss_gap: float = 2.0
     far_polygon: int = 1
     weighted_rays: bool = True
+    direct: bool = False
     solids: bool = True
     hull_shafts: int = 0
 
@@ -77,13 +80,73 @@ class LinkParams:
                             self.far_polygon, self.occlusion, int(self.hull_shafts))
 
 
-def oracle_weights(elements, weight: str):
+def choose_direct(elements, settings) -> tuple[str, str]:
+    """(mode, why): where the hierarchical method takes the emitters' light (SPEC §10),
+    direct.mode: points or links as stated; auto: points when something emits and the emitting
+    originals' area is at most direct.auto-share of the scene's (a lamp, windows: their light
+    is sharp, the light after its first bounce smooth), links where emitters cover more (a
+    furnace, where every surface emits: the split would only add shadow rays)."""
+    d = settings.direct
+    if d.mode not in ("auto", "points", "links"):
+        raise RadiosityError(f"radiosity.direct.mode must be auto, points or links, got {d.mode!r}")
+    if d.mode != "auto":
+        return d.mode, f"{d.mode}: stated (--direct {d.mode})"
+    em = AreaEmitters(elements).emitting()
+    if not em.any():
+        return "links", "links: auto, nothing emits"
+    A = np.asarray(elements.area, np.float64)
+    share = float(A[em].sum() / A.sum())
+    lim = float(d.auto_share)
+    if share <= lim:
+        return "points", (f"points: auto, emitters {share:.1%} of the area (<= auto-share "
+                          f"{lim:g}): their light at points, links after its first bounce")
+    return "links", (f"links: auto, emitters {share:.0%} of the area (> auto-share {lim:g}): "
+                     f"all light through the links")
+
+
+#: Shadow rays per emitting element for direct_estimate (an estimate for the oracle only).
+ESTIMATE_SAMPLES = 4
+_ESTIMATES: dict = {}
+
+
+def direct_estimate(elements, ray_offset: float) -> np.ndarray:
+    """(n, 2): the largest channel of rho H1 / pi at each original's centroid, per side (front
+    normal, back -normal): the first bounce the original sends on as a link source when the
+    emitters' light is taken at points (SPEC §10), from ESTIMATE_SAMPLES shadow rays per
+    emitting element (scene/direct.DirectLight; n points, nothing n x n). Kept per scene."""
+    from dask.base import tokenize
+
+    from radiosity.scene.direct import DirectLight
+
+    key = tokenize(elements.verts, elements.nverts, elements.emission, elements.reflectance,
+                   float(ray_offset))
+    if key in _ESTIMATES:
+        return _ESTIMATES[key]
+    n = len(elements)
+    out = np.zeros((n, 2))
+    light = DirectLight(elements, ray_offset, samples=ESTIMATE_SAMPLES)
+    rho = np.asarray(elements.reflectance, np.float64)
+    for side, sign in ((0, 1.0), (1, -1.0)):
+        on = np.flatnonzero(rho[:, side].max(axis=1) > 0)
+        if light and len(on):
+            H = light.irradiance(elements.center[on], sign * elements.normal[on], on,
+                                 index=on * 2 + side)
+            out[on, side] = (rho[on, side] * H).max(axis=1) / np.pi
+    _ESTIMATES.clear()
+    _ESTIMATES[key] = out
+    return out
+
+
+def oracle_weights(elements, weight: str, direct: np.ndarray | None = None):
     """The oracle's weights: link p <- q counts F_pq * wrho[p, side] * lhat[q, side] / lref.
 
     none: all 1 (form factors alone). bf: wrho = the largest channel of the reflectance of that
     side; lhat = the largest channel of the emission plus an ambient estimate
     La = E rho / (1 - rho) (E, rho: area-weighted means over the scene); lref = E + La, the
-    mean radiance one expects. Returns wrho (n, 2), lhat (n, 2), lref."""
+    mean radiance one expects. direct (n, 2) (the emitters' light taken at points:
+    direct_estimate): lhat = direct + La rho, the original's own first bounce and the light
+    after the second (La less its first bounce E rho), never the emission (emitters are no
+    link sources then, SPEC §10). Returns wrho (n, 2), lhat (n, 2), lref."""
     n = len(elements)
     if weight == "none":
         return np.ones((n, 2)), np.ones((n, 2)), 1.0
@@ -99,16 +162,19 @@ def oracle_weights(elements, weight: str):
     lref = E + La
     if lref <= 0:
         return np.ones((n, 2)), np.ones((n, 2)), 1.0
-    return rho, em + La, lref
+    if direct is None:
+        return rho, em + La, lref
+    return rho, np.asarray(direct, np.float64) + La * r, lref
 
 
-def cluster_weights(elements, weight: str, seen: np.ndarray, importance: float):
+def cluster_weights(elements, weight: str, seen: np.ndarray, importance: float,
+                    direct: np.ndarray | None = None):
     """The cluster layer's oracle weights: oracle_weights, with the receiving weight wrho of
     the originals no camera sees (`seen` False) times `importance` (Smits, Arvo & Salesin
     1992's importance, one value for all unseen receivers): their light reaches the image only
     after a bounce off a seen surface, which passes on at most its reflectance of their error,
-    spread over what they light."""
-    wrho, lhat, lref = oracle_weights(elements, weight)
+    spread over what they light. direct: as oracle_weights takes it."""
+    wrho, lhat, lref = oracle_weights(elements, weight, direct)
     if importance != 1.0:
         wrho = wrho * np.where(np.asarray(seen, bool), 1.0, float(importance))[:, None]
     return wrho, lhat, lref
@@ -182,5 +248,6 @@ def resolve_params(elements, settings, occlusion: bool = True,
                      occlusion=bool(occlusion), oracle=_oracle_id(h.oracle),
                      gauss_gap=float(h.near_gauss_gap), far_polygon=_far_kernel(h.far_kernel),
                      weighted_rays=bool(h.kernel_weighted_rays),
-                     solids=bool(h.inside_solids) and bool(occlusion))
+                     solids=bool(h.inside_solids) and bool(occlusion),
+                     direct=choose_direct(elements, s)[0] == "points")
     return prm, weight

@@ -28,7 +28,8 @@ from radiosity.settings import options as settings_of
 ALL_PAIRS = {"radiosity.hierarchy.min-node-size": 1e9, "radiosity.hierarchy.weight": "none",
              "radiosity.hierarchy.near-gauss-gap": float("inf"),
              "radiosity.hierarchy.far-kernel": "centroid",
-             "radiosity.hierarchy.inside-solids": False}
+             "radiosity.hierarchy.inside-solids": False,
+             "radiosity.direct.mode": "links"}  # the emitters' light through the links, as pairs
 
 
 def _count(counts, name):
@@ -323,7 +324,9 @@ def test_closed_cube_rho_099_with_balanced_rows(client, tmp_path):
 def test_push_pull_conserves_energy_in_an_open_scene(client, tmp_path):
     """three-rectangles is open. Emitted power = absorbed + escaped, where escaped uses each
     leaf's total outgoing form factor summed directly from the stored links over its ancestors
-    (not through the operator): this holds only if pull and push weigh by area consistently."""
+    (not through the operator): this holds only if pull and push weigh by area consistently.
+    (The emitters' light at points, the default here: what the leaves emit is their first
+    bounce, SPEC §10; the split loses and doubles no light.)"""
     out = prepared(client, tmp_path, scene_path("three-rectangles"), 16, visibility=False)
     fig = compute_links(out, client, settings_of(), progress=False)
     run_solve_links(out, client, solver="gauss-seidel", tol=1e-13, max_iter=500, progress=False)

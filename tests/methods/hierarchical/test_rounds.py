@@ -205,32 +205,35 @@ def test_rounds_bring_the_indirect_box_toward_a_tight_epsilon(client, tmp_path):
     5e-4 with the a-priori weights (the default base this was measured with) is off by more
     than 8 % on some surface (the red wall), with two rounds every surface is within 6 % and
     the mean error is lower; the rounds' links are in the store (a solve from scratch on them
-    gives the rounds' answer)."""
-    path = scene_path("cornell-box-indirect")
-    _render(client, path, str(tmp_path / "ref"), 24, rounds=0, epsilon=1e-4)
-    ref = _surface_means(str(tmp_path / "ref"))
-    errs = {}
-    for name, n in (("default", 0), ("rounds", 2)):
-        out = str(tmp_path / name)
-        fig = _render(client, path, out, 24, rounds=n, epsilon=5e-4)
-        got = _surface_means(out)
-        errs[name] = {e: got[e] / ref[e] - 1 for e in ref if ref[e] > 0}
-    worst = {k: max(abs(x) for x in v.values()) for k, v in errs.items()}
-    mean = {k: np.mean([abs(x) for x in v.values()]) for k, v in errs.items()}
-    print(f"worst surface {worst}, mean {mean}")
-    assert worst["default"] > 0.08 and worst["rounds"] < 0.06
-    # 0.88 (2026-12-05; 0.8 held until rows past one were capped leaf by leaf, which took a
-    # part of what the rounds gave the mean)
-    assert mean["rounds"] < 0.92 * mean["default"]
-    rep = fig.report["rounds"]
-    made = [r for r in rep["rounds"] if r["tasks"]]
-    assert rep["rounds"][0]["tasks"] > 0 and made[-1]["links"] == fig["links"]["links"]
-    # the stored links are the rounds' own: a cold solve on them gives the same answer
-    from radiosity.stages.solve import run_solve
+    gives the rounds' answer). The emitters' light through the links, as measured then (at
+    points, measured 2026-12-07: 8.2 % and 7.1 % worst, the mean 1.19 % and 1.46 %: the
+    rounds do not help there yet)."""
+    with dask.config.set({"radiosity.direct.mode": "links"}):
+        path = scene_path("cornell-box-indirect")
+        _render(client, path, str(tmp_path / "ref"), 24, rounds=0, epsilon=1e-4)
+        ref = _surface_means(str(tmp_path / "ref"))
+        errs = {}
+        for name, n in (("default", 0), ("rounds", 2)):
+            out = str(tmp_path / name)
+            fig = _render(client, path, out, 24, rounds=n, epsilon=5e-4)
+            got = _surface_means(out)
+            errs[name] = {e: got[e] / ref[e] - 1 for e in ref if ref[e] > 0}
+        worst = {k: max(abs(x) for x in v.values()) for k, v in errs.items()}
+        mean = {k: np.mean([abs(x) for x in v.values()]) for k, v in errs.items()}
+        print(f"worst surface {worst}, mean {mean}")
+        assert worst["default"] > 0.08 and worst["rounds"] < 0.06
+        # 0.88 (2026-12-05; 0.8 held until rows past one were capped leaf by leaf, which took a
+        # part of what the rounds gave the mean)
+        assert mean["rounds"] < 0.92 * mean["default"]
+        rep = fig.report["rounds"]
+        made = [r for r in rep["rounds"] if r["tasks"]]
+        assert rep["rounds"][0]["tasks"] > 0 and made[-1]["links"] == fig["links"]["links"]
+        # the stored links are the rounds' own: a cold solve on them gives the same answer
+        from radiosity.stages.solve import run_solve
 
-    warm = radiance(out).copy()
-    run_solve(out, client, settings_of(), progress=False, method="hierarchical", closure=None)
-    np.testing.assert_allclose(radiance(out), warm, rtol=2e-3, atol=1e-6)
+        warm = radiance(out).copy()
+        run_solve(out, client, settings_of(), progress=False, method="hierarchical", closure=None)
+        np.testing.assert_allclose(radiance(out), warm, rtol=2e-3, atol=1e-6)
 
 
 def test_closed_cube_with_rounds_stays_exact(client, tmp_path):
@@ -253,8 +256,11 @@ def test_push_pull_conserves_energy_after_rounds(client, tmp_path):
     """three-rectangles (open) with the first round's links: emitted = absorbed + escaped, as
     on the stage's own links (test_hierarchy's energy test, on links made in two rounds)."""
     out = str(tmp_path / "run")
-    fig = _render(client, scene_path("three-rectangles"), out, 16, rounds=1,
-                  **{"rounds-epsilon": 0.05})
+    # the emitters' light through the links: their links are what this round refines (with
+    # it at points, test_hierarchy's energy test checks the split's balance)
+    with dask.config.set({"radiosity.direct.mode": "links"}):
+        fig = _render(client, scene_path("three-rectangles"), out, 16, rounds=1,
+                      **{"rounds-epsilon": 0.05})
     assert fig.report["rounds"]["rounds"][0]["tasks"] > 0
     emitted, absorbed, escaped = link_power_balance(out)
     # the final gather changes solution/radiance, not the leaves' fixed point L = Le + rho K L

@@ -20,7 +20,7 @@ import numpy as np
 from radiosity.core.arrays import unique
 from radiosity.methods.hierarchical.links.nodes import new_table
 from radiosity.methods.hierarchical.params import (LinkParams, choose_epsilon, cluster_weights,
-                                                   oracle_weights, resolve_params)
+                                                   direct_estimate, oracle_weights, resolve_params)
 from radiosity.methods.hierarchical.links.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
                                                    Tree, refine, roots)
@@ -73,7 +73,8 @@ class LinkInputs:
             self.ext = (leaf >= 0) & ~np.asarray(hit, bool)[np.maximum(leaf, 0)]
         self.root = part.root.astype(np.int64)
         self.reach = leaves_within_reach(tree, part, self.ext, params.min_size)
-        self.wrho, self.lhat, self.lref = oracle_weights(elements, weight)
+        self.wrho, self.lhat, self.lref = oracle_weights(
+            elements, weight, direct_estimate(elements, ray_offset) if params.direct else None)
         self.elo, self.ehi, self.enormal, self.eoffset, self.pad = occluders(elements)
         self.otree = occluder_tree(elements, self.elo, self.ehi)
         self.verts = elements.verts
@@ -296,8 +297,9 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
         seen_any = raster.get("seen", seen)  # by any camera (older stores: the run's own)
         # no pixel shows them: their clusters stay whole below min-node-size
         outside = ~np.asarray(raster.get("footprint", seen_any), bool)
+        est = direct_estimate(el, s.rays.offset) if prm.direct else None  # SPEC §10
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon * ce,
-                                         cluster_weights(el, weight, seen_any, imp), prm.rays,
+                                         cluster_weights(el, weight, seen_any, imp, est), prm.rays,
                                          occlusion, s.rays.offset, client, progress,
                                          prm.shadow * ce, prm.solids, unseen=outside,
                                          min_size=prm.min_size)

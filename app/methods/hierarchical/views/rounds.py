@@ -74,12 +74,15 @@ def rounds_of(settings) -> tuple[int, float, float]:
     return n, f, c
 
 
-def hot_share(rs, weight: str, ratio: float, radiance: np.ndarray | None = None) -> float:
+def hot_share(rs, weight: str, ratio: float, radiance: np.ndarray | None = None,
+              direct: np.ndarray | None = None) -> float:
     """The share of the solved reflected power (sub-elements' area times the largest channel of
     their reflected radiance, both sides) that leaves sub-elements whose reflected radiance is
     more than `ratio` times the a-priori estimate the oracle weighed their links with (the
     ambient term of params.oracle_weights; `weight` none: the oracle weighs no radiance, 0).
-    radiance (m, 2, C) per sub-element; None: the run's solution/radiance."""
+    radiance (m, 2, C) per sub-element; None: the run's solution/radiance. direct (n, 2): the
+    emitters' light at points (params.direct_estimate, SPEC §10): `radiance` is then R, the
+    light after the emitters', and the estimate the first bounce plus the ambient term."""
     from radiosity.methods.hierarchical.params import oracle_weights
 
     if weight != "bf":
@@ -87,10 +90,12 @@ def hot_share(rs, weight: str, ratio: float, radiance: np.ndarray | None = None)
     el = rs.load_elements()
     part = rs.read_arrays("partition")
     if radiance is None:
-        radiance = rs.read_arrays("solution")["radiance"]
+        radiance = previous_solution(rs)["radiance"]
     o = np.asarray(part["orig"], np.int64)
-    _, lhat, _ = oracle_weights(el, weight)
+    _, lhat, _ = oracle_weights(el, weight, direct)
     em = np.asarray(AreaEmitters(el).peak(), np.float64)
+    if direct is not None:  # R holds no emission, nor does lhat
+        em = np.zeros_like(em)
     refl = np.maximum(np.asarray(radiance).max(axis=2) - em[o], 0.0)  # (m, 2)
     power = np.asarray(part["area"], np.float64)[:, None] * refl
     total = power.sum()
@@ -110,7 +115,12 @@ def auto_rounds(rs, settings, radiance: np.ndarray | None = None) -> tuple[int, 
     if rs.has("clusters"):  # the links start at clusters, which rounds leave as they are
         return 0, ("auto: none: the links start at clusters above the originals, which rounds "
                    "do not refine")
-    got = hot_share(rs, h.weight, ratio, radiance)
+    from radiosity.methods.hierarchical.params import choose_direct, direct_estimate
+
+    el = rs.load_elements()
+    est = direct_estimate(el, settings.rays.offset) \
+        if choose_direct(el, settings)[0] == "points" else None
+    got = hot_share(rs, h.weight, ratio, radiance, est)
     on = got > share
     return int(on), (f"auto: {'one round' if on else 'none'}: {got:.0%} of the reflected light "
                      f"leaves surfaces over {ratio:g}x brighter than the a-priori estimate "
@@ -134,11 +144,18 @@ def previous_solution(rs) -> dict:
     """The run's solution and node table, read once for a round and the warm start after it:
     radiance per sub-element (m, 2, C), per leaf (M, 2, C), the leaves' names (original, node
     code), their rows of F v before scaling (M, 2; None where the solve kept none) and the
-    solve's row mode, and the node table ("table": the hierarchy group's arrays)."""
+    solve's row mode, and the node table ("table": the hierarchy group's arrays). With the
+    emitters' light at points (the solution's attrs say direct: points), "radiance" is R, the
+    light after the emitters' as leaf_radiance is: the rounds weigh links by what they carry
+    and the warm start starts from the solve's own unknowns."""
     sol = rs.read_arrays("solution")
     t = rs.read_arrays("hierarchy")
     leaf = t["leaf_node"]
-    return {"radiance": sol["radiance"], "leaf_radiance": sol["leaf_radiance"],
+    radiance = sol["radiance"]
+    if rs.group_attrs("solution").get("direct") == "points":
+        orig = rs.read_arrays("partition")["orig"]
+        radiance = radiance - AreaEmitters(rs.load_elements()).radiance(orig)[..., :radiance.shape[2]]
+    return {"radiance": radiance, "leaf_radiance": sol["leaf_radiance"],
             "orig": t["orig"][leaf], "code": t["code"][leaf], "leaf_rows": sol.get("leaf_rows"),
             "row_mode": (rs.group_attrs("solution").get("row_sums") or {}).get("mode"),
             "table": t}

@@ -131,21 +131,6 @@ def spp_for(error: float, ladder: list[dict]) -> float:
     return float(math.exp(math.log(s[k - 1]) + f * (math.log(s[k]) - math.log(s[k - 1]))))
 
 
-class WithDirect:
-    """Settings with SPEC §10's `direct` section (its defaults where the settings have none
-    yet: issue 50's part 3 adds it)."""
-
-    def __init__(self, s):
-        import types
-
-        self._s = s
-        self.direct = getattr(s, "direct", None) or types.SimpleNamespace(
-            mode="points", samples=16, leaf_points=4)
-
-    def __getattr__(self, k):
-        return getattr(self._s, k)
-
-
 def mark_points(src: str, dst: str, settings) -> None:
     """A copy of the solved run `src` as a run solved with direct light at points stores it
     (tests/stages/test_views._mark_points): leaf_radiance R = L - Le, attrs direct = points."""
@@ -177,13 +162,13 @@ def points_mode(run: str, d: str, fresh: str) -> list[dict]:
     from radiosity.runtime.store import RunStore
     from radiosity.stages.views import Viewer
 
-    s = WithDirect(settings_of())
+    s = settings_of()
     pts = os.path.join(d, "run-points")
     mark_points(run, pts, s)
     ref = read_exr(os.path.join(fresh, "image.exr"))[..., :3].astype(np.float64)
     rs = RunStore(fresh)
     cam, orig = rs.load_camera(), rs.read_arrays("raster")["orig"]
-    fine = WithDirect(settings_of())
+    fine = settings_of()
     fine.direct = types.SimpleNamespace(mode="points", samples=64, leaf_points=4)
     v = Viewer(pts, s)
     v.source = PointGather(v.store, fine, pixel_shadow_rays=16)

@@ -36,7 +36,7 @@ def runs(tmp_path_factory):
     mesh_dir = os.path.dirname(scene_path("cornell-box"))
     (d / "above.toml").write_text((src[:i] + above + (src[j:] if j >= 0 else ""))
                                   .replace('path = "', f'path = "{mesh_dir}/'))
-    a = radiosity.render(scene_path("cornell-box"), out=str(d / "A"), resolution=R)
+    a = radiosity.render(scene_path("cornell-box"), out=str(d / "A"), resolution=R, direct="links")
     b = radiosity.render(str(d / "above.toml"), out=str(d / "B"))
     return d, a, b
 
@@ -99,21 +99,6 @@ def test_the_cli_writes_a_view_and_leaves_the_run_alone(runs):
     assert r.exit_code == 2 and "--position" in r.output
 
 
-class _WithDirect:
-    """Settings with a `direct` section (SPEC §10's settings.direct, part of issue 50: until it
-    is in app/settings.py, its defaults)."""
-
-    def __init__(self, s):
-        import types
-
-        self._s = s
-        self.direct = getattr(s, "direct", None) or types.SimpleNamespace(
-            mode="points", samples=16, leaf_points=4)
-
-    def __getattr__(self, k):
-        return getattr(self._s, k)
-
-
 def _mark_points(src, dst, settings):
     """A copy of the solved run `src` as a run solved with direct light at points would store
     it: leaf_radiance R = L - Le (the links' solution L = Le + rho K L gives R = rho K Le +
@@ -136,7 +121,7 @@ def _mark_points(src, dst, settings):
 @pytest.fixture(scope="module")
 def points_run(runs):
     d, _, _ = runs
-    _mark_points(d / "A", d / "P", _WithDirect(settings_of()))
+    _mark_points(d / "A", d / "P", settings_of())
     return d / "P"
 
 
@@ -151,7 +136,7 @@ def test_a_view_of_a_points_run_from_above_equals_a_fresh_render_and_the_links_v
     from radiosity.stages.views import render_view
 
     d, _, b = runs
-    s = _WithDirect(settings_of())
+    s = settings_of()
     cam = RunStore(str(d / "B")).load_camera()
     p = render_view(str(points_run), cam, name="above", settings=s)
     a = render_view(str(d / "A"), cam, name="above-links", settings=s)
@@ -174,7 +159,7 @@ def test_a_view_of_a_points_run_from_its_own_camera_shows_its_solution(runs, poi
     rs = RunStore(str(points_run))
     cam = rs.load_camera()
     v = render_view(str(points_run), cam, name="same", samples=1,
-                    settings=_WithDirect(settings_of()))
+                    settings=settings_of())
     raster = rs.read_arrays("raster")
     sub, orig = raster["sub"], raster["orig"]
     part = rs.load_partition()
@@ -198,7 +183,7 @@ def test_a_points_view_carries_a_sharp_shadow_by_H1_at_its_points(points_run):
     from radiosity.runtime.store import RunStore
     from radiosity.scene.direct import DirectLight
 
-    s = _WithDirect(settings_of())
+    s = settings_of()
     g = PointGather(RunStore(str(points_run)), s)
     el = g.el
     floor = int(np.argmin(np.where(el.normal[:, 1] > 0.99, el.center[:, 1], np.inf)))
@@ -230,7 +215,7 @@ def test_a_view_from_the_runs_own_camera_reproduces_its_image_in_both_modes(runs
     from radiosity.stages.views import render_view
 
     d, a, _ = runs
-    s = _WithDirect(settings_of())
+    s = settings_of()
     for run in (d / "A", points_run):
         ref = read_exr(str(run / "image.exr"))[..., :3].astype(np.float64)
         v = render_view(str(run), RunStore(str(run)).load_camera(), name="own", settings=s)

@@ -128,7 +128,8 @@ class HierarchicalMethod(TransportMethod):
             from radiosity.methods.hierarchical.solve.direct import first_bounce
 
             state["Le"] = Le
-            Le = np.asarray(first_bounce(table, el, s, k=int(s.direct.leaf_points)), np.float64)
+            Le = np.asarray(first_bounce(table, el, s, k=int(s.direct.leaf_points), rs=rs,
+                                         client=client, where=where), np.float64)
             if live is not None:  # H1 is 0 at points inside solids: L1 of the leaf's live part
                 # (live_leaves: the share of 4 stratified points outside solids, the same 4)
                 Le = Le / np.where(live > 0, live, 1.0)

@@ -35,8 +35,9 @@ For each scene:
    the render, the kernel compilation left out (a warm-up render first, as the engine's numba cache is warm).
 
 Each scene's row is kept in DIR/NAME/row.json, so a later run with the same --keep skips the
-scenes it holds (--redo to measure them again). Writes benchmarks/results/real.json and prints a
-table.
+scenes it holds (--redo to measure them again; the Mitsuba reference and ladder are kept in
+DIR/NAME/reference.npz and ladder.json and reused with --redo, --redo-reference remakes
+them). Writes benchmarks/results/real.json and prints a table.
 """
 
 from __future__ import annotations
@@ -327,6 +328,30 @@ def _label(name: str) -> str:
     return os.path.basename(os.path.dirname(os.path.abspath(name))) if name.endswith(".toml") else name
 
 
+def reference_and_ladder(sc, d: str, args):
+    """The Mitsuba reference and its ladder of sample counts, kept in d/reference.npz and
+    d/ladder.json for the same --ref-spp, --passes, --ladder and resolution (neither depends on
+    our render: a re-measured engine is compared with the same reference; --redo-reference
+    makes them again). Returns ref, se, se_sum, t_ref, depth, spp done, ladder rows."""
+    key = {"ref_spp": args.ref_spp, "passes": args.passes, "ladder": args.ladder,
+           "resolution": list(args.resolution) if args.resolution else None}
+    npz, lj = os.path.join(d, "reference.npz"), os.path.join(d, "ladder.json")
+    if os.path.isfile(npz) and os.path.isfile(lj) and not args.redo_reference:
+        with open(lj) as f:
+            kept = json.load(f)
+        if kept.get("key") == key:
+            z = np.load(npz)
+            return (z["ref"], z["se"], z["se_sum"], kept["t_ref"], kept["depth"], kept["spp"],
+                    kept["ladder"])
+    ref, se, se_sum, t_ref, D, done_spp, handle = mitsuba_reference(sc, args.ref_spp, args.passes,
+                                                                    args.ref_limit)
+    lad = ladder(handle, ref, se_sum, [int(x) for x in args.ladder.split(",")], args.rung_limit)
+    np.savez(npz, ref=ref, se=se, se_sum=se_sum)
+    with open(lj, "w") as f:
+        json.dump({"key": key, "t_ref": t_ref, "depth": D, "spp": done_spp, "ladder": lad}, f)
+    return ref, se, se_sum, t_ref, D, done_spp, lad
+
+
 def measure(name: str, work: str, args) -> dict:
     import warnings
 
@@ -370,12 +395,10 @@ def measure(name: str, work: str, args) -> dict:
     why = f", {row['stopped']}" if row["stopped"] else ""
     print(f"  ours: {row['ours_s']} s, {row['peak_gib']} GiB{why}", flush=True)
     print(f"  Mitsuba reference at {args.ref_spp} spp", flush=True)
-    ref, se, se_sum, t_ref, D, done_spp, handle = mitsuba_reference(sc, args.ref_spp, args.passes,
-                                                                    args.ref_limit)
+    ref, se, se_sum, t_ref, D, done_spp, lad = reference_and_ladder(sc, d, args)
     seen = ref.sum(-1) > 0
     row.update(ref_spp=done_spp, ref_s=round(t_ref, 1), depth=D,
                ref_noise=round(float(np.mean(se_sum[seen] / ref.sum(-1)[seen])), 5))
-    lad = ladder(handle, ref, se_sum, [int(x) for x in args.ladder.split(",")], args.rung_limit)
     row["ladder"] = [{k: round(v, 5) if isinstance(v, float) else v for k, v in r.items()} for r in lad]
     if not done:
         return row
@@ -483,6 +506,8 @@ def main():
                     help="override the scenes' camera resolution (ours and Mitsuba's)")
     ap.add_argument("--keep", default=None, help="work directory (default: a temporary one)")
     ap.add_argument("--redo", action="store_true", help="measure scenes the work directory holds")
+    ap.add_argument("--redo-reference", action="store_true",
+                    help="make the kept Mitsuba reference and ladder again")
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--passes", type=int, default=8)
     ap.add_argument("--ref-limit", type=float, default=600.0,

@@ -42,6 +42,10 @@ class HierarchicalRounds(Refinement):
         return Rounds(run_dir, settings, unit, occlusion)
 
 
+#: The solve's `where` (the link operator's: driver, cluster, auto) for the first bounce's stage.
+FIRST_BOUNCE_WHERE = {"driver": "driver", "cluster": "workers"}
+
+
 class HierarchicalMethod(TransportMethod):
     name = "hierarchical"
     section = "links"
@@ -129,7 +133,8 @@ class HierarchicalMethod(TransportMethod):
 
             state["Le"] = Le
             Le = np.asarray(first_bounce(table, el, s, k=int(s.direct.leaf_points), rs=rs,
-                                         client=client, where=where), np.float64)
+                                         client=client,
+                                         where=FIRST_BOUNCE_WHERE.get(where, "auto")), np.float64)
             if live is not None:  # H1 is 0 at points inside solids: L1 of the leaf's live part
                 # (live_leaves: the share of 4 stratified points outside solids, the same 4)
                 Le = Le / np.where(live > 0, live, 1.0)

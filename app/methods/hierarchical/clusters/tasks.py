@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from radiosity.core.arrays import radix_order
-from radiosity.methods.hierarchical.clusters.transport import ClusterLinks
+from radiosity.methods.hierarchical.clusters.transport import ClusterLinks, with_sides
 from radiosity.methods.hierarchical.clusters.refine import ClusterTree, cluster_tree, refine_clusters
 from radiosity.methods.hierarchical.clusters.weights import clear_links, link_weights, solid_ends
 from radiosity.runtime.stage import StageMaster, StagePlan
@@ -465,8 +465,11 @@ class ClusterStage(StageMaster):
         order = radix_order(pairs[:, 0] * np.int64(n) + pairs[:, 1], int(n * n).bit_length())
         self.pairs = np.ascontiguousarray(pairs[order]).reshape(-1, 2)
         del order, pairs  # the merge below is the stage's peak of memory
-        self.cl = cl = ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area),
-                                    *self.runs.merged())
+        # two-sided originals: each link's sides (clusters/transport.with_sides)
+        self.cl = cl = with_sides(ClusterLinks(ct.parent, ct.leaf_orig, np.asarray(ct.tree.area),
+                                               *self.runs.merged()),
+                                  ct.tree.axis, ct.tree.center, self.elements.normal,
+                                  self.elements.two_sided)
         self.runs = None
         return ClusterFigures(nodes=ct.nodes, links=cl.links,
                               pairs_to_elements=int(len(self.pairs)),

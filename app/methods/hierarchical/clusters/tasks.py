@@ -15,7 +15,8 @@ import numba
 import numpy as np
 
 from radiosity.core.arrays import radix_order
-from radiosity.methods.hierarchical.clusters.transport import ClusterLinks, with_sides
+from radiosity.methods.hierarchical.clusters.sides import with_sides
+from radiosity.methods.hierarchical.clusters.transport import ClusterLinks
 from radiosity.methods.hierarchical.clusters.refine import ClusterTree, cluster_tree, refine_clusters
 from radiosity.methods.hierarchical.clusters.weights import clear_links, link_weights, solid_ends
 from radiosity.runtime.stage import StageMaster, StagePlan

@@ -95,7 +95,8 @@ def test_a_two_sided_group_seen_from_its_back_carries_what_its_front_would():
 def test_a_closed_two_sided_sphere_with_mixed_orientations_is_the_furnace(client, tmp_path):
     """A closed sphere of 4 992 two-sided triangles, every second one turned over (rho 0.9,
     emitting 1 on both sides): cluster links are kept and every pixel seen from inside is
-    Le / (1 - rho) within 0.5 % (the furnace stays exact with two-sided clusters)."""
+    Le / (1 - rho) within 0.5 % (the furnace stays exact with two-sided clusters), in the
+    render and in a new view of the run."""
     from helpers import write_scene
 
     from radiosity.pipeline import render_scene
@@ -122,6 +123,12 @@ def test_a_closed_two_sided_sphere_with_mixed_orientations_is_the_furnace(client
     assert fig["plan"]["method"] == "hierarchical" and fig["links"]["cluster_links"] > 0
     img = read_exr(f"{out}/image.exr")
     np.testing.assert_allclose(img, 10.0, rtol=5e-3)
+    # a new view of the solved run gathers the two-sided cluster links the same way
+    from radiosity.runtime.store import RunStore
+    from radiosity.stages.views import render_view
+
+    v = render_view(out, RunStore(out).load_camera(), name="again", settings=settings_of())
+    np.testing.assert_allclose(v.image, 10.0, rtol=5e-3)
 
 
 def _two_sided_plates(tmp_path, n: int = 8) -> str:

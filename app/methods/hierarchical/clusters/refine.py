@@ -7,9 +7,11 @@ refinement did not reach.
 
 Form factors of a cluster link p <- q (computed in clusterweights.py; transport:
 clusterlinks.py; design: docs/src/design/methods-hierarchical-clusters.md):
-F_pq = S_p(u) S_q(-u) / (pi r^2 A_p), S_x(u) = sum over x's elements of A_i max(0, n_i . u),
-u and r between the area centroids; q sends its elements' area-weighted mean radiance and p
-receives uniformly (Sillion's isotropic model); A_p F_pq = A_q F_qp, so energy is conserved.
+F_pq = S_p(u) S_q(-u) / (pi r^2 A_p), S_x(u) = sum over x's elements of A_i max(0, n_i . u)
+(A_i |n_i . u| for a two-sided element: it shows the side that faces u), u and r between the
+area centroids; q sends its elements' area-weighted mean radiance and p receives uniformly
+(Sillion's isotropic model; a two-sided element sends and receives on the side that faces the
+other end: clusters/transport.py); A_p F_pq = A_q F_qp, so energy is conserved.
 """
 
 from __future__ import annotations
@@ -46,8 +48,9 @@ SLO, SHI = 21, 22
 CEN = 23  # the area centroid (3): the estimate reads it with the rest of the row
 # The originals as the refinement reads them: normal (n, 3), offset (n,) = n . centre, verts
 # (n, 4, 3) (triangles repeat vertex 2), area (n,), center (n, 3), two_sided (n,), eps (the
-# facing tolerance in scene units); ona (n, 7) normal, area and centre in the tree's order (a
-# node's elements contiguous: the sums and samples over them read memory in order).
+# facing tolerance in scene units); ona (n, 8) normal, area, centre and two-sided (1.0 or 0.0)
+# in the tree's order (a node's elements contiguous: the sums and samples over them read
+# memory in order).
 CElems = namedtuple("CElems", "normal offset verts area center two_sided eps ona")
 
 
@@ -85,8 +88,7 @@ class ClusterTree:
 def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float,
                  unseen: np.ndarray | None = None, min_size: float = 0.0) -> ClusterTree:
     """The cluster tree over `elements` (types.Elements) with the oracle's per-original weights
-    wrho, lhat (n, 2) and lref (params.oracle_weights); front sides only (a cluster holding a
-    two-sided original is never kept as a link end). Inner nodes whose originals are all
+    wrho, lhat (n, 2) and lref (params.oracle_weights; the weights of the front sides). Inner nodes whose originals are all
     `unseen` (n,) bool (outside every camera's footprint: links.plan_links) and whose
     sqrt(area) is at most `min_size` (scene units; the element level's
     hierarchy.min-node-size) stay whole where a link to them can be kept (`stop`)."""
@@ -101,8 +103,12 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float,
     A = cum[t.end] - cum[t.start]
     wc = np.concatenate([np.zeros((1, 3)), np.cumsum(area[o, None] * elements.center[o], axis=0)])
     center = (wc[t.end] - wc[t.start]) / np.where(A > 0, A, 1.0)[:, None]
-    rho = _range_max(wrho[o, 0], t.start, t.end, t.left, t.right)
-    lh = _range_max(lhat[o, 0], t.start, t.end, t.left, t.right)
+    # a two-sided original's weights: its larger side's (either may face a link's other end)
+    two = np.asarray(elements.two_sided, bool)
+    rho = _range_max(np.where(two, wrho.max(axis=1), wrho[:, 0])[o], t.start, t.end, t.left,
+                     t.right)
+    lh = _range_max(np.where(two, lhat.max(axis=1), lhat[:, 0])[o], t.start, t.end, t.left,
+                    t.right)
     verts = np.where(elements.nverts[:, None, None] == 3, elements.verts[:, [0, 1, 2, 2]],
                      elements.verts)
     new = _preorder(t.left, t.right)  # new -> old: subtrees contiguous (memory locality)
@@ -119,7 +125,8 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float,
                  center[new], rho[new], lh[new], np.ascontiguousarray(rec),
                  _stops(t, A, unseen, min_size)[new])
     ona = np.concatenate([np.asarray(elements.normal, np.float64), area[:, None],
-                          np.asarray(elements.center, np.float64)], axis=1)[o]
+                          np.asarray(elements.center, np.float64),
+                          np.asarray(t.two_sided, np.float64)[:, None]], axis=1)[o]
     elems = CElems(np.asarray(elements.normal, np.float64), t.offset, verts, area,
                    np.asarray(elements.center, np.float64), t.two_sided, float(t.eps),
                    np.ascontiguousarray(ona))
@@ -272,13 +279,18 @@ def _relative_error(rec, p, q, d):
 def _cos_bound(rec, p, q, d):
     """The largest cosine between a normal of node p (in its cone: axis a, spread s >= |n - a|)
     and a direction from a point of p's box to a point of q's box (all at least d apart):
-    a . v / |v| + s <= max(0, max_v a . v) / d + s, at most 1."""
+    a . v / |v| + s <= max(0, max_v a . v) / d + s, at most 1; |a . v| where p holds a
+    two-sided element (it shows either side)."""
     up = 0.0
+    low = 0.0
     for k in range(3):
         a = rec[p, AXIS + k]
         lo = rec[q, LO + k] - rec[p, HI + k]
         hi = rec[q, HI + k] - rec[p, LO + k]
         up += a * hi if a > 0 else a * lo
+        low += a * lo if a > 0 else a * hi
+    if rec[p, TWO] > 0:
+        up = max(up, -low)
     return min(1.0, max(0.0, up) / d + rec[p, SPREAD])
 
 
@@ -288,9 +300,13 @@ def _all_face(rec, p, q):
     every point of p's box (n . v > 0 for every normal in the node's cone and every direction v
     from its box to the other's)? n . v / |v| >= min_v a . v / max |v| - spread, where the
     offsets from q's box to p's are those from p's to q's negated, and so is the largest |v|.
-    Then the centroid direction's cosines are an estimate of every pair's."""
+    Then the centroid direction's cosines are an estimate of every pair's. A node holding a
+    two-sided element passes where all its normals see the other box from one side, the same
+    or the opposite (n . v of one sign: it shows that side to all of it)."""
     lowp = 0.0
     lowq = 0.0
+    upp = 0.0
+    upq = 0.0
     vmax2 = 0.0
     for k in range(3):
         a = rec[p, AXIS + k]
@@ -299,8 +315,14 @@ def _all_face(rec, p, q):
         hi = rec[q, HI + k] - rec[p, LO + k]
         lowp += a * lo if a > 0 else a * hi
         lowq += b * (-hi) if b > 0 else b * (-lo)
+        upp += a * hi if a > 0 else a * lo
+        upq += b * (-lo) if b > 0 else b * (-hi)
         m = max(abs(lo), abs(hi))
         vmax2 += m * m
+    if rec[p, TWO] > 0:
+        lowp = max(lowp, -upp)
+    if rec[q, TWO] > 0:
+        lowq = max(lowq, -upq)
     if lowp <= 0.0 or lowq <= 0.0:
         return False
     v = np.sqrt(vmax2)
@@ -327,8 +349,10 @@ def _error_bound(rec, p, q, d2, lref):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _cosine_along(ona, k, ux, uy, uz):
-    """Element k's cosine n_k . u toward the direction u (the centroids' direction)."""
-    return ona[k, 0] * ux + ona[k, 1] * uy + ona[k, 2] * uz
+    """Element k's cosine n_k . u toward the direction u (the centroids' direction); |n_k . u|
+    for a two-sided element."""
+    c = ona[k, 0] * ux + ona[k, 1] * uy + ona[k, 2] * uz
+    return abs(c) if ona[k, 7] > 0 else c
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -337,11 +361,15 @@ def _cosine_toward(rec, ona, k, y, d2):
     node y's box (d^2 = d2, the boxes' distance): the cosine between the element's normal and
     the direction from its centre toward the point w of y's box it faces most (the numerator
     holds for every point of the element: n_k . x = n_k . c_k on its plane); 0 where it faces
-    none of y's box."""
+    none of y's box. A two-sided element's either side: the larger of n's and -n's."""
     up = 0.0
+    low = 0.0
     for c in range(3):
         n = ona[k, c]
         up += n * ((rec[y, HI + c] if n > 0 else rec[y, LO + c]) - ona[k, 4 + c])
+        low += n * ((rec[y, LO + c] if n > 0 else rec[y, HI + c]) - ona[k, 4 + c])
+    if ona[k, 7] > 0:
+        up = max(up, -low)
     if up <= 0.0:
         return 0.0
     g2 = 0.0
@@ -400,11 +428,13 @@ def _error_estimate(rec, start, end, ona, p, q, d2, lref, stop):
     sp = cp = sq = cq = 0.0
     i, j = start[p], start[q]
     if along and rec[p, SPREAD] <= FLAT_SPREAD:
-        cp = max(0.0, rec[p, AXIS] * ux + rec[p, AXIS + 1] * uy + rec[p, AXIS + 2] * uz)
+        cp = rec[p, AXIS] * ux + rec[p, AXIS + 1] * uy + rec[p, AXIS + 2] * uz
+        cp = max(0.0, abs(cp) if rec[p, TWO] > 0 else cp)
         sp = rec[p, AREA] * cp
         i = end[p]
     if along and rec[q, SPREAD] <= FLAT_SPREAD:
-        cq = max(0.0, rec[q, AXIS] * -ux + rec[q, AXIS + 1] * -uy + rec[q, AXIS + 2] * -uz)
+        cq = rec[q, AXIS] * -ux + rec[q, AXIS + 1] * -uy + rec[q, AXIS + 2] * -uz
+        cq = max(0.0, abs(cq) if rec[q, TWO] > 0 else cq)
         sq = rec[q, AREA] * cq
         j = end[q]
     # both ends' sums in their own order, a step of each at a time
@@ -429,12 +459,12 @@ def _error_estimate(rec, start, end, ona, p, q, d2, lref, stop):
 
 
 @numba.njit(cache=True, nogil=True)
-def refine_clusters(t, e, eps, lref, cap, init, frontier, probe=0.0):
+def refine_clusters(t, e, eps, lref, cap, init, frontier, probe=0.0, two=True):
     """The cluster refinement from the links `init` (s, 2) int64 (the root's self-link (0, 0):
     the whole refinement): (links (k, 2) int64 node pairs kept as cluster links, pairs (j, 2)
     int64 originals I < J handed to the element-level refinement, counts [evaluated, culled by
-    orientation, kept, pairs], pending (r, 2) int64). A link between nodes p, q (neither
-    holding a two-sided original, boxes apart) is kept when its error bound (_error_bound) is at
+    orientation, kept, pairs], pending (r, 2) int64). A link between nodes p, q (boxes apart;
+    holding two-sided originals only with `two`: clusters/transport.py) is kept when its error bound (_error_bound) is at
     most eps (two originals: one link over both, as the element-level refinement's root link);
     otherwise the end with more area (the larger solid angle from the other) is split, but not
     an end that stays whole (t.stop) where the link could be kept: then the other end, or
@@ -488,7 +518,8 @@ def refine_clusters(t, e, eps, lref, cap, init, frontier, probe=0.0):
             counts[1] += 1
             continue
         d2 = _box_distance2(rec, p, q)
-        ok = d2 > 0.0 and rec[p, TWO] == 0 and rec[q, TWO] == 0 and not _near(rec, p, q, d2)
+        ok = d2 > 0.0 and (two or (rec[p, TWO] == 0 and rec[q, TWO] == 0)) \
+            and not _near(rec, p, q, d2)
         keep = False
         est = np.inf
         if ok:

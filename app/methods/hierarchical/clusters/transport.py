@@ -2,16 +2,23 @@
 docs/src/design/methods-hierarchical-clusters.md): in the solve's passes q sends its elements'
 area-weighted mean radiance and p receives it uniformly (Sillion's isotropic cluster), one
 symmetric weight a link; the final gather shares each link's light out over p by the point
-kernel from q and its gradient (cluster_final_gather)."""
+kernel from q and its gradient (cluster_final_gather). Two-sided originals (design: "Two-sided
+clusters"): a node x sends and receives on two sides, + and - of its cone axis a_x; a link
+uses at each end the side that faces the other end's centroid (sides.link_sides), and an original
+i of x shows on x's + side its own side that faces a_x (the front where n_i . a_x >= 0, else
+the back) and on x's - side the other (one-sided originals: the front on both)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
 
-from radiosity.methods.hierarchical.solve.passes import kernel_gradient
+from radiosity.methods.hierarchical.clusters.sides import (_fields_sides, _final_sides,
+                                                          _kernel_gradient, _pull_sides,
+                                                          _push_fields, _push_sides, _side_sums,
+                                                          _two_layout)
 
 
 @dataclass(frozen=True)
@@ -20,7 +27,10 @@ class ClusterLinks:
     original of each leaf or -1, area (K,)) and its links p, q (k,) int32 node ids sorted by
     (p, q), each with one weight g (k,) float32 = A_p F_pq v = A_q F_qp v: the transfer is
     symmetric by construction, so energy is conserved whatever g's rounding, in 12 bytes a link
-    (the 10^6-triangle terrain keeps 229 M of them). Front sides only."""
+    (the 10^6-triangle terrain keeps 229 M of them). With two-sided originals (two (n,) bool
+    any True): the nodes' cone axes axis (K, 3), the originals' normals normal (n, 3) and each
+    link's sides side (k,) int8 (link_sides); empty where every original is one-sided (front
+    sides only, as before)."""
 
     parent: np.ndarray
     leaf_orig: np.ndarray
@@ -28,6 +38,10 @@ class ClusterLinks:
     p: np.ndarray
     q: np.ndarray
     g: np.ndarray
+    axis: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    normal: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    two: np.ndarray = field(default_factory=lambda: np.zeros(0, np.bool_))
+    side: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
 
     def arrays(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -35,6 +49,11 @@ class ClusterLinks:
     @property
     def links(self) -> int:
         return len(self.p)
+
+    @property
+    def two_sided(self) -> bool:
+        """Does the layer hold two-sided originals (and so their sides' arrays)?"""
+        return bool(len(self.two)) and bool(np.any(self.two))
 
 
 #: The cluster links are gathered in this many parts, each into its own buffer, summed in a
@@ -48,10 +67,18 @@ class ClusterGather:
     nodes' mean radiance, here), gather over the links (node a receives g Lbar_b / A_a) in
     part(k) for k in range(GATHER_PARTS) (any thread, any order: each into its own buffer, so
     a caller can run them beside other work), push down to the leaves' originals in push(G)
-    once all are done (the buffers summed in a fixed order: the same bits whoever ran them)."""
+    once all are done (the buffers summed in a fixed order: the same bits whoever ran them).
+    With `sides` (Lback (C, n) the originals' back sides, cl: ClusterLinks holding two-sided
+    originals) each node's two sides (the module's note), into G and Gback."""
 
-    def __init__(self, Lroot, parent, leaf_orig, area, p, q, g):
-        self.S, self.inv = _pull_means(Lroot, parent, leaf_orig, area)
+    def __init__(self, Lroot, parent, leaf_orig, area, p, q, g, sides=None):
+        self.cl = None if sides is None or not sides[1].two_sided else sides[1]
+        if self.cl is None:
+            self.S, self.inv = _pull_means(Lroot, parent, leaf_orig, area)
+        else:
+            c = self.cl
+            self.S, self.inv = _pull_sides(Lroot, sides[0], parent, leaf_orig, area, c.axis,
+                                           c.normal, c.two)
         self.parent, self.leaf_orig, self.p, self.q, self.g = parent, leaf_orig, p, q, g
         self.cut = np.linspace(0, len(p), GATHER_PARTS + 1).astype(np.int64)
         self.H = [None] * GATHER_PARTS
@@ -59,15 +86,24 @@ class ClusterGather:
     def part(self, k: int) -> None:
         a, b = self.cut[k], self.cut[k + 1]
         H = np.zeros_like(self.S)
-        _link_sums(self.S, self.p[a:b], self.q[a:b], self.g[a:b], H)
+        if self.cl is None:
+            _link_sums(self.S, self.p[a:b], self.q[a:b], self.g[a:b], H)
+        else:
+            _side_sums(self.S, self.p[a:b], self.q[a:b], self.g[a:b], self.cl.side[a:b], H)
         self.H[k] = H
 
-    def push(self, G) -> int:
-        """G += the gathered light at the leaves' originals; returns the link terms."""
+    def push(self, G, Gback=None) -> int:
+        """G (C, n) += the gathered light at the leaves' originals (front sides; their back
+        sides into Gback with two-sided originals); returns the link terms."""
         H = self.H[0]
         for h in self.H[1:]:
             H += h
-        _push_down(H, self.inv, self.parent, self.leaf_orig, G)
+        if self.cl is None:
+            _push_down(H, self.inv, self.parent, self.leaf_orig, G)
+        else:
+            c = self.cl
+            _push_sides(H, self.inv, self.parent, self.leaf_orig, c.axis, c.normal, c.two, G,
+                        Gback)
         return 2 * len(self.p)
 
 
@@ -175,7 +211,7 @@ def final_layout(parent, leaf_orig, area, ocenter, onormal, oarea, overts, onv) 
 
 
 def cluster_final_gather(Lroot, parent, leaf_orig, area, p, q, g, layout: FinalLayout,
-                         part: tuple = (0, 1)):
+                         part: tuple = (0, 1), sides=None):
     """The final gather of the cluster links (SPEC §9): each link's power g Lbar_q, which the
     solve spreads uniformly over p's originals, shared out by the point kernel from q's
     centroid, A max(0, n . d) max(0, -m_q . d) / r^4 (m_q: q's mean normal), with the kernel's
@@ -184,10 +220,23 @@ def cluster_final_gather(Lroot, parent, leaf_orig, area, p, q, g, layout: FinalL
     other per original (normalised: the same power). Energy is conserved either way. Links
     part[0] of part[1] equal parts (the parts' sums add up to the whole). Returns fields (K,
     4C): at each leaf node, its original's irradiance at the centroid (C) and gradient in its
-    plane (C x 3), push_to_leaves' input."""
-    S, _ = _pull_means(Lroot, parent, leaf_orig, area)
+    plane (C x 3), push_to_leaves' input. With `sides` (Lback (C, n), cl: ClusterLinks holding
+    two-sided originals): (2, K, 4C), the fronts' and the backs' (push_back_to_leaves), each
+    end on the side the link uses (_final_sides)."""
     cut = np.linspace(0, len(p), part[1] + 1).astype(np.int64)
     a, b = cut[part[0]], cut[part[0] + 1]
+    if sides is not None and sides[1].two_sided:
+        cl = sides[1]
+        S, _ = _pull_sides(Lroot, sides[0], parent, leaf_orig, area, cl.axis, cl.normal, cl.two)
+        ntwo, rtwo = _two_layout(parent, leaf_orig, cl.two, layout.row_node)
+        nodes = np.zeros((2, len(parent), 4 * S.shape[2]))
+        _final_sides(S, area, p[a:b], q[a:b], g[a:b], cl.side[a:b], layout.cnt, layout.off,
+                     layout.cen, layout.unit, layout.flat, layout.reach, layout.geo,
+                     layout.row_node, cl.axis, ntwo, rtwo, nodes)
+        del S
+        return _fields_sides(nodes, parent, leaf_orig, layout.off, layout.cen, layout.geo,
+                             cl.axis, cl.normal, cl.two)
+    S, _ = _pull_means(Lroot, parent, leaf_orig, area)
     nodes = np.zeros((len(parent), 4 * S.shape[1]))
     _final_links(S, area, p[a:b], q[a:b], g[a:b], layout.cnt, layout.off, layout.cen,
                  layout.unit, layout.flat, layout.reach, layout.geo, layout.row_node, nodes)
@@ -226,17 +275,6 @@ def _node_reach(parent, leaf_orig, cen, oreach):
                     + (cen[x, 2] - cen[pa, 2]) ** 2)
         out[pa] = max(out[pa], d + out[x])
     return out
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _kernel_gradient(dx, dy, dz, nx, ny, nz, mx, my, mz, reach):
-    """passes.kernel_gradient limited so that 1 + g . (y - x) >= 0 within `reach` of x (no
-    negative light)."""
-    gx, gy, gz = kernel_gradient(dx, dy, dz, nx, ny, nz, mx, my, mz)
-    lim = np.sqrt(gx * gx + gy * gy + gz * gz) * reach
-    if lim > 1.0:
-        gx, gy, gz = gx / lim, gy / lim, gz / lim
-    return gx, gy, gz
 
 
 @numba.njit(cache=True, nogil=True)
@@ -344,34 +382,6 @@ def _final_links(S, area, p, q, g, cnt, off, cen, unit, flat, reach, geo, row_no
 
 
 @numba.njit(cache=True, nogil=True)
-def _push_fields(nodes, parent, leaf_orig, off, cen, geo):
-    """The nodes' linear fields (value at the centroid, gradient) summed down the tree in place
-    (a child's value is the parent's field at the child's centroid), the gradient at each leaf
-    taken into its original's plane (geo's row off[x])."""
-    K = parent.shape[0]
-    C = nodes.shape[1] // 4
-    for x in range(1, K):
-        pa = parent[x]
-        ex, ey, ez = cen[x, 0] - cen[pa, 0], cen[x, 1] - cen[pa, 1], cen[x, 2] - cen[pa, 2]
-        for c in range(C):
-            nodes[x, c] += nodes[pa, c] + nodes[pa, C + 3 * c] * ex \
-                + nodes[pa, C + 3 * c + 1] * ey + nodes[pa, C + 3 * c + 2] * ez
-            for j in range(3):
-                nodes[x, C + 3 * c + j] += nodes[pa, C + 3 * c + j]
-    for x in range(K):
-        if leaf_orig[x] < 0:
-            continue
-        i = off[x]
-        nx, ny, nz = geo[i, 3], geo[i, 4], geo[i, 5]
-        for c in range(C):
-            gx, gy, gz = nodes[x, C + 3 * c], nodes[x, C + 3 * c + 1], nodes[x, C + 3 * c + 2]
-            gn = gx * nx + gy * ny + gz * nz
-            nodes[x, C + 3 * c] = gx - gn * nx
-            nodes[x, C + 3 * c + 1] = gy - gn * ny
-            nodes[x, C + 3 * c + 2] = gz - gn * nz
-
-
-@numba.njit(cache=True, nogil=True)
 def push_to_leaves(fields, orig_node, ocenter, leaf_orig, leaf_center, d, y):
     """y (2, C, M) front sides += at every leaf l of original o: its field's value plus its
     gradient . (c_l - c_o) (cluster_final_gather's fields at o's leaf node orig_node[o]),
@@ -388,3 +398,4 @@ def push_to_leaves(fields, orig_node, ocenter, leaf_orig, leaf_center, d, y):
         for c in range(C):
             y[0, c, l] += f * (fields[x, c] + fields[x, C + 3 * c] * ex
                                + fields[x, C + 3 * c + 1] * ey + fields[x, C + 3 * c + 2] * ez)
+

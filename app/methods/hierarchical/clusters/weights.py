@@ -19,19 +19,28 @@ from radiosity.tracing.shafts import clear_of
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _facing(ona, m, ux, uy, uz):
+    """Element m's (tree order) cosine toward u as it shows itself: max(0, n . u), |n . u| for a
+    two-sided element (the side that faces u)."""
+    c = ona[m, 0] * ux + ona[m, 1] * uy + ona[m, 2] * uz
+    return abs(c) if ona[m, 7] > 0 else max(0.0, c)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _pick(start, end, area, ona, x, ux, uy, uz, k, out):
-    """k elements of node x stratified by their projected area toward u (A_i max(0, n_i . u)),
-    into out[:k] as positions in the tree's order (ascending); by area where no element faces
-    u. Returns S_x(u) = sum over the elements of A_i max(0, n_i . u) (0 where none faces u).
-    Plain arrays, not the tree's named tuple (clusters.py's note on the kernels' arguments)."""
+    """k elements of node x stratified by their projected area toward u (A_i max(0, n_i . u),
+    A_i |n_i . u| two-sided: _facing), into out[:k] as positions in the tree's order
+    (ascending); by area where no element faces u. Returns S_x(u) = the sum of those projected
+    areas (0 where none faces u). Plain arrays, not the tree's named tuple (clusters.py's note
+    on the kernels' arguments)."""
     s0, s1 = start[x], end[x]
     if s1 - s0 == 1:  # one element: every pick is it
         for j in range(k):
             out[j] = s0
-        return ona[s0, 3] * max(0.0, ona[s0, 0] * ux + ona[s0, 1] * uy + ona[s0, 2] * uz)
+        return ona[s0, 3] * _facing(ona, s0, ux, uy, uz)
     total = 0.0
     for m in range(s0, s1):
-        total += ona[m, 3] * max(0.0, ona[m, 0] * ux + ona[m, 1] * uy + ona[m, 2] * uz)
+        total += ona[m, 3] * _facing(ona, m, ux, uy, uz)
     by_area = total <= 0.0
     if by_area:
         total = area[x]
@@ -42,7 +51,7 @@ def _pick(start, end, area, ona, x, ux, uy, uz, k, out):
         if by_area:
             acc += ona[m, 3]
         else:
-            acc += ona[m, 3] * max(0.0, ona[m, 0] * ux + ona[m, 1] * uy + ona[m, 2] * uz)
+            acc += ona[m, 3] * _facing(ona, m, ux, uy, uz)
         while j < k and (j + 0.5) * step <= acc:
             out[j] = m
             j += 1
@@ -56,16 +65,18 @@ FF_SAMPLES = 16  # sample pairs of elements per cluster link for its form factor
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _kernel_over(ona, i, j, wi, wj):
+def _kernel_over(ona, i, j, wi, wj, si, sj):
     """max(0, cos_i) max(0, cos_j) / (pi r^2) between the centroids of the elements at tree
     positions i and j (CElems.ona), divided by their sampling weights' cosines wi, wj > 0 (one
-    division: the cosines' 1 / r each folded into it)."""
+    division: the cosines' 1 / r each folded into it). A two-sided element's cosine on the
+    side that the sampling weight's direction u faces (the sign of wi, wj before their |.|:
+    si, sj = +-1), so that it sends and receives on the side the link uses."""
     dx = ona[j, 4] - ona[i, 4]
     dy = ona[j, 5] - ona[i, 5]
     dz = ona[j, 6] - ona[i, 6]
     r2 = dx * dx + dy * dy + dz * dz
-    ci = ona[i, 0] * dx + ona[i, 1] * dy + ona[i, 2] * dz
-    cj = -(ona[j, 0] * dx + ona[j, 1] * dy + ona[j, 2] * dz)
+    ci = si * (ona[i, 0] * dx + ona[i, 1] * dy + ona[i, 2] * dz)
+    cj = -sj * (ona[j, 0] * dx + ona[j, 1] * dy + ona[j, 2] * dz)
     if r2 <= 0.0 or ci <= 0.0 or cj <= 0.0:
         return 0.0
     return ci * cj / (np.pi * r2 * r2 * wi * wj)
@@ -111,7 +122,11 @@ def _weights(t, e, links, samples, cols, lref, faint, F, ep, eq, few):
                     i0, j0 = i, j
                     wi = ona[i, 0] * ux + ona[i, 1] * uy + ona[i, 2] * uz
                     wj = -(ona[j, 0] * ux + ona[j, 1] * uy + ona[j, 2] * uz)
-                    term = _kernel_over(ona, i, j, wi, wj) if wi > 0.0 and wj > 0.0 else 0.0
+                    si = -1.0 if ona[i, 7] > 0 and wi < 0.0 else 1.0  # the side facing u
+                    sj = -1.0 if ona[j, 7] > 0 and wj < 0.0 else 1.0
+                    wi, wj = si * wi, sj * wj
+                    term = _kernel_over(ona, i, j, wi, wj, si, sj) if wi > 0.0 and wj > 0.0 \
+                        else 0.0
                 acc += term
             g = Sp * Sq * acc / samples
             F[a, 0] = g / area[p]

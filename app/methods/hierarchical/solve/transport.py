@@ -235,7 +235,8 @@ def _cluster_pass(inp: LinkSolveInputs, Lbar):
         return None
     roots = inp.noff[:-1]
     return ClusterGather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent, cl.leaf_orig,
-                         cl.area, cl.p, cl.q, cl.g)
+                         cl.area, cl.p, cl.q, cl.g,
+                         (np.ascontiguousarray(Lbar[1][:, roots]), cl) if cl.two_sided else None)
 
 
 def _cluster_push(inp: LinkSolveInputs, cg, G) -> int:
@@ -245,9 +246,11 @@ def _cluster_push(inp: LinkSolveInputs, cg, G) -> int:
     the caps over a whole cluster would darken all of its light (the tessellated Cornell box:
     3 %)."""
     roots = inp.noff[:-1]
-    Gc = np.zeros((G.shape[1], len(roots)))
-    terms = cg.push(Gc)
-    G[0][:, roots] += Gc
+    Gc = np.zeros((2, G.shape[1], len(roots)))
+    terms = cg.push(Gc[0], Gc[1])
+    G[0][:, roots] += Gc[0]
+    if cg.cl is not None:  # two-sided originals' backs
+        G[1][:, roots] += Gc[1]
     return terms
 
 
@@ -299,10 +302,12 @@ def cluster_final(inp: LinkSolveInputs, Lbar: np.ndarray, d: np.ndarray, y: np.n
     cl = inp.clusters
     roots = inp.noff[:-1]
     lay = final_layout_of(inp)
+    sides = (np.ascontiguousarray(Lbar[1][:, roots]), cl) if cl.two_sided else None
     fields = cluster_final_gather(np.ascontiguousarray(Lbar[0][:, roots]), cl.parent,
-                                  cl.leaf_orig, cl.area, cl.p, cl.q, cl.g, lay, part)
-    push_to_leaves(fields, lay.orig_node, np.ascontiguousarray(inp.node_center[roots]),
-                   inp.leaf_orig, inp.leaf_center, d, y)
+                                  cl.leaf_orig, cl.area, cl.p, cl.q, cl.g, lay, part, sides)
+    for s, f in enumerate(fields if sides is not None else [fields]):
+        push_to_leaves(f, lay.orig_node, np.ascontiguousarray(inp.node_center[roots]),
+                       inp.leaf_orig, inp.leaf_center, d, y[s:s + 1])
 
 
 def final_layout_of(inp: LinkSolveInputs):

@@ -83,7 +83,43 @@ def read_links(store_path: str, task: int, entry: dict):
     return links, nodes
 
 
-class LinkStore:
+class _TaskLedger:
+    """The finished tasks of a stage, one manifest line each (runtime Manifest), and a check
+    that a task's stored chunk still reads back: what LinkStore and DirectStore share. A
+    subclass says what a line keeps (`_line`) and how its chunk is read (`_read`, raising
+    StoreError)."""
+
+    manifest: str
+    rs = None
+
+    @staticmethod
+    def _line(task: int, e: dict) -> dict:
+        raise NotImplementedError
+
+    @staticmethod
+    def _read(store_path: str, task: int, entry: dict):
+        raise NotImplementedError
+
+    def record(self, task: int, result: dict) -> None:
+        """Append one finished task to the manifest (the master is its only writer)."""
+        Manifest(self.manifest).record(self._line(task, result))
+
+    def rewrite_manifest(self, token: str, entries: dict) -> None:
+        Manifest(self.manifest).rewrite(token, {t: self._line(t, e) for t, e in entries.items()})
+
+    def finished(self, token: str) -> dict:
+        """task -> manifest entry, for the plan `token` (a torn last line is ignored)."""
+        return Manifest(self.manifest).finished(token)
+
+    def verify(self, task: int, entry: dict) -> bool:
+        try:
+            self._read(self.rs.path, task, entry)
+        except StoreError:
+            return False
+        return True
+
+
+class LinkStore(_TaskLedger):
     """The links group of a run store: the task plan (pairs of originals per task), the links
     of each task, the manifest, and the node table (group hierarchy)."""
 
@@ -130,23 +166,7 @@ class LinkStore:
         return {"task": int(task), "crc": int(e["crc"]), "n": int(e["n"]), "nx": int(e["nx"]),
                 "counts": [int(c) for c in e["counts"]]}
 
-    def record(self, task: int, result: dict) -> None:
-        """Append one finished task to the manifest (the master is its only writer)."""
-        Manifest(self.manifest).record(self._line(task, result))
-
-    def rewrite_manifest(self, token: str, entries: dict) -> None:
-        Manifest(self.manifest).rewrite(token, {t: self._line(t, e) for t, e in entries.items()})
-
-    def finished(self, token: str) -> dict:
-        """task -> manifest entry, for the plan `token` (a torn last line is ignored)."""
-        return Manifest(self.manifest).finished(token)
-
-    def verify(self, task: int, entry: dict) -> bool:
-        try:
-            read_links(self.rs.path, task, entry)
-        except StoreError:
-            return False
-        return True
+    _read = staticmethod(read_links)
 
     def require(self):
         """(token, (pairs, first), finished entries), or a StoreError saying what to run."""
@@ -209,7 +229,7 @@ def read_direct(store_path: str, task: int, entry: dict) -> np.ndarray:
     return a
 
 
-class DirectStore:
+class DirectStore(_TaskLedger):
     """The direct group of a run store (solve/direct.py's ledger): the task plan (first leaf of
     each task), one array of L1 per task, the manifest."""
 
@@ -238,18 +258,4 @@ class DirectStore:
         return {"task": int(task), "crc": int(e["crc"]), "n": int(e["n"]),
                 "counts": [int(c) for c in e["counts"]]}
 
-    def record(self, task: int, result: dict) -> None:
-        Manifest(self.manifest).record(self._line(task, result))
-
-    def rewrite_manifest(self, token: str, entries: dict) -> None:
-        Manifest(self.manifest).rewrite(token, {t: self._line(t, e) for t, e in entries.items()})
-
-    def finished(self, token: str) -> dict:
-        return Manifest(self.manifest).finished(token)
-
-    def verify(self, task: int, entry: dict) -> bool:
-        try:
-            read_direct(self.rs.path, task, entry)
-        except StoreError:
-            return False
-        return True
+    _read = staticmethod(read_direct)

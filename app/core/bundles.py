@@ -31,6 +31,7 @@ class Elements:
     material : (n,) int32, index into `material_names`
     source : (n,) int32, index into `sources` (the mesh file)
     face : (n,) int32, face number in that file (0-based), for error messages
+    luminaires : the scene's point and IES luminaires (scene/luminaires.Luminaires; None: none)
     """
 
     verts: np.ndarray
@@ -46,6 +47,7 @@ class Elements:
     face: np.ndarray
     material_names: tuple = ()
     sources: tuple = ()
+    luminaires: object = None
 
     def __len__(self) -> int:
         return len(self.area)

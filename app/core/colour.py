@@ -11,6 +11,8 @@ import numpy as np
 
 #: Rec. 709 / sRGB luminance weights of linear RGB.
 LUMA = np.array([0.2126, 0.7152, 0.0722])
+#: lm per W of Y (the candela's definition at 555 nm; stages/tables.EFFICACY reads lux with it).
+EFFICACY = 683.0
 #: Automatic exposure maps the 99th percentile of the non-zero luminances to this linear value.
 AUTO_KEY = 0.9
 AUTO_PERCENTILE = 99.0

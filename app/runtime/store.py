@@ -194,13 +194,19 @@ class RunStore:
 
     # ---- typed helpers
     def save_elements(self, el: Elements) -> None:
+        from radiosity.scene.luminaires import luminaires_of
+
         self.write_arrays("elements", el.arrays(), {"material_names": list(el.material_names),
-                                                    "sources": list(el.sources)})
+                                                    "sources": list(el.sources),
+                                                    "luminaires": luminaires_of(el).to_dict()})
 
     def load_elements(self) -> Elements:
+        from radiosity.scene.luminaires import Luminaires
+
         a = self.read_arrays("elements")
         at = self.group_attrs("elements")
-        return Elements(**a, material_names=tuple(at["material_names"]), sources=tuple(at["sources"]))
+        return Elements(**a, material_names=tuple(at["material_names"]), sources=tuple(at["sources"]),
+                        luminaires=Luminaires.from_dict(at.get("luminaires")) or None)
 
     def save_partition(self, part: Partition, figures: dict | None = None) -> None:
         self.write_arrays("partition", part.arrays(), figures or {})

@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from radiosity.core.exact import point_ff
-from radiosity.scene.emitters import AreaEmitters
+from radiosity.scene.emitters import AreaEmitters, PointEmitters
 from radiosity.tracing.rays import caster_of
 from radiosity.core.geometry import on_hull_planes
 from radiosity.core.spherical import arvo, dot, spherical_triangle, unit3
@@ -337,7 +337,8 @@ def _sample(P, N, i, e, u, v, V, f1, nrm, area, Le, h, k, Y, W, sph, dirs):
 
 
 class DirectLight:
-    """H1 at points of a scene, from its area emitters (the only type today).
+    """H1 at points of a scene, from its area emitters and its luminaires (Elements.luminaires:
+    point and IES sources, exact: one shadow ray per luminaire and point, `_luminaires`).
 
     elements: the scene's Elements; ray_offset: the shadow rays' offset (settings.rays.offset);
     samples: shadow rays per point in the first pass, over all the lights it sees; seed: the
@@ -349,6 +350,7 @@ class DirectLight:
                  refine: int = 4, shafts: bool = True):
         self.elements = elements
         self.emitters = AreaEmitters(elements)
+        self.points = PointEmitters.of_scene(elements)
         self.ray_offset = float(ray_offset)
         self.samples = max(1, int(samples))
         self.seed = int(seed)
@@ -427,7 +429,7 @@ class DirectLight:
         return len(self.lstart) - 1
 
     def __bool__(self) -> bool:
-        return bool(len(self.ids))
+        return bool(len(self.ids)) or self.points.any()
 
     def irradiance(self, points: np.ndarray, normals: np.ndarray, elem: np.ndarray,
                    index: np.ndarray | None = None) -> np.ndarray:
@@ -439,12 +441,16 @@ class DirectLight:
         E = np.ascontiguousarray(elem, np.int64)
         idx = np.arange(len(P), dtype=np.int64) if index is None else np.asarray(index, np.int64)
         out = np.zeros((len(P), 3))
-        if not len(self.ids) or not len(P):
+        if not len(P):
+            return out
+        if self.points.any():
+            out += self._luminaires(P, N, E, shadows=True)
+        if not len(self.ids):
             return out
         step = max(64, min(BATCH_POINTS, BATCH_ENTRIES // len(self.ids)))
         for s in range(0, len(P), step):
             sl = slice(s, min(len(P), s + step))
-            out[sl] = self._batch(P[sl], N[sl], E[sl], np.ascontiguousarray(idx[sl]))
+            out[sl] += self._batch(P[sl], N[sl], E[sl], np.ascontiguousarray(idx[sl]))
         return out
 
     def unoccluded(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -453,7 +459,36 @@ class DirectLight:
         H0 = np.zeros((len(P), len(self.ids), 3))
         _unoccluded(P, np.ascontiguousarray(normals, np.float64), self._V, self._nv,
                     self._Lf, self._Lb, H0)
-        return H0.sum(axis=1)
+        out = H0.sum(axis=1)
+        if self.points.any():
+            out += self._luminaires(P, np.ascontiguousarray(normals, np.float64),
+                                    np.full(len(P), -1, np.int64), shadows=False)
+        return out
+
+    def _luminaires(self, P, N, E, shadows: bool) -> np.ndarray:
+        """(p, 3) W m^-2 from the luminaires, exact: I(direction) max(cos_x, 0) / r^2 V, I from
+        the candela table toward the point, V one shadow ray per luminaire and lit point."""
+        lums = self.points.luminaires
+        out = np.zeros((len(P), 3))
+        for k, y in enumerate(lums.positions):
+            d = y[None] - P                                        # toward the luminaire
+            r2 = np.einsum("pc,pc->p", d, d)
+            r = np.sqrt(r2)
+            cos_x = np.einsum("pc,pc->p", d, N) / np.where(r > 0, r, 1.0)
+            lit = np.flatnonzero((cos_x > 0) & (r2 > 0))
+            if not len(lit):
+                continue
+            E_k = lums.intensity_w(k, -d[lit] / r[lit, None]) * (cos_x[lit] / r2[lit])[:, None]
+            go = np.flatnonzero(E_k.max(axis=1) > 0)
+            if shadows and len(go):
+                pts = np.concatenate([P[lit[go]], y[None]])
+                vis = ~self.caster.occluded_pairs(pts, np.arange(len(go)),
+                                                  np.full(len(go), len(go)),
+                                                  np.concatenate([E[lit[go]], [-1]]))
+                self.rays += len(go)
+                E_k[go] *= vis[:, None]
+            out[lit] += E_k
+        return out
 
     def _batch(self, P, N, E, idx):
         nL = self.lights

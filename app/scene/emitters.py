@@ -15,6 +15,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from radiosity.core.colour import EFFICACY
 from radiosity.errors import RadiosityError
 
 #: What a scene without an emitter is told (a warning: it renders black, runtime/checks.py).
@@ -203,6 +204,68 @@ class AreaEmitters:
         return (np.asarray(self.Le, np.float64)[idx].max(axis=1) * solid[:, None]).sum(axis=0)
 
 
+class PointEmitters:
+    """The scene's luminaires (scene/luminaires.Luminaires: point sources and IES / EULUMDAT
+    candela tables) as point emitters: one sample each, at its position, weight 1, no normal;
+    its intensity toward a point is the candela table in that direction, in W sr^-1 per channel
+    (cd x colour / 683). Their direct light at points is exact: scene/direct.DirectLight casts
+    one shadow ray per luminaire and point."""
+
+    kind = "point"
+
+    def __init__(self, luminaires):
+        self.luminaires = luminaires
+
+    @classmethod
+    def of_scene(cls, elements, entries=()) -> "PointEmitters":
+        """The luminaires that travel with the elements (Elements.luminaires)."""
+        from radiosity.scene.luminaires import luminaires_of
+
+        return cls(luminaires_of(elements))
+
+    def __len__(self) -> int:
+        return len(self.luminaires)
+
+    def any(self) -> bool:
+        return bool(len(self.luminaires))
+
+    def describe(self) -> str:
+        return self.luminaires.describe()
+
+    def power(self) -> np.ndarray:
+        """(3,) W: each luminaire's flux (the integral of its table) x colour / 683."""
+        return self.luminaires.power()
+
+    def sample(self, n: int = 1, rng: np.random.Generator | None = None) -> EmitterSamples:
+        """One sample per luminaire whatever n: its position, weight 1, source its index."""
+        k = len(self.luminaires)
+        return EmitterSamples(self.luminaires.positions, np.zeros((k, 3)), np.ones(k),
+                              np.arange(k, dtype=np.int64))
+
+    def intensity(self, samples: EmitterSamples, points: np.ndarray) -> np.ndarray:
+        """(p, k, 3) W sr^-1: luminaire source[k]'s intensity toward point p."""
+        P = np.asarray(points, np.float64)
+        out = np.zeros((len(P), len(samples), 3))
+        for j, (y, src, w) in enumerate(zip(samples.position, samples.source, samples.weight)):
+            d = P - y
+            r = np.linalg.norm(d, axis=1)
+            u = d / np.where(r > 0, r, 1.0)[:, None]
+            out[:, j] = self.luminaires.intensity_w(int(src), u) * w
+        return out
+
+    def irradiance_bound(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """(3,) W m^-2: sum over luminaires of I_max / d^2, d the distance from it to the box
+        (inf for a luminaire inside the box)."""
+        out = np.zeros(3)
+        for lum in self.luminaires.items:
+            gap = np.maximum(np.maximum(np.asarray(lo, float) - lum.position, 0.0),
+                             np.maximum(lum.position - np.asarray(hi, float), 0.0))
+            d2 = float(gap @ gap)
+            peak = lum.peak_cd() * lum.colour / EFFICACY
+            out = out + (peak / d2 if d2 > 0 else np.where(peak > 0, np.inf, 0.0))
+        return out
+
+
 def irradiance(emitter: Emitter, samples: EmitterSamples, points: np.ndarray,
                normals: np.ndarray, visible: np.ndarray | None = None) -> np.ndarray:
     """(p, 3) W m^-2: the direct irradiance at `points` (p, 3) with unit `normals` (p, 3) from
@@ -218,11 +281,11 @@ def irradiance(emitter: Emitter, samples: EmitterSamples, points: np.ndarray,
     return np.einsum("pkc,pk->pc", emitter.intensity(samples, P), g)
 
 
-#: Emitter types by the name a scene gives them. Planned (issues 50 and 52; each provides the
-#: Emitter protocol): "point" (position, intensity W sr^-1, one sample, bound I / d^2), "spot"
-#: (a point with a cone and falloff), "goniometric" (a point with an IES candela table),
-#: "sky" (radiance by direction from infinity, sampled by solid angle, bound pi L_max).
-EMITTER_TYPES = {"area": AreaEmitters}
+#: Emitter types by the name a scene gives them: "area" (emitting materials), "point" (the
+#: [[luminaire]] tables: point sources and IES / EULUMDAT candela tables, a spot being a table).
+#: Planned (issue 52): "sky" (radiance by direction from infinity, sampled by solid angle,
+#: bound pi L_max).
+EMITTER_TYPES = {"area": AreaEmitters, "point": PointEmitters}
 
 
 def emitter_type(name: str):
@@ -237,3 +300,13 @@ def emitter_type(name: str):
 def area_emitters(elements) -> AreaEmitters:
     """The scene's area emitters (its emitting materials)."""
     return AreaEmitters(elements)
+
+
+def point_emitters(elements) -> PointEmitters:
+    """The scene's luminaires ([[luminaire]] tables) as point emitters."""
+    return PointEmitters.of_scene(elements)
+
+
+def emits(elements) -> bool:
+    """Whether anything in the scene emits light: an emitting material or a luminaire."""
+    return AreaEmitters(elements).any() or point_emitters(elements).any()

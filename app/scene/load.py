@@ -41,6 +41,7 @@ _MATERIAL_KEYS = {"reflectance", "emission", "two_sided", "back_reflectance", "b
 _LOOKAT_KEYS = {"position", "look_at", "up", "fov_y", "resolution"}
 _SEED_KEYS = {"center", "x", "y", "z", "focal_distance", "resolution"}
 _TOP_KEYS = {"name", "description", "mesh", "material", "camera", "validation"}
+_TOP_KEYS |= {"luminaire"}  # [[luminaire]] tables: scene/luminaires.py
 _VALIDATION_KEYS = {"form_factor", "from", "to", "radiance", "kind", "emitter", "receiver"}
 
 
@@ -327,6 +328,22 @@ def _validation(doc: dict, path: str, names: list) -> dict:
     return dict(validation)
 
 
+def _with_luminaires(elements: Elements, doc: dict, path: str, s: Settings) -> Elements:
+    """The elements with the scene's [[luminaire]] tables (scene/luminaires.py), each checked to
+    be outside every wall and closed solid (the same elements when it has none)."""
+    import dataclasses
+
+    from radiosity.scene.luminaires import check_placement, parse_luminaires, scene_up
+    from radiosity.tracing.rays import caster_of
+
+    lums = parse_luminaires(doc.get("luminaire"), path, scene_up(doc))
+    if not lums:
+        return elements
+    check_placement(lums, elements, caster_of(elements.verts, elements.nverts,
+                                              float(s.rays.offset)), path)
+    return dataclasses.replace(elements, luminaires=lums)
+
+
 def load_scene(path: str, resolution=None, *, settings: Settings) -> Scene:
     """Read a scene TOML (or a folder holding scene.toml) into a Scene: its meshes, material
     overrides and camera. A bare mesh file (any of formats.load.MESH_FORMATS) is a scene too:
@@ -360,6 +377,7 @@ def load_scene(path: str, resolution=None, *, settings: Settings) -> Scene:
                         reflectance=reflectance, emission=emission, two_sided=two_sided,
                         material=material, source=source, face=face,
                         material_names=tuple(names), sources=tuple(sources))
+    elements = _with_luminaires(elements, doc, path, s)
     chosen = ""
     views = ()
     if mesh_scene:

@@ -22,6 +22,7 @@ from radiosity.runtime.monitor import peak_rss_mb
 from radiosity.runtime.precompile import with_helper
 from radiosity.runtime.store import RunStore, StageFigures, update_report
 from radiosity.scene.effects import plan_effects
+from radiosity.scene.luminaires import luminaires_of
 from radiosity.settings import OPTIONS, Settings, options
 from radiosity.stages.image import previewer, render_outputs
 from radiosity.stages.preprocess import preprocess
@@ -143,6 +144,8 @@ def scene_digest(scene: Scene) -> str:
     el = scene.elements
     for a in (el.verts, el.nverts, el.reflectance, el.emission, el.two_sided):
         h.update(np.ascontiguousarray(a).tobytes())
+    if luminaires_of(el):  # their photometric files' tables included
+        h.update(luminaires_of(el).digest().encode())
     return h.hexdigest()
 
 
@@ -186,7 +189,8 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     est = effects.estimates
     name, why = choose_method(len(RunStore(out).load_partition()), s, originals=len(scene.elements),
                               facing_pairs=est.get("facing_original_pairs",
-                                                   est.get("facing_original_pairs_estimate")))
+                                                   est.get("facing_original_pairs_estimate")),
+                              point_sources=len(luminaires_of(scene.elements)))
     impl = get_method(name)
     echo(f"method: {why}")
     direct, direct_why = direct_choice(name, scene.elements, s)

@@ -154,7 +154,8 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     check_run_dir(run_dir)
     rs = RunStore(run_dir)
     part = rs.load_partition()
-    name, why = choose_method(len(part), st, originals=len(part.offsets) - 1)
+    name, why = choose_method(len(part), st, originals=len(part.offsets) - 1,
+                              point_sources=_luminaire_count(rs.load_elements()))
     method = get_method(name)
     click.echo(f"method: {why}")
     method.check(rs, st)  # bad settings fail before a cluster starts
@@ -410,7 +411,8 @@ def plan(scene, resolution, subpixel, tol):
     est = planned.effects.estimates
     method, why = choose_method(planned.sub_elements, st, originals=len(sc.elements),
                                 facing_pairs=est.get("facing_original_pairs",
-                                                     est.get("facing_original_pairs_estimate")))
+                                                     est.get("facing_original_pairs_estimate")),
+                                point_sources=_luminaire_count(sc.elements))
     click.echo(f"method: {why}")
     click.echo(f"direct light: {direct_choice(method, sc.elements, st)[1]}")
     for line in get_method(method).plan_lines(st, planned.sub_elements, len(sc.elements), why):
@@ -577,3 +579,10 @@ main.add_command(study)  # studies.py
 
 if __name__ == "__main__":  # pragma: no cover
     main()
+
+
+def _luminaire_count(elements) -> int:
+    """How many luminaires (point sources) travel with the elements (scene/luminaires.py)."""
+    from radiosity.scene.luminaires import luminaires_of
+
+    return len(luminaires_of(elements))

@@ -120,7 +120,15 @@ class TransportMethod(ABC):
 
     def direct(self, elements, settings) -> tuple[str, str]:
         """(mode, why): where this method takes the emitters' light (radiosity.direct.mode,
-        SPEC §10): "links" (as all other light, the seed's way) unless it overrides this."""
+        SPEC §10): "links" (as all other light, the seed's way) unless it overrides this; a
+        scene with luminaires (point sources, which links cannot carry) is refused."""
+        from radiosity.scene.emitters import point_emitters
+
+        lums = point_emitters(elements)
+        if lums.any():
+            raise RadiosityError(f"the {self.name} method cannot carry the scene's "
+                                 f"{lums.describe()} (point sources): use --method hierarchical "
+                                 "(or auto)")
         return "links", f"links: the {self.name} method carries all light through its pairs"
 
     @abstractmethod
@@ -220,19 +228,24 @@ register_method_groups(store_groups)  # the run store's drop_after deletes them 
 
 
 def choose_method(sub_elements: int, settings, originals: int = 1,
-                  facing_pairs: float | None = None) -> tuple[str, str]:
+                  facing_pairs: float | None = None, point_sources: int = 0) -> tuple[str, str]:
     """(method, why) for a run of `sub_elements`: settings.visibility.method unless auto; auto
     takes hierarchical above visibility.hierarchical-above sub-elements (links grow at most like
     m, pairs like m^2; docs/src/measurements/hierarchical.md), the seed's pairs below, where both cost the same
     and pairs is the exact all-pairs limit. A sampled kernel (nxm, mc) is the pairs method's
     (links sample their own rays), and so are scenes of many originals with few sub-elements
     each (visibility.hierarchical-min-per-original), unless their facing pairs (`facing_pairs`,
-    counted or estimated) exceed plan.max-facing-pairs, which the pairs method refuses."""
+    counted or estimated) exceed plan.max-facing-pairs, which the pairs method refuses.
+    `point_sources` (the scene's luminaires): hierarchical, whose direct light at points
+    carries them (the pairs method cannot)."""
     vis = settings.visibility
     method = vis.method
     if method != "auto":
         get_method(method)
         return method, f"{method}: stated (method: {method})"
+    if point_sources:
+        return "hierarchical", (f"hierarchical: auto, {point_sources} luminaire(s): point "
+                                "sources are lit at points (direct.mode points)")
     budget = float(settings.plan.max_facing_pairs)
     if facing_pairs is not None and facing_pairs > budget:
         return "hierarchical", (f"hierarchical: auto, about {facing_pairs:.3g} facing pairs of "

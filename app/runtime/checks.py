@@ -151,7 +151,7 @@ def check_scene(scene, settings, method=None) -> dict:
 
     el, cam = scene.elements, scene.camera
     emitters = AreaEmitters(el)
-    if not emitters.any():
+    if not emitters.any() and not _luminaires(el):  # [[luminaire]] point sources count too
         warnings.warn(f"{scene.path}: {emitters.describe()}: the image will be black; give a "
                       "material an emission ([material.NAME] emission = [r, g, b])", stacklevel=2)
     est = method.check_scene(scene, settings) if method is not None else None
@@ -262,7 +262,7 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
             f"or for {mesh(int(el.source[e]))} {fix}")
     emitters = emitter_reach(el, caster)
     dark = [g for g in emitters if g.reached == 0]
-    if emitters and len(dark) == len(emitters):
+    if emitters and len(dark) == len(emitters) and not _luminaires(el):
         sees_light = bool((lit & AreaEmitters(el).emitting()[seen]).any())
         g = max(dark, key=lambda g: g.elements)
         what = (f"{g.backs} of {g.rays} of its rays meet the backs of one-sided elements, "
@@ -285,3 +285,10 @@ def check_orientation(scene, caster, seen: np.ndarray) -> dict:
             "emitters": [{"source": g.source, "material": el.material_names[g.material],
                           "rays": g.rays, "reached": g.reached, "backs": g.backs,
                           "escaped": g.escaped} for g in emitters]}
+
+
+def _luminaires(elements) -> int:
+    """How many [[luminaire]] point sources light the scene (scene/luminaires.py)."""
+    from radiosity.scene.luminaires import luminaires_of
+
+    return len(luminaires_of(elements))

@@ -14,6 +14,7 @@ from radiosity.scene.originals import (LEAF, TOL, FacingPairsError, behind_any,
                                        pairs_within_budget, tree_of)
 from radiosity.core.bundles import Elements
 from radiosity.scene.emitters import AreaEmitters
+from radiosity.scene.luminaires import luminaires_of
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,9 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
         reasons["interreflection"] = (f"on: largest reflectance {rho_max:.3g}; Jacobi needs at most "
                                       f"{passes} passes to reach {tol:g} (CG far fewer)")
 
-    grey = bool(np.all(rho == rho[..., :1]) and emitters.grey())
+    lums = luminaires_of(elements)   # [[luminaire]] point sources
+    grey = bool(np.all(rho == rho[..., :1]) and emitters.grey()
+                and all(np.all(lum.colour == lum.colour[0]) for lum in lums.items))
     colour = full or not grey
     reasons["colour"] = ("off: every material is grey: one channel is solved and broadcast"
                          if not colour else "on: some material has colour" if not grey else
@@ -153,7 +156,9 @@ def plan_effects(elements: Elements, tol: float = 1e-6, full: bool = False,
                             f"from both sides" + (f"; {dropped} solved as one-sided" if dropped else ""))
 
     emitter = emitters.emitting()
-    reach = _reachable(bi, bj, emitter, reflect) if bi is not None else np.ones(n, bool)
+    # luminaires light elements directly (not through pairs): every element may be reached
+    reach = _reachable(bi, bj, emitter, reflect) if bi is not None and not lums \
+        else np.ones(n, bool)
     gather = np.ones(n, bool) if full else (reflect & reach)
     # three disjoint kinds that add up to the rows dropped: ~(reflect & reach)
     dead_emit = int((emitter & ~reflect).sum())

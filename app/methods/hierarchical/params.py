@@ -7,6 +7,7 @@ cluster_weights).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,6 +90,14 @@ def choose_direct(elements, settings) -> tuple[str, str]:
     d = settings.direct
     if d.mode not in ("auto", "points", "links"):
         raise RadiosityError(f"radiosity.direct.mode must be auto, points or links, got {d.mode!r}")
+    from radiosity.scene.emitters import point_emitters
+
+    lums = point_emitters(elements)
+    if lums.any():        # links cannot carry a point source: its light is taken at points
+        if d.mode == "links":
+            raise RadiosityError(f"radiosity.direct.mode = links cannot carry the scene's "
+                                 f"{lums.describe()} (point sources): use points or auto")
+        return "points", f"points: {lums.describe()} (point sources: their light at points)"
     if d.mode != "auto":
         return d.mode, f"{d.mode}: stated (--direct {d.mode})"
     em = AreaEmitters(elements).emitting()
@@ -119,7 +128,7 @@ def direct_estimate(elements, ray_offset: float) -> np.ndarray:
     from radiosity.scene.direct import DirectLight
 
     key = tokenize(elements.verts, elements.nverts, elements.emission, elements.reflectance,
-                   float(ray_offset))
+                   float(ray_offset), getattr(elements, "luminaires", None))
     if key in _ESTIMATES:
         return _ESTIMATES[key]
     n = len(elements)
@@ -157,6 +166,10 @@ def oracle_weights(elements, weight: str, direct: np.ndarray | None = None):
     rho = elements.reflectance.max(axis=2)   # (n, 2)
     em = AreaEmitters(elements).peak()
     E = float((A * em.sum(axis=1)).sum() / A.sum())
+    if direct is not None:  # luminaires: their flux spread over the scene, as an exitance
+        from radiosity.scene.emitters import point_emitters
+
+        E += float(point_emitters(elements).power().max(initial=0.0)) / (math.pi * A.sum())
     r = float(min((A * rho[:, 0]).sum() / A.sum(), 0.99))
     La = E * r / (1.0 - r)
     lref = E + La

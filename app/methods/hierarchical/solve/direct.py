@@ -23,6 +23,7 @@ import numpy as np
 from radiosity.runtime.cluster import scatterable
 from radiosity.runtime.stage import StageMaster, StagePlan, TaskFigures
 from radiosity.scene.direct import DirectLight
+from radiosity.scene.luminaires import luminaires_of
 
 #: Stratified points per leaf (a square), where the leaf is small against its distance to the
 #: emitters (the default of settings.direct.leaf_points).
@@ -310,6 +311,7 @@ class _Prepared:
         self.samples = samples
         self.offset = float(settings.rays.offset)
         self.emitters = int((np.asarray(elements.emission).max(axis=(1, 2)) > 0).sum())
+        self.emitters += len(luminaires_of(elements))      # [[luminaire]] point sources
         self.strata = leaf_strata(table, elements, self.k, adaptive)
         self.pts, self.e, self.pfirst = leaf_points(table, self.strata)
         lo = np.asarray(table["orig"], np.int64)[np.asarray(table["leaf_node"], np.int64)]
@@ -317,7 +319,8 @@ class _Prepared:
         self.first, self.cost = direct_plan(self.pfirst, self.emitters)
         self.token = tokenize(VERSION, self.pts, self.e, self.pfirst, self.rho, self.first,
                               elements.verts, elements.nverts, elements.normal,
-                              elements.emission, samples, self.offset)
+                              elements.emission, samples, self.offset,
+                              luminaires_of(elements).digest())
 
     def args(self, t: int) -> tuple:
         a, b = int(self.first[t]), int(self.first[t + 1])

@@ -81,20 +81,19 @@ class Photometry:
         """cd toward unit directions `local` (k, 3) in the luminaire's frame."""
         return self.at(*self.angles(np.asarray(local, np.float64)))
 
-    def flux(self, steps: int = 720) -> float:
-        """Total luminous flux (lm) of the interpolated distribution: the integral of I over the
-        sphere, midpoint rule on `steps` x 2 `steps` cells of the type's own angles."""
-        a = (np.arange(steps) + 0.5) * (180.0 / steps)                   # polar-like, 0..180
-        b = (np.arange(2 * steps) + 0.5) * (360.0 / (2 * steps))         # around, 0..360
-        da, db = math.radians(180.0 / steps), math.radians(360.0 / (2 * steps))
-        A, B = np.meshgrid(a, b, indexing="ij")
-        if self.kind == "C":            # gamma from the nadir, C around
-            return float((self.at(B, A) * np.sin(np.radians(A))).sum() * da * db)
-        lat, plane = A - 90.0, B - 180.0      # latitude -90..90 off the polar axis' equator
-        w = np.cos(np.radians(lat))
-        if self.kind == "B":
-            return float((self.at(lat, plane) * w).sum() * da * db)
-        return float((self.at(plane, lat) * w).sum() * da * db)
+    def flux(self) -> float:
+        """Total luminous flux (lm) of the interpolated distribution, exact for the bilinear
+        interpolant: per cell, the integral of a linear function times the solid angle's weight
+        (sin of gamma for type C, cos of the latitude for A and B), and trapezoids in the other
+        angle."""
+        h, v = np.radians(self.horizontal), np.radians(self.vertical)
+        if self.kind == "C":          # d omega = sin(gamma) d gamma dC
+            wh, wv = _node_weights(h, None), _node_weights(v, "sin")
+        elif self.kind == "B":        # H the latitude: d omega = cos H dH dV
+            wh, wv = _node_weights(h, "cos"), _node_weights(v, None)
+        else:                         # V the latitude: d omega = cos V dH dV
+            wh, wv = _node_weights(h, None), _node_weights(v, "cos")
+        return float(wh @ self.candela @ wv)
 
     def peak(self) -> float:
         return float(self.candela.max(initial=0.0))
@@ -111,6 +110,28 @@ class Photometry:
                    np.asarray(d["candela"], np.float64).reshape(len(d["horizontal"]),
                                                                 len(d["vertical"])),
                    d.get("source", ""))
+
+
+def _node_weights(x: np.ndarray, kernel: str | None) -> np.ndarray:
+    """(n,) w with sum_i f_i w_i = the integral over [x_0, x_n-1] (radians) of the piecewise
+    linear interpolant of f times 1, sin or cos (`kernel` None, "sin", "cos"), exactly."""
+    w = np.zeros(len(x))
+    if len(x) < 2:
+        return w
+    a, b = x[:-1], x[1:]
+    d = b - a
+    if kernel is None:
+        S, M = d, 0.5 * (b * b - a * a)                        # int 1, int t
+    elif kernel == "sin":
+        S = np.cos(a) - np.cos(b)
+        M = (np.sin(b) - b * np.cos(b)) - (np.sin(a) - a * np.cos(a))
+    else:
+        S = np.sin(b) - np.sin(a)
+        M = (np.cos(b) + b * np.sin(b)) - (np.cos(a) + a * np.sin(a))
+    w1 = (M - a * S) / d                                       # the weight of the right node
+    np.add.at(w, np.arange(1, len(x)), w1)
+    np.add.at(w, np.arange(len(x) - 1), S - w1)
+    return w
 
 
 def _cell(grid: np.ndarray, x: np.ndarray):
@@ -219,7 +240,7 @@ def read_ies(path: str) -> Photometry:
     if value.upper() != "NONE":
         raise PhotometryError(f"{path}: line {tilt + 1}: TILT={value} is not supported (only "
                               "TILT=NONE: lamp tilt factors are not modelled)")
-    toks = [(t, i + 1) for i, ln in enumerate(lines[tilt + 1:], start=tilt)
+    toks = [(t, i + 1) for i, ln in enumerate(lines[tilt + 1:], start=tilt + 1)
             for t in ln.replace(",", " ").split()]
     pos = 0
 

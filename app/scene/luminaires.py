@@ -256,6 +256,8 @@ def parse_luminaires(entries, path: str, up: np.ndarray) -> Luminaires:
                     raise SceneError(f"{where}: '{k}' is for a luminaire without 'ies' (the "
                                      "photometric file gives the distribution)")
             fn = os.path.join(os.path.dirname(path), str(t["ies"]))
+            if not os.path.isfile(fn):
+                raise SceneError(f"{where}: ies = {t['ies']!r}: photometric file not found: {fn}")
             ph = read_photometry(fn)
             lum = Luminaire(name, pos, frame, "table", mult, colour, ph)
         else:

@@ -268,6 +268,28 @@ def shape_groups(scene: Scene, meters=(), per_element: bool = False) -> list[np.
     return np.split(idx.astype(np.int64), bounds)
 
 
+def luminaire_dicts(scene: Scene) -> dict:
+    """Mitsuba `point` emitters of the scene's isotropic luminaires ([[luminaire]] tables:
+    intensity W sr^-1 = cd x colour / 683, as the engine takes them). Mitsuba 3 has no
+    goniometric or cosine point light: a Lambertian or IES luminaire is one ReferenceError
+    naming it (its reference would silently miss light)."""
+    from radiosity.scene.luminaires import luminaires_of
+
+    out = {}
+    lums = luminaires_of(scene.elements)
+    for k, lum in enumerate(lums.items):
+        if lum.distribution != "isotropic":
+            raise ReferenceError(
+                f"{scene.path}: [[luminaire]] {lum.name!r} is "
+                f"{'an IES table' if lum.photometry is not None else 'Lambertian'}: the Mitsuba "
+                "reference converts isotropic luminaires only (Mitsuba 3 has no goniometric "
+                "point light)")
+        I = lums.intensity_w(k, np.array([[0.0, 0.0, -1.0]]))[0]
+        out[f"luminaire{k:04d}"] = {"type": "point", "position": [float(x) for x in lum.position],
+                                    "intensity": _rgb(I)}
+    return out
+
+
 def _mesh_arrays(el, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) float32 and faces (F, 3) uint32 of the elements `idx`: a triangle as
     (v0 v1 v2), a quad as (v0 v1 v2), (v0 v2 v3), so the winding, hence the front normal, is
@@ -356,6 +378,7 @@ def mitsuba_scene(scene: Scene, depth: int, spp: int = 1, meters=(), mi=None,
         p["faces"] = type(p["faces"])(faces.ravel())
         p.update()
         d[f"shape{j:07d}"] = mesh
+    d.update(luminaire_dicts(scene))
     try:
         return mi.load_dict(d, optimize=False), sensors
     except RuntimeError as e:  # Mitsuba's own message, on one line

@@ -48,7 +48,7 @@ def test_area_emitters_follow_the_protocol_and_the_registry():
 
 
 def test_unknown_emitter_type_lists_the_known_ones():
-    with pytest.raises(RadiosityError, match=r"unknown emitter type 'ies': one of area$"):
+    with pytest.raises(RadiosityError, match=r"unknown emitter type 'ies': one of area, point$"):
         emitter_type("ies")
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -202,3 +203,42 @@ def test_bad_ldt_and_no_tilt(tmp_path):
     q.write_text("IESNA:LM-63-2002\n[TEST] x\n1 2 3\n")
     with pytest.raises(PhotometryError, match=r"noties.ies: no TILT= line"):
         read_photometry(str(q))
+
+
+def _ies2rad(fn, tmp_path):
+    """(candela grid (nh, nv) or (nv,), horizontal angles, vertical angles) of `fn` as Radiance's
+    ies2rad converts it: its data file times its multiplier, source area and 179 lm/W."""
+    import subprocess
+
+    pyradiance = pytest.importorskip("pyradiance")
+    P = os.path.dirname(pyradiance.__file__)
+    env = dict(os.environ, PATH=os.path.join(P, "bin") + os.pathsep + os.environ["PATH"],
+               RAYPATH="." + os.pathsep + os.path.join(P, "lib"))
+    shutil.copy(fn, tmp_path / "lum.ies")
+    subprocess.run(["ies2rad", "-t", "default", "-o", "lum", "lum.ies"], cwd=tmp_path, env=env,
+                   check=True, capture_output=True)
+    rad = (tmp_path / "lum.rad").read_text().split("\n")
+    k = next(i for i, ln in enumerate(rad) if "brightdata" in ln)
+    mult = float(rad[k + 3].split()[1])
+    radius = float(next(ln for ln in rad if ln.startswith("4 0 0 0")).split()[4])
+    tok = (tmp_path / "lum.dat").read_text().split()
+    nd = int(tok[0])
+    axes = []
+    for d in range(nd):
+        a, b, n = float(tok[1 + 3 * d]), float(tok[2 + 3 * d]), int(tok[3 + 3 * d])
+        axes.append(np.linspace(a, b, n))
+    vals = np.array(tok[1 + 3 * nd:], float).reshape([len(a) for a in axes])
+    cd = vals * mult * 179.0 * math.pi * radius ** 2
+    return cd, (axes[0] if nd == 2 else np.array([0.0])), axes[-1]
+
+
+@pytest.mark.parametrize("name", ["asymmetric.ies", "cosine.ies", "quadrant.ies",
+                                  "bilateral.ies", "lm63-1986.ies"])
+def test_candela_agree_with_radiance_ies2rad(name, tmp_path):
+    """Our table (multiplier, ballast and lamp factors, angles) against the one Radiance's
+    ies2rad writes for the same file, at every angle it gives."""
+    cd, H, V = _ies2rad(os.path.join(DATA, name), tmp_path)
+    p = ph(name)
+    hh, vv = np.meshgrid(H, V, indexing="ij")
+    ours = p.at(hh, vv).reshape(cd.shape)
+    assert np.allclose(ours, cd, rtol=2e-5, atol=1e-9)

@@ -64,7 +64,7 @@ def leaf_strata(table: dict, elements, k: int = LEAF_POINTS, adaptive: bool = Tr
     (its polygon's diameter) exceeds STRATUM_OVER_DISTANCE s times its gap to the nearest
     emitter that can light it (the distance from its centre to the polygons of the 8 emitters
     nearest by centre, less half the leaf; not one whose plane holds the leaf, nor one the leaf
-    is wholly behind), up to
+    is wholly behind; a luminaire: its distance to the leaf's centre less half the leaf), up to
     MAX_STRATA, the largest leaves first while the added points stay within EXTRA_POINTS of the
     default ones (or EXTRA_MIN). H1 varies over a leaf on the scale of that gap: a wall's one
     leaf next to a lamp needs more than 4 points to average it, a pixel-sized leaf does not. A
@@ -74,28 +74,21 @@ def leaf_strata(table: dict, elements, k: int = LEAF_POINTS, adaptive: bool = Tr
     s = np.full(len(ln), s0, np.int64)
     Le = np.asarray(elements.emission, np.float64).max(axis=2)          # (n, 2)
     em = np.flatnonzero(Le.max(axis=1) > 0)
-    if not adaptive or not len(em) or not len(ln) or s0 >= MAX_STRATA:
+    lum = luminaires_of(elements).positions                              # (k, 3) points
+    if not adaptive or not (len(em) or len(lum)) or not len(ln) or s0 >= MAX_STRATA:
         return s
-    from scipy.spatial import cKDTree
-
-    ec = np.asarray(elements.center, np.float64)[em]
-    en = np.asarray(elements.normal, np.float64)[em]
-    EV = np.asarray(elements.verts, np.float64)[em]
-    EV = np.where((np.asarray(elements.nverts)[em] == 3)[:, None, None], EV[:, [0, 1, 2, 2]], EV)
     V = np.asarray(table["verts"], np.float64)[ln]
     nv = np.asarray(table["nverts"], np.int64)[ln]
     V4 = np.where(nv[:, None, None] == 3, V[:, [0, 1, 2, 2]], V)
     c = V4.mean(axis=1)
     size = np.linalg.norm(V4 - c[:, None], axis=2).max(axis=1) * 2.0
-    nn = min(8, len(em))
-    d, j = cKDTree(ec).query(c, k=nn)
-    d, j = d.reshape(len(c), nn), j.reshape(len(c), nn)
-    # the leaf's corners' heights over each emitter's plane: lit by a side it is in front of
-    h = np.einsum("mvc,mjc->mjv", V4, en[j]) - np.einsum("mjc,mjc->mj", ec[j], en[j])[..., None]
-    tol = 1e-9 * (1.0 + d)
-    lights = ((h.max(axis=2) > tol) & (Le[em[j], 0] > 0)) \
-        | ((h.min(axis=2) < -tol) & (Le[em[j], 1] > 0))
-    gap = np.where(lights, polygon_distance(c, EV, j), np.inf).min(axis=1) - 0.5 * size
+    gap = np.full(len(c), np.inf)
+    if len(em):
+        gap = _area_gap(elements, em, Le, V4, c, size)
+    if len(lum):          # a luminaire: its distance to the leaf's centre less half the leaf
+        from scipy.spatial import cKDTree
+
+        gap = np.minimum(gap, cKDTree(lum).query(c)[0].reshape(-1) - 0.5 * size)
     want = np.ceil(size / (STRATUM_OVER_DISTANCE * np.maximum(gap, 1e-300)))
     lo = np.asarray(table["orig"], np.int64)[ln]
     reflects = np.asarray(elements.reflectance, np.float64)[lo].max(axis=(1, 2)) > 0
@@ -107,6 +100,26 @@ def leaf_strata(table: dict, elements, k: int = LEAF_POINTS, adaptive: bool = Tr
     ok = np.cumsum(extra[order]) <= max(EXTRA_POINTS * s0 * s0 * len(ln), EXTRA_MIN)
     s[order[ok]] = want[order[ok]]
     return s
+
+
+def _area_gap(elements, em, Le, V4, c, size) -> np.ndarray:
+    """(M,) distance from each leaf (corners V4, centre c, diameter size) to the nearest of the
+    8 emitting elements `em` nearest by centre that can light it, less half the leaf."""
+    from scipy.spatial import cKDTree
+
+    ec = np.asarray(elements.center, np.float64)[em]
+    en = np.asarray(elements.normal, np.float64)[em]
+    EV = np.asarray(elements.verts, np.float64)[em]
+    EV = np.where((np.asarray(elements.nverts)[em] == 3)[:, None, None], EV[:, [0, 1, 2, 2]], EV)
+    nn = min(8, len(em))
+    d, j = cKDTree(ec).query(c, k=nn)
+    d, j = d.reshape(len(c), nn), j.reshape(len(c), nn)
+    # the leaf's corners' heights over each emitter's plane: lit by a side it is in front of
+    h = np.einsum("mvc,mjc->mjv", V4, en[j]) - np.einsum("mjc,mjc->mj", ec[j], en[j])[..., None]
+    tol = 1e-9 * (1.0 + d)
+    lights = ((h.max(axis=2) > tol) & (Le[em[j], 0] > 0)) \
+        | ((h.min(axis=2) < -tol) & (Le[em[j], 1] > 0))
+    return np.where(lights, polygon_distance(c, EV, j), np.inf).min(axis=1) - 0.5 * size
 
 
 def polygon_distance(c: np.ndarray, V: np.ndarray, j: np.ndarray) -> np.ndarray:

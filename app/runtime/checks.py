@@ -155,6 +155,8 @@ def check_scene(scene, settings, method=None) -> dict:
         warnings.warn(f"{scene.path}: {emitters.describe()}: the image will be black; give a "
                       "material an emission ([material.NAME] emission = [r, g, b])", stacklevel=2)
     est = method.check_scene(scene, settings) if method is not None else None
+    if method is not None and _luminaires(el):  # can it carry point sources? (one line if not)
+        method.direct(el, settings)
     subpixel = int(settings.subdivide.subpixel)
     rc = caster_of(el.verts, el.nverts, float(settings.rays.offset))
     seen = _camera_hits(scene, rc, cam, subpixel)

@@ -49,3 +49,14 @@ def test_scene_lit_only_by_a_luminaire_plans_without_warning(tmp_path):
     assert "warning:" not in r.output and "no element emits light" not in r.output, r.output
     assert "1 luminaire(s), 1256.6 lm" in r.output and "direct light: points" in r.output
     assert "method: hierarchical" in r.output
+
+
+def test_pairs_method_or_links_with_luminaires_is_refused_up_front(tmp_path):
+    path = write_scene(tmp_path, FLOOR_AND_TRIANGLE,
+                       GREY + '[[luminaire]]\nposition = [0.5, 1.5, 0.5]\nintensity_cd = 100\n')
+    r = CliRunner().invoke(main, ["render", path, "--method", "pairs", "--out",
+                                  str(tmp_path / "out")])
+    one_line_error(r, "the pairs method cannot carry", "1 luminaire(s)")
+    assert not os.path.exists(tmp_path / "out")
+    r = CliRunner().invoke(main, ["plan", path, "--direct", "links"])
+    one_line_error(r, "direct.mode = links cannot carry")

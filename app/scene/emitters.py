@@ -1,9 +1,10 @@
 """Emitters: every source of light in a scene behind one protocol, chosen by type from a registry.
 
-Today the only type is the area emitter: elements whose material emits (`Elements.emission`,
-Le per element and side, W sr^-1 m^-2 per RGB channel). Everything that builds or reads Le goes
-through `AreaEmitters`, so that point, spot, goniometric (IES) and sky emitters (issues 50, 52)
-plug in beside it as one class and one `EMITTER_TYPES` line. Design note:
+Two types: area emitters, elements whose material emits (`Elements.emission`, Le per element
+and side, W sr^-1 m^-2 per RGB channel), read through `AreaEmitters`; and point emitters, the
+scene's [[luminaire]] tables (point sources and IES / EULUMDAT candela tables,
+scene/luminaires.py, carried as `Elements.luminaires`), read through `PointEmitters`. A sky
+(issue 52) plugs in beside them as one class and one `EMITTER_TYPES` line. Design note:
 docs/src/design/scene-emitters.md.
 """
 

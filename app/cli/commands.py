@@ -577,12 +577,12 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, work
 main.add_command(study)  # studies.py
 
 
-if __name__ == "__main__":  # pragma: no cover
-    main()
-
-
 def _luminaire_count(elements) -> int:
     """How many luminaires (point sources) travel with the elements (scene/luminaires.py)."""
     from radiosity.scene.luminaires import luminaires_of
 
     return len(luminaires_of(elements))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -69,6 +69,27 @@ def test_isotropic_1000_cd_at_3_m_reads_111_11_lx_in_elements_csv(client, tmp_pa
               if abs(float(r["center_x"])) < 0.01 and abs(float(r["center_y"])) < 0.01]
     assert len(centre) == 1
     assert float(centre[0]["illuminance"]) == pytest.approx(1000 / 9 * (1 - 1.1e-5), rel=1e-5)
+    # a new view close to the floor (views/points: its pixels are far finer than the run's
+    # leaves, so H1 is taken at each pixel's own point, from the run store's luminaires): one
+    # ray through each pixel's centre shows rho / pi I cos / r^2 there (nothing else reflects)
+    import numpy as np
+
+    from radiosity.core.bundles import Camera
+    from radiosity.settings import options
+    from radiosity.stages.views import render_view
+
+    z = np.array([0.0, 0.6, -1.0]) / math.sqrt(1.36)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    cam = Camera(np.array([1.0, 0.4, 1.5]), x, np.cross(x, z), z, 1.0 / math.tan(0.25), 12, 12)
+    img = render_view(run, cam, name="close", samples=1, settings=options()).image
+    for r, c in ((5, 5), (2, 9), (10, 3)):
+        u = cam.half_w * (2 * (c + 0.5) / cam.width - 1)
+        v = cam.half_h * (1 - 2 * (r + 0.5) / cam.height)
+        d = u * cam.x + v * cam.y + cam.focal * cam.z
+        P = cam.center - cam.center[2] / d[2] * d
+        L = 0.5 / math.pi * 1000 * 3 / (P[0] ** 2 + P[1] ** 2 + 9) ** 1.5 / 683
+        assert np.allclose(img[r, c], L, rtol=1e-6), (r, c, img[r, c], L)
 
 
 def test_closed_grey_box_every_face_is_flux_over_area_and_one_minus_rho(client, tmp_path):

@@ -214,6 +214,10 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     t = time.perf_counter()
     fig = render_outputs(out, settings=s, progress=progress)
     stages["image_s"] = time.perf_counter() - t
+    if scene.grids:  # calculation grids: illuminance at their points (stages/grids.py)
+        t = time.perf_counter()
+        stages["grids"] = render_grids(out, s, scene.grids).grids
+        stages["grids_s"] = time.perf_counter() - t
     if scene.views:  # the other cameras: views of the one solution (stages/views.py)
         t = time.perf_counter()
         stages["views"] = _render_views(scene, out, s, fig.exposure)
@@ -226,6 +230,14 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     stages["peak_rss_mb"] = peak_rss_mb(client)
     report = update_report(out, "render", {"stages": stages})
     return RenderFigures(stages, report)
+
+
+def render_grids(out: str, settings: Settings, grids):
+    """Illuminance on `grids` (scene/grids.Grid) from the solved run `out`: RUN/grids/ and
+    report.json "grids" (stages/grids.py). Returns GridFigures."""
+    from radiosity.stages.grids import illuminate, write_grids
+
+    return write_grids(out, illuminate(RunStore(out, "r"), settings, grids))
 
 
 def _reusable(out: str, scene: Scene, digest: str, subpixel: int) -> bool:

@@ -23,6 +23,7 @@ from radiosity.runtime.precompile import with_helper
 from radiosity.runtime.store import RunStore, StageFigures, update_report
 from radiosity.scene.effects import plan_effects
 from radiosity.settings import OPTIONS, Settings, options
+from radiosity.stages.grids import grid_rows
 from radiosity.stages.image import previewer, render_outputs
 from radiosity.stages.preprocess import preprocess
 from radiosity.stages.solve import resolve_closure, run_solve, write_direct_solution
@@ -73,7 +74,8 @@ class RenderFigures(StageFigures):
                       f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, "
                       + (f"views {st['views_s']:.1f} s, " if "views_s" in st else "")
                       + f"total {st['total_s']:.1f} s"),
-            *light_rows(self.report.get("light"))]  # per material: lux, cd/m^2 (tables.py)
+            *light_rows(self.report.get("light")),
+            *grid_rows(self.report.get("grids"))]  # per grid: min / average / max lx, U0  # per material: lux, cd/m^2 (tables.py)
 
 
 @dataclass(frozen=True)
@@ -216,7 +218,7 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     stages["image_s"] = time.perf_counter() - t
     if scene.grids:  # calculation grids: illuminance at their points (stages/grids.py)
         t = time.perf_counter()
-        stages["grids"] = render_grids(out, s, scene.grids).grids
+        render_grids(out, s, scene.grids)
         stages["grids_s"] = time.perf_counter() - t
     if scene.views:  # the other cameras: views of the one solution (stages/views.py)
         t = time.perf_counter()
@@ -238,6 +240,15 @@ def render_grids(out: str, settings: Settings, grids):
     from radiosity.stages.grids import illuminate, write_grids
 
     return write_grids(out, illuminate(RunStore(out, "r"), settings, grids))
+
+
+def read_grids(run_dir: str, names) -> dict:
+    """name -> the columns of RUN/grids/NAME.csv, (k,) float64 arrays."""
+    out = {}
+    for n in names:
+        a = np.genfromtxt(os.path.join(run_dir, "grids", f"{n}.csv"), delimiter=",", names=True)
+        out[n] = {k: np.atleast_1d(a[k]).astype(np.float64) for k in a.dtype.names}
+    return out
 
 
 def _reusable(out: str, scene: Scene, digest: str, subpixel: int) -> bool:
@@ -303,6 +314,9 @@ class Rendered:
     report: dict
     chosen: str = ""  # what the loader chose for a mesh file: its camera, as a [camera] table
     views: dict = field(default_factory=dict)  # name -> (H, W, 3) linear radiance
+    # calculation grids: name -> the columns of RUN/grids/NAME.csv as (k,) numpy arrays (x, y,
+    # z, nx, ny, nz, illuminance_lux, direct_lux, indirect_lux; pandas.DataFrame takes it)
+    grids: dict = field(default_factory=dict)
 
     def summary(self) -> str:
         """The table the CLI prints."""
@@ -386,4 +400,5 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
         image = read_exr(os.path.join(run, "image.exr"))
         srgb = tonemap(image, fig["render"].get("exposure"))
         views = {n: read_exr(os.path.join(run, "views", n, "image.exr")) for n, _ in sc.views}
-        return Rendered(out, image, srgb, fig, dict(fig.report), sc.chosen, views)
+        return Rendered(out, image, srgb, fig, dict(fig.report), sc.chosen, views,
+                        read_grids(run, [g.name for g in sc.grids]))

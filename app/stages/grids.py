@@ -150,11 +150,19 @@ class GridFigures(StageFigures):
     grids: list
 
     def rows(self):
-        return [(f"grid {g['name']}",
-                 f"{g['average_lux']:.4g} lx average, {g['min_lux']:.4g} .. {g['max_lux']:.4g} lx, "
-                 f"U0 {g['uniformity_u0'] if g['uniformity_u0'] is None else round(g['uniformity_u0'], 3)}"
-                 + (f", MF {g['maintenance_factor']:g}" if g["maintenance_factor"] != 1 else ""))
-                for g in self.grids]
+        return grid_rows(self.to_dict())
+
+
+def grid_rows(section: dict | None) -> list[tuple[str, str]]:
+    """The CLI's rows for report.json's "grids" section: one per grid."""
+    def u0(g):
+        return "n/a" if g["uniformity_u0"] is None else f"{g['uniformity_u0']:.3f}"
+
+    return [(f"grid {g['name']}",
+             f"{g['average_lux']:.4g} lx average, {g['min_lux']:.4g} .. {g['max_lux']:.4g} lx, "
+             f"U0 {u0(g)}" + (f", MF {g['maintenance_factor']:g}"
+                              if g["maintenance_factor"] != 1 else "") + f" ({g['files'][0]})")
+            for g in (section or {}).get("grids", [])]
 
 
 def write_grids(run_dir: str, results: list) -> GridFigures:

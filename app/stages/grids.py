@@ -219,3 +219,35 @@ def write_map(path: str, r: GridResult) -> None:
     ax.set_xlabel("along u")
     ax.set_ylabel("along v")
     fig.savefig(path)
+
+
+def black_irradiance(part, elements, radiance, settings) -> np.ndarray:
+    """(m, 2, 3) W m^-2: the irradiance at the centres of the sub-elements (front, and back of
+    two-sided ones) that have a channel of reflectance 0, where the solution holds no trace of
+    the light that arrives (L = Le there): direct by shadow rays (DirectLight) plus the light
+    the other sub-elements reflect (indirect_at); NaN elsewhere (tables.light_tables takes
+    pi (L - Le) / rho there). Costs (such sub-elements) x m form factors."""
+    from radiosity.tracing.rays import caster_of
+
+    m = len(part)
+    out = np.full((m, 2, 3), np.nan)
+    orig = np.asarray(part.orig, np.int64)
+    rho = np.asarray(elements.reflectance, np.float64)[orig]             # (m, 2, 3)
+    two = np.asarray(elements.two_sided, bool)[orig]
+    black = (rho <= 0).any(axis=2)
+    black[:, 1] &= two
+    sub, side = np.nonzero(black)
+    if not len(sub):
+        return out
+    offset = float(settings.rays.offset)
+    sign = np.where(side == 0, 1.0, -1.0)[:, None]
+    N = sign * np.asarray(part.normal, np.float64)[sub]
+    C = np.asarray(part.center, np.float64)[sub]
+    light = DirectLight(elements, offset, samples=int(settings.direct.samples))
+    H1 = light.irradiance(C, N, orig[sub], index=sub * 2 + side)
+    caster = caster_of(elements.verts, elements.nverts, offset)
+    # the gather's points a hair off their own plane (their own original is coplanar: F = 0)
+    eps = 1e-7 * float(np.ptp(elements.verts.reshape(-1, 3), axis=0).max() or 1.0)
+    Hr = indirect_at(C + eps * N, N, part, elements, radiance, caster)
+    out[sub, side] = H1 + Hr
+    return out

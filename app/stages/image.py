@@ -28,6 +28,7 @@ from radiosity.formats.meshexport import export_mesh, triangles
 from radiosity.formats.viewer import VIEWER_GROW_PX, VIEWER_MAX_TRIANGLES, write_viewer
 from radiosity.runtime.store import StageFigures
 from radiosity.settings import Settings
+from radiosity.stages.grids import black_irradiance
 from radiosity.stages.tables import light_tables, write_light_tables
 from radiosity.stages.pixels import (SAMPLINGS, downsample, facing_side, pixel_radiance, refine,
                                      sample_raster, samples_radiance, seen_radiance)
@@ -170,8 +171,8 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     # numba, sorts and file writes let go of the GIL), joined before the figures
     pool = ThreadPoolExecutor(2, thread_name_prefix="outputs")
     smooth = pool.submit(smooth_mesh, part, elements, radiance)
-    tables = pool.submit(lambda: write_light_tables(rs.run_dir,
-                                                    light_tables(part, elements, radiance)))
+    tables = pool.submit(lambda: write_light_tables(rs.run_dir, light_tables(
+        part, elements, radiance, irradiance=black_irradiance(part, elements, radiance, st))))
     pool.shutdown(wait=False)
     try:
         fig = _image_and_meshes(rs, st, part, elements, camera, k, raster, radiance, filter,

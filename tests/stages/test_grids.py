@@ -148,6 +148,14 @@ def test_area_source_in_a_black_room_is_exact_at_every_point(tmp_path):
     assert fl["uniformity_u0"] == pytest.approx(f["illuminance_lux"].min()
                                                 / f["illuminance_lux"].mean())
     assert os.path.isfile(tmp_path / "run" / "grids" / "floor.png")
+    # the tables on the black floor: no NaN, the light that arrives at each element's centre
+    e = np.genfromtxt(tmp_path / "run" / "elements.csv", delimiter=",", names=True, dtype=None,
+                      encoding="utf-8")
+    fl = e[e["material"] == "floor"]
+    ref = EFF * math.pi * 10 * np.array([_rect_ff(x, y, 3.0, 1.5, 2.5, 1.5, 2.5)
+                                         for x, y in zip(fl["center_x"], fl["center_y"])])
+    assert np.abs(fl["illuminance"] / ref - 1).max() < 1e-4
+    assert np.all(np.isfinite(e["illuminance"]))
 
 
 @pytest.mark.slow

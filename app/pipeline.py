@@ -161,7 +161,7 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     With `resume`, a run directory whose preprocessing matches (the same scene: file, contents
     and meshes by scene_digest; the same camera and subpixel) keeps its partition and the
     finished tasks of the method's stage."""
-    s = settings
+    s = resolve_receiver(settings, scene)
     t0 = time.perf_counter()
     stages = {}
     digest = scene_digest(scene)
@@ -194,6 +194,7 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     direct, direct_why = direct_choice(name, scene.elements, s)
     update_report(out, "plan", {"method": name, "method_reason": why, "direct": direct,
                                 "direct_reason": direct_why})
+    update_report(out, "plan", {"receiver": s.hierarchy.receiver})  # the oracle's weighting
     t = time.perf_counter()
     if effects.interreflection:
         impl.build(out, client, s, resume=resume and reuse, progress=progress,
@@ -232,6 +233,18 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     stages["peak_rss_mb"] = peak_rss_mb(client)
     report = update_report(out, "render", {"stages": stages})
     return RenderFigures(stages, report)
+
+
+def resolve_receiver(settings: Settings, scene: Scene) -> Settings:
+    """hierarchy.receiver auto resolved: arriving (the oracle weighs the light that arrives at
+    a receiver, not what it reflects) when the scene has calculation grids, else reflected."""
+    import dataclasses
+
+    h = settings.hierarchy
+    if h.receiver != "auto":
+        return settings
+    return dataclasses.replace(settings, hierarchy=dataclasses.replace(
+        h, receiver="arriving" if scene.grids else "reflected"))
 
 
 def render_grids(out: str, settings: Settings, grids):

@@ -199,3 +199,28 @@ def test_closed_room_interreflection_meets_the_energy_balance(tmp_path, rho):
     r = radiosity.render(os.path.join(CIE, f"interreflection-{round(rho * 100):02d}"),
                          str(tmp_path / "run"), resolution=16)
     assert abs(_closed_room_mean_indirect(r, rho)) < 0.01
+
+
+# ----------------------------------------------------------------------------- the oracle
+
+def test_the_oracle_weighs_the_arriving_light_when_the_scene_has_grids(tmp_path):
+    """hierarchy.receiver auto: arriving with grids (every receiver weighs 1, the sources'
+    weights unchanged), reflected without; resolve_params turns bf into arriving."""
+    from radiosity.methods.hierarchical.params import oracle_weights, resolve_params
+    from radiosity.pipeline import resolve_receiver
+    from radiosity.scene.load import load_scene
+    from radiosity.settings import options
+
+    sc = load_scene(os.path.join(CIE, "area-source"), settings=options(None))
+    el = sc.elements
+    wr, lh, lr = oracle_weights(el, "bf")
+    wa, la, la_ref = oracle_weights(el, "arriving")
+    assert np.all(wr == el.reflectance.max(axis=2)) and np.all(wa == 1)
+    assert np.array_equal(lh, la) and lr == la_ref
+    s = options(None)
+    assert s.hierarchy.receiver == "auto"
+    assert resolve_receiver(s, sc).hierarchy.receiver == "arriving"
+    bare = load_scene(scene_path("furnace-cube"), settings=s)
+    assert resolve_receiver(s, bare).hierarchy.receiver == "reflected"
+    assert resolve_params(el, resolve_receiver(s, sc))[1] == "arriving"
+    assert resolve_params(el, resolve_receiver(s, bare))[1] == "bf"

@@ -156,6 +156,33 @@ def test_area_source_in_a_black_room_is_exact_at_every_point(tmp_path):
                                          for x, y in zip(fl["center_x"], fl["center_y"])])
     assert np.abs(fl["illuminance"] / ref - 1).max() < 1e-4
     assert np.all(np.isfinite(e["illuminance"]))
+    # `radiosity grid RUN --grid FILE` adds a grid to the solved run, no solve: a work plane
+    # at 0.85 m with a maintenance factor, and one clear line for a grid outside the model
+    from click.testing import CliRunner
+
+    from radiosity.cli.commands import main
+
+    (tmp_path / "g.toml").write_text('maintenance_factor = 0.8\n[[grid]]\nname = "wp"\n'
+                                     'origin = [0.5, 0.5, 0.85]\nu = [3, 0, 0]\nv = [0, 3, 0]\n'
+                                     'spacing = [1.0, 0.5]\n')
+    res = CliRunner().invoke(main, ["grid", str(tmp_path / "run"), "--grid", str(tmp_path / "g.toml")])
+    assert res.exit_code == 0, res.output
+    assert "grid wp" in res.output and "MF 0.8" in res.output
+    wp = np.genfromtxt(tmp_path / "run" / "grids" / "wp.csv", delimiter=",", names=True)
+    assert len(wp) == 18
+    ref = 0.8 * EFF * math.pi * 10 * np.array([_rect_ff(x, y, 3.0 - 0.85, 1.5, 2.5, 1.5, 2.5)
+                                               for x, y in zip(wp["x"], wp["y"])])
+    assert np.abs(wp["illuminance_lux"] / ref - 1).max() < 1e-4
+    import json
+
+    rep = json.load(open(tmp_path / "run" / "report.json"))["grids"]["grids"]
+    assert [g["name"] for g in rep] == ["floor", "wall", "wp"]
+    (tmp_path / "bad.toml").write_text('[[grid]]\nname = "roof"\norigin = [0, 0, 3.5]\n'
+                                       'u = [1, 0, 0]\nv = [0, 1, 0]\nspacing = 0.5\n')
+    res = CliRunner().invoke(main, ["grid", str(tmp_path / "run"), "--grid",
+                                    str(tmp_path / "bad.toml")])
+    assert res.exit_code == 2 and "'roof'" in res.output and "outside the model" in res.output
+    assert "Traceback" not in res.output
 
 
 @pytest.mark.slow

@@ -36,6 +36,14 @@ FAR = 6.0
 RAY_FAR = 6.0
 #: (point, sub-element) entries per batch at most (the dense form-factor block, 12 bytes each).
 BATCH_ENTRIES = 1 << 22
+#: First-pass shadow rays a grid point takes (over all the lights it sees; scene/direct.py:
+#: a penumbra's points take 4 times more). A grid has few points and each is a number a
+#: lighting engineer reads: in the obstruction case (scenes/cie171/obstruction) deep in the
+#: penumbra (visible share 0.1) 16 rays were off by up to 30 %, 64 by 6 %, 256 by 1.4 %,
+#: 1024 by 0.3 % (docs/src/measurements/cie171.md).
+GRID_SHADOW_RAYS = 1024
+#: ... and the centre of a black sub-element for the tables (an area's mean, not a point).
+TABLE_SHADOW_RAYS = 256
 #: The column a sky will fill (issue 52's daylight): not written until a run has a sky.
 DAYLIGHT_COLUMN = "daylight_factor_percent"
 
@@ -130,7 +138,7 @@ def illuminate(rs, settings, grids) -> list:
     part = rs.load_partition()
     radiance = rs.read_arrays("solution")["radiance"]
     offset = float(settings.rays.offset)
-    light = DirectLight(el, offset, samples=int(settings.direct.samples))
+    light = DirectLight(el, offset, samples=max(GRID_SHADOW_RAYS, int(settings.direct.samples)))
     caster = caster_of(el.verts, el.nverts, offset)
     out = []
     for g in grids:
@@ -243,7 +251,8 @@ def black_irradiance(part, elements, radiance, settings) -> np.ndarray:
     sign = np.where(side == 0, 1.0, -1.0)[:, None]
     N = sign * np.asarray(part.normal, np.float64)[sub]
     C = np.asarray(part.center, np.float64)[sub]
-    light = DirectLight(elements, offset, samples=int(settings.direct.samples))
+    light = DirectLight(elements, offset,
+                        samples=max(TABLE_SHADOW_RAYS, int(settings.direct.samples)))
     H1 = light.irradiance(C, N, orig[sub], index=sub * 2 + side)
     caster = caster_of(elements.verts, elements.nverts, offset)
     # the gather's points a hair off their own plane (their own original is coplanar: F = 0)

@@ -136,7 +136,69 @@ spacing = 0.25
     ("west", [0, 0, 0], [0, 4, 0], [0, 0, 4]), ("east", [4, 0, 0], [0, 0, 4], [0, 4, 0]))) \
     + CAMERA.replace("2.8", "3.8")
 
+REFLECTION = """# CIE 171:2006 5.6-style diffuse reflections: the area source of area-source/ over a floor of
+# reflectance 0.5 in an otherwise black 4 x 4 x 3 m room: the ceiling and the walls receive
+# the floor's one reflection, rho / pi E_floor(y) cos cos / r^2 integrated over the floor
+# (E_floor exact by Howell's B-3), nothing else.
+name = "cie171-diffuse-reflection"
+description = "CIE 171 5.6-style: one diffuse reflection off the floor"
+
+[[mesh]]
+path = "OBJ"
+
+[material.emitter]
+reflectance = [0.0, 0.0, 0.0]
+emission = [10.0, 10.0, 10.0]
+
+[material.floor]
+reflectance = [0.5, 0.5, 0.5]
+
+[[grid]]
+name = "ceiling"
+origin = [0.0, 0.0, 3.0]
+u = [0.0, 4.0, 0.0]
+v = [4.0, 0.0, 0.0]
+spacing = 0.5
+
+[[grid]]
+name = "wall"
+origin = [0.0, 0.0, 0.0]
+u = [4.0, 0.0, 0.0]
+v = [0.0, 0.0, 3.0]
+spacing = 0.5
+normal = [0.0, 1.0, 0.0]
+""" + CAMERA
+
+OBSTRUCTION = """# CIE 171:2006 5.7-style internal obstruction: the area source of area-source/ and, half way
+# down (z = 1.5), a black opaque square plate 1 x 1 m centred at (2.5, 2, 1.5), in an
+# otherwise black 4 x 4 x 3 m room: the floor has an umbra, a penumbra and full light; exact
+# by quadrature over the source with the plate's shadow tested segment by segment.
+name = "cie171-obstruction"
+description = "CIE 171 5.7-style: an opaque plate between an area source and the floor"
+
+[[mesh]]
+path = "OBJ"
+
+[material.emitter]
+reflectance = [0.0, 0.0, 0.0]
+emission = [10.0, 10.0, 10.0]
+
+[material.plate]
+two_sided = true
+
+[[grid]]
+name = "floor"
+origin = [0.0, 0.0, 0.0]
+u = [4.0, 0.0, 0.0]
+v = [0.0, 4.0, 0.0]
+spacing = 0.25
+""" + CAMERA
+
 if __name__ == "__main__":
+    write("diffuse-reflection", room(4, 4, 3, (1.5, 2.5, 1.5, 2.5)), REFLECTION)
+    g = room(4, 4, 3, (1.5, 2.5, 1.5, 2.5))
+    g["plate"] = [quad((2.0, 1.5, 1.5), (1.0, 0, 0), (0, 1.0, 0))]
+    write("obstruction", g, OBSTRUCTION)
     write("area-source", room(4, 4, 3, (1.5, 2.5, 1.5, 2.5)), AREA)
     for rho in (0.2, 0.5, 0.8, 0.95):
         n = f"{round(rho * 100):02d}"

@@ -93,7 +93,9 @@ def indirect_at(P, N, part, elements, radiance, caster, ray_far: float = RAY_FAR
 
     orig = np.asarray(part.orig, np.int64)
     Le = np.asarray(AreaEmitters(elements).radiance(), np.float64)[orig]
-    Lr = np.ascontiguousarray(np.maximum(np.asarray(radiance, np.float64) - Le, 0.0))
+    Lr = np.maximum(np.asarray(radiance, np.float64) - Le, 0.0)
+    Lr[~np.asarray(elements.two_sided, bool)[orig], 1] = 0.0  # a one-sided back sends nothing
+    Lr = np.ascontiguousarray(Lr)
     V = np.ascontiguousarray(part.verts, np.float64)
     nv = np.ascontiguousarray(part.nverts, np.int64)
     C = np.ascontiguousarray(part.center, np.float64)

@@ -251,3 +251,25 @@ def test_the_oracle_weighs_the_arriving_light_when_the_scene_has_grids(tmp_path)
     assert resolve_receiver(s, bare).hierarchy.receiver == "reflected"
     assert resolve_params(el, resolve_receiver(s, sc))[1] == "arriving"
     assert resolve_params(el, resolve_receiver(s, bare))[1] == "bf"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case, worst", [("diffuse-reflection", 0.01), ("obstruction", 0.01)])
+def test_cie171_cases_within_one_percent_at_every_point(tmp_path, case, worst):
+    """CIE 171 5.6-style (one diffuse reflection off the floor onto the ceiling and a wall) and
+    5.7-style (an opaque plate between the source and the floor: umbra, penumbra, full light),
+    with no options: every point within 1 % of its exact answer (validation/cie171.py), the
+    umbra's points 0."""
+    import radiosity
+    from radiosity.validation import cie171
+
+    r = radiosity.render(os.path.join(CIE, case), str(tmp_path / "run"))
+    for name, g in r.grids.items():
+        P = np.column_stack([g["x"], g["y"], g["z"]])
+        N = np.column_stack([g["nx"], g["ny"], g["nz"]])
+        ref = cie171.reference(case, name, P, N)
+        lit = ref > 0
+        assert np.abs(g["illuminance_lux"][lit] / ref[lit] - 1).max() < worst, name
+        assert np.all(g["illuminance_lux"][~lit] == 0), name
+    if case == "obstruction":
+        assert (~lit).sum() >= 4  # the umbra has grid points

@@ -4,6 +4,7 @@ them (reference, computed, % deviation), with no options (the scene's own camera
 defaults):
 
     python benchmarks/bench_cie171.py [--cases area-source,obstruction] [--markdown FILE]
+        [--method hierarchical --name cie171-hierarchical]
 
 Writes benchmarks/results/cie171.json and prints one table per grid and a summary (worst and
 mean |deviation| per case; for the closed rooms the mean reflected illuminance over the six
@@ -76,11 +77,13 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", default=",".join(cie171.CASES))
     ap.add_argument("--markdown", default=None, help="Write the per-point tables here.")
+    ap.add_argument("--method", default=None, help="pairs | hierarchical (default: auto).")
+    ap.add_argument("--name", default="cie171", help="Results file name (benchmarks/results/).")
     a = ap.parse_args()
     res = []
     with tempfile.TemporaryDirectory(prefix="cie171-") as tmp:
         for case in a.cases.split(","):
-            res.append(run_case(case, tmp))
+            res.append(run_case(case, tmp, **({"method": a.method} if a.method else {})))
             c = res[-1]
             print(f"{case}: {c['time_s']} s, method {c['method']}, direct {c['direct']}, "
                   f"receiver {c['receiver']}")
@@ -99,7 +102,7 @@ def main():
     with open("/proc/loadavg") as f:
         load = f.read().split()[:3]
     print("load average", " ".join(load))
-    print("wrote", write("cie171", rows, {"cases": res, "loadavg": load}))
+    print("wrote", write(a.name, rows, {"cases": res, "loadavg": load}))
     if a.markdown:
         with open(a.markdown, "w") as f:
             f.write(markdown(res))

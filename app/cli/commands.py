@@ -19,6 +19,7 @@ from radiosity.cli.options import (POSITIVE, POSITIVE_INT, Finite,
 from radiosity.cli.summary import (ARGV, REAL, T0, INTERRUPTED, NOT_CONVERGED, command_line,
                                    finish_lines, friendly, record_run, mark_started, table_text,
                                    viewfactors_summary)
+from radiosity.cli.grids import grid_command
 from radiosity.cli.studies import study
 from radiosity.errors import RadiosityError
 from radiosity.runtime.precompile import with_helper
@@ -572,44 +573,8 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, work
     click.echo(f"wrote {out}/" + f", {out}/".join(res.figures["files"] + ["report.json"]))
 
 
-@main.command("grid")
-@click.argument("run_dir", type=click.Path())
-@click.option("--grid", "grid_file", required=True, type=click.Path(),
-              help="A TOML file of [[grid]] tables (the scene file's keys; points files relative "
-                   "to it).")
-@friendly
-def grid_command(run_dir, grid_file):
-    """Illuminance on calculation grids from a solved RUN_DIR, without solving again:
-    RUN_DIR/grids/NAME.csv and NAME.png, and their min / average / max / U0 in report.json."""
-    from radiosity.pipeline import render_grids
-    from radiosity.runtime.checks import check_run_dir
-    from radiosity.runtime.runlock import run_lock
-    from radiosity.runtime.store import RunStore
-    from radiosity.scene.grids import check_grids, parse_grids
-    from radiosity.scene.load import read_toml
-    from radiosity.stages.grids import grid_rows
-    from radiosity.tracing.rays import caster_of
-
-    st = settings_from_flags()
-    check_run_dir(run_dir)
-    rs = RunStore(run_dir)
-    if not rs.has("solution"):
-        raise RadiosityError(f"{run_dir}: not solved yet: run `radiosity solve {run_dir}` (or "
-                             "render) first")
-    grids = parse_grids(read_toml(grid_file), grid_file)
-    if not grids:
-        raise RadiosityError(f"{grid_file}: no [[grid]] tables")
-    el = rs.load_elements()
-    check_grids(grids, el, caster_of(el.verts, el.nverts, float(st.rays.offset)), grid_file)
-    with run_lock(run_dir, command_line()):
-        fig = render_grids(run_dir, st, grids)
-    names = {g.name for g in grids}
-    click.echo(table_text(grid_rows({"grids": [g for g in fig.grids if g["name"] in names]})))
-    click.echo(f"wrote {run_dir}/" + f", {run_dir}/".join(
-        f for g in fig.grids if g["name"] in names for f in g["files"]) + ", report.json")
-
-
 main.add_command(study)  # studies.py
+main.add_command(grid_command)  # grids.py: calculation grids on a solved run
 
 
 if __name__ == "__main__":  # pragma: no cover

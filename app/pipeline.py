@@ -317,8 +317,10 @@ def render_preview(scene: Scene, out: str, client, settings: Settings, exposure=
 class Rendered:
     """What `render` gives back: the run directory (None when it was temporary), the image as
     linear radiance (H, W, 3) and in sRGB (H, W, 3) uint8, the figures of every stage, the
-    report (report.json) as a dict, for a mesh file the camera the loader chose, and the image
-    (linear radiance) of each of the scene's other cameras by name ([[camera]] entries)."""
+    report (report.json) as a dict, for a mesh file the camera the loader chose, the image
+    (linear radiance) of each of the scene's other cameras by name ([[camera]] entries), and
+    each calculation grid's columns by name ([[grid]] entries: RUN/grids/NAME.csv's x, y, z,
+    nx, ny, nz, illuminance_lux, direct_lux, indirect_lux as numpy arrays)."""
 
     out: str | None
     image: np.ndarray

@@ -28,8 +28,9 @@ from radiosity.errors import SceneError
 GRID_KEYS = {"name", "origin", "u", "v", "spacing", "points", "normal", "maintenance_factor"}
 #: Points per grid at most (a grid is an output, not a mesh: 1000 x 1000).
 MAX_POINTS = 1_000_000
-#: Directions of the inside-a-solid test (the axes, both ways).
-_AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+#: Directions of the inside-a-solid test: the axes and the diagonals, both ways.
+_AXES = np.concatenate([np.eye(3), -np.eye(3), np.array(
+    [[a, b, c] for a in (1, -1) for b in (1, -1) for c in (1, -1)], float) / math.sqrt(3)])
 
 
 @dataclass(frozen=True)
@@ -174,8 +175,9 @@ def parse_grids(doc: dict, path: str) -> tuple:
 
 def check_grids(grids, elements, caster, path: str = "") -> None:
     """One clear line (SceneError) for a grid with a point outside the model: outside the box of
-    the scene's elements (with a margin of 1e-6 of its size), or inside a closed solid (every
-    axis ray from the point meets the back of a one-sided element)."""
+    the scene's elements (with a margin of 1e-6 of its size), or inside a solid (more than half
+    of 14 rays from the point, along the axes and the diagonals, meet the back of a one-sided
+    element: a box standing open side down on the floor is a solid too)."""
     if not grids:
         return
     V = elements.verts.reshape(-1, 3)
@@ -199,11 +201,11 @@ def check_grids(grids, elements, caster, path: str = "") -> None:
         hit = e >= 0
         ee = np.maximum(e, 0)
         back = hit & ~two[ee] & (np.einsum("kd,kd->k", d, elements.normal[ee]) > 0)
-        inside = back.reshape(k, len(_AXES)).all(axis=1)
+        inside = 2 * back.reshape(k, len(_AXES)).sum(axis=1) > len(_AXES)
         if inside.any():
             p = g.points[int(np.argmax(inside))]
-            raise SceneError(f"{where}: point {np.round(p, 6).tolist()} is inside a closed "
-                             "solid of the model")
+            raise SceneError(f"{where}: point {np.round(p, 6).tolist()} is inside a solid of "
+                             "the model (most rays from it meet the backs of faces)")
 
 
 # ----------------------------------------------------------------------------- indirect light

@@ -116,7 +116,7 @@ def test_a_grid_inside_a_closed_solid_is_one_line(tmp_path):
     el = dataclasses.replace(sc.elements, normal=-sc.elements.normal)  # faces out: a solid
     g = parse_grids({"grid": [{"name": "in", "origin": [0.2, 0.2, 0.5], "u": [0.5, 0, 0],
                                "v": [0, 0.5, 0], "spacing": 0.25}]}, "x.toml")
-    with pytest.raises(SceneError, match="'in'.*inside a closed solid"):
+    with pytest.raises(SceneError, match="'in'.*inside a solid"):
         check_grids(g, el, caster_of(el.verts, el.nverts, 1e-6))
     check_grids(g, sc.elements, caster_of(el.verts, el.nverts, 1e-6))  # inside the room: fine
 
@@ -273,3 +273,17 @@ def test_cie171_cases_within_one_percent_at_every_point(tmp_path, case, worst):
         assert np.all(g["illuminance_lux"][~lit] == 0), name
     if case == "obstruction":
         assert (~lit).sum() >= 4  # the umbra has grid points
+
+
+def test_a_grid_through_the_cornell_boxs_blocks_is_one_line(tmp_path):
+    """The blocks stand open side down on the floor: a floor grid 1 mm up runs through them."""
+    from radiosity.scene.load import load_scene
+    from radiosity.settings import options
+
+    grid = ('[[grid]]\nname = "floor"\norigin = [0.0, 1.0, 0.0]\nu = [0.0, 0.0, 559.0]\n'
+            'v = [556.0, 0.0, 0.0]\nspacing = 40.0\n')
+    with pytest.raises(SceneError, match="'floor'.*inside a solid"):
+        load_scene(_with_grid(tmp_path, "cornell-box", grid), settings=options(None))
+    above = grid.replace("1.0, 0.0]", "400.0, 0.0]")
+    assert len(load_scene(_with_grid(tmp_path / "b", "cornell-box", above),
+                          settings=options(None)).grids[0].points) == 14 * 14

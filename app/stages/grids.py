@@ -44,6 +44,10 @@ BATCH_ENTRIES = 1 << 22
 GRID_SHADOW_RAYS = 1024
 #: ... and the centre of a black sub-element for the tables (an area's mean, not a point).
 TABLE_SHADOW_RAYS = 256
+#: Black (sub-element, sub-element) pairs above which the tables gather the light that
+#: reaches black sub-elements from the originals (their area-weighted mean radiance) instead
+#: of the sub-elements: the indirect light is smooth, and the cost stays black x originals.
+BLACK_PAIRS = 1 << 26
 #: The column a sky will fill (issue 52's daylight): not written until a run has a sky.
 DAYLIGHT_COLUMN = "daylight_factor_percent"
 
@@ -259,6 +263,26 @@ def black_irradiance(part, elements, radiance, settings) -> np.ndarray:
     caster = caster_of(elements.verts, elements.nverts, offset)
     # the gather's points a hair off their own plane (their own original is coplanar: F = 0)
     eps = 1e-7 * float(np.ptp(elements.verts.reshape(-1, 3), axis=0).max() or 1.0)
-    Hr = indirect_at(C + eps * N, N, part, elements, radiance, caster)
+    src, rad = part, radiance
+    if len(sub) * m > BLACK_PAIRS:
+        src, rad = _originals(part, elements, radiance)
+    Hr = indirect_at(C + eps * N, N, src, elements, rad, caster)
     out[sub, side] = H1 + Hr
     return out
+
+
+def _originals(part, elements, radiance):
+    """The originals as a partition (one sub-element each) and their area-weighted mean
+    radiance (n, 2, 3): the coarse sources of black_irradiance's gather."""
+    from types import SimpleNamespace
+
+    n = len(elements)
+    orig = np.asarray(part.orig, np.int64)
+    a = np.asarray(part.area, np.float64)
+    A = np.bincount(orig, a, minlength=n)
+    rad = np.stack([np.stack([np.bincount(orig, a * radiance[:, s, c], minlength=n)
+                              for c in range(3)], -1) for s in range(2)], 1)
+    rad /= np.where(A > 0, A, 1.0)[:, None, None]
+    return SimpleNamespace(orig=np.arange(n), verts=elements.verts, nverts=elements.nverts,
+                           center=elements.center, normal=elements.normal,
+                           area=elements.area), rad

@@ -24,6 +24,7 @@ from radiosity.runtime.store import RunStore, StageFigures, update_report
 from radiosity.scene.effects import plan_effects
 from radiosity.scene.luminaires import luminaires_of
 from radiosity.settings import OPTIONS, Settings, options
+from radiosity.stages.grids import grid_rows
 from radiosity.stages.image import previewer, render_outputs
 from radiosity.stages.preprocess import preprocess
 from radiosity.stages.solve import resolve_closure, run_solve, write_direct_solution
@@ -74,7 +75,8 @@ class RenderFigures(StageFigures):
                       f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, "
                       + (f"views {st['views_s']:.1f} s, " if "views_s" in st else "")
                       + f"total {st['total_s']:.1f} s"),
-            *light_rows(self.report.get("light"))]  # per material: lux, cd/m^2 (tables.py)
+            *light_rows(self.report.get("light")),
+            *grid_rows(self.report.get("grids"))]  # per grid: min / average / max lx, U0  # per material: lux, cd/m^2 (tables.py)
 
 
 @dataclass(frozen=True)
@@ -162,7 +164,7 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     With `resume`, a run directory whose preprocessing matches (the same scene: file, contents
     and meshes by scene_digest; the same camera and subpixel) keeps its partition and the
     finished tasks of the method's stage."""
-    s = settings
+    s = resolve_receiver(settings, scene)
     t0 = time.perf_counter()
     stages = {}
     digest = scene_digest(scene)
@@ -196,6 +198,7 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     direct, direct_why = direct_choice(name, scene.elements, s)
     update_report(out, "plan", {"method": name, "method_reason": why, "direct": direct,
                                 "direct_reason": direct_why})
+    update_report(out, "plan", {"receiver": s.hierarchy.receiver})  # the oracle's weighting
     t = time.perf_counter()
     if effects.interreflection:
         impl.build(out, client, s, resume=resume and reuse, progress=progress,
@@ -218,6 +221,10 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     t = time.perf_counter()
     fig = render_outputs(out, settings=s, progress=progress)
     stages["image_s"] = time.perf_counter() - t
+    if scene.grids:  # calculation grids: illuminance at their points (stages/grids.py)
+        t = time.perf_counter()
+        render_grids(out, s, scene.grids)
+        stages["grids_s"] = time.perf_counter() - t
     if scene.views:  # the other cameras: views of the one solution (stages/views.py)
         t = time.perf_counter()
         stages["views"] = _render_views(scene, out, s, fig.exposure)
@@ -230,6 +237,35 @@ def render_scene(scene: Scene, out: str, client, settings: Settings, *, resume=F
     stages["peak_rss_mb"] = peak_rss_mb(client)
     report = update_report(out, "render", {"stages": stages})
     return RenderFigures(stages, report)
+
+
+def resolve_receiver(settings: Settings, scene: Scene) -> Settings:
+    """hierarchy.receiver auto resolved: arriving (the oracle weighs the light that arrives at
+    a receiver, not what it reflects) when the scene has calculation grids, else reflected."""
+    import dataclasses
+
+    h = settings.hierarchy
+    if h.receiver != "auto":
+        return settings
+    return dataclasses.replace(settings, hierarchy=dataclasses.replace(
+        h, receiver="arriving" if scene.grids else "reflected"))
+
+
+def render_grids(out: str, settings: Settings, grids):
+    """Illuminance on `grids` (scene/grids.Grid) from the solved run `out`: RUN/grids/ and
+    report.json "grids" (stages/grids.py). Returns GridFigures."""
+    from radiosity.stages.grids import illuminate, write_grids
+
+    return write_grids(out, illuminate(RunStore(out, "r"), settings, grids))
+
+
+def read_grids(run_dir: str, names) -> dict:
+    """name -> the columns of RUN/grids/NAME.csv, (k,) float64 arrays."""
+    out = {}
+    for n in names:
+        a = np.genfromtxt(os.path.join(run_dir, "grids", f"{n}.csv"), delimiter=",", names=True)
+        out[n] = {k: np.atleast_1d(a[k]).astype(np.float64) for k in a.dtype.names}
+    return out
 
 
 def _reusable(out: str, scene: Scene, digest: str, subpixel: int) -> bool:
@@ -285,8 +321,10 @@ def render_preview(scene: Scene, out: str, client, settings: Settings, exposure=
 class Rendered:
     """What `render` gives back: the run directory (None when it was temporary), the image as
     linear radiance (H, W, 3) and in sRGB (H, W, 3) uint8, the figures of every stage, the
-    report (report.json) as a dict, for a mesh file the camera the loader chose, and the image
-    (linear radiance) of each of the scene's other cameras by name ([[camera]] entries)."""
+    report (report.json) as a dict, for a mesh file the camera the loader chose, the image
+    (linear radiance) of each of the scene's other cameras by name ([[camera]] entries), and
+    each calculation grid's columns by name ([[grid]] entries: RUN/grids/NAME.csv's x, y, z,
+    nx, ny, nz, illuminance_lux, direct_lux, indirect_lux as numpy arrays)."""
 
     out: str | None
     image: np.ndarray
@@ -295,6 +333,9 @@ class Rendered:
     report: dict
     chosen: str = ""  # what the loader chose for a mesh file: its camera, as a [camera] table
     views: dict = field(default_factory=dict)  # name -> (H, W, 3) linear radiance
+    # calculation grids: name -> the columns of RUN/grids/NAME.csv as (k,) numpy arrays (x, y,
+    # z, nx, ny, nz, illuminance_lux, direct_lux, indirect_lux; pandas.DataFrame takes it)
+    grids: dict = field(default_factory=dict)
 
     def summary(self) -> str:
         """The table the CLI prints."""
@@ -378,4 +419,5 @@ def render(scene, out: str | None = None, *, client=None, workers: int | None = 
         image = read_exr(os.path.join(run, "image.exr"))
         srgb = tonemap(image, fig["render"].get("exposure"))
         views = {n: read_exr(os.path.join(run, "views", n, "image.exr")) for n, _ in sc.views}
-        return Rendered(out, image, srgb, fig, dict(fig.report), sc.chosen, views)
+        return Rendered(out, image, srgb, fig, dict(fig.report), sc.chosen, views,
+                        read_grids(run, [g.name for g in sc.grids]))

@@ -188,6 +188,7 @@ class HierarchySettings(_Section):
     clusters_above: int
     clusters_epsilon: float
     unseen_importance: float
+    receiver: str
 
     def clustered(self, originals: int) -> tuple[bool, str]:
         """(on, why): clusters above the originals (clusters: auto | on | off; auto above
@@ -426,6 +427,7 @@ CHECKS = {
     "hierarchy.epsilon": (lambda v: v == "auto" or (
         isinstance(v, (int, float)) and math.isfinite(v) and v >= 0), "a number >= 0 or auto"),
     "hierarchy.link-rays": _at_least(1),
+    "hierarchy.receiver": _one_of("auto", "reflected", "arriving"),
     "direct.mode": _one_of("auto", "points", "links"), "direct.samples": _at_least(1),
     "direct.leaf-points": (lambda v: v >= 1 and math.isqrt(int(v)) ** 2 == v,
                            "a square (1, 4, 9, ...)"),

@@ -19,6 +19,7 @@ from radiosity.cli.options import (POSITIVE, POSITIVE_INT, Finite,
 from radiosity.cli.summary import (ARGV, REAL, T0, INTERRUPTED, NOT_CONVERGED, command_line,
                                    finish_lines, friendly, record_run, mark_started, table_text,
                                    viewfactors_summary)
+from radiosity.cli.grids import grid_command
 from radiosity.cli.studies import study
 from radiosity.errors import RadiosityError
 from radiosity.runtime.precompile import with_helper
@@ -575,6 +576,7 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, work
 
 
 main.add_command(study)  # studies.py
+main.add_command(grid_command)  # grids.py: calculation grids on a solved run
 
 
 def _luminaire_count(elements) -> int:

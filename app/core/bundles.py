@@ -111,6 +111,8 @@ class Scene:
     # more cameras ([[camera]] entries after the first): (name, Camera) pairs; the subdivision
     # follows every camera, and each gets its image from the one solution (RUN/views/NAME/)
     views: tuple = ()
+    # calculation grids ([[grid]] tables: scene/grids.Grid): illuminance at points (issue 52)
+    grids: tuple = ()
 
     @property
     def cameras(self) -> tuple:

@@ -38,7 +38,11 @@ pointer-events:none;line-height:1.45}
 <body><canvas id="view"></canvas>
 <div id="cap"><b>%(title)s</b><br>%(caption)s<br><span id="warn">%(warning)s</span>
 <span id="help">drag: orbit &middot; wheel: zoom &middot; double-click: reset</span><br>
-<span id="status">loading</span></div>
+<span id="status">loading</span><br>%(luxhelp)s</div>
+<div id="legend" style="display:none;position:absolute;right:10px;bottom:10px;background:rgba(0,0,0,.5);padding:6px 9px;border-radius:4px;pointer-events:none">
+illuminance (lx)<div style="width:220px;height:12px;margin:4px 0;background:linear-gradient(to right,%(ramp)s)"></div>
+<span style="float:left">0</span><span style="float:right" id="luxmax">%(luxmax)s</span></div>
+<script type="application/octet-stream" id="d-lux">%(lux)s</script>
 <script type="application/octet-stream" id="d-pos">%(pos)s</script>
 <script type="application/octet-stream" id="d-nv">%(nv)s</script>
 <script type="application/octet-stream" id="d-col">%(col)s</script>
@@ -63,10 +67,13 @@ if (!gl) { report("error: WebGL is not available in this browser"); return; }
 // sub-elements: 4 float32 vertices, vertex count, 25 bytes: per corner [front rgb, back rgb]
 // (sRGB), then two-sided
 var pos = new Float32Array(bytes("d-pos").buffer), nv = bytes("d-nv"), col = bytes("d-col");
+// lux mode (key L): per sub-element [front rgb, back rgb] false colour of its illuminance
+var lux = META.lux ? bytes("d-lux") : null;
 var m = nv.length, ntri = 0, i, j, k;
 for (i = 0; i < m; i++) ntri += nv[i] - 2;
 var P = new Float32Array(ntri * 9), Q = new Float32Array(ntri * 9);
 var F = new Uint8Array(ntri * 12), B = new Uint8Array(ntri * 12);
+var FL = lux ? new Uint8Array(ntri * 12) : null, BL = lux ? new Uint8Array(ntri * 12) : null;
 var t = 0, fan = [0, 1, 2, 0, 2, 3];
 for (i = 0; i < m; i++) {
   var cx = 0, cy = 0, cz = 0;  // vertex mean, the point each vertex is pushed away from
@@ -83,6 +90,11 @@ for (i = 0; i < m; i++) {
       F[c] = col[q]; F[c + 1] = col[q + 1]; F[c + 2] = col[q + 2]; F[c + 3] = 255;
       B[c] = col[q + 3]; B[c + 1] = col[q + 4]; B[c + 2] = col[q + 5];
       B[c + 3] = col[25 * i + 24] ? 255 : 0;
+      if (lux) {
+        FL[c] = lux[6 * i]; FL[c + 1] = lux[6 * i + 1]; FL[c + 2] = lux[6 * i + 2]; FL[c + 3] = 255;
+        BL[c] = lux[6 * i + 3]; BL[c + 1] = lux[6 * i + 4]; BL[c + 2] = lux[6 * i + 5];
+        BL[c + 3] = B[c + 3];
+      }
     }
   }
 }
@@ -120,12 +132,31 @@ function attrib(name, data, size, type, norm) {
   var b = gl.createBuffer(), loc = gl.getAttribLocation(prog, name);
   gl.bindBuffer(gl.ARRAY_BUFFER, b); gl.bufferData(gl.ARRAY_BUFFER, data, gl.STATIC_DRAW);
   gl.enableVertexAttribArray(loc); gl.vertexAttribPointer(loc, size, type, norm, 0, 0);
+  return b;
+}
+function rebind(name, b) {
+  var loc = gl.getAttribLocation(prog, name);
+  gl.bindBuffer(gl.ARRAY_BUFFER, b);
+  gl.vertexAttribPointer(loc, 4, gl.UNSIGNED_BYTE, true, 0, 0);
 }
 attrib("aPos", P, 3, gl.FLOAT, false);
 attrib("aCen", Q, 3, gl.FLOAT, false);
-attrib("aFront", F, 4, gl.UNSIGNED_BYTE, true);
-attrib("aBack", B, 4, gl.UNSIGNED_BYTE, true);
-P = Q = F = B = null;
+var bufL = lux ? [attrib("aFront", FL, 4, gl.UNSIGNED_BYTE, true),
+                  attrib("aBack", BL, 4, gl.UNSIGNED_BYTE, true)] : null;
+var bufR = [attrib("aFront", F, 4, gl.UNSIGNED_BYTE, true),
+            attrib("aBack", B, 4, gl.UNSIGNED_BYTE, true)];
+P = Q = F = B = FL = BL = null;
+var luxMode = false;
+function setMode(on) {
+  luxMode = !!(on && bufL);
+  var b = luxMode ? bufL : bufR;
+  rebind("aFront", b[0]); rebind("aBack", b[1]);
+  document.getElementById("legend").style.display = luxMode ? "block" : "none";
+  document.body.setAttribute("data-mode", luxMode ? "lux" : "radiance");
+}
+window.addEventListener("keydown", function (e) {
+  if (bufL && (e.key === "l" || e.key === "L")) { setMode(!luxMode); redraw(); }
+});
 var uMVP = gl.getUniformLocation(prog, "uMVP"), uPx = gl.getUniformLocation(prog, "uPx");
 gl.enable(gl.DEPTH_TEST);
 gl.clearColor(0.118, 0.133, 0.153, 1.0);
@@ -213,12 +244,25 @@ canvas.addEventListener("wheel", function (e) {
 }, {passive: false});
 canvas.addEventListener("dblclick", function () { reset(); redraw(); });
 window.addEventListener("resize", redraw);
-reset(); draw();
+setMode(/(^#|&)lux=1/.test(location.hash || "")); reset(); draw();
 } catch (err) { report("error: " + err.message); }
 })();
 </script>
 </body></html>
 """
+
+
+#: The lux mode's false colours (sRGB, viridis' stops), from 0 to the scale's top.
+_RAMP = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]],
+                 np.float64)
+
+
+def false_colour(t: np.ndarray) -> np.ndarray:
+    """sRGB bytes (..., 3) uint8 of values t (...) on the _RAMP, 0 .. 1 (clipped)."""
+    x = np.clip(np.nan_to_num(np.asarray(t, np.float64)), 0.0, 1.0) * (len(_RAMP) - 1)
+    i = np.minimum(x.astype(np.int64), len(_RAMP) - 2)
+    f = (x - i)[..., None]
+    return np.round(_RAMP[i] * (1 - f) + _RAMP[i + 1] * f).astype(np.uint8)
 
 
 def _b64(a: np.ndarray) -> str:
@@ -247,7 +291,7 @@ def _view_frame(camera: Camera | None):
 def write_viewer(path_html: str, part: Partition, radiance: np.ndarray, exposure: float | None,
                  title: str, camera: Camera | None = None, two_sided: np.ndarray | None = None,
                  max_triangles: int = VIEWER_MAX_TRIANGLES,
-                 smooth: SmoothMesh | None = None) -> dict:
+                 smooth: SmoothMesh | None = None, lux: np.ndarray | None = None) -> dict:
     """A self-contained WebGL1 page showing the sub-elements with their tone-mapped radiance.
 
     Embeds per sub-element its 4 vertices (float32, relative to the bounding-box centre), its
@@ -261,7 +305,10 @@ def write_viewer(path_html: str, part: Partition, radiance: np.ndarray, exposure
     camera: initial view direction (default: an oblique view); the view is fitted to the
     bounding box. Above `max_triangles` only every s-th sub-element is embedded and the page
     says so. The page sets `#status` to "ok N triangles" after the first frame (or
-    "error: ..."). No external URL. Returns {"triangles", "stride", "bytes", "smooth"}.
+    "error: ..."). No external URL. lux (m, 2) lx per sub-element and side (the tables'
+    illuminance): key L (or `#lux=1` in the address) shows it in false colour, flat per
+    sub-element, 0 .. its 99th percentile, with a scale. Returns {"triangles", "stride",
+    "bytes", "smooth"}.
     """
     radiance = np.asarray(radiance, np.float64)
     m = len(part)
@@ -284,11 +331,17 @@ def write_viewer(path_html: str, part: Partition, radiance: np.ndarray, exposure
     col[:, :24] = tonemap(corner_rad, exposure).reshape(-1, 24)
     if two_sided is not None:
         col[:, 24] = np.asarray(two_sided, bool)[keep]
+    luxcol, luxmax = np.zeros((0, 6), np.uint8), 0.0
+    if lux is not None:
+        L = np.nan_to_num(np.asarray(lux, np.float64)[keep])
+        luxmax = float(np.percentile(L[:, 0], 99)) if len(L) else 0.0
+        luxcol = false_colour(L / (luxmax or 1.0)).reshape(-1, 6)
     up, fwd, yaw, pitch = _view_frame(camera)
     shown = int(np.sum(nv.astype(np.int64) - 2))
     meta = {"grow_px": VIEWER_GROW_PX, "up": up, "forward": fwd, "yaw": yaw, "pitch": pitch,
             "radius": radius, "smooth": smooth is not None,
-            "centre": centre.tolist(), "exposure": exposure, "elements": m, "triangles": shown}
+            "centre": centre.tolist(), "exposure": exposure, "elements": m, "triangles": shown,
+            "lux": lux is not None, "lux_max": luxmax}
     caption = (f"{m:,} elements, {ntri:,} triangles &middot; exposure {exposure:.4g} "
                f"&middot; radiosity colours{' (smooth)' if smooth is not None else ''}, "
                f"one-sided backs hidden")
@@ -298,7 +351,10 @@ def write_viewer(path_html: str, part: Partition, radiance: np.ndarray, exposure
                    f"triangles)<br>")
     page = _VIEWER % {
         "title": html.escape(str(title)), "caption": caption, "warning": warning,
-        "pos": _b64(pos), "nv": _b64(nv), "col": _b64(col),
+        "pos": _b64(pos), "nv": _b64(nv), "col": _b64(col), "lux": _b64(luxcol),
+        "luxhelp": "L: illuminance (lx) / radiance" if lux is not None else "",
+        "luxmax": f"{luxmax:.4g}", "ramp": ",".join(
+            "#%02x%02x%02x" % tuple(int(v) for v in c) for c in _RAMP),
         "meta": json.dumps(meta).replace("</", "<\\/"),
     }
     tmp = temp_path(path_html)

@@ -392,4 +392,21 @@ def load_scene(path: str, resolution=None, *, settings: Settings) -> Scene:
         camera, views = parse_cameras(doc.get("camera"), path, resolution)
     name = doc.get("name", os.path.basename(os.path.dirname(path)))
     return Scene(name=str(name), path=path, elements=elements, camera=camera,
-                 validation=_validation(doc, path, names), chosen=chosen, views=views)
+                 validation=_validation(doc, path, names), chosen=chosen, views=views,
+                 grids=_grids(doc, path, elements, s))
+
+
+# calculation grids (scene/grids.py): [[grid]] tables and their default maintenance factor
+_TOP_KEYS |= {"grid", "maintenance_factor"}
+
+
+def _grids(doc: dict, path: str, elements, s: Settings) -> tuple:
+    """The scene's [[grid]] tables (scene/grids.py), each checked inside the model."""
+    from radiosity.scene.grids import check_grids, parse_grids
+    from radiosity.tracing.rays import caster_of
+
+    grids = parse_grids(doc, path)
+    if grids:
+        check_grids(grids, elements, caster_of(elements.verts, elements.nverts,
+                                               float(s.rays.offset)), path)
+    return grids

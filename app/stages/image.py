@@ -28,6 +28,7 @@ from radiosity.formats.meshexport import export_mesh, triangles
 from radiosity.formats.viewer import VIEWER_GROW_PX, VIEWER_MAX_TRIANGLES, write_viewer
 from radiosity.runtime.store import StageFigures
 from radiosity.settings import Settings
+from radiosity.stages.grids import black_irradiance
 from radiosity.stages.tables import light_tables, write_light_tables
 from radiosity.stages.pixels import (SAMPLINGS, downsample, facing_side, pixel_radiance, refine,
                                      sample_raster, samples_radiance, seen_radiance)
@@ -170,12 +171,11 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     # numba, sorts and file writes let go of the GIL), joined before the figures
     pool = ThreadPoolExecutor(2, thread_name_prefix="outputs")
     smooth = pool.submit(smooth_mesh, part, elements, radiance)
-    tables = pool.submit(lambda: write_light_tables(rs.run_dir,
-                                                    light_tables(part, elements, radiance)))
+    tables = pool.submit(_tables, rs.run_dir, part, elements, radiance, st)
     pool.shutdown(wait=False)
     try:
         fig = _image_and_meshes(rs, st, part, elements, camera, k, raster, radiance, filter,
-                                sigma, auto, exposure, bar, t0, smooth)
+                                sigma, auto, exposure, bar, t0, smooth, tables)
     finally:
         wait([smooth, tables])
     tables.result()
@@ -186,10 +186,25 @@ def render_outputs(run_dir: str, filter: str | None = None, sigma: float | None 
     return fig
 
 
+def _tables(run_dir: str, part, elements, radiance, st):
+    """The light tables written (elements.csv, ...; black surfaces gathered:
+    grids.black_irradiance) and the illuminance per sub-element and side (m, 2) lx, 0 where
+    a side is not reported (the viewer's lux mode)."""
+    t = light_tables(part, elements, radiance,
+                     irradiance=black_irradiance(part, elements, radiance, st))
+    fig = write_light_tables(run_dir, t)
+    lux = np.zeros((len(part), 2))
+    el = t.elements
+    lux[el["element"], (el["side"] == "back").astype(np.int64)] = np.nan_to_num(el["illuminance"])
+    return fig, lux
+
+
 def _image_and_meshes(rs, st, part, elements, camera, k: int, raster, radiance, filter: str,
-                      sigma: float, auto: bool, exposure, bar, t0: float, smooth) -> dict:
+                      sigma: float, auto: bool, exposure, bar, t0: float, smooth,
+                      tables=None) -> dict:
     """render_outputs' image, meshes and viewer (smooth: the future of the radiance at the
-    mesh's vertices, smooth.smooth_mesh); returns its figures but the total time."""
+    mesh's vertices, smooth.smooth_mesh; tables: the future of _tables, whose illuminance the
+    viewer's lux mode shows); returns its figures but the total time."""
     r = st.render
     per_side = 1
     if r.sampling == "area":
@@ -229,7 +244,8 @@ def _image_and_meshes(rs, st, part, elements, camera, k: int, raster, radiance, 
     bar.update()
     title = rs.attrs.get("scene_name") or os.path.basename(d)
     viewer = write_viewer(paths["viewer.html"], part, radiance, e, title, camera=camera,
-                          two_sided=two, smooth=smooth)
+                          two_sided=two, smooth=smooth,
+                          lux=None if tables is None else tables.result()[1])
     bar.update()
     return {
         "image_exr": paths["image.exr"], "image_png": paths["image.png"],

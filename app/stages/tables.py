@@ -9,7 +9,9 @@ Units and the photometric conversion (docs/how-to/exports.md says the same):
   unit; areas are in the scene's unit squared.
 - Irradiance is what arrives: L = Le + rho E / pi (a Lambertian element, SPEC §2), so
   E = pi (L - Le) / rho, channel by channel, where rho > 0; where rho = 0 nothing of the
-  incident light is in the solution and E is NaN (and so is the illuminance).
+  incident light is in the solution: a render gathers it at the sub-element's centre
+  (stages/grids.black_irradiance: direct light by shadow rays plus the light the other
+  sub-elements reflect); light_tables without it leaves E NaN there.
 - Photometric: each RGB channel is read as a radiometric quantity in watts whose luminous
   efficiency is the Rec. 709 / sRGB luminance weight, Y = 0.2126 R + 0.7152 G + 0.0722 B
   (`LUMA`), and 1 W of Y is 683 lm (`EFFICACY`, the luminous efficacy at 555 nm that
@@ -38,7 +40,9 @@ EFFICACY = 683.0
 #: The statement written with every table (report.json "light", the docs page).
 CONVERSION = ("luminance-weighted Y = 0.2126 R + 0.7152 G + 0.0722 B (Rec. 709), "
               "{efficacy:g} lm per W of Y: luminance = {efficacy:g} Y(L) cd/m^2, "
-              "illuminance = {efficacy:g} Y(E) lx; E = pi (L - Le) / rho, NaN where rho = 0")
+              "illuminance = {efficacy:g} Y(E) lx; E = pi (L - Le) / rho, where rho = 0 "
+              "gathered at the sub-element's centre (direct light by shadow rays plus the light "
+              "the others reflect)")
 #: The summary rows the CLI prints after a render: at most this many materials, else one line.
 SUMMARY_MAX_ROWS = 8
 TABLES = ("elements", "surfaces", "materials")
@@ -55,7 +59,7 @@ class LightTables:
     materials: one row per material and side, area-weighted over its sub-elements
 
     Per row: radiance_r/g/b, radiance_y (W sr^-1 m^-2), luminance (cd m^-2), exitance_r/g/b,
-    exitance_y (W m^-2), irradiance_r/g/b, irradiance_y (W m^-2, NaN where rho = 0),
+    exitance_y (W m^-2), irradiance_r/g/b, irradiance_y (W m^-2; where rho = 0 gathered, or NaN),
     illuminance (lx); surfaces and materials add illuminance_min / _max over their
     sub-elements and uniformity = min / mean (the lighting designer's U0).
     """
@@ -84,8 +88,9 @@ class LightTables:
 
 # ----------------------------------------------------------------------------- computing
 
-def _quantities(L, Le, rho, efficacy):
-    """Columns of the light quantities from L, Le, rho (k, 3) float64."""
+def _quantities(L, Le, rho, efficacy, gathered=None):
+    """Columns of the light quantities from L, Le, rho (k, 3) float64; gathered (k, 3): the
+    irradiance gathered where rho = 0 (stages/grids.black_irradiance), else NaN there."""
     out = {}
     y = L @ LUMA
     for i, c in enumerate(_RGB):
@@ -99,6 +104,8 @@ def _quantities(L, Le, rho, efficacy):
         # rounding of the solver may leave L a hair below Le: no negative irradiance
         E = np.where(rho > 0, math.pi * np.maximum(L - Le, 0.0) / np.where(rho > 0, rho, 1.0),
                      np.nan)
+    if gathered is not None:  # black channels: the light that arrives, gathered
+        E = np.where(rho > 0, E, gathered)
     for i, c in enumerate(_RGB):
         out[f"irradiance_{c}"] = E[:, i]
     out["irradiance_y"] = E @ LUMA
@@ -131,12 +138,14 @@ def _group(keys: np.ndarray, area: np.ndarray, cols: dict, efficacy: float):
     return u, first, out
 
 
-def light_tables(part, elements, radiance: np.ndarray, efficacy: float = EFFICACY) -> LightTables:
+def light_tables(part, elements, radiance: np.ndarray, efficacy: float = EFFICACY,
+                 irradiance: np.ndarray | None = None) -> LightTables:
     """The three tables of a solution (module docstring for the units and the conversion).
 
     part: core.bundles.Partition (m sub-elements); elements: core.bundles.Elements;
     radiance (m, 2, 3) float64, linear RGB radiance per sub-element and side (0 front, 1 back),
-    as solution/radiance. Returns LightTables.
+    as solution/radiance; irradiance (m, 2, 3): the irradiance gathered where rho = 0
+    (stages/grids.black_irradiance; None: NaN there). Returns LightTables.
     """
     from radiosity.scene.emitters import AreaEmitters
 
@@ -157,7 +166,8 @@ def light_tables(part, elements, radiance: np.ndarray, efficacy: float = EFFICAC
     names = np.array(list(elements.material_names) or ["?"], dtype=str)
     mat = np.asarray(elements.material, np.int64)[o]
     sides = np.array(["front", "back"])
-    q = _quantities(L, Le, rho, efficacy)
+    q = _quantities(L, Le, rho, efficacy,
+                    None if irradiance is None else np.asarray(irradiance, np.float64)[sub, side])
 
     el = {"element": sub.astype(np.int64), "original": o, "side": sides[side],
           "material": names[np.minimum(mat, len(names) - 1)], "area": area}

@@ -479,3 +479,31 @@ def test_viewer_has_no_blocks_where_the_camera_did_not_look(solved_cornell, tmp_
     assert drawn > 0.15 * 680 * 800, drawn
     assert smooth_steps < 0.01 * drawn, counts
     assert smooth_steps < 0.2 * flat_steps, counts
+
+
+@pytest.mark.needs("chromium")
+def test_viewer_lux_mode_draws_the_illuminance(cornell_run, tmp_path):
+    """viewer.html's lux mode (key L, or #lux=1): the tables' illuminance per sub-element in
+    false colour with a scale; the page still draws every triangle."""
+    figures = render.render_outputs(cornell_run, settings=settings_of())
+    page = open(figures["viewer_html"], encoding="utf-8").read()
+    assert '"lux": true' in page and "L: illuminance (lx)" in page
+    shots = {}
+    for frag in ("", "lux=1"):
+        out = tmp_path / f"shot{len(shots)}.png"
+        profile = tmp_path / f"profile{len(shots)}"
+        profile.mkdir()
+        cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+               "--no-first-run", "--disable-background-networking", "--disable-component-update",
+               "--disable-sync", f"--user-data-dir={profile}", "--use-gl=swiftshader",
+               "--enable-unsafe-swiftshader", "--window-size=800,600", f"--screenshot={out}",
+               "--dump-dom", "--virtual-time-budget=5000",
+               f"file://{figures['viewer_html']}#{frag}"]
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=90)
+        shutil.rmtree(profile, ignore_errors=True)
+        assert f"ok {figures['triangles']} triangles" in r.stdout, r.stderr[-2000:]
+        assert f'data-mode="{"lux" if frag else "radiance"}"' in r.stdout
+        with Image.open(out) as im:
+            shots[frag] = np.asarray(im.convert("RGB")).astype(int)[120:]
+    # the false colours differ from the radiance colours over most of the drawn canvas
+    assert (np.abs(shots["lux=1"] - shots[""]).sum(-1) > 30).mean() > 0.3

@@ -17,7 +17,7 @@ from radiosity.errors import RadiosityError
 from radiosity.methods.hierarchical.links.refine import RefineParams
 from radiosity.scene.emitters import AreaEmitters
 
-WEIGHTS = ("none", "bf")
+WEIGHTS = ("none", "bf", "arriving")
 ORACLES = ("ff", "gradient", "spread")
 FAR_KERNELS = ("centroid", "polygon", "gauss")
 
@@ -150,13 +150,17 @@ def oracle_weights(elements, weight: str, direct: np.ndarray | None = None):
     """The oracle's weights: link p <- q counts F_pq * wrho[p, side] * lhat[q, side] / lref.
 
     none: all 1 (form factors alone). bf: wrho = the largest channel of the reflectance of that
-    side; lhat = the largest channel of the emission plus an ambient estimate
+    side (arriving: 1, the light that arrives counts whatever the receiver reflects:
+    hierarchy.receiver); lhat = the largest channel of the emission plus an ambient estimate
     La = E rho / (1 - rho) (E, rho: area-weighted means over the scene); lref = E + La, the
     mean radiance one expects. direct (n, 2) (the emitters' light taken at points:
     direct_estimate): lhat = direct + La rho, the original's own first bounce and the light
     after the second (La less its first bounce E rho), never the emission (emitters are no
     link sources then, SPEC §10). Returns wrho (n, 2), lhat (n, 2), lref."""
     n = len(elements)
+    if weight == "arriving":  # bf for the light that arrives, whatever the receiver reflects
+        wrho, lhat, lref = oracle_weights(elements, "bf", direct)
+        return np.ones_like(wrho), lhat, lref
     if weight == "none":
         return np.ones((n, 2)), np.ones((n, 2)), 1.0
     if weight != "bf":
@@ -251,6 +255,8 @@ def resolve_params(elements, settings, occlusion: bool = True,
     if weight not in WEIGHTS:
         raise RadiosityError(f"radiosity.hierarchy.weight must be one of {', '.join(WEIGHTS)}, "
                              f"got {weight!r}")
+    if weight == "bf" and getattr(h, "receiver", "reflected") == "arriving":
+        weight = "arriving"  # illuminance asked for (grids): hierarchy.receiver
     v = elements.verts.reshape(-1, 3)
     diag = float(np.linalg.norm(v.max(0) - v.min(0)))
     prm = LinkParams(epsilon=eps, shadow=eps * float(h.shadow_factor),

@@ -59,6 +59,19 @@ def open_by_row(rows0: np.ndarray, accuracy: float) -> np.ndarray:
     return rows0 < 1.0 - max(10.0 * accuracy, 5e-3)
 
 
+def open_scene_targets(rt, cl, rows0: np.ndarray, accuracy: float):
+    """(targets, count) in a scene the closure `cl` found open: an open scene (or one with a
+    cavity of wrongly wound faces) is still closed around the facets whose every ray met a
+    front face, and those rows are balanced too, unless their own row says otherwise
+    (open_by_row: `count` of them). rt: core.balancing.RowTargets; rows0 (n,) before
+    balancing."""
+    from radiosity.core.balancing import RowTargets
+
+    lost0 = rt.balance & (cl.lost[:, 0] == 0) & (rt.target == 1)
+    closed_rows = lost0 & ~open_by_row(rows0, accuracy)
+    return RowTargets(rt.target, closed_rows, rt.dead, rt.sided), int((lost0 & ~closed_rows).sum())
+
+
 def balance_matrix(F, rows, tol: float, max_iterations: int):
     """core.balancing.balance_rows on the CSR matrix F (n x n, A F symmetric) with the row
     targets `rows` (core.balancing.RowTargets: balanced rows to their target, the other live
@@ -118,13 +131,7 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
     rows0 = np.asarray(F.sum(axis=1)).ravel()
     seen_open = 0
     if mode == "auto" and not cl.closed:
-        # an open scene (or one with a cavity of wrongly wound faces) is still closed around
-        # the facets whose every ray met a front face: those rows are balanced too, unless
-        # their own row says otherwise (open_by_row)
-        lost0 = rt.balance & (cl.lost[:, 0] == 0) & (rt.target == 1)
-        closed_rows = lost0 & ~open_by_row(rows0, accuracy)
-        seen_open = int((lost0 & ~closed_rows).sum())
-        rt = RowTargets(rt.target, closed_rows, rt.dead, rt.sided)
+        rt, seen_open = open_scene_targets(rt, cl, rows0, accuracy)
     do_balance = mode == "on" or (mode == "auto" and bool((rt.balance & (rows0 > 0)).any()))
     if mode == "on":
         rt = RowTargets(np.ones(n), ~contact, contact, rt.sided)

@@ -747,9 +747,9 @@ def test_furnished_room_with_contact_rows_and_reciprocity(client, tmp_path):
     lamp panel 5 mm under the ceiling): its 16 contact facets take no part (zero rows and
     columns), the facets partly covered are only capped, every other row is balanced to 1.
     Before any balancing, at the default accuracy, the partly covered facets' rows lie within
-    their closure targets + 0.1 and every row within 1 + 5 x the accuracy (1.0045 measured;
-    with each facet's sample points shared by all its pairs, a ceiling cell over the lamp
-    reached 1.051). Reciprocity to 1e-12 (issue 26)."""
+    their closure targets + 0.1 and every row within 1 + 5 x the accuracy (1.0040 measured,
+    1.0045 before the control variate; with each facet's sample points shared by all its
+    pairs, a ceiling cell over the lamp reached 1.051). Reciprocity to 1e-12 (issue 26)."""
     import csv
 
     res = run(client, tmp_path, scene_path("furnished-room"))

@@ -1,8 +1,8 @@
 """View factors (issue 16): time and error against pyviewfactor in the same run, and a synthetic
 urban scene of about 22 000 facets (time, memory, nonzeros, row sums).
 
-    python benchmarks/bench_viewfactors.py [--part compare|urban|both] [--blocks-small 3]
-        [--blocks 8] [--workers 2] [--repeat 2]
+    python benchmarks/bench_viewfactors.py [--part compare|urban|block|both] [--blocks-small 3]
+        [--blocks 8] [--facets 100000] [--workers 2] [--repeat 2]
 
 compare: an urban scene of `--blocks-small`^2 blocks (2 976 facets at 3: streets, walls and
 roofs in 2.5 m tiles; buildings block most views). Both tools run on the same machine in the
@@ -20,6 +20,9 @@ largest factor error.
 urban: `--blocks`^2 blocks (22 352 facets at 8; View3D's documented run: 22 176 facets in
 1 280 s on 8 threads, 0.83 GiB), ours at the default accuracy; time, peak resident memory per
 worker, nonzeros, row sums.
+
+block: the same urban scene with enough blocks for `--facets` facets (100 128 at 17 blocks for
+the default 10^5; the sky is the environment: rows below 1), rows kept per size.
 
 Writes benchmarks/results/viewfactors.json and prints a table.
 """
@@ -265,9 +268,28 @@ def big(nb: int, workers: int) -> list:
              "view3d_thread_s_per_our_cpu_s": round(1280.0 * 8 / f["cpu_s"], 1)}]
 
 
+def blocks_for(facets: int) -> int:
+    """The fewest blocks per side whose urban scene has at least `facets` facets (17: 100 128)."""
+    nb = 1
+    while len(urban(nb)[1]) < facets:
+        nb += 1
+    return nb
+
+
+def block(facets: int, workers: int) -> list:
+    """The urban block of about `facets` facets (issue 53: 10^5, view factors and heat in
+    under 10 minutes on this machine): the urban scene's rows, tagged with the target size."""
+    rows = big(blocks_for(facets), workers)
+    for r in rows:
+        r.update(part="block", target_facets=facets)
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--part", choices=["compare", "urban", "both"], default="both")
+    ap.add_argument("--part", choices=["compare", "urban", "block", "both"], default="both")
+    ap.add_argument("--facets", type=int, default=100_000,
+                    help="block: the urban block's size in facets (blocks chosen to reach it)")
     ap.add_argument("--blocks-small", type=int, default=3)
     ap.add_argument("--blocks", type=int, default=8)
     ap.add_argument("--workers", type=int, default=2)
@@ -275,7 +297,8 @@ def main():
     a = ap.parse_args()
     rows = []
     for part, fn in (("compare", lambda: compare(a.blocks_small, a.workers, a.repeat)),
-                     ("urban", lambda: big(a.blocks, a.workers))):
+                     ("urban", lambda: big(a.blocks, a.workers)),
+                     ("block", lambda: block(a.facets, a.workers))):
         if a.part in (part, "both"):
             before = os.getloadavg()[0]
             got = fn()
@@ -290,7 +313,8 @@ def main():
     old = os.path.join(RESULTS, "viewfactors.json")
     if a.part != "both" and os.path.exists(old):
         with open(old) as f:
-            rows = [r for r in json.load(f)["rows"] if r["part"] != a.part] + rows
+            rows = [r for r in json.load(f)["rows"] if r["part"] != a.part
+                    or (a.part == "block" and r["facets"] != rows[-1]["facets"])] + rows
     fn = write("viewfactors", rows, {"workers": a.workers, "repeat": a.repeat})
     print(table(rows, ["part", "tool", "facets", "time_s", "cpu_s", "nonzeros", "rays", "peak_worker_MiB",
                        "row_l1_median", "row_l1_p99", "row_l1_max", "row_sum_err_max",
@@ -298,7 +322,7 @@ def main():
     for r in rows:
         if "reference_vs_brute_force" in r:
             print("reference against brute force:", r["reference_vs_brute_force"])
-        if r["part"] == "urban":
+        if r["part"] in ("urban", "block"):
             print("urban row sums:", r["row_sum_min"], "..", r["row_sum_max"], r["row_sum_histogram"])
             print("urban stages:", r["task_time_by_stage_s"], "busy:", r["busy_s_per_worker"])
     print(f"wrote {fn}")

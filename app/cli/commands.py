@@ -559,7 +559,8 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, work
     obstructed, reciprocal; rows balanced to 1 for enclosures."""
     from radiosity.runtime.checks import check_new_run_dir
     from radiosity.runtime.runlock import run_lock
-    from radiosity.viewfactors.api import compute_viewfactors, load_facets, resolve_params
+    from radiosity.viewfactors.api import (compute_viewfactors, in_process_mode, load_facets,
+                                           resolve_params)
 
     st = settings_from_flags(viewfactors__accuracy=accuracy, viewfactors__cutoff=cutoff,
                              viewfactors__enclosure=enclosure)
@@ -568,7 +569,10 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, work
     check_new_run_dir(out, force)
     mark_started(out)
     click.echo(f"{len(fac)} facets from {', '.join(fac.sources)}")
-    with run_lock(out, command_line()), run_client(workers, scheduler, cluster_kind) as client:
+    # small meshes on threads in this process, as small renders (no worker processes to start)
+    in_process, where = in_process_mode(st, len(fac))
+    with run_lock(out, command_line()), run_client(workers, scheduler, cluster_kind,
+                                                   in_process=in_process, where=where) as client:
         res = compute_viewfactors(fac, out, client, fmt=fmt, resume=resume, settings=st)
         record_run(out, os.path.basename(mesh))
     click.echo(viewfactors_summary(res.figures, finish_lines(out, [])))

@@ -13,14 +13,24 @@ from radiosity.settings import Settings, options
 from radiosity.viewfactors.facets import Facets, load_facets
 from radiosity.viewfactors.master import ViewFactors, compute_viewfactors, resolve_params
 
-__all__ = ["Facets", "ViewFactors", "compute_viewfactors", "load_facets", "resolve_params",
-           "viewfactors"]
+__all__ = ["Facets", "ViewFactors", "compute_viewfactors", "in_process_mode", "load_facets",
+           "resolve_params", "viewfactors"]
 
 #: With radiosity.cluster.processes auto, meshes of at most this many facets run on threads in
 #: the caller's process (as radiosity.render runs small scenes): no worker processes to start,
 #: so a plain script needs no `if __name__ == "__main__"` guard. Chosen, not measured: half a
 #: million pairs, where starting workers stops being the larger cost.
 IN_PROCESS_FACETS = 1000
+
+
+def in_process_mode(settings: Settings, facets: int) -> tuple[bool, str]:
+    """(in_process, why) for a local cluster of the view factors of `facets` facets, as
+    runtime/cluster.local_mode decides it for a render (its size there is camera samples,
+    here facets): threads in this process up to IN_PROCESS_FACETS with processes auto."""
+    from radiosity.runtime.cluster import local_mode
+
+    in_process, why = local_mode(settings.cluster.processes, facets, IN_PROCESS_FACETS)
+    return in_process, why.replace("camera samples", "facets")
 
 
 def viewfactors(mesh, *, accuracy: float | None = None, enclosure: str | None = None,
@@ -38,7 +48,7 @@ def viewfactors(mesh, *, accuracy: float | None = None, enclosure: str | None = 
     settings: a base settings.Settings (default: dask.config's), the options checked over it."""
     import tempfile
 
-    from radiosity.runtime.cluster import local_mode, open_client
+    from radiosity.runtime.cluster import open_client
 
     settings = options(settings, accuracy=accuracy, enclosure=enclosure)
     with tempfile.TemporaryDirectory(prefix="radiosity-vf-") as tmp:
@@ -47,8 +57,7 @@ def viewfactors(mesh, *, accuracy: float | None = None, enclosure: str | None = 
             return compute_viewfactors(mesh, run, client, settings, resume=resume,
                                        progress=progress).matrix
         mesh = load_facets(mesh, settings=settings)
-        # (local_mode's size is camera samples for a render; here, facets)
-        in_process, _ = local_mode(settings.cluster.processes, len(mesh), IN_PROCESS_FACETS)
+        in_process, _ = in_process_mode(settings, len(mesh))
         with open_client(workers, quiet=True, in_process=in_process,
                          settings=settings.cluster) as c:
             return compute_viewfactors(mesh, run, c, settings, resume=resume,

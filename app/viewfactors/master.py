@@ -19,7 +19,7 @@ from radiosity.viewfactors.facets import Facets, load_facets
 from radiosity.viewfactors.store import read_vf_task
 from radiosity.viewfactors.task import COUNTERS, STAGES, Inputs, Params, task_viewfactors
 
-VERSION = 1   # of the stored task format and method (part of the resume token)
+VERSION = 2   # of the stored task format and method (part of the resume token)
 ENCLOSURE_MODES = ("auto", "on", "off")
 FORMATS = ("npz", "csv")
 PLANE_TOL = TOL.facet_plane   # facing and plane tests (core.tolerances)

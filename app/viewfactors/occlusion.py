@@ -243,8 +243,16 @@ def sample_rays(pi, pj, S, pts, w, normal, fi, fj, ptr, ra, rb, term):
 
 
 @numba.njit(cache=True, nogil=True)
-def visible_fraction(ptr, term, vis, phi):
-    """phi[p] = sum term V / sum term over the rays of pair p (NaN when it has none)."""
+def visible_fraction(ptr, term, vis, expect, phi):
+    """phi[p], the visible fraction of pair p from its rays ptr[p]:ptr[p + 1] (terms t,
+    visibilities V), NaN when it has none. expect[p] = E[sum t] = pi F_ij / A_j, known exactly
+    from the unobstructed factor, is a control variate: phi = (sum t V + b (expect - sum t))
+    / expect, b the regression slope of t V on t over the pair's rays (clipped to [0, 1]),
+    phi clipped to [0, 1]. Where the terms are spiky (facets that touch: the kernel grows as
+    1 / r^2 toward their common edge) and the spike is visible, b ~ 1 and only the blocked rays
+    add noise, where the ratio sum t V / sum t carries the spike's noise into every partly
+    blocked pair. All rays visible or all blocked give exactly 1 or 0, as the ratio did.
+    expect[p] <= 0: the ratio."""
     for p in range(ptr.shape[0] - 1):
         tot = 0.0
         seen = 0.0
@@ -252,4 +260,21 @@ def visible_fraction(ptr, term, vis, phi):
             tot += term[r]
             if vis[r]:
                 seen += term[r]
-        phi[p] = seen / tot if tot > 0.0 else np.nan
+        if tot <= 0.0:
+            phi[p] = np.nan
+            continue
+        e = expect[p]
+        if e <= 0.0 or seen == 0.0 or seen == tot:
+            phi[p] = seen / tot
+            continue
+        k = ptr[p + 1] - ptr[p]
+        mt = tot / k
+        mv = seen / k
+        sxy = 0.0
+        sxx = 0.0
+        for r in range(ptr[p], ptr[p + 1]):
+            dx = term[r] - mt
+            sxx += dx * dx
+            sxy += dx * ((term[r] if vis[r] else 0.0) - mv)
+        b = min(max(sxy / sxx, 0.0), 1.0) if sxx > 0.0 else 1.0
+        phi[p] = min(max((seen + b * (e - tot)) / e, 0.0), 1.0)

@@ -48,6 +48,30 @@ def facet_closure(fac: Facets, ray_offset: float):
     return detect_closure(el, float(ray_offset))
 
 
+def open_by_row(rows0: np.ndarray, accuracy: float) -> np.ndarray:
+    """(n,) bool: rows that sum to less than 1 - max(10 x accuracy, 5e-3) before balancing.
+    In an open scene such a facet sees the environment even where the closure's rays all met
+    front faces: the closure casts the same 16 directions from every facet of one orientation,
+    and all of them can miss a window of sky that the pairs' own factors account for (the
+    lowest wall cells of a street canyon in benchmarks/bench_viewfactors.py's urban scene:
+    rows 0.88, which auto balanced to 1). 10 x the accuracy: the warning's threshold for a
+    balanced row (a row adds up about a hundred factors, each within the accuracy)."""
+    return rows0 < 1.0 - max(10.0 * accuracy, 5e-3)
+
+
+def open_scene_targets(rt, cl, rows0: np.ndarray, accuracy: float):
+    """(targets, count) in a scene the closure `cl` found open: an open scene (or one with a
+    cavity of wrongly wound faces) is still closed around the facets whose every ray met a
+    front face, and those rows are balanced too, unless their own row says otherwise
+    (open_by_row: `count` of them). rt: core.balancing.RowTargets; rows0 (n,) before
+    balancing."""
+    from radiosity.core.balancing import RowTargets
+
+    lost0 = rt.balance & (cl.lost[:, 0] == 0) & (rt.target == 1)
+    closed_rows = lost0 & ~open_by_row(rows0, accuracy)
+    return RowTargets(rt.target, closed_rows, rt.dead, rt.sided), int((lost0 & ~closed_rows).sum())
+
+
 def balance_matrix(F, rows, tol: float, max_iterations: int):
     """core.balancing.balance_rows on the CSR matrix F (n x n, A F symmetric) with the row
     targets `rows` (core.balancing.RowTargets: balanced rows to their target, the other live
@@ -105,11 +129,9 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
         F = sp.csr_matrix(keep @ F @ keep)
         F.eliminate_zeros()
     rows0 = np.asarray(F.sum(axis=1)).ravel()
+    seen_open = 0
     if mode == "auto" and not cl.closed:
-        # an open scene (or one with a cavity of wrongly wound faces) is still closed around
-        # the facets whose every ray met a front face: those rows are balanced too
-        rt = RowTargets(rt.target, rt.balance & (cl.lost[:, 0] == 0) & (rt.target == 1),
-                        rt.dead, rt.sided)
+        rt, seen_open = open_scene_targets(rt, cl, rows0, accuracy)
     do_balance = mode == "on" or (mode == "auto" and bool((rt.balance & (rows0 > 0)).any()))
     if mode == "on":
         rt = RowTargets(np.ones(n), ~contact, contact, rt.sided)
@@ -122,6 +144,7 @@ def finish(rs, out: str, fac: Facets, asm, vf: ViewFactorSettings, fmt: str,
                  "inside_facets": int(buried.sum()),
                  "partly_covered_facets": int(cl.counts["partly_covered_sides"]),
                  "partly_inside_facets": int(part.sum()),
+                 "rows_open_by_their_sum": seen_open,
                  "row_sum_min": float(rows0.min()), "row_sum_max": float(rows0.max()),
                  "row_sum_histogram": row_histogram(rows0),
                  "obstructed_over_unobstructed": asm.violations,

@@ -185,7 +185,7 @@ def _batch(inp: Inputs, prm: Params, caster, a: int, bl: np.ndarray, counts: np.
     un = np.nonzero(~proven)[0]
     counts[_PROVEN] += len(ia) - len(un)
     if len(un):
-        phi[un] = _sampled(inp, prm, caster, ia[un], ib[un], fmax[un], counts)
+        phi[un] = _sampled(inp, prm, caster, ia[un], ib[un], fmax[un], f[un], counts)
     times[3] += time.perf_counter() - t3
     F = f * phi
     nz = np.nonzero(F > 0)[0]
@@ -194,9 +194,9 @@ def _batch(inp: Inputs, prm: Params, caster, a: int, bl: np.ndarray, counts: np.
             bnd[nz])
 
 
-def _sampled(inp: Inputs, prm: Params, caster, fi, fj, fu, counts) -> np.ndarray:
+def _sampled(inp: Inputs, prm: Params, caster, fi, fj, fu, fij, counts) -> np.ndarray:
     """Visible fractions (k,) of pairs (fi, fj) (tree order) whose larger unobstructed factor
-    (of F_ij, F_ji) is fu: a pair
+    (of F_ij, F_ji) is fu and whose unobstructed F_ij is fij: a pair
     with fu <= accuracy takes level 1 (one ray between centroids); a larger one starts at
     the level s0 where one sample pair carries at most the accuracy (fu / s0^4 <= accuracy)
     and doubles s until two successive levels agree (fu |phi_s - phi_s/2| <= accuracy) or s
@@ -216,7 +216,8 @@ def _sampled(inp: Inputs, prm: Params, caster, fi, fj, fu, counts) -> np.ndarray
         la = lev[active]
         for s in np.unique(la).tolist():
             g = np.nonzero(la == s)[0]
-            ph[g] = _level(inp, prm, caster, fi[active[g]], fj[active[g]], int(s), counts)
+            ph[g] = _level(inp, prm, caster, fi[active[g]], fj[active[g]], fij[active[g]], int(s),
+                           counts)
         has = ~np.isnan(ph)
         sm = small[active]
         pp = prev[active]
@@ -242,9 +243,10 @@ def _sampled(inp: Inputs, prm: Params, caster, fi, fj, fu, counts) -> np.ndarray
     return phi
 
 
-def _level(inp: Inputs, prm: Params, caster, fi, fj, s: int, counts) -> np.ndarray:
-    """phi at level s (s x s points per facet, s^4 rays per pair) for pairs (fi, fj); NaN
-    where no sample pair has a positive kernel."""
+def _level(inp: Inputs, prm: Params, caster, fi, fj, fij, s: int, counts) -> np.ndarray:
+    """phi at level s (s x s points per facet, s^4 rays per pair) for pairs (fi, fj) of
+    unobstructed factors fij (the control variate of occlusion.visible_fraction); NaN where
+    no sample pair has a positive kernel."""
     from radiosity.viewfactors.occlusion import sample_facets, sample_rays, visible_fraction
 
     S = s * s
@@ -268,7 +270,8 @@ def _level(inp: Inputs, prm: Params, caster, fi, fj, s: int, counts) -> np.ndarr
         nr = sample_rays(own, own + kk, S, pts, w, inp.normal, a, b, ptr, ra, rb, term)
         vis = ~caster.occluded_pairs(pts, ra[:nr], rb[:nr], np.repeat(U, S))
         ph = np.empty(kk)
-        visible_fraction(ptr, term[:nr], vis, ph)
+        # E[sum of a pair's terms] = pi F_ij / A_j (sample_facets' weights sum to 1 a facet)
+        visible_fraction(ptr, term[:nr], vis, np.pi * fij[c0:c0 + step] / inp.area[b], ph)
         out[c0:c0 + kk] = ph
         counts[_RAYS] += nr
     return out

@@ -162,6 +162,63 @@ def test_half_blocked_squares_against_brute_force_monte_carlo(client, tmp_path):
     assert res.figures["pairs_sampled"] >= 1 and res.figures["obstructed_over_unobstructed"] == 0
 
 
+def test_control_variate_takes_the_spike_of_touching_facets_out_of_the_visible_fraction():
+    """A floor and a wall that share an edge (their kernel grows as 1 / r^2 toward it) with a
+    post standing on the floor away from the edge: the visible fraction of occlusion.
+    visible_fraction with the exact unobstructed factor as control variate, over 24 seeds
+    of level s = 8, against the ratio (expect 0) on the same rays and a brute force of 2e6
+    uniform point pairs: both centred on the brute force, the control variate's RMS error
+    below 0.75 x the ratio's (measured: 0.0103 against 0.0188, 0.55 x)."""
+    from radiosity.tracing.rays import RayCaster
+    from radiosity.viewfactors.occlusion import sample_facets, sample_rays, visible_fraction
+
+    floor = [[0, 0, 0], [2, 0, 0], [2, 2, 0], [0, 2, 0]]                 # faces +z
+    wall = [[0, 0, 0], [0, 0, 1], [2, 0, 1], [2, 0, 0]]                  # y = 0, faces +y
+    post = [[0.6, 0.8, 0.02], [1.4, 0.8, 0.02], [1.4, 0.8, 0.9], [0.6, 0.8, 0.9]]  # faces -y
+    V, Fc = mesh_of(floor, wall, post)
+    fac = load_facets((V, Fc), settings_of())
+    fu = pair_form_factors_exact(fac.verts[:1], fac.nverts[:1], fac.verts[1:2], fac.nverts[1:2],
+                                 False)[0]
+    rc = RayCaster(fac.verts, fac.nverts)
+    s, S = 8, 64
+    f = np.array([0, 1])
+    est = {True: [], False: []}
+    for seed in range(24):
+        pts, w = np.empty((2 * S, 3)), np.empty(2 * S)
+        sample_facets(f, np.array([1, 2]), s, seed, fac.verts, fac.nverts.astype(np.int64),
+                      fac.center, fac.area, pts, w)
+        ptr = np.empty(2, np.int64)
+        ra, rb, term = np.empty(S * S, np.int64), np.empty(S * S, np.int64), np.empty(S * S)
+        nr = sample_rays(np.array([0]), np.array([1]), S, pts, w, fac.normal, f[:1], f[1:],
+                         ptr, ra, rb, term)
+        vis = ~rc.occluded_pairs(pts, ra[:nr], rb[:nr], np.repeat(f, S))
+        for cv in (True, False):
+            ph = np.empty(1)
+            expect = np.array([np.pi * fu / fac.area[1] if cv else 0.0])
+            visible_fraction(ptr, term[:nr], vis, expect, ph)
+            est[cv].append(ph[0])
+    rng = np.random.default_rng(11)
+    N = 2_000_000
+    p = np.column_stack([2 * rng.random(N), 2 * rng.random(N), np.zeros(N)])
+    q = np.column_stack([2 * rng.random(N), np.zeros(N), rng.random(N)])
+    d = q - p
+    k = d[:, 2] * d[:, 1] / (d * d).sum(1) ** 2
+    v = ~rc.occluded(p, q, np.zeros(N, int), np.ones(N, int))
+    ref = (k * v).sum() / k.sum()
+    se = np.sqrt(((k * (v - ref)) ** 2).sum()) / k.sum()
+    assert 0.02 < 1 - ref < 0.5                                  # really partly blocked
+    cv, ratio = np.array(est[True]), np.array(est[False])
+    for e in (cv, ratio):
+        assert abs(e.mean() - ref) < 4 * (e.std() / np.sqrt(len(e)) + se), (e.mean(), ref)
+    rms = {name: np.sqrt(((e - ref) ** 2).mean()) for name, e in (("cv", cv), ("ratio", ratio))}
+    assert rms["cv"] < 0.75 * rms["ratio"], rms
+    # all visible or all blocked: exactly 1 or 0
+    for allv, want in ((np.ones(nr, bool), 1.0), (np.zeros(nr, bool), 0.0)):
+        ph = np.empty(1)
+        visible_fraction(ptr, term[:nr], allv, np.array([np.pi * fu / fac.area[1]]), ph)
+        assert ph[0] == want
+
+
 def _naive(fac, pairs_per=4096, seed=3):
     """Reference without shafts, trees or levels: every pair's exact unobstructed factor (front
     sides) times its visible fraction from `pairs_per` uniform random point pairs, one Embree
@@ -690,9 +747,9 @@ def test_furnished_room_with_contact_rows_and_reciprocity(client, tmp_path):
     lamp panel 5 mm under the ceiling): its 16 contact facets take no part (zero rows and
     columns), the facets partly covered are only capped, every other row is balanced to 1.
     Before any balancing, at the default accuracy, the partly covered facets' rows lie within
-    their closure targets + 0.1 and every row within 1 + 5 x the accuracy (1.0045 measured;
-    with each facet's sample points shared by all its pairs, a ceiling cell over the lamp
-    reached 1.051). Reciprocity to 1e-12 (issue 26)."""
+    their closure targets + 0.1 and every row within 1 + 5 x the accuracy (1.0040 measured,
+    1.0045 before the control variate; with each facet's sample points shared by all its
+    pairs, a ceiling cell over the lamp reached 1.051). Reciprocity to 1e-12 (issue 26)."""
     import csv
 
     res = run(client, tmp_path, scene_path("furnished-room"))
@@ -763,7 +820,11 @@ def test_modelled_room_balances_where_closed(client, tmp_path, flip):
     assert fig["contact_facets"] >= (0 if flip else 4) and fig["obstructed_over_unobstructed"] == 0
     cl, bal, rows = _closure_rows(res)
     if flip:
-        bal &= (cl.lost[:, 0] == 0) & (cl.target[:, 0] == 1)
+        from radiosity.viewfactors.outputs import open_by_row
+
+        with open(tmp_path / "run" / "facets.csv") as f:
+            raw0 = np.array([float(r["row_sum_computed"]) for r in csv.DictReader(f)])
+        bal &= (cl.lost[:, 0] == 0) & (cl.target[:, 0] == 1) & ~open_by_row(raw0, acc)
     assert bal.sum() > 0.8 * len(rows) and np.abs(rows[bal] - 1).max() < 1e-12
     assert rows.max() <= 1 + 1e-12 and rows.min() >= 0
     with open(tmp_path / "run" / "facets.csv") as f:
@@ -811,3 +872,117 @@ def test_view_factors_of_a_small_mesh_run_in_process_from_a_plain_script(tmp_pat
     assert "Nanny" not in proc.stderr and "Traceback" not in proc.stderr
     assert float(proc.stdout.split("rows")[-1]) < 1e-12
     print(f"plain script: {wall:.1f} s")
+
+
+def _office_scene(window):
+    """tests/office.py's office (a room, a table of a top and four thin legs touching the
+    floor and the top, a lamp box under the ceiling: every part a closed box) as a
+    trimesh.Scene, each part a node: the mesh as a user brings it."""
+    import trimesh
+
+    from office import office_parts
+
+    s = trimesh.Scene()
+    for name, m in office_parts(window).items():
+        s.add_geometry(m, node_name=name)
+    return s
+
+
+@pytest.mark.slow
+def test_thin_table_legs_office_rows_before_and_after_balancing(client, tmp_path):
+    """The office with thin table legs (issue 53: rows reached 1.0135 at the default
+    accuracy), closed (no window): the 16 triangles of the legs' ends (on the floor, under the
+    table top) are contact facets (zero rows and columns); before any balancing every row lies
+    in [0, 1 + 5e-3] (measured 1.0044, a leg), the legs' side faces (touching the floor and the top
+    along an edge) included; after, the closed rows sum to 1 within 1e-12, no row above
+    1 + 1e-12, each row plus its view to the environment is 1, reciprocity to 1e-12, no
+    obstructed factor above the unobstructed one. With the window: open, nothing balanced,
+    every row at most 1."""
+    import csv
+
+    res = run(client, tmp_path, _office_scene(False), "closed")
+    fig, M, A = res.figures, res.matrix, res.area
+    assert fig["closed"] and fig["balanced"] and fig["balance_converged"]
+    assert fig["contact_facets"] == 16 and fig["obstructed_over_unobstructed"] == 0
+    with open(tmp_path / "closed" / "facets.csv") as f:
+        table = list(csv.DictReader(f))
+    raw, row, env = (np.array([float(r[k]) for r in table])
+                     for k in ("row_sum_computed", "row_sum", "environment"))
+    contact = np.array([r["contact"] == "1" for r in table])
+    legs = np.zeros(len(raw), bool)
+    legs[40:88] = True                               # room 28, top 12, then 4 legs of 12
+    assert raw.min() >= 0 and raw.max() <= 1 + 5e-3, raw.max()
+    assert raw[legs & ~contact].max() <= 1 + 5e-3 and (legs & contact).sum() == 16
+    assert np.abs(row[~contact] - 1).max() < 1e-12 and row.max() <= 1 + 1e-12
+    assert np.abs(row + env - 1).max() < 1e-15
+    assert abs(M[:, np.nonzero(contact)[0]]).sum() == 0
+    S = (sp.diags(A) @ M).toarray()
+    assert np.abs(S - S.T).max() < 1e-12
+    res = run(client, tmp_path, _office_scene(True), "window")
+    rows = np.asarray(res.matrix.sum(axis=1)).ravel()
+    assert not res.figures["closed"] and rows.max() <= 1 + 1e-12 and rows.min() >= 0
+    S = (sp.diags(res.area) @ res.matrix).toarray()
+    assert np.abs(S - S.T).max() < 1e-12
+
+
+@pytest.mark.slow
+def test_stl_mesh_reads_as_facets_and_through_the_cli(client, tmp_path):
+    """An STL file (what CAD exports; one facet per triangle, no materials): the facets of an
+    inward box, an enclosure whose rows sum to 1, from the API and the CLI (on the session's
+    cluster, and without one: on threads in this process)."""
+    import trimesh
+
+    room = trimesh.creation.box(extents=(2.0, 1.5, 1.0))
+    room.invert()
+    stl = str(tmp_path / "room.stl")
+    room.export(stl)
+    fac = load_facets(stl, settings_of())
+    assert len(fac) == 12 and fac.area.sum() == pytest.approx(room.area)
+    res = run(client, tmp_path, stl, "api")
+    assert res.figures["closed"]
+    assert np.abs(np.asarray(res.matrix.sum(axis=1)).ravel() - 1).max() < 1e-12
+    out = tmp_path / "cli"
+    r = CliRunner().invoke(main, ["viewfactors", stl, "--out", str(out), "--scheduler",
+                                  client.scheduler.address])
+    assert r.exit_code == 0, r.output
+    M = sp.load_npz(out / "viewfactors.npz")
+    assert abs(M - res.matrix).max() < 1e-15
+    # without a scheduler: a mesh this small runs on threads in this process, as a small render
+    r = CliRunner().invoke(main, ["viewfactors", stl, "--out", str(tmp_path / "local")])
+    assert r.exit_code == 0, r.output
+    assert "threads in this process (auto, 12 facets <= 1000)" in r.output, r.output
+    assert abs(sp.load_npz(tmp_path / "local" / "viewfactors.npz") - res.matrix).max() < 1e-15
+
+
+def test_open_scene_rows_that_see_out_are_not_balanced_whatever_the_closure_says(client, tmp_path,
+                                                                                monkeypatch):
+    """In an open scene auto balances the rows whose closure rays all met front faces; the
+    closure casts the same 16 directions from every facet of one orientation, and they can all
+    miss a window of sky (the lowest wall cells of the urban benchmark's street canyons: rows
+    0.88 balanced to 1). A box with a face missing, its closure made to report no lost ray on
+    any facet: the rows below 1 - 10 x the accuracy (all of them here) are only capped, as
+    open_by_row says, and the report counts them."""
+    import csv
+    import dataclasses
+
+    from radiosity.viewfactors import outputs
+
+    real = outputs.facet_closure
+
+    def blind(fac, ray_offset):  # every front side: no ray lost, target 1, exact
+        cl = real(fac, ray_offset)
+        one = np.zeros_like(cl.target)
+        one[:, 0] = 1.0
+        return dataclasses.replace(cl, lost=np.zeros_like(cl.lost), target=one,
+                                   exact=np.ones_like(cl.exact))
+
+    monkeypatch.setattr(outputs, "facet_closure", blind)
+    V, F = box([0, 0, 0], [1, 1, 1], 2)
+    res = run(client, tmp_path, (V, F[:-4]))
+    rows = np.asarray(res.matrix.sum(axis=1)).ravel()
+    fig = res.figures
+    assert not fig["closed"] and fig["rows_open_by_their_sum"] == 20
+    with open(tmp_path / "run" / "facets.csv") as f:
+        raw = np.array([float(r["row_sum_computed"]) for r in csv.DictReader(f)])
+    assert rows.max() < 0.99 and np.abs(rows - raw).max() < 1e-15    # as computed: not balanced
+    assert not fig["balanced"]

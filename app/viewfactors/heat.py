@@ -1,0 +1,309 @@
+"""Radiative heat exchange between the user's facets (issue 53): `radiosity heat SCENE --out
+DIR` and `radiosity.heat(scene)`. The view factors come from the view-factor stage (its run in
+DIR/viewfactors), the thermal inputs from viewfactors/thermal.py, the solve from
+core/netradiation.py; this module runs them in order and writes DIR/facets.csv, the
+conductances (conductances.npz, conductances_esatan.txt) and report.json's "heat" section.
+The method: docs/src/design/heat-method.md.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from radiosity.core.netradiation import (SIGMA, Conductances, HeatSolution, conductances,
+                                         network_heat, solve_heat)
+from radiosity.errors import RadiosityError
+from radiosity.runtime.store import StageFigures
+from radiosity.settings import HeatSettings, Settings
+from radiosity.viewfactors.facets import Facets
+from radiosity.viewfactors.thermal import HeatInputs, ThermalDefaults, heat_inputs
+
+FACET_COLUMNS = ("facet", "mesh", "material", "area_m2", "emissivity", "temperature_K",
+                 "radiosity_W_m2", "net_heat_flux_W_m2", "net_heat_W", "view_to_environment",
+                 "boundary")
+#: The ESATAN node number of the environment (the usual space node), unless the mesh has as
+#: many facets: then it is the number after the last facet's.
+ESATAN_SPACE_NODE = 99999
+
+
+@dataclass(frozen=True)
+class HeatFigures(StageFigures):
+    """report.json's "heat" section: the environment, the energy balance (the facets' net heat
+    and what the environment absorbs: equal within the solve's residual), per material sums,
+    the solve and the conductances (what was computed and how well it holds), the files."""
+
+    SECTION = "heat"
+    OPTIONAL = ("conductances",)
+    facets: int
+    live_facets: int
+    environment_K: float
+    length_unit_m: float
+    net_heat_W: float
+    environment_absorbed_W: float
+    energy_balance_W: float
+    materials: dict
+    solve_steps: int
+    solve_residual: float
+    conductances: dict | None
+    files: list
+    time_solve_s: float
+    time_conductances_s: float
+
+
+@dataclass
+class HeatResult:
+    """What `radiosity.heat` returns. facets: the facets (load order); inputs: their
+    emissivities and boundary conditions; area_m2 (n,); solution: the net radiation solution
+    (core.netradiation.HeatSolution); conductances: GR ((n+1) x (n+1), the environment last)
+    or None when not computed; viewfactors: the view-factor matrix (CSR n x n) it used;
+    figures: report.json's "heat" section."""
+
+    facets: Facets
+    inputs: HeatInputs
+    area_m2: np.ndarray
+    solution: HeatSolution
+    conductances: Conductances | None
+    viewfactors: object
+    live: np.ndarray
+    figures: HeatFigures
+
+    def table(self) -> dict:
+        """The columns of facets.csv as arrays (name -> (n,) array), in FACET_COLUMNS order."""
+        fac, inp, s = self.facets, self.inputs, self.solution
+        n = len(fac)
+        T = s.temperature
+        return {
+            "facet": np.arange(n),
+            "mesh": np.array([os.path.basename(fac.sources[k]) if fac.sources else "mesh"
+                              for k in fac.source], object),
+            "material": np.array([inp.material_names[m] for m in inp.material], object),
+            "area_m2": self.area_m2, "emissivity": inp.emissivity,
+            "temperature_K": np.where(self.live, T, np.where(inp.fixed_t, inp.temperature_K,
+                                                              np.nan)),
+            "radiosity_W_m2": np.where(self.live, s.radiosity, np.nan),
+            "net_heat_flux_W_m2": s.net_flux, "net_heat_W": s.net_flux * self.area_m2,
+            "view_to_environment": s.environment_view,
+            "boundary": np.where(~self.live, "contact",
+                                 np.where(inp.fixed_t, "temperature", "heat_flux")),
+        }
+
+
+def live_facets(vf_dir: str, n: int) -> np.ndarray:
+    """(n,) bool: the facets that take part, i.e. not covered by a touching surface (the
+    view-factor run's facets.csv, column contact)."""
+    live = np.ones(n, bool)
+    fn = os.path.join(vf_dir, "facets.csv")
+    if os.path.exists(fn):
+        with open(fn, newline="") as f:
+            for row in csv.DictReader(f):
+                if int(row.get("contact", 0) or 0):
+                    live[int(row["facet"])] = False
+    return live
+
+
+def solve_facets(fac: Facets, inp: HeatInputs, F, live: np.ndarray, hs: HeatSettings,
+                 echo=None) -> HeatResult:
+    """The net radiation solve (and the conductances, as hs.conductances says) of facets `fac`
+    with inputs `inp` on the view-factor matrix F (CSR n x n); live (n,) bool. No files."""
+    area = fac.area * inp.length_unit_m ** 2
+    Eenv = SIGMA * inp.environment_K ** 4
+    E = np.where(inp.fixed_t, SIGMA * np.nan_to_num(inp.temperature_K) ** 4, 0.0)
+    t0 = time.perf_counter()
+    sol = solve_heat(F, area, inp.emissivity, inp.fixed_t, E, inp.heat_flux, Eenv, live,
+                     tol=hs.tol, max_iterations=hs.max_iterations)
+    t_solve = time.perf_counter() - t0
+    if sol.residual > 1e3 * hs.tol:
+        raise RadiosityError(
+            f"the net radiation solve did not converge ({sol.steps} steps, residual "
+            f"{sol.residual:.3g} > radiosity.heat.tol {hs.tol:g}): a closed part of the mesh "
+            "whose every facet has a fixed heat flux has no temperature to hold on to; give "
+            "one of its materials a temperature_K")
+    nlive = int(live.sum())
+    mode = hs.conductances
+    want = mode in ("on", True) or (mode == "auto" and nlive <= hs.conductance_max_facets)
+    cond, t_cond, cfig = None, 0.0, None
+    if want:
+        n = len(area)
+        block = max(1, min(nlive, int(hs.conductance_block_mb * 2 ** 20 // (48 * max(1, n)))))
+        if echo:
+            echo(f"conductances: {nlive} facets, {-(-nlive // block)} blocks of {block} columns")
+        t0 = time.perf_counter()
+        cond = conductances(F, area, inp.emissivity, live, cutoff=hs.conductance_cutoff,
+                            block=block, tol=hs.tol, max_iterations=hs.max_iterations)
+        t_cond = time.perf_counter() - t0
+        cfig = _conductance_figures(cond, area, inp, sol, live)
+    elif echo:
+        echo(f"conductances: not computed ({nlive} facets > radiosity.heat.conductance-max-facets "
+             f"{hs.conductance_max_facets}; --conductances on computes them)"
+             if mode == "auto" else "conductances: not computed (--conductances off)")
+    net = sol.net_flux * area
+    mats = {}
+    for mi, name in enumerate(inp.material_names):
+        sel = (inp.material == mi) & live
+        mats[name] = {"facets": int(sel.sum()), "area_m2": float(area[sel].sum()),
+                      "net_heat_W": float(net[sel].sum()),
+                      "emissivity_min": float(inp.emissivity[sel].min(initial=np.inf)) if sel.any() else None,
+                      "temperature_K_min": float(sol.temperature[sel].min()) if sel.any() else None,
+                      "temperature_K_max": float(sol.temperature[sel].max()) if sel.any() else None}
+    fig = HeatFigures(
+        facets=len(area), live_facets=nlive, environment_K=inp.environment_K,
+        length_unit_m=inp.length_unit_m, net_heat_W=float(net.sum()),
+        environment_absorbed_W=sol.env_W, energy_balance_W=float(net.sum() - sol.env_W),
+        materials=mats, solve_steps=sol.steps, solve_residual=sol.residual,
+        conductances=cfig, files=[], time_solve_s=round(t_solve, 3),
+        time_conductances_s=round(t_cond, 3))
+    return HeatResult(fac, inp, area, sol, cond, F, live, fig)
+
+
+def _conductance_figures(cond: Conductances, area, inp: HeatInputs, sol: HeatSolution,
+                         live) -> dict:
+    """How the conductances hold: symmetry (exact by construction), rows against e_i A_i,
+    the heat they give for the solved temperatures against the solve's."""
+    GR = cond.GR
+    n = len(area)
+    ea = inp.emissivity * area
+    rows = np.asarray(GR.sum(axis=1)).ravel()[:n]
+    rel = np.where(live, np.abs(rows + cond.dropped - ea) / ea, 0.0)
+    Q = network_heat(GR, sol.emissive_power, SIGMA * inp.environment_K ** 4)
+    net = sol.net_flux * area
+    scale = max(float(np.abs(net).max(initial=0.0)), float((ea * sol.emissive_power).max(initial=0.0)))
+    return {"nonzeros": int(GR.nnz), "blocks": cond.blocks, "solve_steps": cond.steps,
+            "solve_residual": cond.residual,
+            "row_sum_relative_error_max": float(rel.max(initial=0.0)),
+            "dropped_relative_max": float((np.where(live, cond.dropped / ea, 0.0)).max(initial=0.0)),
+            "heat_relative_error_max": float(np.abs(Q - net).max(initial=0.0) / max(scale, 1e-300))}
+
+
+def write_outputs(res: HeatResult, out: str, hs: HeatSettings) -> list:
+    """DIR/facets.csv, and with conductances conductances.npz ((n+1) x (n+1) CSR, the
+    environment last) and conductances_esatan.txt (unless it would pass
+    radiosity.heat.esatan-max-conductors). Returns the file names."""
+    import scipy.sparse as sp
+
+    os.makedirs(out, exist_ok=True)
+    cols = res.table()
+    with open(os.path.join(out, "facets.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(FACET_COLUMNS)
+        for i in range(len(res.area_m2)):
+            w.writerow([v[i] if isinstance(v[i], (str, np.str_)) or k in ("facet",)
+                        else repr(float(v[i])) for k, v in cols.items()])
+    files = ["facets.csv"]
+    if res.conductances is not None:
+        sp.save_npz(os.path.join(out, "conductances.npz"), res.conductances.GR, compressed=True)
+        files.append("conductances.npz")
+        upper = sp.triu(res.conductances.GR, k=1)
+        if upper.nnz <= hs.esatan_max_conductors:
+            write_esatan(os.path.join(out, "conductances_esatan.txt"), res.conductances.GR,
+                         res.facets, res.inputs)
+            files.append("conductances_esatan.txt")
+    return files
+
+
+def esatan_node(i: int, n: int) -> int:
+    """The ESATAN node number of facet i (0-based) of n, i == n the environment."""
+    if i < n:
+        return i + 1
+    return ESATAN_SPACE_NODE if n < ESATAN_SPACE_NODE else n + 1
+
+
+def write_esatan(fn: str, GR, fac: Facets, inp: HeatInputs) -> None:
+    """GR as an ESATAN-TMS $CONDUCTORS block: one `GR(a, b) = value;` per conductor (a < b,
+    value m^2; the solver multiplies by sigma and the difference of the absolute temperatures
+    to the fourth), facet i the node i + 1, the environment node esatan_node(n, n)."""
+    import scipy.sparse as sp
+
+    n = GR.shape[0] - 1
+    U = sp.triu(GR, k=1).tocoo()
+    env = esatan_node(n, n)
+    with open(fn, "w") as f:
+        f.write(f"# radiative conductances GR (m^2) of {n} facets, radiosity heat\n"
+                f"# node a = facet a - 1 (facets.csv); node {env} = the environment "
+                f"({inp.environment_K:g} K)\n"
+                "# heat a -> b: GR(a, b) * sigma * (T_a^4 - T_b^4), T absolute\n$CONDUCTORS\n")
+        order = np.lexsort((U.col, U.row))
+        for r, c, v in zip(U.row[order].tolist(), U.col[order].tolist(), U.data[order].tolist()):
+            f.write(f"GR({esatan_node(r, n)}, {esatan_node(c, n)}) = {v!r};\n")
+
+
+def read_esatan(fn: str) -> list:
+    """[(a, b, GR)] of an ESATAN conductor list as write_esatan writes it (tests, users)."""
+    import re
+
+    pat = re.compile(r"^\s*GR\(\s*(\d+)\s*,\s*(\d+)\s*\)\s*=\s*([^;]+);")
+    out = []
+    with open(fn) as f:
+        for line in f:
+            m = pat.match(line)
+            if m:
+                out.append((int(m.group(1)), int(m.group(2)), float(m.group(3))))
+    return out
+
+
+def compute_heat(mesh, out: str, client, settings: Settings, defaults: ThermalDefaults, *,
+                 resume: bool = False, progress: bool = True, echo=None) -> HeatResult:
+    """Heat exchange between the facets of `mesh` (a scene TOML whose materials carry
+    emissivity and temperature_K or heat_flux_W_m2, or a mesh with `defaults` for every
+    facet) into the run directory `out`: the view factors (their run in out/viewfactors,
+    settings.viewfactors), the net radiation solve and the conductances (settings.heat),
+    facets.csv, conductances.npz, conductances_esatan.txt, report.json (section "heat").
+    echo(line): the stage lines (None: silent)."""
+    from radiosity.viewfactors.api import compute_viewfactors, load_facets
+
+    fac = load_facets(mesh, settings=settings)
+    inp = heat_inputs(mesh, fac, defaults)   # bad values fail before the view factors
+    vf_dir = os.path.join(out, "viewfactors")
+    vf = compute_viewfactors(fac, vf_dir, client, settings, resume=resume, progress=progress)
+    live = live_facets(vf_dir, len(fac))
+    if echo:
+        echo(f"heat: {int(live.sum())} facets, environment {inp.environment_K:g} K")
+    res = solve_facets(fac, inp, vf.matrix, live, settings.heat, echo=echo)
+    files = write_outputs(res, out, settings.heat)
+    res.figures = fig = dataclasses.replace(res.figures, files=files)
+    fig.write(out)
+    return res
+
+
+def heat(scene, *, emissivity: float | None = None, temperature_K: float | None = None,
+         heat_flux_W_m2: float | None = None, environment_K: float | None = None,
+         conductances: str | None = None, conductance_cutoff: float | None = None,
+         accuracy: float | None = None, enclosure: str | None = None, out: str | None = None,
+         client=None, workers: int | None = None, progress: bool = False,
+         settings: Settings | None = None) -> HeatResult:
+    """Radiative heat exchange between the facets of `scene`: a scene TOML whose materials
+    carry `emissivity` and `temperature_K` or `heat_flux_W_m2` (docs: how-to/heat.md), or a
+    mesh (path, trimesh.Trimesh, (vertices, faces)) whose every facet takes the keywords'
+    values. The keywords are defaults for what the file leaves out; environment_K: what the
+    facets see through openings (default the file's [environment], else 0 K).
+
+    Returns a HeatResult: `.table()` the facets.csv columns as arrays, `.solution` (radiosity,
+    net flux, temperatures), `.conductances.GR` (scipy.sparse, (n+1) x (n+1), the environment
+    last; None when not computed: conductances = auto | on | off), `.figures` the report.
+    out: run directory (default: a temporary one, removed after); client: a
+    distributed.Client (default: a local cluster of `workers`, on threads in this process for
+    small meshes); settings: a base settings.Settings, the options checked over it."""
+    import tempfile
+
+    from radiosity.runtime.cluster import local_mode, open_client
+    from radiosity.settings import options
+    from radiosity.viewfactors.api import IN_PROCESS_FACETS, load_facets
+
+    settings = options(settings, accuracy=accuracy, enclosure=enclosure,
+                       conductances=conductances, conductance_cutoff=conductance_cutoff)
+    defaults = ThermalDefaults(emissivity, temperature_K, heat_flux_W_m2, environment_K)
+    with tempfile.TemporaryDirectory(prefix="radiosity-heat-") as tmp:
+        run = out or tmp
+        if client is not None:
+            return compute_heat(scene, run, client, settings, defaults, progress=progress)
+        fac = load_facets(scene, settings=settings)
+        heat_inputs(scene, fac, defaults)   # bad values fail before a cluster starts
+        in_process, _ = local_mode(settings.cluster.processes, len(fac), IN_PROCESS_FACETS)
+        with open_client(workers, quiet=True, in_process=in_process,
+                         settings=settings.cluster) as c:
+            return compute_heat(scene, run, c, settings, defaults, progress=progress)

@@ -216,9 +216,9 @@ def conductances(F, area: np.ndarray, emissivity: np.ndarray, live: np.ndarray,
             dropped[c] += np.where(small_env, genv, 0.0)
             genv = np.where(small_env, 0.0, genv)
         i, k = np.nonzero(G)
-        rows_ += [i, np.full(b, n)]
-        cols_ += [c[k], c]
-        vals += [G[i, k], genv]
+        rows_ += [i, np.full(b, n), c]          # the environment's row and column: GR_j,env
+        cols_ += [c[k], c, np.full(b, n)]
+        vals += [G[i, k], genv, genv]
     if rows_:
         GR = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows_), np.concatenate(cols_))),
                            shape=(n + 1, n + 1))

@@ -18,7 +18,7 @@ _os.environ.setdefault("NUMBA_OPT", "1")
 _LAZY = {
     "render": ("radiosity.pipeline", "render"),
     "view_factors": ("radiosity.viewfactors.api", "viewfactors"),
-    "heat": ("radiosity.viewfactors.heat", "heat"),
+    "heat": ("radiosity.viewfactors.api", "heat"),
     "RadiosityError": ("radiosity.errors", "RadiosityError"),
 }
 

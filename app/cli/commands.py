@@ -20,6 +20,7 @@ from radiosity.cli.summary import (ARGV, REAL, T0, INTERRUPTED, NOT_CONVERGED, c
                                    finish_lines, friendly, record_run, mark_started, table_text,
                                    viewfactors_summary)
 from radiosity.cli.studies import study
+from radiosity.cli.heat import heat
 from radiosity.errors import RadiosityError
 from radiosity.runtime.precompile import with_helper
 
@@ -572,62 +573,8 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, work
     click.echo(f"wrote {out}/" + f", {out}/".join(res.figures["files"] + ["report.json"]))
 
 
-@main.command()
-@click.argument("scene", type=click.Path())
-@click.option("--out", "-o", required=True, type=click.Path(), help="Run directory to create.")
-@click.option("--emissivity", type=Finite(), default=None,
-              help="Every facet's emissivity in (0, 1] (a scene's materials override it).")
-@click.option("--temperature", type=Finite(), default=None, metavar="K",
-              help="Every facet's temperature in kelvin (materials override it).")
-@click.option("--heat-flux", type=Finite(), default=None, metavar="W_M2",
-              help="Every facet's net heat flux, W m^-2 leaving (0: reradiating).")
-@click.option("--environment-temperature", type=Finite(), default=None, metavar="K",
-              help="What the facets see through openings (default: the scene's "
-                   "[environment] temperature_K, else 0 K).")
-@click.option("--conductances", type=click.Choice(["auto", "on", "off"]), default=None,
-              help="Radiative conductances GR: auto (up to radiosity.heat.conductance-max-"
-                   "facets facets), on, off (default: radiosity.heat.conductances).")
-@click.option("--conductance-cutoff", type=Finite(min=0.0), default=None,
-              help="Drop conductors below this x sqrt(e_i A_i e_j A_j) (default 0: none).")
-@click.option("--accuracy", type=POSITIVE, default=None,
-              help="Target absolute error of each view factor (radiosity.viewfactors.accuracy).")
-@click.option("--enclosure", type=click.Choice(["auto", "on", "off"]), default=None,
-              help="Balance view-factor rows to 1 (radiosity.viewfactors.enclosure).")
-@click.option("--resume", is_flag=True, help="Keep the finished view-factor tasks in OUT.")
-@force_option
-@cluster_options
-@friendly
-def heat(scene, out, emissivity, temperature, heat_flux, environment_temperature, conductances,
-         conductance_cutoff, accuracy, enclosure, resume, force, workers, scheduler, cluster_kind):
-    """Radiative heat exchange between the facets of SCENE (a scene TOML whose materials carry
-    emissivity and temperature_K or heat_flux_W_m2, or a mesh with --emissivity and
-    --temperature or --heat-flux): net heat per facet and the conductances GR."""
-    from radiosity.runtime.checks import check_new_run_dir
-    from radiosity.runtime.runlock import run_lock
-    from radiosity.cli.summary import heat_summary
-    from radiosity.viewfactors.api import load_facets, resolve_params
-    from radiosity.viewfactors.heat import compute_heat
-    from radiosity.viewfactors.thermal import ThermalDefaults, heat_inputs
-
-    st = settings_from_flags(viewfactors__accuracy=accuracy, viewfactors__enclosure=enclosure,
-                             heat__conductances=conductances,
-                             heat__conductance_cutoff=conductance_cutoff)
-    resolve_params(settings=st)
-    defaults = ThermalDefaults(emissivity, temperature, heat_flux, environment_temperature)
-    fac = load_facets(scene, settings=st)
-    heat_inputs(scene, fac, defaults)  # bad values fail before the cluster starts
-    check_new_run_dir(out, force)
-    mark_started(out)
-    click.echo(f"{len(fac)} facets from {', '.join(fac.sources)}")
-    with run_lock(out, command_line()), run_client(workers, scheduler, cluster_kind) as client:
-        res = compute_heat(scene, out, client, st, defaults, resume=resume, echo=click.echo)
-        record_run(out, os.path.basename(scene))
-    click.echo(heat_summary(res.figures.to_dict(), finish_lines(out, [])))
-    click.echo(f"wrote {out}/" + f", {out}/".join(res.figures["files"] + ["report.json"])
-               + f"; the view factors in {out}/viewfactors")
-
-
 main.add_command(study)  # studies.py
+main.add_command(heat)  # heat.py
 
 
 if __name__ == "__main__":  # pragma: no cover

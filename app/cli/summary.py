@@ -246,24 +246,3 @@ def viewfactors_summary(fig: dict, extra: list = ()) -> str:
             ("time", f"{fig['time_s']:.2f} s"), *extra]
     return table_text(rows)
 
-
-def heat_summary(fig: dict, extra: list = ()) -> str:
-    """The heat command's summary table (report.json's "heat" section; extra: rows after it)."""
-    rows = [("facets", f"{fig['live_facets']} taking part of {fig['facets']}"),
-            ("environment", f"{fig['environment_K']:g} K, absorbs {fig['environment_absorbed_W']:.6g} W"),
-            ("net heat (facets)", f"{fig['net_heat_W']:.6g} W (energy balance "
-                                  f"{fig['energy_balance_W']:.3g} W)"),
-            ("solve", f"{fig['solve_steps']} steps, residual {fig['solve_residual']:.3g}")]
-    for name, m in fig["materials"].items():
-        if m["facets"]:
-            rows.append((f"material {name}",
-                         f"{m['facets']} facets, {m['area_m2']:.6g} m2, net {m['net_heat_W']:.6g} W, "
-                         f"{m['temperature_K_min']:.6g} .. {m['temperature_K_max']:.6g} K"))
-    c = fig.get("conductances")
-    rows.append(("conductances", "not computed" if not c else
-                 f"{c['nonzeros']} nonzeros, rows within {c['row_sum_relative_error_max']:.3g} "
-                 f"of e A (dropped {c['dropped_relative_max']:.3g}), heat within "
-                 f"{c['heat_relative_error_max']:.3g}"))
-    rows.append(("time", f"solve {fig['time_solve_s']:.2f} s, conductances "
-                         f"{fig['time_conductances_s']:.2f} s"))
-    return table_text(rows + list(extra))

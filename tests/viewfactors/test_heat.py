@@ -260,7 +260,8 @@ def test_bad_environment_and_options_are_one_line(tmp_path):
     obj = str(tmp_path / "box.obj")
     for args, needle in ((["--emissivity", "0.5"], "has neither temperature_K nor"),
                          (["--temperature", "300"], "has no emissivity"),
-                         (["--emissivity", "2", "--temperature", "300"], "--emissivity (emissivity=) = 2"),
+                         (["--emissivity", "2", "--temperature", "300"], "--emissivity"),
+                         (["--emissivity", "0.5", "--heat-flux", "nan"], "--heat-flux (heat_flux_W_m2=) = nan must be a finite number"),
                          (["--emissivity", "0.5", "--temperature", "300", "--heat-flux", "0"],
                           "are both set")):
         r = CliRunner().invoke(main, ["heat", obj, "--out", str(tmp_path / "o"), *args])

@@ -80,7 +80,8 @@ def part_solve(nb: int, workers: int) -> dict:
         # the heat stage alone again, its memory traced
         tracemalloc.start()
         t = time.perf_counter()
-        again = solve_facets(res.facets, res.inputs, res.viewfactors, res.live, st.heat)
+        again = solve_facets(res.facets, res.inputs, res.viewfactors, res.live, st.heat,
+        covered=res.covered)
         t_heat = time.perf_counter() - t
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
@@ -112,7 +113,8 @@ def part_conductances(nb: int, cutoffs: list, workers: int) -> list:
             load0 = loadavg()
             tracemalloc.start()
             t = time.perf_counter()
-            r = solve_facets(res.facets, res.inputs, res.viewfactors, res.live, st.heat)
+            r = solve_facets(res.facets, res.inputs, res.viewfactors, res.live, st.heat,
+            covered=res.covered)
             dt = time.perf_counter() - t
             _, peak = tracemalloc.get_traced_memory()
             tracemalloc.stop()

@@ -26,7 +26,7 @@ from radiosity.viewfactors.thermal import HeatInputs, ThermalDefaults, heat_inpu
 
 FACET_COLUMNS = ("facet", "mesh", "material", "area_m2", "emissivity", "temperature_K",
                  "radiosity_W_m2", "net_heat_flux_W_m2", "net_heat_W", "view_to_environment",
-                 "boundary")
+                 "boundary", "covered_fraction")
 #: The ESATAN node number of the environment (the usual space node), unless the mesh has as
 #: many facets: then it is the number after the last facet's.
 ESATAN_SPACE_NODE = 99999
@@ -42,6 +42,7 @@ class HeatFigures(StageFigures):
     OPTIONAL = ("conductances",)
     facets: int
     live_facets: int
+    partly_covered_facets: int
     environment_K: float
     length_unit_m: float
     net_heat_W: float
@@ -59,9 +60,11 @@ class HeatFigures(StageFigures):
 @dataclass
 class HeatResult:
     """What `radiosity.heat` returns. facets: the facets (load order); inputs: their
-    emissivities and boundary conditions; area_m2 (n,); solution: the net radiation solution
-    (core.netradiation.HeatSolution); conductances: GR ((n+1) x (n+1), the environment last)
-    or None when not computed; viewfactors: the view-factor matrix (CSR n x n) it used;
+    emissivities and boundary conditions; area_m2 (n,) the facets' areas; solution: the net
+    radiation solution (core.netradiation.HeatSolution, per m^2 of the uncovered part);
+    conductances: GR ((n+1) x (n+1), the environment last) or None when not computed;
+    viewfactors: the view-factor matrix (CSR n x n) it used; live (n,) bool: the facets that
+    take part; covered (n,): the part of each facet's front a touching surface covers;
     figures: report.json's "heat" section."""
 
     facets: Facets
@@ -71,6 +74,7 @@ class HeatResult:
     conductances: Conductances | None
     viewfactors: object
     live: np.ndarray
+    covered: np.ndarray
     figures: HeatFigures
 
     def table(self) -> dict:
@@ -87,31 +91,56 @@ class HeatResult:
             "temperature_K": np.where(self.live, T, np.where(inp.fixed_t, inp.temperature_K,
                                                               np.nan)),
             "radiosity_W_m2": np.where(self.live, s.radiosity, np.nan),
-            "net_heat_flux_W_m2": s.net_flux, "net_heat_W": s.net_flux * self.area_m2,
-            "view_to_environment": s.environment_view,
+            "net_heat_flux_W_m2": s.net_flux * (1 - self.covered),
+            "net_heat_W": s.net_flux * (1 - self.covered) * self.area_m2,
+            "view_to_environment": s.environment_view * (1 - self.covered),
             "boundary": np.where(~self.live, "contact",
                                  np.where(inp.fixed_t, "temperature", "heat_flux")),
+            "covered_fraction": self.covered,
         }
 
 
-def live_facets(vf_dir: str, n: int) -> np.ndarray:
-    """(n,) bool: the facets that take part, i.e. not covered by a touching surface (the
-    view-factor run's facets.csv, column contact)."""
+def facet_cover(vf_dir: str, F, closed_scene: bool) -> tuple:
+    """(live (n,) bool, covered (n,) float64) of the view-factor run in vf_dir (its
+    facets.csv) and its matrix F (CSR n x n). A facet covered by a touching surface (column
+    contact) takes no part. In a closed scene (closed_scene: the closure test's verdict), and
+    elsewhere on a facet whose side it finds closed (closure_target 1: every ray met
+    geometry), nothing sees the environment: what a row lacks of 1 is the part of the facet
+    that a touching surface covers (under a shelf's foot), which radiates nothing; a facet
+    wholly so takes no part either. Elsewhere covered is 0 and 1 - the row sum is the view to
+    the environment."""
+    n = F.shape[0]
     live = np.ones(n, bool)
+    closed = np.zeros(n, bool)
     fn = os.path.join(vf_dir, "facets.csv")
     if os.path.exists(fn):
         with open(fn, newline="") as f:
             for row in csv.DictReader(f):
-                if int(row.get("contact", 0) or 0):
-                    live[int(row["facet"])] = False
-    return live
+                i = int(row["facet"])
+                live[i] = not int(row.get("contact", 0) or 0)
+                closed[i] = closed_scene or float(row.get("closure_target", 0) or 0) >= 1.0
+    rows = np.asarray(F.sum(axis=1)).ravel()
+    covered = np.where(live & closed, np.clip(1.0 - rows, 0.0, 1.0), 0.0)
+    live &= covered < 1.0 - 1e-9
+    return live, np.where(live, covered, 0.0)
 
 
 def solve_facets(fac: Facets, inp: HeatInputs, F, live: np.ndarray, hs: HeatSettings,
-                 echo=None) -> HeatResult:
+                 echo=None, covered: np.ndarray | None = None) -> HeatResult:
     """The net radiation solve (and the conductances, as hs.conductances says) of facets `fac`
-    with inputs `inp` on the view-factor matrix F (CSR n x n); live (n,) bool. No files."""
-    area = fac.area * inp.length_unit_m ** 2
+    with inputs `inp` on the view-factor matrix F (CSR n x n); live (n,) bool; covered (n,):
+    the part of each facet that a touching surface covers (facet_cover; None: 0). A covered
+    part radiates nothing: the facet radiates from A (1 - covered) with its row divided by
+    (1 - covered), so that A F, reciprocity, is unchanged. No files."""
+    import scipy.sparse as sp
+
+    full = fac.area * inp.length_unit_m ** 2
+    covered = np.zeros(len(full)) if covered is None else np.asarray(covered, float)
+    keep = 1.0 - covered
+    area = full * keep
+    F0 = F
+    if covered.any():
+        F = sp.csr_matrix(sp.diags(1.0 / keep) @ F)
     Eenv = SIGMA * inp.environment_K ** 4
     E = np.where(inp.fixed_t, SIGMA * np.nan_to_num(inp.temperature_K) ** 4, 0.0)
     t0 = time.perf_counter()
@@ -146,19 +175,20 @@ def solve_facets(fac: Facets, inp: HeatInputs, F, live: np.ndarray, hs: HeatSett
     mats = {}
     for mi, name in enumerate(inp.material_names):
         sel = (inp.material == mi) & live
-        mats[name] = {"facets": int(sel.sum()), "area_m2": float(area[sel].sum()),
+        mats[name] = {"facets": int(sel.sum()), "area_m2": float(full[sel].sum()),
                       "net_heat_W": float(net[sel].sum()),
                       "emissivity_min": float(inp.emissivity[sel].min(initial=np.inf)) if sel.any() else None,
                       "temperature_K_min": float(sol.temperature[sel].min()) if sel.any() else None,
                       "temperature_K_max": float(sol.temperature[sel].max()) if sel.any() else None}
     fig = HeatFigures(
-        facets=len(area), live_facets=nlive, environment_K=inp.environment_K,
+        facets=len(area), live_facets=nlive, partly_covered_facets=int((covered > 0).sum()),
+        environment_K=inp.environment_K,
         length_unit_m=inp.length_unit_m, net_heat_W=float(net.sum()),
         environment_absorbed_W=sol.env_W, energy_balance_W=float(net.sum() - sol.env_W),
         materials=mats, solve_steps=sol.steps, solve_residual=sol.residual,
         conductances=cfig, files=[], time_solve_s=round(t_solve, 3),
         time_conductances_s=round(t_cond, 3))
-    return HeatResult(fac, inp, area, sol, cond, F, live, fig)
+    return HeatResult(fac, inp, full, sol, cond, F0, live, covered, fig)
 
 
 def _conductance_figures(cond: Conductances, area, inp: HeatInputs, sol: HeatSolution,
@@ -261,10 +291,10 @@ def compute_heat(mesh, out: str, client, settings: Settings, defaults: ThermalDe
     inp = heat_inputs(mesh, fac, defaults)   # bad values fail before the view factors
     vf_dir = os.path.join(out, "viewfactors")
     vf = compute_viewfactors(fac, vf_dir, client, settings, resume=resume, progress=progress)
-    live = live_facets(vf_dir, len(fac))
+    live, covered = facet_cover(vf_dir, vf.matrix, bool(vf.figures["closed"]))
     if echo:
         echo(f"heat: {int(live.sum())} facets, environment {inp.environment_K:g} K")
-    res = solve_facets(fac, inp, vf.matrix, live, settings.heat, echo=echo)
+    res = solve_facets(fac, inp, vf.matrix, live, settings.heat, echo=echo, covered=covered)
     files = write_outputs(res, out, settings.heat)
     res.figures = fig = dataclasses.replace(res.figures, files=files)
     fig.write(out)

@@ -67,7 +67,7 @@ def test_concentric_spheres_match_the_two_surface_formula(sphere_run):
     e = np.where(inner, 0.3, 0.6)
     T = np.where(inner, 500.0, 300.0)
     r = solve_facets(res.facets, with_inputs(res, emissivity=e, temperature_K=T),
-                     res.viewfactors, res.live, settings_of().heat)
+                     res.viewfactors, res.live, settings_of().heat, covered=res.covered)
     A1, A2 = res.area_m2[inner].sum(), res.area_m2[~inner].sum()
     q = SIGMA * A1 * (500.0 ** 4 - 300.0 ** 4) / (1 / 0.3 + A1 / A2 * (1 / 0.6 - 1))
     Q = r.solution.net_flux * res.area_m2
@@ -85,7 +85,8 @@ def test_isothermal_spheres_of_any_emissivities_have_no_net_flux(sphere_run, rng
     E = SIGMA * 300.0 ** 4
     assert np.abs(res.solution.net_flux).max() < 1e-9 * E
     r = solve_facets(res.facets, with_inputs(res, emissivity=rng.uniform(0.02, 1.0, n)),
-                     res.viewfactors, res.live, settings_of(conductances="off").heat)
+                     res.viewfactors, res.live, settings_of(conductances="off").heat,
+                     covered=res.covered)
     assert np.abs(r.solution.net_flux).max() < 1e-9 * E
     assert r.conductances is None
 
@@ -96,7 +97,8 @@ def test_black_spheres_net_flux_is_the_view_factor_sum(sphere_run, rng):
     n = len(res.area_m2)
     T = rng.uniform(250, 600, n)
     r = solve_facets(res.facets, with_inputs(res, emissivity=np.ones(n), temperature_K=T),
-                     res.viewfactors, res.live, settings_of(conductances="off").heat)
+                     res.viewfactors, res.live, settings_of(conductances="off").heat,
+                     covered=res.covered)
     E = SIGMA * T ** 4
     F = res.viewfactors
     q = np.asarray(F.sum(axis=1)).ravel() * E - F @ E
@@ -268,3 +270,30 @@ def test_bad_environment_and_options_are_one_line(tmp_path):
         assert r.exit_code == 2 and r.output.count("\n") == 1 and needle in r.output, r.output
     with pytest.raises(SceneError, match="environment_K"):
         heat_inputs(obj, load_facets(obj, settings_of()), ThermalDefaults(0.5, 300.0, None, -3.0))
+
+
+def test_furnished_room_with_contact_is_isothermal_to_1e_9(client, tmp_path, rng):
+    """The built-in furnished room (304 quads modelled with contact: a shelf on the floor,
+    table legs under its top): the facets covered by a touching surface take no part, the
+    partly covered ones radiate from their uncovered part only (their rows lack what is
+    covered; nothing of a closed room sees the environment), so at one temperature every net
+    flux is 0 within 1e-9 of sigma T^4 whatever the emissivities, and with other temperatures
+    the net heat sums to 0 (a closed room loses nothing)."""
+    from helpers import scene_path
+
+    res = compute_heat(scene_path("furnished-room"), str(tmp_path / "room"), client,
+                       settings_of(conductances="off"), ThermalDefaults(0.9, 300.0),
+                       progress=False)
+    t = res.table()
+    assert (t["boundary"] == "contact").sum() == 16
+    assert (t["covered_fraction"] > 1e-6).sum() >= 4
+    assert np.abs(t["view_to_environment"]).max() < 1e-12
+    E = SIGMA * 300.0 ** 4
+    assert np.abs(t["net_heat_flux_W_m2"]).max() < 1e-9 * E
+    n = len(res.area_m2)
+    inp = with_inputs(res, emissivity=rng.uniform(0.05, 1.0, n),
+                      temperature_K=rng.uniform(280.0, 320.0, n))
+    r = solve_facets(res.facets, inp, res.viewfactors, res.live, settings_of(conductances="off").heat,
+                     covered=res.covered)
+    Q = r.table()["net_heat_W"]
+    assert abs(Q.sum()) < 1e-9 * np.abs(Q).sum() and abs(r.figures.environment_absorbed_W) < 1e-9

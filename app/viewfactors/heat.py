@@ -103,24 +103,22 @@ class HeatResult:
 def facet_cover(vf_dir: str, F, closed_scene: bool) -> tuple:
     """(live (n,) bool, covered (n,) float64) of the view-factor run in vf_dir (its
     facets.csv) and its matrix F (CSR n x n). A facet covered by a touching surface (column
-    contact) takes no part. In a closed scene (closed_scene: the closure test's verdict), and
-    elsewhere on a facet whose side it finds closed (closure_target 1: every ray met
-    geometry), nothing sees the environment: what a row lacks of 1 is the part of the facet
-    that a touching surface covers (under a shelf's foot), which radiates nothing; a facet
-    wholly so takes no part either. Elsewhere covered is 0 and 1 - the row sum is the view to
-    the environment."""
+    contact) takes no part. In a closed scene (closed_scene: the closure test's verdict)
+    nothing sees the environment: what a row lacks of 1 is the part of the facet that a
+    touching surface covers (under a shelf's foot), which radiates nothing; a facet wholly so
+    takes no part either. In an open scene covered is 0 and 1 - the row sum is the view to
+    the environment (a facet's own closure target is not used: a few rays that all met
+    geometry do not make a side closed)."""
     n = F.shape[0]
     live = np.ones(n, bool)
-    closed = np.zeros(n, bool)
     fn = os.path.join(vf_dir, "facets.csv")
     if os.path.exists(fn):
         with open(fn, newline="") as f:
             for row in csv.DictReader(f):
                 i = int(row["facet"])
                 live[i] = not int(row.get("contact", 0) or 0)
-                closed[i] = closed_scene or float(row.get("closure_target", 0) or 0) >= 1.0
     rows = np.asarray(F.sum(axis=1)).ravel()
-    covered = np.where(live & closed, np.clip(1.0 - rows, 0.0, 1.0), 0.0)
+    covered = np.where(live & bool(closed_scene), np.clip(1.0 - rows, 0.0, 1.0), 0.0)
     live &= covered < 1.0 - 1e-9
     return live, np.where(live, covered, 0.0)
 

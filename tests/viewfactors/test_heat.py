@@ -166,7 +166,7 @@ def test_cli_heat_end_to_end_and_an_esatan_network_reproduces_it(client, tmp_pat
     rows = _rows(out / "facets.csv")
     assert list(rows[0]) == ["facet", "mesh", "material", "area_m2", "emissivity", "temperature_K",
                              "radiosity_W_m2", "net_heat_flux_W_m2", "net_heat_W",
-                             "view_to_environment", "boundary"]
+                             "view_to_environment", "boundary", "covered_fraction"]
     n = len(rows)
     assert n == 20
     hot = np.array([x["material"] == "hot" for x in rows])

@@ -297,6 +297,7 @@ class HeatSettings(_Section):
     conductance_max_facets: int
     conductance_cutoff: float
     conductance_block_mb: int
+    conductance_dense_facets: int
     esatan_max_conductors: int
 
 
@@ -458,6 +459,7 @@ CHECKS.update({
     "heat.max-iterations": _at_least(1), "heat.conductances": _ON_OFF,
     "heat.conductance-max-facets": _at_least(0), "heat.conductance-cutoff": _at_least(0),
     "heat.conductance-block-mb": _at_least(1), "heat.esatan-max-conductors": _at_least(0),
+    "heat.conductance-dense-facets": _at_least(0),
 })
 OPTIONS.update({"conductances": ("heat.conductances",),
                 "conductance_cutoff": ("heat.conductance-cutoff",)})

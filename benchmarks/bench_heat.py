@@ -98,7 +98,7 @@ def part_solve(nb: int, workers: int) -> dict:
                 "load": f"{load0} -> {loadavg()}"}
 
 
-def part_conductances(nb: int, cutoffs: list, workers: int) -> list:
+def part_conductances(nb: int, cutoffs: list, workers: int, dense: int | None = None) -> list:
     from radiosity.viewfactors.heat import compute_heat, solve_facets
     from radiosity.viewfactors.thermal import ThermalDefaults
 
@@ -110,6 +110,8 @@ def part_conductances(nb: int, cutoffs: list, workers: int) -> list:
                            ThermalDefaults(), progress=False)
         for cut in cutoffs:
             st = settings_of(conductances="on", conductance_cutoff=cut)
+            if dense is not None:
+                st = st.replace({"heat.conductance-dense-facets": dense})
             load0 = loadavg()
             tracemalloc.start()
             t = time.perf_counter()
@@ -120,6 +122,7 @@ def part_conductances(nb: int, cutoffs: list, workers: int) -> list:
             tracemalloc.stop()
             c = r.figures.conductances
             rows.append({"part": "conductances", "facets": len(res.area_m2), "cutoff": cut,
+                         "dense": len(res.area_m2) <= st.heat.conductance_dense_facets,
                          "vf_nonzeros": int(res.viewfactors.nnz), "gr_nonzeros": c["nonzeros"],
                          "fill": round(c["nonzeros"] / max(1, res.viewfactors.nnz), 2),
                          "blocks": c["blocks"], "time_s": round(dt, 1),
@@ -138,16 +141,20 @@ def main():
     ap.add_argument("--cutoffs", default="0,1e-6,1e-4")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--part", choices=["solve", "conductances", "both"], default="both")
+    ap.add_argument("--dense-facets", type=int, default=None,
+                    help="radiosity.heat.conductance-dense-facets (0: conjugate gradients)")
+    ap.add_argument("--name", default="heat", help="results/NAME.json")
     a = ap.parse_args()
     rows = []
     if a.part in ("solve", "both"):
         rows.append(part_solve(a.blocks, a.workers))
         print(table(rows, list(rows[0])))
     if a.part in ("conductances", "both"):
-        gr = part_conductances(a.blocks_gr, [float(x) for x in a.cutoffs.split(",")], a.workers)
+        gr = part_conductances(a.blocks_gr, [float(x) for x in a.cutoffs.split(",")], a.workers,
+                               a.dense_facets)
         print(table(gr, list(gr[0])))
         rows += gr
-    fn = write("heat", rows, {"args": vars(a)})
+    fn = write(a.name, rows, {"args": vars(a)})
     print(f"wrote {fn}")
 
 

@@ -162,7 +162,8 @@ def solve_facets(fac: Facets, inp: HeatInputs, F, live: np.ndarray, hs: HeatSett
             echo(f"conductances: {nlive} facets, {-(-nlive // block)} blocks of {block} columns")
         t0 = time.perf_counter()
         cond = conductances(F, area, inp.emissivity, live, cutoff=hs.conductance_cutoff,
-                            block=block, tol=hs.tol, max_iterations=hs.max_iterations)
+                            block=block, tol=hs.tol, max_iterations=hs.max_iterations,
+                            dense_max=hs.conductance_dense_facets)
         t_cond = time.perf_counter() - t0
         cfig = _conductance_figures(cond, area, inp, sol, live)
     elif echo:

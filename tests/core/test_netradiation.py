@@ -214,3 +214,18 @@ def test_block_cg_solves_every_column(rng):
     assert res < 1e-12 and steps < 500
     assert np.abs(X - np.linalg.solve(K, B)).max() < 1e-10 * np.abs(X).max()
     assert not X[:, 3].any()
+
+
+def test_dense_factorisation_gives_the_conjugate_gradients_conductances(rng):
+    """The dense Cholesky path (dense_max) and the block conjugate gradients agree to 1e-10 on
+    an open enclosure with black facets, in blocks of 4 columns."""
+    n = 30
+    F, A = open_enclosure(rng, n)
+    e = rng.uniform(0.1, 1.0, n)
+    e[[0, 9]] = 1.0
+    live = np.ones(n, bool)
+    cg = conductances(F, A, e, live, block=4, tol=1e-13).GR.toarray()
+    d = conductances(F, A, e, live, block=4, tol=1e-13, dense_max=n)
+    assert d.steps == 0 and d.residual < 1e-12
+    assert np.abs(d.GR.toarray() - cg).max() < 1e-10 * cg.max()
+    assert np.abs(d.GR.toarray() - dense_gebhart(F, A, e)).max() < 1e-10 * cg.max()

@@ -297,3 +297,18 @@ def test_furnished_room_with_contact_is_isothermal_to_1e_9(client, tmp_path, rng
                      covered=res.covered)
     Q = r.table()["net_heat_W"]
     assert abs(Q.sum()) < 1e-9 * np.abs(Q).sum() and abs(r.figures.environment_absorbed_W) < 1e-9
+
+
+def test_a_heat_scene_still_renders(tmp_path):
+    """The scene loader of renders accepts the heat keys (and ignores them): one scene file
+    serves `radiosity render`, `viewfactors` and `heat`."""
+    from radiosity.scene.load import load_scene
+
+    scene = _open_box_scene(tmp_path)
+    with open(scene, "a") as f:
+        f.write('\n[camera]\nposition = [0.5, 0.5, 3.0]\nlook_at = [0.5, 0.5, 0.0]\n'
+                'up = [0.0, 1.0, 0.0]\nfov_y = 40.0\nresolution = [8, 8]\n')
+    text = open(scene).read().replace("[material.hot]\n", "[material.hot]\nemission = [1, 1, 1]\n")
+    open(scene, "w").write(text.replace('path = "box.obj"\n', 'path = "box.obj"\nemissivity = 0.5\n', 1))
+    sc = load_scene(scene, settings=settings_of())
+    assert len(sc.elements.area) == 20 and sc.elements.emission.max() > 0

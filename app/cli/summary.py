@@ -245,4 +245,3 @@ def viewfactors_summary(fig: dict, extra: list = ()) -> str:
             ("obstructed > unobstructed", fig["obstructed_over_unobstructed"]),
             ("time", f"{fig['time_s']:.2f} s"), *extra]
     return table_text(rows)
-

@@ -35,7 +35,7 @@ ESATAN_SPACE_NODE = 99999
 @dataclass(frozen=True)
 class HeatFigures(StageFigures):
     """report.json's "heat" section: the environment, the energy balance (the facets' net heat
-    and what the environment absorbs: equal within the solve's residual), per material sums,
+    and what the environment absorbs: equal by reciprocity, rounding apart), per material sums,
     the solve and the conductances (what was computed and how well it holds), the files."""
 
     SECTION = "heat"

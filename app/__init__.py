@@ -1,7 +1,8 @@
 """Radiosity with simplified form factors (Debelov & Sattarov), as a Dask application.
 
 `radiosity.render(scene, out)` renders a scene, `radiosity.view_factors(mesh)` computes the
-view factors between a mesh's facets; both raise `radiosity.RadiosityError` on bad input.
+view factors between a mesh's facets, `radiosity.heat(scene)` the radiative heat exchange
+between them; all raise `radiosity.RadiosityError` on bad input.
 """
 
 import os as _os
@@ -17,6 +18,7 @@ _os.environ.setdefault("NUMBA_OPT", "1")
 _LAZY = {
     "render": ("radiosity.pipeline", "render"),
     "view_factors": ("radiosity.viewfactors.api", "viewfactors"),
+    "heat": ("radiosity.viewfactors.api", "heat"),
     "RadiosityError": ("radiosity.errors", "RadiosityError"),
 }
 

@@ -287,10 +287,26 @@ class ViewFactorSettings(_Section):
     balance_max_iterations: int
     csv_max_nonzeros: int
 
+@dataclass(frozen=True)
+class HeatSettings(_Section):
+    """radiosity.heat.* (radiosity heat: viewfactors/heat.py, core/netradiation.py)"""
+
+    SECTION: ClassVar[str] = "heat"
+    tol: float
+    max_iterations: int
+    conductances: str
+    conductance_max_facets: int
+    conductance_cutoff: float
+    conductance_block_mb: int
+    conductance_dense_facets: int
+    esatan_max_conductors: int
+
+
 SECTIONS = {c.SECTION: c for c in (SceneSettings, RaySettings, SubdivideSettings, PlanSettings,
                                    VisibilitySettings, SolveSettings, HierarchySettings,
                                    DirectSettings, ImageSettings, ClusterSettings, ReferenceSettings,
                                    ViewFactorSettings)}
+SECTIONS[HeatSettings.SECTION] = HeatSettings
 
 
 @dataclass(frozen=True)
@@ -309,6 +325,7 @@ class Settings:
     cluster: ClusterSettings
     reference: ReferenceSettings
     viewfactors: ViewFactorSettings
+    heat: HeatSettings
 
     def replace(self, overrides: dict | None = None) -> "Settings":
         """A copy with `{"section.key": value}` applied (None values are skipped: not given)."""
@@ -438,6 +455,16 @@ CHECKS = {
     "reference.spp": _at_least(1), "reference.passes": _at_least(1),
     "reference.seed": _at_least(0),
 }
+# radiosity heat's settings (radiosity.heat.*)
+CHECKS.update({
+    "heat.tol": (lambda v: math.isfinite(v) and 0 < v < 1, "a number in (0, 1)"),
+    "heat.max-iterations": _at_least(1), "heat.conductances": _ON_OFF,
+    "heat.conductance-max-facets": _at_least(0), "heat.conductance-cutoff": _at_least(0),
+    "heat.conductance-block-mb": _at_least(1), "heat.esatan-max-conductors": _at_least(0),
+    "heat.conductance-dense-facets": _at_least(0),
+})
+OPTIONS.update({"conductances": ("heat.conductances",),
+                "conductance_cutoff": ("heat.conductance-cutoff",)})
 _FLAGS = {key: name for name, keys in OPTIONS.items() for key in keys}
 
 

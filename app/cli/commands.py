@@ -21,6 +21,7 @@ from radiosity.cli.summary import (ARGV, REAL, T0, INTERRUPTED, NOT_CONVERGED, c
                                    viewfactors_summary)
 from radiosity.cli.grids import grid_command
 from radiosity.cli.studies import study
+from radiosity.cli.heat import heat
 from radiosity.errors import RadiosityError
 from radiosity.runtime.precompile import with_helper
 
@@ -581,6 +582,7 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, work
 
 main.add_command(study)  # studies.py
 main.add_command(grid_command)  # grids.py: calculation grids on a solved run
+main.add_command(heat)  # heat.py
 
 
 def _luminaire_count(elements) -> int:

@@ -43,6 +43,12 @@ _SEED_KEYS = {"center", "x", "y", "z", "focal_distance", "resolution"}
 _TOP_KEYS = {"name", "description", "mesh", "material", "camera", "validation"}
 _TOP_KEYS |= {"luminaire"}  # [[luminaire]] tables: scene/luminaires.py
 _VALIDATION_KEYS = {"form_factor", "from", "to", "radiance", "kind", "emitter", "receiver"}
+# radiosity heat's keys (viewfactors/thermal.py): a render ignores them, so that one scene
+# file serves both (docs/src/reference/scenes.md#heat)
+_HEAT_KEYS = {"emissivity", "temperature_K", "heat_flux_W_m2"}
+_MESH_KEYS |= _HEAT_KEYS
+_MATERIAL_KEYS |= _HEAT_KEYS
+_TOP_KEYS |= {"environment", "heat"}
 
 
 # ----------------------------------------------------------------------------- scene file

@@ -62,3 +62,42 @@ def viewfactors(mesh, *, accuracy: float | None = None, enclosure: str | None = 
                          settings=settings.cluster) as c:
             return compute_viewfactors(mesh, run, c, settings, resume=resume,
                                        progress=progress).matrix
+
+
+def heat(scene, *, emissivity: float | None = None, temperature_K: float | None = None,
+         heat_flux_W_m2: float | None = None, environment_K: float | None = None,
+         conductances: str | None = None, conductance_cutoff: float | None = None,
+         accuracy: float | None = None, enclosure: str | None = None, out: str | None = None,
+         client=None, workers: int | None = None, progress: bool = False,
+         settings: Settings | None = None):
+    """Radiative heat exchange between the facets of `scene`: a scene TOML whose materials
+    carry `emissivity` and `temperature_K` or `heat_flux_W_m2` (docs: how-to/heat.md), or a
+    mesh (path, trimesh.Trimesh, (vertices, faces)) whose every facet takes the keywords'
+    values. The keywords are defaults for what the file leaves out; environment_K: what the
+    facets see through openings (default the file's [environment], else 0 K).
+
+    Returns a viewfactors.heat.HeatResult: `.table()` the facets.csv columns as arrays, `.solution` (radiosity,
+    net flux, temperatures), `.conductances.GR` (scipy.sparse, (n+1) x (n+1), the environment
+    last; None when not computed: conductances = auto | on | off), `.figures` the report.
+    out: run directory (default: a temporary one, removed after); client: a
+    distributed.Client (default: a local cluster of `workers`, on threads in this process for
+    small meshes); settings: a base settings.Settings, the options checked over it."""
+    import tempfile
+
+    from radiosity.runtime.cluster import local_mode, open_client
+    from radiosity.viewfactors.heat import compute_heat
+    from radiosity.viewfactors.thermal import ThermalDefaults, heat_inputs
+
+    settings = options(settings, accuracy=accuracy, enclosure=enclosure,
+                       conductances=conductances, conductance_cutoff=conductance_cutoff)
+    defaults = ThermalDefaults(emissivity, temperature_K, heat_flux_W_m2, environment_K)
+    with tempfile.TemporaryDirectory(prefix="radiosity-heat-") as tmp:
+        run = out or tmp
+        if client is not None:
+            return compute_heat(scene, run, client, settings, defaults, progress=progress)
+        fac = load_facets(scene, settings=settings)
+        heat_inputs(scene, fac, defaults)   # bad values fail before a cluster starts
+        in_process, _ = local_mode(settings.cluster.processes, len(fac), IN_PROCESS_FACETS)
+        with open_client(workers, quiet=True, in_process=in_process,
+                         settings=settings.cluster) as c:
+            return compute_heat(scene, run, c, settings, defaults, progress=progress)

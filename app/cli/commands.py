@@ -20,6 +20,7 @@ from radiosity.cli.summary import (ARGV, REAL, T0, INTERRUPTED, NOT_CONVERGED, c
                                    finish_lines, friendly, record_run, mark_started, table_text,
                                    viewfactors_summary)
 from radiosity.cli.studies import study
+from radiosity.cli.radiance import radiance_options, radiance_reference
 from radiosity.errors import RadiosityError
 from radiosity.runtime.precompile import with_helper
 
@@ -482,19 +483,7 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Seed of the first pass.")
 @click.option("--variant", type=click.Choice(["auto", "llvm_ad_rgb", "scalar_rgb"]), default=None,
               help="Mitsuba variant (default: radiosity.reference.variant, auto).")
-@click.option("--engine", type=click.Choice(["mitsuba", "radiance"]), default="mitsuba",
-              show_default=True, help="mitsuba: the camera's image, path-traced; radiance: "
-              "illuminance at --points with Radiance's rtrace (pyradiance).")
-@click.option("--points", "points_csv", default=None, type=click.Path(),
-              help="Radiance: CSV of the points, header x,y,z,nx,ny,nz; writes OUT/points.csv.")
-@click.option("--quality", type=click.Choice(["draft", "medium", "high", "reference"]),
-              default="reference", show_default=True,
-              help="Radiance: settings level (docs: Ground truth, Radiance).")
-@click.option("--emitters", type=click.Choice(["sources", "glow"]), default="sources",
-              show_default=True, help="Radiance: emitters as light sources (direct sampling) "
-              "or as glowing surfaces found by ambient rays only (large emitters).")
-@click.option("--processes", type=POSITIVE_INT, default=1, show_default=True,
-              help="Radiance: rtrace processes (-n).")
+@radiance_options
 @force_option
 @friendly
 def reference(scene, out, spp, passes, resolution, seed, variant, engine, points_csv, quality,
@@ -506,9 +495,9 @@ def reference(scene, out, spp, passes, resolution, seed, variant, engine, points
     from radiosity.validation.reference import make_reference
 
     if engine == "radiance" or points_csv is not None:
-        return _reference_radiance(scene, out, engine, points_csv, quality, emitters, processes,
-                                   force, {"--spp": spp, "--passes": passes, "--seed": seed,
-                                           "--variant": variant, "--resolution": resolution})
+        return radiance_reference(scene, out, engine, points_csv, quality, emitters, processes,
+                                  force, {"--spp": spp, "--passes": passes, "--seed": seed,
+                                          "--variant": variant, "--resolution": resolution})
     st = settings_from_flags()
     sc = _load_scene(scene, resolution, st)
     check_new_run_dir(out, force)
@@ -523,40 +512,6 @@ def reference(scene, out, spp, passes, resolution, seed, variant, engine, points
                                 f"{fig['rel_stderr_p99']:.3g}"),
         ("time", f"{fig['time_s']:.1f} s")]))
     click.echo(f"wrote {out}/reference.exr, reference-stderr.exr, reference.json")
-
-
-def _reference_radiance(scene, out, engine, points_csv, quality, emitters, processes, force,
-                        mitsuba_only: dict) -> None:
-    """`radiosity reference --engine radiance`: illuminance at the points of a CSV file."""
-    from radiosity.runtime.checks import check_new_run_dir
-    from radiosity.validation.radiance import make_radiance_reference, radiance_env, read_points
-
-    if engine != "radiance":
-        raise RadiosityError("--points is for --engine radiance (Mitsuba renders the camera's image)")
-    given = [k for k, v in mitsuba_only.items() if v is not None]
-    if given:
-        raise RadiosityError(f"{given[0]} is for --engine mitsuba (Radiance traces --points)")
-    if points_csv is None:
-        raise RadiosityError("--engine radiance needs --points FILE.csv (header x,y,z,nx,ny,nz)")
-    radiance_env()  # one line saying how to install it, before anything is loaded
-    st = settings_from_flags()
-    sc = _load_scene(scene, None, st)
-    P, N = read_points(points_csv)
-    check_new_run_dir(out, force)
-    fig = make_radiance_reference(sc, P, N, out, quality=quality, emitters=emitters,
-                                  processes=processes, echo=click.echo)
-    med = fig["rel_stderr_median"]
-    click.echo(table_text([
-        ("points", f"{fig['points']} x {fig['quality']['repeats']} repeats ({fig['radiance_version']})"),
-        ("settings", f"{quality}: {fig['rtrace']}"),
-        ("ambient bounces", f"{fig['ambient_bounces']} (max reflectance {fig['max_reflectance']:.3g}: "
-                            f"light dropped <= {fig['truncation_bound']:.2g})"),
-        ("illuminance", f"min {fig['lux_min']:.4g}, mean {fig['lux_mean']:.4g}, max "
-                        f"{fig['lux_max']:.4g} lx"),
-        ("relative std. error", "-" if med is None else
-         f"median {med:.3g}, max {fig['rel_stderr_max']:.3g}"),
-        ("time", f"{fig['time_s']:.1f} s")]))
-    click.echo(f"wrote {out}/points.csv, radiance.json, scene.rad, scene.oct")
 
 
 @main.command()

@@ -216,6 +216,13 @@ def test_reference_command_with_radiance(tmp_path):
         assert r.exit_code == 2 and f"error: {msg}" in r.output, r.output
 
 
+def test_the_command_offers_every_quality():
+    from radiosity.cli.radiance import QUALITIES as offered
+    from radiosity.validation.radiance import QUALITIES
+
+    assert tuple(QUALITIES) == offered
+
+
 def test_without_pyradiance_the_command_says_how_to_install(monkeypatch, tmp_path):
     from radiosity.cli.commands import main
 

@@ -94,15 +94,25 @@ def main() -> None:
     ap.add_argument("--levels", default="draft,medium")
     ap.add_argument("--truth", default="high")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--reuse", action="store_true",
+                    help="reuse OUT/ours and its time from an earlier run of this script")
     a = ap.parse_args()
     base = a.out or tempfile.mkdtemp(prefix="bench-radiance-")
     scene = office(os.path.join(base, "office"))
     cli = [sys.executable, "-m", "radiosity.cli"]
     load0 = open("/proc/loadavg").read().split()[:3]
 
-    run([*cli, "render", scene, "--out", os.path.join(base, "warm"), "--resolution", "8", "--force"])
-    t_ours = run([*cli, "render", scene, "--out", os.path.join(base, "ours"), "--resolution",
-                  str(a.res), "--force"])
+    timed = os.path.join(base, "ours-time.json")
+    if a.reuse and os.path.isfile(timed):
+        with open(timed) as f:
+            t_ours = json.load(f)["time_s"]
+    else:
+        run([*cli, "render", scene, "--out", os.path.join(base, "warm"), "--resolution", "8",
+             "--force"])
+        t_ours = run([*cli, "render", scene, "--out", os.path.join(base, "ours"), "--resolution",
+                      str(a.res), "--force"])
+        with open(timed, "w") as f:
+            json.dump({"time_s": t_ours, "loadavg": open("/proc/loadavg").read().split()[:3]}, f)
     t = np.genfromtxt(os.path.join(base, "ours", "elements.csv"), delimiter=",", names=True,
                       dtype=None, encoding="utf-8")
     floor = np.flatnonzero((t["normal_z"] > 0.99) & (np.abs(t["center_z"]) < 1e-9)

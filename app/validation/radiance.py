@@ -242,10 +242,25 @@ def radiance_scene(scene: Scene, source_size: float = 0.02,
     return "\n".join(lines) + "\n", "".join(cal)
 
 
+def point_source(name: str, position, intensity, radius: float) -> str:
+    """Radiance text of an isotropic point source: a `light` sphere of `radius` (scene units)
+    at `position` whose radiance I / (pi r^2) gives the intensity `intensity` (3,) W sr^-1 per
+    channel (cd / 683 for a grey source) in every direction: a sphere of radiance L shows
+    pi r^2 L to any point outside it, so E = I / d^2 at normal incidence, exactly. The hook for
+    the luminaires of issue 52 (point sources; IES ones through ies2rad), once scenes have
+    them: `radiance_scene`'s text plus one of these per source."""
+    L = np.asarray(intensity, np.float64) / (math.pi * float(radius) ** 2)
+    x, y, z = (float(c) for c in position)
+    return (f"void light {name}.m 0 0 3 {_rgb(L)}\n"
+            f"{name}.m sphere {name} 0 0 4 {x:.17g} {y:.17g} {z:.17g} {float(radius):.17g}\n")
+
+
 def write_octree(scene: Scene, workdir: str, source_size: float, env: dict,
-                 emitters: str = "sources") -> str:
-    """scene.rad, side.cal and scene.oct in `workdir`; returns the octree's path."""
+                 emitters: str = "sources", extra: str = "") -> str:
+    """scene.rad (plus `extra` Radiance text: `point_source`s), side.cal and scene.oct in
+    `workdir`; returns the octree's path."""
     text, cal = radiance_scene(scene, source_size, emitters)
+    text += extra
     with open(os.path.join(workdir, "side.cal"), "w") as f:
         f.write(cal)
     with open(os.path.join(workdir, "scene.rad"), "w") as f:
@@ -289,13 +304,15 @@ def _check_points(points, normals) -> tuple[np.ndarray, np.ndarray]:
 
 
 def illuminance(scene: Scene, points, normals, quality: Quality | str = "reference",
-                emitters: str = "sources", processes: int = 1, echo=None, workdir: str | None = None) -> PointIlluminance:
+                emitters: str = "sources", processes: int = 1, echo=None,
+                workdir: str | None = None, extra: str = "") -> PointIlluminance:
     """Illuminance at `points` (p, 3) on surfaces facing `normals` (p, 3) (scene units;
     normalised here), by Radiance: `rtrace -I` with `quality`'s settings, each point traced
     `repeats` times in one process (independent estimates: uncorrelated sampling, no cache).
     The points need not lie on a surface; a point on one should be on its lit side. They are
     moved 1e-6 of the scene's diagonal along their normal, off a surface they lie on.
-    emitters: "sources" or "glow" (`radiance_scene`). processes: rtrace -n. workdir: keep scene.rad / scene.oct there (None: a temporary one)."""
+    emitters: "sources" or "glow" (`radiance_scene`). extra: more Radiance text (sources
+    the scene file cannot say yet: `point_source`). processes: rtrace -n. workdir: keep scene.rad / scene.oct there (None: a temporary one)."""
     q = named_quality(quality) if isinstance(quality, str) else quality
     P, N = _check_points(points, normals)
     env = radiance_env()
@@ -304,7 +321,7 @@ def illuminance(scene: Scene, points, normals, quality: Quality | str = "referen
     with tempfile.TemporaryDirectory(prefix="radiance-") as tmp:
         wd = workdir or tmp
         os.makedirs(wd, exist_ok=True)
-        oct_ = write_octree(scene, wd, q.source_size, env, emitters)
+        oct_ = write_octree(scene, wd, q.source_size, env, emitters, extra)
         t_oct = time.perf_counter() - t0
         if echo:
             echo(f"Radiance ({radiance_version(env)}): {len(P)} points x {q.repeats} repeats, "

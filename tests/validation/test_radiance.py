@@ -162,6 +162,21 @@ def test_closed_grey_box_is_le_over_one_minus_rho_within_two_percent():
 
 
 @pytest.mark.needs("radiance")
+def test_isotropic_point_source_1000_cd_at_3_m_gives_111_lux(tmp_path):
+    """The hook for point luminaires: 1 000 cd (1000 / 683 W sr^-1 grey) 3 m above a black
+    floor: 111.11 lx straight below, I cos / d^2 beside it."""
+    from radiosity.validation.radiance import illuminance, point_source
+
+    sc = _panel(tmp_path)  # its panel is 1 m up: the points below look away from it
+    src = point_source("lamp", [0.0, 0.0, -3.0], np.full(3, 1000.0 / 683.0), 0.01)
+    P = np.array([[0.0, 0.0, -6.0], [1.0, 0.0, -6.0]])
+    N = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    r = illuminance(sc, P, N, "medium", extra=src)
+    exact = np.array([1000.0 / 9.0, 1000.0 * 3.0 / 10.0 ** 1.5])
+    assert np.all(np.abs(r.lux / exact - 1) <= 0.002), r.lux / exact - 1
+
+
+@pytest.mark.needs("radiance")
 @pytest.mark.slow
 def test_cornell_floor_agrees_with_the_engine_within_two_percent(client, tmp_path):
     """The engine's lux per floor sub-element (elements.csv's illuminance) against Radiance at

@@ -206,7 +206,7 @@ def test_cornell_floor_agrees_with_the_engine_within_two_percent(client, tmp_pat
 # ----------------------------------------------------------------------------- the command
 
 @pytest.mark.needs("radiance")
-def test_reference_command_with_radiance(tmp_path):
+def test_reference_command_with_radiance(tmp_path, monkeypatch):
     from radiosity.cli.commands import main
 
     path = write_scene(tmp_path, PANEL, PANEL_MATERIALS, camera=PANEL_CAMERA)
@@ -214,9 +214,10 @@ def test_reference_command_with_radiance(tmp_path):
     P, N = _panel_points()
     pts.write_text("x,y,z,nx,ny,nz\n" + "".join(",".join(f"{v:.17g}" for v in [*p, *n]) + "\n"
                                                 for p, n in zip(P, N)))
-    out = tmp_path / "ref"
-    r = CliRunner().invoke(main, ["reference", path, "--engine", "radiance", "--points", str(pts),
-                                  "--out", str(out), "--quality", "draft"])
+    out = tmp_path / "runs" / "ref"
+    monkeypatch.chdir(tmp_path)  # relative paths, as people type them
+    r = CliRunner().invoke(main, ["reference", "scene.toml", "--engine", "radiance", "--points",
+                                  "pts.csv", "--out", "runs/ref", "--quality", "draft"])
     assert r.exit_code == 0, r.output
     t = np.genfromtxt(out / "points.csv", delimiter=",", names=True)
     assert list(t.dtype.names[:8]) == ["x", "y", "z", "nx", "ny", "nz", "illuminance_lux",

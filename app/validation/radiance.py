@@ -32,7 +32,10 @@ INSTALL = "pip install pyradiance (or pip install -e '.[reference]')"
 EFFICACY = 683.0
 #: The side function of one-sided and two-coloured surfaces: 1 on the front (Rdot > 0: the
 #: ray arrives against the surface normal), 0 on the back.
-SIDE_CAL = "side = if(Rdot, 1, 0);\n"
+SIDE_CAL = ("side = if(Rdot, 1, 0);\n"
+            # the skies of `sky_text`: A1 the zenith's radiance, A2 the ground's
+            "radiosity_overcast = if(Dz, A1 * (1 + 2 * Dz) / 3, A2);\n"
+            "radiosity_uniform = if(Dz, A1, A2);\n")
 #: Distance of an emitter's light source in front of its surface, in scene diagonals (above
 #: Radiance's own ray epsilon for scenes of a millimetre or more).
 SOURCE_OFFSET = 1e-5
@@ -253,6 +256,26 @@ def point_source(name: str, position, intensity, radius: float) -> str:
     x, y, z = (float(c) for c in position)
     return (f"void light {name}.m 0 0 3 {_rgb(L)}\n"
             f"{name}.m sphere {name} 0 0 4 {x:.17g} {y:.17g} {z:.17g} {float(radius):.17g}\n")
+
+
+def sky_text(kind: str, horizontal_lux: float, ground_reflectance: float) -> str:
+    """Radiance text of a sky (core/sky.py: "cie-overcast" or "uniform") that gives
+    `horizontal_lux` on an unobstructed horizontal plane, over a ground of
+    `ground_reflectance`, +z up: a `glow` over the whole sphere of directions (a `source` of
+    360 degrees) whose `brightfunc` is the exact distribution (side.cal's radiosity_overcast),
+    found by ambient rays (-ab >= 1). Not gensky's own sky: its skybright.cal blends sky and
+    ground near the horizon (weights (Dz + 1.01)^+-10), which moves a vertical plane's light.
+    Grey, in our units: lux / 683 per channel."""
+    from radiosity.core.sky import SKY_TYPES, zenith_luminance
+
+    if kind not in SKY_TYPES:
+        raise ReferenceError(f"sky type {kind!r}: one of {', '.join(SKY_TYPES)}")
+    eh = float(horizontal_lux) / EFFICACY
+    fn = "radiosity_overcast" if kind == "cie-overcast" else "radiosity_uniform"
+    return (f"void brightfunc radiosity_sky 2 {fn} side.cal 0 2 "
+            f"{zenith_luminance(kind, eh):.17g} {float(ground_reflectance) * eh / math.pi:.17g}\n"
+            "radiosity_sky glow radiosity_sky_glow 0 0 4 1 1 1 0\n"
+            "radiosity_sky_glow source radiosity_sky_dome 0 0 4 0 0 1 360\n")
 
 
 def write_octree(scene: Scene, workdir: str, source_size: float, env: dict,

@@ -248,3 +248,49 @@ def test_without_pyradiance_the_command_says_how_to_install(monkeypatch, tmp_pat
                                   "--points", str(pts), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2
     assert r.output.strip().splitlines()[-1].startswith("error: Radiance (pyradiance) is not installed")
+
+
+# ----------------------------------------------------------------------------- daylight
+
+def test_overcast_sky_on_a_vertical_plane_is_0_396_of_the_horizontal():
+    """The analytic sky component, by integration over the hemisphere a vertical plane faces:
+    CIE overcast pi/6 + 4/9 over 7 pi / 9 = 0.3962 of Eh, uniform 1/2; the ground half adds
+    rho_g Eh / 2."""
+    from radiosity.core.sky import luminance
+
+    n = 400
+    theta = (np.arange(n) + 0.5) / n * math.pi  # from the zenith, the whole sphere
+    phi = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * math.pi
+    T, F = np.meshgrid(theta, phi, indexing="ij")
+    dw = np.sin(T) * (math.pi / n) * (math.pi / n)
+    for kind, ratio in (("cie-overcast", (math.pi / 6 + 4 / 9) / (7 * math.pi / 9)),
+                        ("uniform", 0.5)):
+        L = luminance(kind, 10_000.0, 0.2, np.cos(T))
+        horizontal = (L * np.maximum(np.cos(T), 0) * dw).sum()
+        vertical = (L * np.maximum(np.sin(T) * np.cos(F), 0) * dw).sum()
+        assert horizontal == pytest.approx(10_000.0, rel=1e-4)
+        assert vertical == pytest.approx(10_000.0 * (ratio + 0.2 / 2), rel=1e-4)
+    assert (math.pi / 6 + 4 / 9) / (7 * math.pi / 9) == pytest.approx(0.3962, abs=1e-4)
+
+
+SPECK = """
+v 0 0 -100
+v 0.001 0 -100
+v 0 0.001 -100
+f 1 2 3
+"""
+
+
+@pytest.mark.needs("radiance")
+@pytest.mark.parametrize("kind, vertical", [("cie-overcast", (math.pi / 6 + 4 / 9) / (7 * math.pi / 9)),
+                                            ("uniform", 0.5)])
+def test_radiance_sky_gives_eh_on_the_horizontal_and_the_analytic_vertical(tmp_path, kind, vertical):
+    from radiosity.validation.radiance import illuminance, sky_text
+
+    sc = _load(write_scene(tmp_path, SPECK, "[material.default]\nreflectance = [0, 0, 0]\n",
+                           camera=PANEL_CAMERA))
+    P = np.zeros((3, 3))
+    N = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0]])
+    r = illuminance(sc, P, N, "medium", extra=sky_text(kind, 10_000.0, 0.2))
+    exact = 10_000.0 * np.array([1.0, vertical + 0.1, vertical + 0.1])
+    assert np.all(np.abs(r.lux / exact - 1) <= 0.01), r.lux / exact - 1

@@ -40,6 +40,12 @@ def missing(component: str) -> str | None:
         except ImportError as e:
             return f"mitsuba is not installed ({e}): pip install mitsuba"
         return None
+    if component == "radiance":
+        try:
+            import pyradiance  # noqa: F401
+        except ImportError as e:
+            return f"pyradiance is not installed ({e}): pip install pyradiance"
+        return None
     if component in ("sbatch", "squeue"):
         return None if shutil.which(component) else f"{component} is not on PATH"
     raise ValueError(f"unknown component {component!r}")

@@ -22,6 +22,7 @@ from radiosity.cli.summary import (ARGV, REAL, T0, INTERRUPTED, NOT_CONVERGED, c
 from radiosity.cli.grids import grid_command
 from radiosity.cli.studies import study
 from radiosity.cli.heat import heat
+from radiosity.cli.radiance import radiance_options, radiance_reference
 from radiosity.errors import RadiosityError
 from radiosity.runtime.precompile import with_helper
 
@@ -486,14 +487,21 @@ def render(scene, out, resolution, subpixel, task_unit, resume, preview, full, f
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Seed of the first pass.")
 @click.option("--variant", type=click.Choice(["auto", "llvm_ad_rgb", "scalar_rgb"]), default=None,
               help="Mitsuba variant (default: radiosity.reference.variant, auto).")
+@radiance_options
 @force_option
 @friendly
-def reference(scene, out, spp, passes, resolution, seed, variant, force):
+def reference(scene, out, spp, passes, resolution, seed, variant, engine, points_csv, quality,
+              emitters, processes, force):
     """Ground truth: SCENE path-traced by Mitsuba 3 (the same elements, materials, sides and
-    camera); mean radiance, per-pixel standard error and figures into OUT."""
+    camera); mean radiance, per-pixel standard error and figures into OUT. With --engine
+    radiance: illuminance at the --points by Radiance instead (OUT/points.csv)."""
     from radiosity.runtime.checks import check_new_run_dir
     from radiosity.validation.reference import make_reference
 
+    if engine == "radiance" or points_csv is not None:
+        return radiance_reference(scene, out, engine, points_csv, quality, emitters, processes,
+                                  force, {"--spp": spp, "--passes": passes, "--seed": seed,
+                                          "--variant": variant, "--resolution": resolution})
     st = settings_from_flags()
     sc = _load_scene(scene, resolution, st)
     check_new_run_dir(out, force)

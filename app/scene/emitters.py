@@ -17,7 +17,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from radiosity.core.colour import EFFICACY
-from radiosity.errors import RadiosityError
+from radiosity.core.sky import SKY_TYPES, luminance as sky_luminance, zenith_luminance
+from radiosity.errors import RadiosityError, SceneError
 
 #: What a scene without an emitter is told (a warning: it renders black, runtime/checks.py).
 NO_EMITTER = "no element emits light (every emission is 0)"
@@ -311,3 +312,111 @@ def point_emitters(elements) -> PointEmitters:
 def emits(elements) -> bool:
     """Whether anything in the scene emits light: an emitting material or a luminaire."""
     return AreaEmitters(elements).any() or point_emitters(elements).any()
+
+
+# ----------------------------------------------------------------------------- the sky
+# Issue 52's daylight: a CIE standard overcast or uniform sky over a uniform ground
+# (core/sky.py), at infinity, given by its unobstructed horizontal illuminance. A sample is a
+# direction placed SKY_FAR scene diagonals from the scene's centre, and its intensity is scaled
+# by the squared distance to each receiving point, so `irradiance`'s I cos / r^2 is L w cos,
+# the sky's own integral. Not wired yet: scene files cannot say `[sky]` and the direct stage
+# asks only the area emitters; this is the tested piece for that work.
+
+#: Lux per W of Rec. 709 Y (stages/tables.py EFFICACY): the sky's lux become W per channel.
+SKY_EFFICACY = EFFICACY
+#: How far the samples stand, in scene diagonals: directions as seen from any point of the
+#: scene then differ from the sample's own by at most about 1e-6 rad.
+SKY_FAR = 1e6
+SKY_KEYS = {"type", "horizontal_illuminance_lux", "ground_reflectance", "up"}
+
+
+class SkyEmitter:
+    """kind: "cie-overcast" | "uniform"; horizontal_lux: Eh; ground_reflectance: rho_g in
+    [0, 1); up (3,): the zenith; centre (3,), diagonal: the scene's, for where samples stand.
+    Grey: every channel carries Eh / 683 W m^-2."""
+
+    kind = "sky"
+
+    def __init__(self, sky: str, horizontal_lux: float, ground_reflectance: float = 0.0,
+                 up=(0.0, 0.0, 1.0), centre=(0.0, 0.0, 0.0), diagonal: float = 1.0):
+        if sky not in SKY_TYPES:
+            raise SceneError(f"[sky] type {sky!r}: one of {', '.join(SKY_TYPES)}")
+        if not (horizontal_lux > 0 and math.isfinite(horizontal_lux)):
+            raise SceneError(f"[sky] horizontal_illuminance_lux must be a positive number, got "
+                             f"{horizontal_lux!r}")
+        if not 0.0 <= ground_reflectance < 1.0:
+            raise SceneError(f"[sky] ground_reflectance must be in [0, 1), got {ground_reflectance!r}")
+        up = np.asarray(up, np.float64)
+        if up.shape != (3,) or not np.linalg.norm(up) > 0:
+            raise SceneError(f"[sky] up must be a non-zero vector [x, y, z], got {up.tolist()!r}")
+        self.sky, self.eh, self.rho_g = sky, float(horizontal_lux) / SKY_EFFICACY, float(ground_reflectance)
+        self.up = up / np.linalg.norm(up)
+        self.centre = np.asarray(centre, np.float64)
+        self.radius = SKY_FAR * float(diagonal)
+        self.diagonal = float(diagonal)
+
+    @classmethod
+    def of_scene(cls, elements, entries=()) -> "SkyEmitter":
+        """The registry's constructor from the scene's one `[sky]` table (a dict; none: the
+        defaults, a CIE overcast sky of 10 000 lx over a black ground)."""
+        entries = list(entries)
+        if len(entries) > 1:
+            raise SceneError(f"a scene has one [sky], got {len(entries)}")
+        entry = entries[0] if entries else {}
+        extra = set(entry) - SKY_KEYS
+        if extra:
+            raise SceneError(f"[sky]: unknown key {sorted(extra)[0]!r} (known: {', '.join(sorted(SKY_KEYS))})")
+        v = np.asarray(elements.verts, np.float64).reshape(-1, 3)
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        return cls(str(entry.get("type", "cie-overcast")),
+                   float(entry.get("horizontal_illuminance_lux", 10_000.0)),
+                   float(entry.get("ground_reflectance", 0.0)), entry.get("up", (0.0, 0.0, 1.0)),
+                   (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0)
+
+    def radiance(self, directions: np.ndarray) -> np.ndarray:
+        """(k,) W sr^-1 m^-2 per channel toward unit `directions` (k, 3) (away from the scene)."""
+        return sky_luminance(self.sky, self.eh, self.rho_g, np.asarray(directions) @ self.up)
+
+    def _basis(self) -> np.ndarray:
+        a = np.array([1.0, 0.0, 0.0]) if abs(self.up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u = np.cross(self.up, a)
+        u /= np.linalg.norm(u)
+        return np.stack([u, np.cross(self.up, u), self.up])
+
+    # ---------------------------------------------------------------- the Emitter protocol
+    def power(self) -> np.ndarray:
+        """(3,) W: the flux the sky sends down through a horizontal disc of the scene's
+        half-diagonal (a sky's own power is unbounded; this is the scale the scene sees)."""
+        return np.full(3, self.eh * math.pi * (self.diagonal / 2) ** 2)
+
+    def sample(self, n: int, rng: np.random.Generator | None = None) -> EmitterSamples:
+        """2 n x n equal solid-angle strata of the sphere (cos of the zenith angle in [-1, 1],
+        n x 2n cells of the azimuth; the horizon is a stratum edge), one direction each;
+        weight = the stratum's solid angle (sr)."""
+        n = int(n)
+        i, j = np.meshgrid(np.arange(n), np.arange(2 * n), indexing="ij")
+        off = np.full((2, n, 2 * n), 0.5) if rng is None else rng.random((2, n, 2 * n))
+        c = (-1.0 + 2.0 * (i + off[0]) / n).ravel()
+        phi = (2.0 * math.pi * (j + off[1]) / (2 * n)).ravel()
+        s = np.sqrt(np.maximum(0.0, 1.0 - c * c))
+        local = np.stack([s * np.cos(phi), s * np.sin(phi), c], axis=1)
+        d = local @ self._basis()
+        k = len(d)
+        return EmitterSamples(self.centre + self.radius * d, np.zeros((k, 3)),
+                              np.full(k, 4.0 * math.pi / k), np.zeros(k, np.int64))
+
+    def intensity(self, samples: EmitterSamples, points: np.ndarray) -> np.ndarray:
+        """(p, k, 3) W sr^-1: L(direction k) w_k |y_k - x_p|^2, so that the protocol's
+        I cos / r^2 is L w cos (the sky at infinity)."""
+        d = (samples.position - self.centre) / self.radius
+        L = self.radiance(d) * samples.weight                                   # (k,)
+        r2 = ((samples.position[None] - np.asarray(points, np.float64)[:, None]) ** 2).sum(axis=2)
+        return np.repeat((L[None] * r2)[..., None], 3, axis=2)
+
+    def irradiance_bound(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """(3,) W m^-2: pi times the largest radiance of sky and ground, whatever the box."""
+        top = zenith_luminance(self.sky, self.eh)  # the brightest sky direction: the zenith
+        return np.full(3, math.pi * max(top, self.rho_g * self.eh / math.pi))
+
+
+EMITTER_TYPES["sky"] = SkyEmitter

@@ -48,8 +48,12 @@ def test_area_emitters_follow_the_protocol_and_the_registry():
 
 
 def test_unknown_emitter_type_lists_the_known_ones():
-    with pytest.raises(RadiosityError, match=r"unknown emitter type 'ies': one of area, point$"):
+    from radiosity.scene.emitters import EMITTER_TYPES
+
+    known = ", ".join(sorted(EMITTER_TYPES))  # area, sky, ...
+    with pytest.raises(RadiosityError, match=rf"unknown emitter type 'ies': one of {known}$"):
         emitter_type("ies")
+    assert known.startswith("area, ")
 
 
 def test_power_is_le_pi_area_per_channel(rng):

@@ -152,13 +152,14 @@ def visibility(run_dir, task_unit, resume, kernel, workers, scheduler, cluster_k
     from radiosity.runtime.checks import check_run_dir
     from radiosity.runtime.runlock import run_lock
     from radiosity.runtime.store import RunStore
+    from radiosity.scene.luminaires import luminaires_of
 
     st = settings_from_flags(solve__kernel=kernel, hierarchy__kernel=kernel)
     check_run_dir(run_dir)
     rs = RunStore(run_dir)
     part = rs.load_partition()
     name, why = choose_method(len(part), st, originals=len(part.offsets) - 1,
-                              point_sources=_luminaire_count(rs.load_elements()))
+                              point_sources=len(luminaires_of(rs.load_elements())))
     method = get_method(name)
     click.echo(f"method: {why}")
     method.check(rs, st)  # bad settings fail before a cluster starts
@@ -401,6 +402,7 @@ def plan(scene, resolution, subpixel, tol):
     from radiosity.methods.base import choose_method, get_method, stated_method
     from radiosity.pipeline import direct_choice, scene_plan
     from radiosity.scene.effects import describe
+    from radiosity.scene.luminaires import luminaires_of
     from radiosity.runtime.checks import check_scene
 
     st = settings_from_flags(subdivide__subpixel=subpixel, solve__tol=tol)
@@ -415,7 +417,7 @@ def plan(scene, resolution, subpixel, tol):
     method, why = choose_method(planned.sub_elements, st, originals=len(sc.elements),
                                 facing_pairs=est.get("facing_original_pairs",
                                                      est.get("facing_original_pairs_estimate")),
-                                point_sources=_luminaire_count(sc.elements))
+                                point_sources=len(luminaires_of(sc.elements)))
     click.echo(f"method: {why}")
     click.echo(f"direct light: {direct_choice(method, sc.elements, st)[1]}")
     for line in get_method(method).plan_lines(st, planned.sub_elements, len(sc.elements), why):
@@ -591,13 +593,6 @@ def viewfactors(mesh, out, accuracy, enclosure, fmt, cutoff, resume, force, work
 main.add_command(study)  # studies.py
 main.add_command(grid_command)  # grids.py: calculation grids on a solved run
 main.add_command(heat)  # heat.py
-
-
-def _luminaire_count(elements) -> int:
-    """How many luminaires (point sources) travel with the elements (scene/luminaires.py)."""
-    from radiosity.scene.luminaires import luminaires_of
-
-    return len(luminaires_of(elements))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -46,10 +46,10 @@ def test_sky_settings_are_checked():
 
 
 def test_sky_through_shadow_rays_open_floor_and_closed_box(tmp_path):
-    """direct.sky_irradiance: on an open floor the horizontal point gets Eh and a vertical one
+    """daylight.sky_irradiance: on an open floor the horizontal point gets Eh and a vertical one
     0.3962 Eh (black ground: the floor hides nothing of the sky); inside a closed box, nothing."""
     from helpers import write_scene
-    from radiosity.scene.direct import sky_irradiance
+    from radiosity.scene.daylight import sky_irradiance
     from radiosity.scene.load import load_scene
     from radiosity.settings import options
     from radiosity.tracing.rays import caster_of

@@ -215,6 +215,8 @@ class DirectSettings(_Section):
     samples: int
     leaf_points: int
     auto_share: float
+    oracle: str
+    smooth_floor: float
 
 
 @dataclass(frozen=True)
@@ -436,6 +438,9 @@ CHECKS = {
     "reference.spp": _at_least(1), "reference.passes": _at_least(1),
     "reference.seed": _at_least(0),
 }
+# the oracle with the emitters' light at points (methods/hierarchical/params.smooth_weights)
+CHECKS.update({"direct.oracle": _one_of("smooth", "plain"),
+               "direct.smooth-floor": (lambda v: math.isfinite(v) and v >= 0, "a number >= 0")})
 _FLAGS = {key: name for name, keys in OPTIONS.items() for key in keys}
 
 

@@ -52,9 +52,8 @@ class LinkParams:
     without a list walk N occluder-tree nodes for one in it (refine.RefineParams.hull); 0 (the
     default: none pays for its cost, docs/src/design/methods-hierarchical-links.md): the
     boxes' shafts alone. smooth (direct.oracle smooth, with direct): the oracle weighs links by
-    the light after the first bounce relative to the receiver's own (smooth_weights);
-    balanced: the solve balances the rows to 1 (a closed scene: links_balanced), so sources
-    weigh by how far that light is from its mean, plus smooth_floor times the mean."""
+    how far the light after the first bounce is from its mean, relative to the receiver's own
+    radiance (smooth_weights, smooth_floor)."""
 
     epsilon: float
     shadow: float
@@ -73,15 +72,14 @@ class LinkParams:
     solids: bool = True
     hull_shafts: int = 0
     smooth: bool = False
-    balanced: bool = False
     smooth_floor: float = 0.25
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
-    def smooth_args(self) -> tuple[bool, float] | None:
-        """smooth_weights' (balanced, floor), None where the oracle is not smooth."""
-        return (self.balanced, self.smooth_floor) if self.smooth and self.direct else None
+    def smooth_args(self) -> float | None:
+        """smooth_weights' floor, None where the oracle is not smooth."""
+        return self.smooth_floor if self.smooth and self.direct else None
 
     def kernel_params(self) -> RefineParams:
         """The scalars the refinement kernels read (refine.RefineParams)."""
@@ -148,7 +146,7 @@ def direct_estimate(elements, ray_offset: float) -> np.ndarray:
 
 
 def oracle_weights(elements, weight: str, direct: np.ndarray | None = None,
-                   smooth: tuple[bool, float] | None = None):
+                   smooth: float | None = None):
     """The oracle's weights: link p <- q counts F_pq * wrho[p, side] * lhat[q, side] / lref.
 
     none: all 1 (form factors alone). bf: wrho = the largest channel of the reflectance of that
@@ -179,7 +177,7 @@ def oracle_weights(elements, weight: str, direct: np.ndarray | None = None,
     lhat = np.asarray(direct, np.float64) + La * r
     if smooth is None:
         return rho, lhat, lref
-    return smooth_weights(elements, rho, lhat, lref, direct, *smooth)
+    return smooth_weights(elements, rho, lhat, lref, direct, smooth)
 
 
 def ambient(elements) -> tuple[float, float, float]:
@@ -194,21 +192,23 @@ def ambient(elements) -> tuple[float, float, float]:
     return E, r, E * r / (1.0 - r)
 
 
-def smooth_weights(elements, wrho, lhat, lref, direct, balanced: bool, floor: float):
-    """The oracle's weights where the emitters' light is taken at points and links carry only
-    R, the light after its first bounce (direct.oracle smooth, SPEC §10;
+def smooth_weights(elements, wrho, lhat, lref, direct, floor: float):
+    """The oracle's weights where the emitters' light is taken at points and the links carry
+    only R, the light after its first bounce (direct.oracle smooth, SPEC §10;
     docs/src/design/direct-light.md, "The oracle after the split"). Two changes to
     oracle_weights':
 
     - receiving: a link's error counts relative to the receiver's own radiance where that is
       above lref (wrho times lref / max(lref, Le + L1 + rho La), per side): under strong direct
-      light the light the links bring is a small share of what the image shows there;
-    - sending, when the rows are balanced to 1 (`balanced`: a closed scene, links_balanced):
-      the solve, its final gather and the views' gather scale each leaf's row of form factors
-      to 1, so a uniform R is carried exactly however coarse the links; a link's error is its
-      form factor's error times how far its source's R is from uniform. lhat = |lhat - La| +
-      floor La: the distance from the mean R (La) plus `floor` of it for what the balancing
-      does not make exact (the sum over links taken at different levels).
+      light what the links bring is a small share of what the image shows there;
+    - sending: R is smooth, about its mean La everywhere but where the first bounce adds to
+      it. A uniform R reaches a receiver through its links as the sum of their form factors,
+      which the links to one receiver get right together (the sum of the mean over the
+      receiver of every F is the mean of the fraction of its hemisphere that meets geometry;
+      exactly where the rows are balanced to 1, in closed scenes) even where each one alone is
+      off: a link's error is its form factor's error times how far its source's R is from
+      uniform, lhat = |lhat - La| + floor La (never above lhat), the floor for the uniform part
+      the sum does not get right (links to one receiver at different levels).
 
     Returns wrho, lhat, lref."""
     _, _, La = ambient(elements)
@@ -216,18 +216,20 @@ def smooth_weights(elements, wrho, lhat, lref, direct, balanced: bool, floor: fl
     em = AreaEmitters(elements).peak()
     own = em + np.asarray(direct, np.float64) + rho * La
     wrho = np.asarray(wrho, np.float64) * (lref / np.maximum(own, lref))
-    if balanced and La > 0:
+    if La > 0:
         lhat = smooth_source(lhat, La, floor)
     return wrho, lhat, lref
 
 
 def smooth_source(lhat: np.ndarray, mean: float, floor: float) -> np.ndarray:
-    """A source's smooth weight (smooth_weights, balanced): |lhat - mean| + floor mean."""
-    return np.abs(np.asarray(lhat, np.float64) - mean) + float(floor) * mean
+    """A source's smooth weight (smooth_weights): |lhat - mean| + floor mean, never above lhat
+    (a source dimmer than the mean carries no more than its own light)."""
+    lhat = np.asarray(lhat, np.float64)
+    return np.minimum(lhat, np.abs(lhat - mean) + float(floor) * mean)
 
 
 def cluster_weights(elements, weight: str, seen: np.ndarray, importance: float,
-                    direct: np.ndarray | None = None, smooth: tuple[bool, float] | None = None):
+                    direct: np.ndarray | None = None, smooth: float | None = None):
     """The cluster layer's oracle weights: oracle_weights, with the receiving weight wrho of
     the originals no camera sees (`seen` False) times `importance` (Smits, Arvo & Salesin
     1992's importance, one value for all unseen receivers): their light reaches the image only
@@ -314,8 +316,7 @@ def resolve_params(elements, settings, occlusion: bool = True,
 
 
 def smooth_params(settings) -> dict:
-    """LinkParams' smooth and smooth_floor from direct.oracle and direct.smooth-floor (balanced
-    is the closure's: links_balanced)."""
+    """LinkParams' smooth and smooth_floor from direct.oracle and direct.smooth-floor."""
     d = settings.direct
     mode = d.oracle
     if mode not in ("smooth", "plain"):
@@ -324,33 +325,3 @@ def smooth_params(settings) -> dict:
     if not floor >= 0:
         raise RadiosityError(f"radiosity.direct.smooth-floor must be >= 0, got {floor}")
     return {"smooth": mode == "smooth", "smooth_floor": floor}
-
-
-def links_balanced(run_dir: str, elements, settings) -> bool:
-    """Will the solve balance the rows to 1 (stages/solve.row_mode 'closed')? solve.normalise-rows
-    as stated, else (auto) the closure: solve.closure as stated, else the plan's in run_dir's
-    report.json (pipeline.scene_plan), else detected from the geometry (scene/closure.py)."""
-    import json
-    import os
-
-    from radiosity.runtime.store import REPORT
-    from radiosity.scene.closure import detect_closure
-
-    mode = {True: "cap", False: "off", None: "auto"}.get(settings.solve.normalise_rows,
-                                                          settings.solve.normalise_rows)
-    if mode != "auto":
-        return mode == "closed"
-    stated = {True: "on", False: "off", None: "auto"}.get(settings.solve.closure,
-                                                          settings.solve.closure)
-    if stated in ("on", "off"):
-        return stated == "on"
-    fn = os.path.join(run_dir, REPORT)
-    if os.path.exists(fn):
-        try:
-            with open(fn) as f:
-                closed = json.load(f).get("plan", {}).get("closure", {}).get("closed")
-        except (OSError, ValueError):
-            closed = None
-        if closed is not None:
-            return bool(closed)
-    return detect_closure(elements, float(settings.rays.offset)).closed

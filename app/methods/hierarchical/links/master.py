@@ -21,7 +21,7 @@ from radiosity.core.arrays import unique
 from radiosity.methods.hierarchical.links.nodes import new_table
 from radiosity.methods.hierarchical.params import (LinkParams, choose_epsilon, cluster_weights,
                                                    direct_estimate, oracle_weights, resolve_params)
-from radiosity.methods.hierarchical.params import ambient, links_balanced
+from radiosity.methods.hierarchical.params import ambient
 from radiosity.methods.hierarchical.links.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
                                                    Tree, refine, roots)
@@ -80,7 +80,7 @@ class LinkInputs:
         # the mean R and floor a source's solved radiance is weighed by in rounds (views/rounds.py):
         # as params.smooth_weights weighs the a-priori one; None: by itself
         sm = params.smooth_args()
-        self.smooth = (ambient(elements)[2], sm[1]) if sm and sm[0] and weight == "bf" else None
+        self.smooth = (ambient(elements)[2], sm) if sm is not None and weight == "bf" else None
         self.elo, self.ehi, self.enormal, self.eoffset, self.pad = occluders(elements)
         self.otree = occluder_tree(elements, self.elo, self.ehi)
         self.verts = elements.verts
@@ -282,8 +282,6 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
     seen = seen_originals(raster["orig"], len(el))  # by the run's own camera
     _, why = choose_epsilon(s, raster["orig"].size)
     prm, weight = resolve_params(el, s, occlusion, pixels=raster["orig"].size)
-    if prm.smooth and prm.direct:  # SPEC §10: does the solve balance the rows (a closed scene)?
-        prm = dataclasses.replace(prm, balanced=links_balanced(rs.run_dir, el, s))
     unit = s.hierarchy.task_unit if unit is None else unit
     if unit == "auto":
         unit = choose_unit(s.visibility.task_unit, len(el), int(s.visibility.stripe_threshold))

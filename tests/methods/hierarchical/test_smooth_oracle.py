@@ -43,14 +43,14 @@ def test_smooth_weights_are_the_light_after_the_first_bounce_off_its_mean():
 
 
 def test_the_oracle_setting_reaches_the_link_params_and_refuses_bad_values():
-    """smooth (the default) only with the emitters' light at points; plain keeps the first
+    """smooth only with the emitters' light at points; plain (the default) keeps the first
     round's weights; a bad value is one line naming the setting."""
     el = load_scene(scene_path("cornell-box"), settings=settings_of()).elements
-    prm, _ = resolve_params(el, settings_of(direct="points"))
+    smooth = settings_of(direct="points").replace({"direct.oracle": "smooth"})
+    prm, _ = resolve_params(el, smooth)
     assert prm.smooth and prm.smooth_args() == 0.25
-    assert resolve_params(el, settings_of(direct="links"))[0].smooth_args() is None
-    plain = settings_of(direct="points").replace({"direct.oracle": "plain"})
-    assert resolve_params(el, plain)[0].smooth_args() is None
+    assert resolve_params(el, smooth.replace({"direct.mode": "links"}))[0].smooth_args() is None
+    assert resolve_params(el, settings_of(direct="points"))[0].smooth_args() is None
     with pytest.raises(RadiosityError, match="radiosity.direct.oracle must be one of smooth, plain"):
         settings_of(base=settings_of().replace({"direct.oracle": "coarse"}))
     with pytest.raises(RadiosityError, match="radiosity.direct.smooth-floor must be a number >= 0"):
@@ -91,3 +91,26 @@ def test_smooth_links_are_coarser_and_the_surfaces_stay(client, tmp_path):
           f"{gap.max():.4f}")
     assert n1 < 0.85 * n0
     assert gap.max() < 0.005
+
+
+def test_the_furnace_stays_exact_with_the_smooth_oracle(client, tmp_path):
+    """Closed cube, Le = 1, rho = 0.99, the emitters' light at points and the smooth oracle (a
+    uniform R weighs only the floor): Le + R = 100 to 1e-6 after the final gather."""
+    import os
+
+    from radiosity.methods.hierarchical.links.master import compute_links
+    from radiosity.stages.solve import run_solve
+    from helpers import radiance
+
+    cube = scene_path("furnace-cube")
+    src = open(cube).read().replace("reflectance = [0.5, 0.5, 0.5]", "reflectance = [0.99, 0.99, 0.99]")
+    src = src.replace('path = "furnace-cube.obj"',
+                      f'path = "{os.path.join(os.path.dirname(cube), "furnace-cube.obj")}"')
+    (tmp_path / "furnace.toml").write_text(src)
+    out = prepared(client, tmp_path, str(tmp_path / "furnace.toml"), 8, visibility=False)
+    s = settings_of(direct="points", epsilon=0.3).replace({"direct.oracle": "smooth"})
+    compute_links(out, client, s, progress=False)
+    fig = run_solve(out, client, s.replace({"solve.solver": "cg", "solve.tol": 1e-12}),
+                    method="hierarchical", progress=False)
+    assert fig["converged"] and fig["direct"] == "points"
+    np.testing.assert_allclose(radiance(out)[:, 0, :], 100.0, rtol=1e-6)

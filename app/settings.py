@@ -216,6 +216,8 @@ class DirectSettings(_Section):
     samples: int
     leaf_points: int
     auto_share: float
+    oracle: str
+    smooth_floor: float
 
 
 @dataclass(frozen=True)
@@ -465,6 +467,9 @@ CHECKS.update({
 })
 OPTIONS.update({"conductances": ("heat.conductances",),
                 "conductance_cutoff": ("heat.conductance-cutoff",)})
+# the oracle with the emitters' light at points (methods/hierarchical/params.smooth_weights)
+CHECKS.update({"direct.oracle": _one_of("smooth", "plain"),
+               "direct.smooth-floor": (lambda v: math.isfinite(v) and v >= 0, "a number >= 0")})
 _FLAGS = {key: name for name, keys in OPTIONS.items() for key in keys}
 
 

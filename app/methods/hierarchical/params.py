@@ -52,7 +52,9 @@ class LinkParams:
     occluders against their polygons' planes (1) or tight shaft (2), and with N > 2 those
     without a list walk N occluder-tree nodes for one in it (refine.RefineParams.hull); 0 (the
     default: none pays for its cost, docs/src/design/methods-hierarchical-links.md): the
-    boxes' shafts alone."""
+    boxes' shafts alone. smooth (direct.oracle smooth, with direct): the oracle weighs links by
+    how far the light after the first bounce is from its mean, relative to the receiver's own
+    radiance (smooth_weights, smooth_floor)."""
 
     epsilon: float
     shadow: float
@@ -70,9 +72,15 @@ class LinkParams:
     direct: bool = False
     solids: bool = True
     hull_shafts: int = 0
+    smooth: bool = False
+    smooth_floor: float = 0.25
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+    def smooth_args(self) -> float | None:
+        """smooth_weights' floor, None where the oracle is not smooth."""
+        return self.smooth_floor if self.smooth and self.direct else None
 
     def kernel_params(self) -> RefineParams:
         """The scalars the refinement kernels read (refine.RefineParams)."""
@@ -146,7 +154,8 @@ def direct_estimate(elements, ray_offset: float) -> np.ndarray:
     return out
 
 
-def oracle_weights(elements, weight: str, direct: np.ndarray | None = None):
+def oracle_weights(elements, weight: str, direct: np.ndarray | None = None,
+                   smooth: float | None = None):
     """The oracle's weights: link p <- q counts F_pq * wrho[p, side] * lhat[q, side] / lref.
 
     none: all 1 (form factors alone). bf: wrho = the largest channel of the reflectance of that
@@ -156,42 +165,93 @@ def oracle_weights(elements, weight: str, direct: np.ndarray | None = None):
     mean radiance one expects. direct (n, 2) (the emitters' light taken at points:
     direct_estimate): lhat = direct + La rho, the original's own first bounce and the light
     after the second (La less its first bounce E rho), never the emission (emitters are no
-    link sources then, SPEC §10). Returns wrho (n, 2), lhat (n, 2), lref."""
+    link sources then, SPEC §10). smooth (LinkParams.smooth_args; with direct): as
+    smooth_weights changes them. Returns wrho (n, 2), lhat (n, 2), lref."""
     n = len(elements)
     if weight == "arriving":  # bf for the light that arrives, whatever the receiver reflects
-        wrho, lhat, lref = oracle_weights(elements, "bf", direct)
+        wrho, lhat, lref = oracle_weights(elements, "bf", direct, smooth)
         return np.ones_like(wrho), lhat, lref
     if weight == "none":
         return np.ones((n, 2)), np.ones((n, 2)), 1.0
     if weight != "bf":
         raise RadiosityError(f"radiosity.hierarchy.weight must be one of {', '.join(WEIGHTS)}, "
                              f"got {weight!r}")
-    A = elements.area
     rho = elements.reflectance.max(axis=2)   # (n, 2)
     em = AreaEmitters(elements).peak()
-    E = float((A * em.sum(axis=1)).sum() / A.sum())
-    if direct is not None:  # luminaires: their flux spread over the scene, as an exitance
-        from radiosity.scene.emitters import point_emitters
-
-        E += float(point_emitters(elements).power().max(initial=0.0)) / (math.pi * A.sum())
-    r = float(min((A * rho[:, 0]).sum() / A.sum(), 0.99))
-    La = E * r / (1.0 - r)
+    E, r, La = ambient(elements, direct is not None)
     lref = E + La
     if lref <= 0:
         return np.ones((n, 2)), np.ones((n, 2)), 1.0
     if direct is None:
         return rho, em + La, lref
-    return rho, np.asarray(direct, np.float64) + La * r, lref
+    lhat = np.asarray(direct, np.float64) + La * r
+    if smooth is None:
+        return rho, lhat, lref
+    return smooth_weights(elements, rho, lhat, lref, direct, smooth)
+
+
+def ambient(elements, points: bool = False) -> tuple[float, float, float]:
+    """(E, r, La) of oracle_weights: the area-weighted mean emission E (largest channel; with
+    points, direct light taken at points, the luminaires' flux spread over the scene as an
+    exitance too) and reflectance r (front sides, at most 0.99), and the ambient radiance
+    La = E r / (1 - r), the mean light after the emitters' (all bounces) of a scene where every
+    point sees the same."""
+    A = elements.area
+    rho = elements.reflectance.max(axis=2)
+    em = AreaEmitters(elements).peak()
+    E = float((A * em.sum(axis=1)).sum() / A.sum())
+    if points:
+        from radiosity.scene.emitters import point_emitters
+
+        E += float(point_emitters(elements).power().max(initial=0.0)) / (math.pi * A.sum())
+    r = float(min((A * rho[:, 0]).sum() / A.sum(), 0.99))
+    return E, r, E * r / (1.0 - r)
+
+
+def smooth_weights(elements, wrho, lhat, lref, direct, floor: float):
+    """The oracle's weights where the emitters' light is taken at points and the links carry
+    only R, the light after its first bounce (direct.oracle smooth, SPEC §10;
+    docs/src/design/direct-light.md, "The oracle after the split"). Two changes to
+    oracle_weights':
+
+    - receiving: a link's error counts relative to the receiver's own radiance where that is
+      above lref (wrho times lref / max(lref, Le + L1 + rho La), per side): under strong direct
+      light what the links bring is a small share of what the image shows there;
+    - sending: R is smooth, about its mean La everywhere but where the first bounce adds to
+      it. A uniform R reaches a receiver through its links as the sum of their form factors,
+      which the links to one receiver get right together (the sum of the mean over the
+      receiver of every F is the mean of the fraction of its hemisphere that meets geometry;
+      exactly where the rows are balanced to 1, in closed scenes) even where each one alone is
+      off: a link's error is its form factor's error times how far its source's R is from
+      uniform, lhat = |lhat - La| + floor La (never above lhat), the floor for the uniform part
+      the sum does not get right (links to one receiver at different levels).
+
+    Returns wrho, lhat, lref."""
+    _, _, La = ambient(elements, True)
+    rho = elements.reflectance.max(axis=2)
+    em = AreaEmitters(elements).peak()
+    own = em + np.asarray(direct, np.float64) + rho * La
+    wrho = np.asarray(wrho, np.float64) * (lref / np.maximum(own, lref))
+    if La > 0:
+        lhat = smooth_source(lhat, La, floor)
+    return wrho, lhat, lref
+
+
+def smooth_source(lhat: np.ndarray, mean: float, floor: float) -> np.ndarray:
+    """A source's smooth weight (smooth_weights): |lhat - mean| + floor mean, never above lhat
+    (a source dimmer than the mean carries no more than its own light)."""
+    lhat = np.asarray(lhat, np.float64)
+    return np.minimum(lhat, np.abs(lhat - mean) + float(floor) * mean)
 
 
 def cluster_weights(elements, weight: str, seen: np.ndarray, importance: float,
-                    direct: np.ndarray | None = None):
+                    direct: np.ndarray | None = None, smooth: float | None = None):
     """The cluster layer's oracle weights: oracle_weights, with the receiving weight wrho of
     the originals no camera sees (`seen` False) times `importance` (Smits, Arvo & Salesin
     1992's importance, one value for all unseen receivers): their light reaches the image only
     after a bounce off a seen surface, which passes on at most its reflectance of their error,
-    spread over what they light. direct: as oracle_weights takes it."""
-    wrho, lhat, lref = oracle_weights(elements, weight, direct)
+    spread over what they light. direct, smooth: as oracle_weights takes them."""
+    wrho, lhat, lref = oracle_weights(elements, weight, direct, smooth)
     if importance != 1.0:
         wrho = wrho * np.where(np.asarray(seen, bool), 1.0, float(importance))[:, None]
     return wrho, lhat, lref
@@ -268,5 +328,18 @@ def resolve_params(elements, settings, occlusion: bool = True,
                      gauss_gap=float(h.near_gauss_gap), far_polygon=_far_kernel(h.far_kernel),
                      weighted_rays=bool(h.kernel_weighted_rays),
                      solids=bool(h.inside_solids) and bool(occlusion),
-                     direct=choose_direct(elements, s)[0] == "points")
+                     direct=choose_direct(elements, s)[0] == "points",
+                     **smooth_params(s))
     return prm, weight
+
+
+def smooth_params(settings) -> dict:
+    """LinkParams' smooth and smooth_floor from direct.oracle and direct.smooth-floor."""
+    d = settings.direct
+    mode = d.oracle
+    if mode not in ("smooth", "plain"):
+        raise RadiosityError(f"radiosity.direct.oracle must be smooth or plain, got {mode!r}")
+    floor = float(d.smooth_floor)
+    if not floor >= 0:
+        raise RadiosityError(f"radiosity.direct.smooth-floor must be >= 0, got {floor}")
+    return {"smooth": mode == "smooth", "smooth_floor": floor}

@@ -21,6 +21,7 @@ from radiosity.core.arrays import unique
 from radiosity.methods.hierarchical.links.nodes import new_table
 from radiosity.methods.hierarchical.params import (LinkParams, choose_epsilon, cluster_weights,
                                                    direct_estimate, oracle_weights, resolve_params)
+from radiosity.methods.hierarchical.params import ambient
 from radiosity.methods.hierarchical.links.refine import (C_EXACT, C_LINKS, C_PAIRS, C_RAYLINKS, C_RAYS,
                                                    C_ROUNDS, COUNTERS, Elements, Entries, Occluders,
                                                    Tree, refine, roots)
@@ -74,7 +75,12 @@ class LinkInputs:
         self.root = part.root.astype(np.int64)
         self.reach = leaves_within_reach(tree, part, self.ext, params.min_size)
         self.wrho, self.lhat, self.lref = oracle_weights(
-            elements, weight, direct_estimate(elements, ray_offset) if params.direct else None)
+            elements, weight, direct_estimate(elements, ray_offset) if params.direct else None,
+            params.smooth_args())
+        # the mean R and floor a source's solved radiance is weighed by in rounds (views/rounds.py):
+        # as params.smooth_weights weighs the a-priori one; None: by itself
+        sm = params.smooth_args()
+        self.smooth = (ambient(elements, True)[2], sm) if sm is not None and weight in ("bf", "arriving") else None
         self.elo, self.ehi, self.enormal, self.eoffset, self.pad = occluders(elements)
         self.otree = occluder_tree(elements, self.elo, self.ehi)
         self.verts = elements.verts
@@ -299,7 +305,8 @@ def plan_links(rs, part, el, s, unit: str | None, occlusion: bool, client=None,
         outside = ~np.asarray(raster.get("footprint", seen_any), bool)
         est = direct_estimate(el, s.rays.offset) if prm.direct else None  # SPEC §10
         cl, cpairs, cfig = plan_clusters(el, prm.epsilon * ce,
-                                         cluster_weights(el, weight, seen_any, imp, est), prm.rays,
+                                         cluster_weights(el, weight, seen_any, imp, est,
+                                                         prm.smooth_args()), prm.rays,
                                          occlusion, s.rays.offset, client, progress,
                                          prm.shadow * ce, prm.solids, unseen=outside,
                                          min_size=prm.min_size)

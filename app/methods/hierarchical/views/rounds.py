@@ -296,7 +296,12 @@ class Rounds:
         """The new weights and spreads (k, 2) from the solved radiance per sub-element (m, 2,
         C): the solved node radiance / rounds-epsilon, and half the difference of its two
         children's (0 at the partition's leaves), each never below what was used so far."""
-        solved = node_radiance(self.tree, self.part.area, radiance) / self.factor
+        solved = node_radiance(self.tree, self.part.area, radiance)
+        if self.inp.smooth is not None:  # weighed as the a-priori ones (params.smooth_weights)
+            from radiosity.methods.hierarchical.params import smooth_source
+
+            solved = smooth_source(solved, *self.inp.smooth)
+        solved = solved / self.factor
         ch = np.asarray(self.tree.child, np.int64)
         inner = ch[:, 0] >= 0
         var = np.zeros_like(solved)

@@ -80,7 +80,8 @@ class LinkInputs:
         # the mean R and floor a source's solved radiance is weighed by in rounds (views/rounds.py):
         # as params.smooth_weights weighs the a-priori one; None: by itself
         sm = params.smooth_args()
-        self.smooth = (ambient(elements, True)[2], sm) if sm is not None and weight in ("bf", "arriving") else None
+        self.smooth = ((ambient(elements, True)[2], sm)
+                       if sm is not None and weight in ("bf", "arriving") else None)
         self.elo, self.ehi, self.enormal, self.eoffset, self.pad = occluders(elements)
         self.otree = occluder_tree(elements, self.elo, self.ehi)
         self.verts = elements.verts

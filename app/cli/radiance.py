@@ -40,6 +40,8 @@ def radiance_options(f):
 def radiance_reference(scene, out, engine, points_csv, quality, emitters, processes, force,
                        mitsuba_only: dict) -> None:
     """`radiosity reference --engine radiance`: illuminance at the points of a CSV file."""
+    import numpy as np
+
     from radiosity.runtime.checks import check_new_run_dir
     from radiosity.validation.radiance import make_radiance_reference, radiance_env, read_points
 
@@ -48,15 +50,22 @@ def radiance_reference(scene, out, engine, points_csv, quality, emitters, proces
     given = [k for k, v in mitsuba_only.items() if v is not None]
     if given:
         raise RadiosityError(f"{given[0]} is for --engine mitsuba (Radiance traces --points)")
-    if points_csv is None:
-        raise RadiosityError("--engine radiance needs --points FILE.csv (header x,y,z,nx,ny,nz)")
     radiance_env()  # one line saying how to install it, before anything is loaded
     st = settings_from_flags()
     sc = _load(scene, st)
-    P, N = read_points(points_csv)
+    grids = ()
+    if points_csv is not None:
+        P, N = read_points(points_csv)
+    elif sc.grids:  # the scene's [[grid]] tables, one after another
+        P = np.concatenate([g.points for g in sc.grids])
+        N = np.concatenate([g.normals for g in sc.grids])
+        grids = tuple((g.name, len(g.points)) for g in sc.grids)
+    else:
+        raise RadiosityError("--engine radiance needs --points FILE.csv (header x,y,z,nx,ny,nz) "
+                             "or a scene with [[grid]] tables")
     check_new_run_dir(out, force)
     fig = make_radiance_reference(sc, P, N, out, quality=quality, emitters=emitters,
-                                  processes=processes, echo=click.echo)
+                                  processes=processes, echo=click.echo, grids=grids)
     med = fig["rel_stderr_median"]
     click.echo(table_text([
         ("points", f"{fig['points']} x {fig['quality']['repeats']} repeats ({fig['radiance_version']})"),
@@ -68,7 +77,8 @@ def radiance_reference(scene, out, engine, points_csv, quality, emitters, proces
         ("relative std. error", "-" if med is None else
          f"median {med:.3g}, max {fig['rel_stderr_max']:.3g}"),
         ("time", f"{fig['time_s']:.1f} s")]))
-    click.echo(f"wrote {out}/points.csv, radiance.json, scene.rad, scene.oct")
+    per_grid = "".join(f", grids/{name}.csv" for name, _ in grids)
+    click.echo(f"wrote {out}/points.csv{per_grid}, radiance.json, scene.rad, scene.oct")
 
 
 def _load(scene: str, st):

@@ -406,11 +406,13 @@ def read_points(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def make_radiance_reference(scene: Scene, points, normals, out: str, quality: str = "reference",
-                            emitters: str = "sources", processes: int = 1, echo=print) -> dict:
+                            emitters: str = "sources", processes: int = 1, echo=print,
+                            grids: tuple = ()) -> dict:
     """Radiance's illuminance at `points` with `normals` into `out`: points.csv (x, y, z, nx,
     ny, nz, illuminance_lux, stderr_lux, irradiance_r/g/b in W m^-2), radiance.json (the
     figures, returned) and the converted scene (scene.rad, side.cal, scene.oct) to rerun by
-    hand."""
+    hand. grids: (name, count) pairs when the points are the scene's [[grid]] tables one
+    after another: each grid's rows also go to grids/NAME.csv."""
     from radiosity.formats.csvtext import write_csv
 
     q = named_quality(quality)
@@ -423,6 +425,12 @@ def make_radiance_reference(scene: Scene, points, normals, out: str, quality: st
                  irradiance_r=res.irradiance[:, 0], irradiance_g=res.irradiance[:, 1],
                  irradiance_b=res.irradiance[:, 2])
     write_csv(os.path.join(out, "points.csv"), table)
+    start = 0
+    for name, count in grids:
+        os.makedirs(os.path.join(out, "grids"), exist_ok=True)
+        write_csv(os.path.join(out, "grids", f"{name}.csv"),
+                  {c: v[start:start + count] for c, v in table.items()})
+        start += count
     ok = res.lux > 0
     fig = dict(res.figures)
     fig.update(lux_min=float(res.lux.min()), lux_mean=float(res.lux.mean()),

@@ -231,6 +231,38 @@ def test_reference_command_with_radiance(tmp_path, monkeypatch):
         assert r.exit_code == 2 and f"error: {msg}" in r.output, r.output
 
 
+@pytest.mark.needs("radiance")
+def test_reference_command_traces_the_scenes_grids(tmp_path):
+    """Without --points the scene's [[grid]] tables are the points: grids/NAME.csv per grid,
+    each point within 1 % of pi Le F (the panel, exact by the contour integral)."""
+    from radiosity.cli.commands import main
+    from radiosity.core.exact import polygon_point_form_factor
+
+    grid = """
+    [[grid]]
+    name = "floor"
+    origin = [-1.0, -1.0, 0.0]
+    u = [2.0, 0.0, 0.0]
+    v = [0.0, 2.0, 0.0]
+    spacing = 1.0
+    """
+    path = write_scene(tmp_path, PANEL, PANEL_MATERIALS + grid, camera=PANEL_CAMERA)
+    out = tmp_path / "ref"
+    r = CliRunner().invoke(main, ["reference", path, "--engine", "radiance", "--out", str(out),
+                                  "--quality", "high"])
+    assert r.exit_code == 0, r.output
+    assert "grids/floor.csv" in r.output
+    t = np.genfromtxt(out / "grids" / "floor.csv", delimiter=",", names=True)
+    assert len(t) == 4  # 2 x 2 cell centres
+    sc = _load(path)
+    light = int(np.flatnonzero(sc.elements.emission[:, 0, 0] > 0)[0])
+    P = np.stack([t["x"], t["y"], t["z"]], axis=1)
+    F = np.array([polygon_point_form_factor(p, np.array([0.0, 0.0, 1.0]), sc.elements.verts[light])
+                  for p in P])
+    exact = 683.0 * math.pi * F * float(sc.elements.emission[light, 0] @ LUMA)
+    assert np.all(np.abs(t["illuminance_lux"] / exact - 1) <= 0.01), t["illuminance_lux"] / exact
+
+
 def test_the_command_offers_every_quality():
     from radiosity.cli.radiance import QUALITIES as offered
     from radiosity.validation.radiance import QUALITIES

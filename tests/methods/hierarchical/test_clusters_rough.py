@@ -117,8 +117,8 @@ def test_probed_links_kept_with_their_visible_share_match_brute_force_on_a_rough
     """A rough height field (noise of 1.5 grid spacings): what each triangle receives at unit
     radiance through the cluster layer with probes (partly blocked probes kept with their rays'
     visible share, blocked ones dropped) against every facing pair of triangles taken alone (16
-    sample pairs and 16 rays each): within 0.5 % in L1 over the triangles (0.14 % measured; 0.05 % without
-    probes is, and with fewer pairs handed to the element level."""
+    sample pairs and 16 rays each): within 0.5 % in L1 over the triangles (0.14 % measured,
+    0.05 % without probes), with fewer pairs handed to the element level."""
     from radiosity.methods.hierarchical.clusters.refine import cluster_tree
     from radiosity.methods.hierarchical.clusters.weights import link_weights
     from radiosity.tracing.rays import RayCaster

@@ -94,10 +94,13 @@ def scene_eps(verts: np.ndarray, tol: float = TOL) -> float:
 
 
 def build_tree(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, center: np.ndarray,
-               two_sided: np.ndarray, leaf: int = LEAF, tol: float = TOL) -> OriginalsTree:
+               two_sided: np.ndarray, leaf: int = LEAF, tol: float = TOL,
+               normal_weight: float = 1.0) -> OriginalsTree:
     """The hierarchy over n original elements: verts (n, 4, 3) (a triangle repeats vertex 2),
     normal, center (n, 3), two_sided (n,) bool. Built level by level (one sort of the elements
-    per level, no Python loop over nodes): O(n log n) time, O(n) memory."""
+    per level, no Python loop over nodes): O(n log n) time, O(n) memory. Each node splits at the
+    median of the feature that spreads most: the centres relative to the scene's size or the
+    normals times `normal_weight` (the cluster layer weighs them less: clusters/refine.py)."""
     n = len(verts)
     verts = np.asarray(verts, np.float64)
     normal = np.asarray(normal, np.float64)
@@ -106,7 +109,7 @@ def build_tree(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, center
     vmin = verts.min(axis=1) if n else np.zeros((0, 3))
     vmax = verts.max(axis=1) if n else np.zeros((0, 3))
     size = float(np.linalg.norm(vmax.max(0) - vmin.min(0))) if n else 1.0
-    feat = np.concatenate([center / max(size, 1e-300), normal], axis=1)  # (n, 6)
+    feat = np.concatenate([center / max(size, 1e-300), normal * normal_weight], axis=1)
     order = np.arange(n, dtype=np.int64)
     start, end = [np.array([0], np.int64)], [np.array([n], np.int64)]
     left, right = [np.array([-1], np.int64)], [np.array([-1], np.int64)]

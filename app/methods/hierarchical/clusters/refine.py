@@ -54,6 +54,16 @@ CEN = 23  # the area centroid (3): the estimate reads it with the rest of the ro
 CElems = namedtuple("CElems", "normal offset verts area center two_sided eps ona")
 
 
+#: How much the cluster tree's splits weigh the originals' normals against their centres
+#: (scene/originals.build_tree's normal_weight; the element level's tree weighs them 1). With 1,
+#: a rough surface's clusters were split by normal down to a few elements: clusters of one
+#: orientation interleaved over the same ground, boxes overlapping, so no link between them
+#: was ever admissible and the refinement went to pairs of triangles (the rough 2e4-triangle
+#: terrain: 51 M links evaluated, 12.3 M kept; 29 M and 8.1 M at 0.3; the smooth one 15.9 M and
+#: 4.0 M, 5.8 M and 1.7 M: docs/src/design/methods-hierarchical-clusters.md, "Rough surfaces").
+NORMAL_WEIGHT = 0.3
+
+
 @dataclass(frozen=True)
 class ClusterTree:
     """The cluster tree of a scene's originals and what the refinement needs of them."""
@@ -95,7 +105,7 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float,
     from radiosity.scene.originals import build_tree
 
     t = build_tree(elements.verts, elements.nverts, elements.normal, elements.center,
-                   elements.two_sided, leaf=1)
+                   elements.two_sided, leaf=1, normal_weight=NORMAL_WEIGHT)
     K = len(t.left)
     o = t.order
     area = np.asarray(elements.area, np.float64)

@@ -55,13 +55,13 @@ CElems = namedtuple("CElems", "normal offset verts area center two_sided eps ona
 
 
 #: How much the cluster tree's splits weigh the originals' normals against their centres
-#: (scene/originals.build_tree's normal_weight; the element level's tree weighs them 1). With 1,
-#: a rough surface's clusters were split by normal down to a few elements: clusters of one
-#: orientation interleaved over the same ground, boxes overlapping, so no link between them
-#: was ever admissible and the refinement went to pairs of triangles (the rough 2e4-triangle
-#: terrain: 51 M links evaluated, 12.3 M kept; 29 M and 8.1 M at 0.3; the smooth one 15.9 M and
-#: 4.0 M, 5.8 M and 1.7 M: docs/src/design/methods-hierarchical-clusters.md, "Rough surfaces").
-NORMAL_WEIGHT = 0.3
+#: (scene/originals.build_tree's normal_weight). On a rough surface, splits by normal make
+#: clusters of one orientation interleaved over the same ground, boxes overlapping, never
+#: admissible: 0.3 cut the rough 2e4-triangle terrain's evaluated links 51 M -> 29 M and the
+#: smooth one's 15.9 M -> 5.8 M, but mixed a floor with the patch lighting it (the cluster final
+#: gather 4.3 % off on a triangle where 2 % is allowed), so it stays 1
+#: (docs/src/design/methods-hierarchical-clusters.md, "The tree weighs normals less").
+NORMAL_WEIGHT = 1.0
 
 
 @dataclass(frozen=True)

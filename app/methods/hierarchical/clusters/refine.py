@@ -54,14 +54,12 @@ CEN = 23  # the area centroid (3): the estimate reads it with the rest of the ro
 CElems = namedtuple("CElems", "normal offset verts area center two_sided eps ona")
 
 
-#: How much the cluster tree's splits weigh the originals' normals against their centres
-#: (scene/originals.build_tree's normal_weight). On a rough surface, splits by normal make
-#: clusters of one orientation interleaved over the same ground, boxes overlapping, never
-#: admissible: 0.3 cut the rough 2e4-triangle terrain's evaluated links 51 M -> 29 M and the
-#: smooth one's 15.9 M -> 5.8 M, but mixed a floor with the patch lighting it (the cluster final
-#: gather 4.3 % off on a triangle where 2 % is allowed), so it stays 1
+#: build_tree's normal_weight (the normals against the centres) and `separate` (nodes whose
+#: orientations interleave split by centre) for the cluster tree: a rough surface's clusters,
+#: split by normal, interleave and are never admissible; both cut its links but cost rooms
 #: (docs/src/design/methods-hierarchical-clusters.md, "The tree weighs normals less").
 NORMAL_WEIGHT = 1.0
+SEPARATE = False
 
 
 @dataclass(frozen=True)
@@ -105,7 +103,8 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float,
     from radiosity.scene.originals import build_tree
 
     t = build_tree(elements.verts, elements.nverts, elements.normal, elements.center,
-                   elements.two_sided, leaf=1, normal_weight=NORMAL_WEIGHT)
+                   elements.two_sided, leaf=1, normal_weight=NORMAL_WEIGHT,
+                   separate=SEPARATE)
     K = len(t.left)
     o = t.order
     area = np.asarray(elements.area, np.float64)

@@ -94,10 +94,16 @@ def scene_eps(verts: np.ndarray, tol: float = TOL) -> float:
 
 
 def build_tree(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, center: np.ndarray,
-               two_sided: np.ndarray, leaf: int = LEAF, tol: float = TOL) -> OriginalsTree:
+               two_sided: np.ndarray, leaf: int = LEAF, tol: float = TOL,
+               normal_weight: float = 1.0, separate: bool = False) -> OriginalsTree:
     """The hierarchy over n original elements: verts (n, 4, 3) (a triangle repeats vertex 2),
     normal, center (n, 3), two_sided (n,) bool. Built level by level (one sort of the elements
-    per level, no Python loop over nodes): O(n log n) time, O(n) memory."""
+    per level, no Python loop over nodes): O(n log n) time, O(n) memory. Each node splits at the
+    median of the feature that spreads most: the centres relative to the scene's size or the
+    normals times `normal_weight`. `separate`: a node split by normal whose halves' centres
+    spread as far as its own along every axis but a tenth (orientations interleaved over the
+    same ground, as on a rough surface) is split by its centres instead (the cluster tree:
+    clusters/refine.py)."""
     n = len(verts)
     verts = np.asarray(verts, np.float64)
     normal = np.asarray(normal, np.float64)
@@ -106,7 +112,7 @@ def build_tree(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, center
     vmin = verts.min(axis=1) if n else np.zeros((0, 3))
     vmax = verts.max(axis=1) if n else np.zeros((0, 3))
     size = float(np.linalg.norm(vmax.max(0) - vmin.min(0))) if n else 1.0
-    feat = np.concatenate([center / max(size, 1e-300), normal], axis=1)  # (n, 6)
+    feat = np.concatenate([center / max(size, 1e-300), normal * normal_weight], axis=1)
     order = np.arange(n, dtype=np.int64)
     start, end = [np.array([0], np.int64)], [np.array([n], np.int64)]
     left, right = [np.array([-1], np.int64)], [np.array([-1], np.int64)]
@@ -128,6 +134,8 @@ def build_tree(verts: np.ndarray, nverts: np.ndarray, normal: np.ndarray, center
         perm = np.lexsort((key, node))
         order[pos] = order[pos][perm]
         mid = S + cnt // 2
+        if separate:
+            _separate(feat, order, S, E, mid, dim, fl, fh, node, pos)
         cs = np.concatenate([S, mid])
         ce = np.concatenate([mid, E])
         child = K + np.arange(2 * len(ids))
@@ -181,6 +189,30 @@ def _set(chunks: list, idx: np.ndarray, values: np.ndarray) -> None:
         k = (idx >= off) & (idx < off + len(c))
         c[idx[k] - off] = values[k]
         off += len(c)
+
+
+def _separate(feat, order, S, E, mid, dim, fl, fh, node, pos) -> None:
+    """Re-split by centre (in place: order) the nodes [S, E) that build_tree split by normal
+    (dim >= 3) whose halves [S, mid), [mid, E) each spread along every axis at least 0.9 times
+    as far as the node: their orientations interleave over the same ground."""
+    bysn = dim >= 3
+    if not bysn.any():
+        return
+    c = feat[order, :3]
+    span = fh[:, :3] - fl[:, :3]
+    lo1, hi1 = _ranges(c, S, mid)
+    lo2, hi2 = _ranges(c, mid, E)
+    tight = ((hi1 - lo1) >= 0.9 * span).all(axis=1) & ((hi2 - lo2) >= 0.9 * span).all(axis=1)
+    redo = bysn & tight & (span.max(axis=1) > 0)
+    if not redo.any():
+        return
+    sdim = np.argmax(span, axis=1)
+    sel = redo[node]
+    p, nd = pos[sel], node[sel]
+    key = feat[order[p], sdim[nd]]
+    perm = np.lexsort((key, nd))
+    order[p] = order[p][perm]
+    dim[redo] = sdim[redo]
 
 
 def _ranges(a: np.ndarray, S: np.ndarray, E: np.ndarray, b: np.ndarray | None = None):

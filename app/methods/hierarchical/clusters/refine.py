@@ -54,6 +54,14 @@ CEN = 23  # the area centroid (3): the estimate reads it with the rest of the ro
 CElems = namedtuple("CElems", "normal offset verts area center two_sided eps ona")
 
 
+#: build_tree's normal_weight (the normals against the centres) and `separate` (nodes whose
+#: orientations interleave split by centre) for the cluster tree: a rough surface's clusters,
+#: split by normal, interleave and are never admissible; both cut its links but cost rooms
+#: (docs/src/design/methods-hierarchical-clusters.md, "The tree weighs normals less").
+NORMAL_WEIGHT = 1.0
+SEPARATE = False
+
+
 @dataclass(frozen=True)
 class ClusterTree:
     """The cluster tree of a scene's originals and what the refinement needs of them."""
@@ -95,7 +103,8 @@ def cluster_tree(elements, wrho: np.ndarray, lhat: np.ndarray, lref: float,
     from radiosity.scene.originals import build_tree
 
     t = build_tree(elements.verts, elements.nverts, elements.normal, elements.center,
-                   elements.two_sided, leaf=1)
+                   elements.two_sided, leaf=1, normal_weight=NORMAL_WEIGHT,
+                   separate=SEPARATE)
     K = len(t.left)
     o = t.order
     area = np.asarray(elements.area, np.float64)

@@ -88,10 +88,12 @@ def _compact(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
     most eps; partly visible links that carry more than `shadow` refined: _shadows; links
     with every ray blocked left out); the `probes` decided first (_probe: counts grows to
     [.., probed, dropped])."""
-    links, pairs, counts, prays = _probe(ct, links, pairs, counts, caster, eps, solids, probes,
-                                         probe)
+    links, pairs, counts, prays, seen = _probe(ct, links, pairs, counts, caster, eps, solids,
+                                               probes, probe)
     links, pairs, counts, F, v, nrays = _shadows(ct, links, pairs, counts, caster, rays, eps,
                                                  shadow, solids)
+    if seen is not None and len(seen[0]):  # probed links kept with their rays' visible fraction
+        links, F, v = (np.concatenate([a, b]) for a, b in zip((links, F, v), seen))
     key, g = _keys_weights(links, F, v, np.asarray(ct.tree.area), np.int64(ct.nodes))
     # links whose every ray is blocked (g = 0) carry nothing in any pass: not kept (the same
     # bits; on the all-two-sided hall 80 % of the cluster links: design page, "Two-sided
@@ -196,11 +198,24 @@ def _shadows(ct: ClusterTree, links, pairs, counts, caster, rays: int, eps: floa
     return L_out, np.concatenate(out_pairs).reshape(-1, 2), counts, F_out, v_out, nrays
 
 
-#: Rays a probed link takes (_probe): a link whose estimate is below PROBE_RAYS times epsilon and
-#: whose PROBE_RAYS rays are all blocked is dropped. 0, no probes: with 4, the rough 2e4-triangle
-#: terrain kept 22 % fewer cluster links and 40 % fewer pairs but rendered in 33 s against 25 s
-#: (docs/src/design/methods-hierarchical-clusters.md, "Rough surfaces").
+#: Rays a probed link takes (_probe): a link whose estimate is below PROBE_BAND times epsilon
+#: takes PROBE_RAYS rays before it is split; it is dropped where all are blocked and its
+#: transfer without visibility is at most PROBE_RAYS epsilon, and kept with its rays' visible
+#: fraction where some but not all are blocked and that fraction of its transfer is at most
+#: epsilon. 0, no probes: with 4 rays in a band of 4 and dropping only, the rough
+#: 2e4-triangle terrain kept 22 % fewer cluster links and 40 % fewer pairs but rendered in 33 s
+#: against 25 s (docs/src/design/methods-hierarchical-clusters.md, "Rough surfaces").
 PROBE_RAYS = 0
+#: The probes' band, in epsilons (0: PROBE_RAYS).
+PROBE_BAND = 0.0
+#: Probed links partly blocked whose visible share of their transfer is within epsilon are kept
+#: (with that share) instead of split.
+PROBE_KEEP = True
+
+
+def probe_band() -> float:
+    """The probes' band in epsilons (0 where there are no probes)."""
+    return (PROBE_BAND or float(PROBE_RAYS)) if PROBE_RAYS > 0 else 0.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -218,46 +233,62 @@ def _carried(links, F, rho, lhat, lref):
 def _probe(ct: ClusterTree, links, pairs, counts, caster, eps: float, solids: bool, probes,
            probe: float) -> tuple:
     """Decide the links refine_clusters probed (`probes`: not near, estimate below `probe`):
-    PROBE_RAYS rays each (link_weights, every stratum); a link whose rays are all blocked and
-    whose sampled transfer without visibility carries at most PROBE_RAYS * eps is dropped (what
-    it loses, its visible share times that, is about epsilon at most: a share above
-    1 / PROBE_RAYS rarely leaves every stratified ray blocked). The others are split once
-    (_split_links) and refined again, probing again; two originals go to the element level.
+    PROBE_RAYS rays each (link_weights, every stratum). With c the link's sampled transfer
+    without visibility in the oracle's weighting and v its rays' visible fraction:
+    - every ray blocked and c at most PROBE_RAYS * eps: dropped (what it loses, its visible
+      share times c, is about epsilon at most: a share above 1 / PROBE_RAYS rarely leaves every
+      stratified ray blocked);
+    - some blocked (0 < v < 1) and c v at most eps: kept as a cluster link with that v (its
+      error is within what it carries; PROBE_KEEP), as a link below eps would have been;
+    - otherwise split once (_split_links) and refined again, probing again; two originals go
+      to the element level.
     On a rough surface most links between its parts are blocked by the bumps between them, so
-    whole subtrees of links are never made. Returns (links, pairs, counts + [probed,
-    dropped], rays)."""
+    whole subtrees of links are never made. Returns (links, pairs, counts + [probed, dropped],
+    rays, (links, F, v) of the probed links kept, or None)."""
     counts = np.concatenate([np.asarray(counts, np.int64), np.zeros(2, np.int64)])
     if probes is None or not len(probes) or caster is None:
-        return links, pairs, counts, 0
+        return links, pairs, counts, 0, None
     t = ct.tree
     solid = solid_ends(caster, ct.elems) if solids else None
     out_links, out_pairs, nrays = [links], [pairs], 0
+    seen_l, seen_F, seen_v = [np.zeros((0, 2), np.int64)], [np.zeros((0, 2))], [np.zeros(0)]
     boxes = caster.occluder_boxes()
     while len(probes):
         # links no segment between their boxes can block (clear_links) are split at once
         ask = np.ones(len(probes), np.bool_) if boxes is None else \
             ~clear_links(t.rec, probes, *boxes)
         drop = np.zeros(len(probes), np.bool_)
-        F, v, r = link_weights(ct, probes[ask], caster, PROBE_RAYS, solid=solid)
+        keep = np.zeros(len(probes), np.bool_)
+        asked = probes[ask]
+        F, v, r = link_weights(ct, asked, caster, PROBE_RAYS, solid=solid)
         nrays += r
-        drop[ask] = (v <= 0.0) & (_carried(probes[ask], F, t.rho, t.lhat, ct.lref)
-                                  <= PROBE_RAYS * eps)
+        c = _carried(asked, F, t.rho, t.lhat, ct.lref)
+        drop[ask] = (v <= 0.0) & (c <= PROBE_RAYS * eps)
+        if PROBE_KEEP:
+            kept = (v > 0.0) & (v < 1.0) & (c * v <= eps)
+            keep[ask] = kept
+            seen_l.append(asked[kept])
+            seen_F.append(F[kept])
+            seen_v.append(v[kept])
+            counts[2] += int(kept.sum())
         counts[4] += len(probes)
         counts[5] += int(drop.sum())
-        kids, both = _split_links(t, probes[~drop])
+        kids, both = _split_links(t, probes[~drop & ~keep])
         if len(both):  # two originals (they face each other: refine_clusters tested it)
             i, j = t.order[t.start[both[:, 0]]], t.order[t.start[both[:, 1]]]
             out_pairs.append(np.stack([np.minimum(i, j), np.maximum(i, j)], 1))
             counts[3] += len(both)
         probes = np.zeros((0, 2), np.int64)
         if len(kids):
-            new, npairs, c, _, probes = refine_clusters(t, ct.elems, eps, ct.lref,
-                                                        max(1024, 8 * len(kids)), kids, 0, probe)
-            counts[:4] += c
+            new, npairs, c4, _, probes = refine_clusters(t, ct.elems, eps, ct.lref,
+                                                         max(1024, 8 * len(kids)), kids, 0, probe)
+            counts[:4] += c4
             out_links.append(new)
             out_pairs.append(npairs)
+    seen = (np.concatenate(seen_l).reshape(-1, 2), np.concatenate(seen_F).reshape(-1, 2),
+            np.concatenate(seen_v))
     return (np.concatenate(out_links).reshape(-1, 2), np.concatenate(out_pairs).reshape(-1, 2),
-            counts, nrays)
+            counts, nrays, seen)
 
 
 def _split_links(t, links: np.ndarray) -> tuple:
@@ -432,7 +463,7 @@ class ClusterStage(StageMaster):
                                        tokenize(el.verts, el.nverts), el.verts, el.nverts,
                                        float(self.ray_offset), float(self.shadow),
                                        bool(self.solids),
-                                       PROBE_RAYS * float(self.epsilon) if self.occlusion
+                                       probe_band() * float(self.epsilon) if self.occlusion
                                        and self.rays > 0 else 0.0)
         frontier = CUT_PER_TASK * TASKS_PER_THREAD * threads if threads > 1 else 0
         links, pairs, counts, pending, probes = refine_clusters(

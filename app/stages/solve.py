@@ -165,8 +165,11 @@ def normalise_rows(op, mode="cap", rows: RowTargets | None = None, sums=None):
     if mode not in ("cap", "closed", "off", "open"):
         raise RadiosityError(f"radiosity.solve.normalise-rows must be cap, closed, open or off, "
                              f"got {mode!r}")
-    if mode == "open" and (rows is None or not (rows.balance & ~rows.dead).any()):
-        mode = "cap"  # no side is known to see no way out: nothing to balance
+    if mode == "open" and (rows is None or not (rows.balance & ~rows.dead).any()
+                           or not getattr(op, "leaf_caps", False)):
+        # no side known to see no way out; or the pairs method, whose rows hardly pass 1
+        # (capping costs it nothing; balancing moved a room with a hole from +1.1 % to +3.3 %)
+        mode = "cap"
     sums = op.row_sums() if sums is None else sums
     rs = sums.max(axis=0)
     over = rs > 1.0 + 1e-12

@@ -70,6 +70,8 @@ def test_open_scene_balances_the_sides_that_lose_no_ray(tmp_path):
 class _Dense:
     """A dense reciprocal operator (A_a K_ab symmetric), one side."""
 
+    leaf_caps = True  # as the hierarchical method's link operator (open applies to it)
+
     def __init__(self, K):
         self.K = K
 

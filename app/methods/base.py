@@ -54,7 +54,8 @@ class Opened:
     scene's original elements (the gathering count when all gather); `live` (M,) float, the
     part of each unknown outside solids, or None (the solve leaves those at 0 out of the
     transport and weighs the others' light by it). The solve sets `row_sums` (2, M), the rows
-    of F before any scaling, for the method's finish (hierarchical: views/rounds.py)."""
+    of F before any scaling, for the method's finish (hierarchical: views/rounds.py), and
+    `row_targets`, the closure's core.balancing.RowTargets (or None)."""
 
     op: Operator
     Le: np.ndarray
@@ -66,6 +67,7 @@ class Opened:
     originals: int = 0
     live: np.ndarray | None = None
     row_sums: np.ndarray | None = None
+    row_targets: object | None = None
     state: dict = field(default_factory=dict)  # the method's own (its node table, ...)
 
 

@@ -33,7 +33,8 @@ class Closure:
     measured; never in to_dict()): target, the row target, the fraction of the side's
     hemisphere that reaches geometry, snapped to 1 where no more rays escape than cracks
     explain and to 0 where (almost) all do (the outward back of a two-sided shell); exact,
-    where it was snapped (those rows may be balanced); contact, sides covered by a touching
+    where it was snapped (those rows may be balanced; in an open scene a side snapped to 1 is
+    exact only where none of its rays escaped); contact, sides covered by a touching
     surface (contact.py: they take no part in the transport); inside, the fraction of the
     side's sample points that lie inside a solid (every ray meets a back face: a floor under a
     block whose bottom faces up), left out of the count like covered points; lost, the
@@ -162,6 +163,8 @@ def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
     target = np.where(cast > 0, 1.0 - frac, 1.0) * (1.0 - cover)
     one = counted & (frac <= SIDE_LEAK) & (cover == 0)
     target[one] = 1.0
+    if not closed:  # in an open scene a side that lost a ray may see out: its row is not known
+        one &= frac == 0.0
     target[void] = 0.0
     target[~sides] = 0.0
     target[touching] = 0.0
@@ -181,7 +184,8 @@ def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
     else:
         reason = (f"open: {escaped} of {total} hemisphere rays escape ({escaped / max(total, 1):.1%}; "
                   f"most from {elements.describe(worst)}, {wf:.0%} of its rays){extra}: rows "
-                  "are not balanced, only capped at 1")
+                  f"of the {int(one.sum())} sides that lost no ray balanced to 1, the others "
+                  "capped at 1")
     return Closure(closed, escaped, total, worst if escaped else -1, wf, reason,
                    target=target, exact=exact, contact=touching, inside=inside, lost=frac,
                    counts={"contact_sides": int(touching.sum()), "void_sides": int(void.sum()),

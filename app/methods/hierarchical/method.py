@@ -177,6 +177,8 @@ class HierarchicalMethod(TransportMethod):
             if rows.get("mode") == "closed":
                 r = op.final_gather(np.ones_like(L[:, :1]))
                 G = G / np.where(r > 0, r, 1.0)
+            elif rows.get("mode") == "open":  # only the leaves whose rows were balanced
+                G = _balanced_gather(op, G, L, opened)
             Lf = Le + rho * G
         t_fg = time.perf_counter() - t_fg
         L3 = np.broadcast_to(L, (2, 3, M)) if L.shape[1] == 1 else L
@@ -223,6 +225,25 @@ class HierarchicalMethod(TransportMethod):
     def summary_row(self, report: dict) -> tuple[str, str]:
         lk = report["links"]
         return ("links", f"{lk['links']} ({lk['links_per_leaf']:.1f} per leaf), {lk['rays']} rays")
+
+
+def _balanced_gather(op, G, L, opened):
+    """G (2, C, M) with the leaves whose rows the solve balanced (normalise-rows open: every
+    side exact, RowTargets.balance, and not far below its target, core.balancing) normalised
+    by their final-gather rows, as a closed scene's are: the others keep their own rows."""
+    from radiosity.core.balancing import BALANCE_MIN
+
+    rt, sums = opened.row_targets, opened.row_sums
+    if rt is None or sums is None:
+        return G
+    bal = rt.balance & ~rt.dead & (sums.sum(axis=0) >= BALANCE_MIN * rt.target)
+    if not bal.any():
+        return G
+    r = op.final_gather(np.ones_like(L[:, :1]))
+    # per side, where it sees surfaces at all (a void back's row is near 0: left as it is)
+    ok = bal[None, None, :] & (r >= BALANCE_MIN)
+    scale = np.where(ok, 1.0 / np.where(ok, r, 1.0), 1.0)
+    return G * scale
 
 
 HIERARCHICAL = HierarchicalMethod()

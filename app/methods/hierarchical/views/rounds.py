@@ -317,7 +317,7 @@ class Rounds:
         were split off below. Only where the solve capped its rows (an open scene): a closed
         one's are balanced to their targets, which loses nothing."""
         out = np.zeros(self.used.shape, np.bool_)
-        if prev["row_mode"] != "cap" or prev["leaf_rows"] is None:
+        if prev["row_mode"] not in ("cap", "open") or prev["leaf_rows"] is None:
             return out
         rows, t = np.asarray(prev["leaf_rows"]), prev["table"]
         leaf, side = np.nonzero(rows > 1.0 + self.excess)

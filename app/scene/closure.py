@@ -184,8 +184,8 @@ def detect_closure(elements: Elements, ray_offset: float, points: int = POINTS,
     else:
         reason = (f"open: {escaped} of {total} hemisphere rays escape ({escaped / max(total, 1):.1%}; "
                   f"most from {elements.describe(worst)}, {wf:.0%} of its rays){extra}: rows "
-                  f"of the {int(one.sum())} sides that lost no ray balanced to 1, the others "
-                  "capped at 1")
+                  "are not balanced, only capped at 1 (normalise-rows: open would balance the "
+                  f"{int(one.sum())} sides that lost no ray)")
     return Closure(closed, escaped, total, worst if escaped else -1, wf, reason,
                    target=target, exact=exact, contact=touching, inside=inside, lost=frac,
                    counts={"contact_sides": int(touching.sum()), "void_sides": int(void.sum()),

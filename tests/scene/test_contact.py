@@ -169,7 +169,7 @@ def test_open_box_is_open_and_its_sides_that_see_out_have_targets_below_one(tmp_
     # (nearly) every side sees out; sides that lose at most 2 % of their rays are snapped to 1,
     # but in an open scene only a side that lost no ray is exact (its row may be balanced)
     assert (cl.target[:, 0] < 1.0).mean() > 0.8 and cl.target[:, 0].mean() < 0.9
-    assert row_mode("auto", cl) == "open"       # the exact rows balanced, the others capped
+    assert row_mode("auto", cl) == "cap"        # not balanced by default: rows only capped
     assert not cl.exact[(cl.lost[:, 0] > 0), 0].any()
     rt = RowTargets.of(cl, np.arange(len(el)), el.two_sided)
     assert not rt.dead.any() and not rt.balance[far].any()

@@ -75,8 +75,8 @@ class RenderFigures(StageFigures):
                       f"solve {st['solve_s']:.1f} s, image {st['image_s']:.1f} s, "
                       + (f"views {st['views_s']:.1f} s, " if "views_s" in st else "")
                       + f"total {st['total_s']:.1f} s"),
-            *light_rows(self.report.get("light")),
-            *grid_rows(self.report.get("grids"))]  # per grid: min / average / max lx, U0  # per material: lux, cd/m^2 (tables.py)
+            *light_rows(self.report.get("light")),  # per material: lux, cd/m^2 (tables.py)
+            *grid_rows(self.report.get("grids"))]  # per grid: min / average / max lx, U0
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ import numpy as np
 
 #: Rec. 709 / sRGB luminance weights of linear RGB.
 LUMA = np.array([0.2126, 0.7152, 0.0722])
-#: lm per W of Y (the candela's definition at 555 nm; stages/tables.EFFICACY reads lux with it).
+#: lm per W of Y (the candela's definition at 555 nm): lux and cd m^-2 from W, everywhere.
 EFFICACY = 683.0
 #: Automatic exposure maps the 99th percentile of the non-zero luminances to this linear value.
 AUTO_KEY = 0.9

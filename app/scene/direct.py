@@ -27,6 +27,7 @@ import math
 import numba
 import numpy as np
 
+from radiosity.core.colour import LUMA  # the importance's weights (Rec. 709)
 from radiosity.core.exact import point_ff
 from radiosity.scene.emitters import AreaEmitters, PointEmitters
 from radiosity.tracing.rays import caster_of
@@ -47,8 +48,6 @@ INNER_SHARE = 0.9
 CLOSE = 0.05
 #: First-pass rays of a light that is not pooled, at least: fewer cannot tell a penumbra.
 MIN_RAYS = 4
-#: Luminance weights of the importance (Rec. 709).
-LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 _K1 = np.uint64(0x9E3779B97F4A7C15)
 _K2 = np.uint64(0xBF58476D1CE4E5B9)

@@ -23,12 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radiosity.core.colour import LUMA
+from radiosity.core.colour import EFFICACY, LUMA
 from radiosity.formats.csvtext import write_csv
 from radiosity.runtime.store import StageFigures
 from radiosity.scene.direct import DirectLight
 from radiosity.scene.grids import point_form_factors
-from radiosity.stages.tables import EFFICACY
 
 #: The point-to-disc kernel beyond this many times a sub-element's size (as views/points.FAR).
 FAR = 6.0

@@ -30,13 +30,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radiosity.core.arrays import unique_rows
-from radiosity.core.colour import LUMA
+from radiosity.core.colour import EFFICACY, LUMA
 from radiosity.formats.csvtext import write_csv
 from radiosity.formats.parquet import write_parquet
 from radiosity.runtime.store import StageFigures
 
-#: Luminous efficacy of "1 W of Y", lm/W: 683 is the definition of the candela (555 nm).
-EFFICACY = 683.0
 #: The statement written with every table (report.json "light", the docs page).
 CONVERSION = ("luminance-weighted Y = 0.2126 R + 0.7152 G + 0.0722 B (Rec. 709), "
               "{efficacy:g} lm per W of Y: luminance = {efficacy:g} Y(L) cd/m^2, "

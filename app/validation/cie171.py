@@ -14,10 +14,10 @@ import os
 
 import numpy as np
 
+from radiosity.core.colour import EFFICACY
 from radiosity.core.exact import differential_to_rectangle
 
 LE = 10.0
-EFFICACY = 683.0
 SOURCE = (1.5, 2.5, 1.5, 2.5)
 #: The plate of the obstruction case: [x0, x1] x [y0, y1] at height z.
 PLATE = (2.0, 3.0, 1.5, 2.5, 1.5)

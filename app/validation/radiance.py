@@ -24,12 +24,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from radiosity.core.bundles import Scene
-from radiosity.core.colour import LUMA
+from radiosity.core.colour import EFFICACY, LUMA
 from radiosity.validation.reference import ReferenceError, _mesh_arrays, shape_groups
 
 INSTALL = "pip install pyradiance (or pip install -e '.[reference]')"
-#: 1 W of Rec. 709 Y is 683 lm (stages/tables.py EFFICACY; not imported: stages is above us).
-EFFICACY = 683.0
 #: The side function of one-sided and two-coloured surfaces: 1 on the front (Rdot > 0: the
 #: ray arrives against the surface normal), 0 on the back.
 SIDE_CAL = ("side = if(Rdot, 1, 0);\n"

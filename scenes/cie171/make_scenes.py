@@ -70,27 +70,24 @@ fov_y = 90.0
 resolution = [32, 32]
 """
 
-AREA = """# CIE 171:2006 5.3-style: a 1 x 1 m Lambertian area source in the ceiling of a 4 x 4 x 3 m
-# room whose surfaces are black (reflectance 0): the illuminance at each point is the direct
-# light of the source alone, pi Le F(point -> source), exact by Howell's B-3 (floor) and by
-# quadrature (walls). Le = 10 W sr^-1 m^-2 grey: 683 x pi x 10 x F lx.
-name = "cie171-area-source"
-description = "CIE 171 5.3-style: area source, black room, floor and wall grids"
-
+#: The scene files' shared pieces: the mesh and the black 1 x 1 m source of Le = 10 grey, the
+#: floor's grid (its spacing follows) and the wall y = 0's grid.
+SOURCE_TOML = """
 [[mesh]]
 path = "OBJ"
 
 [material.emitter]
 reflectance = [0.0, 0.0, 0.0]
 emission = [10.0, 10.0, 10.0]
-
+"""
+FLOOR_GRID = """
 [[grid]]
 name = "floor"
 origin = [0.0, 0.0, 0.0]
 u = [4.0, 0.0, 0.0]
 v = [0.0, 4.0, 0.0]
-spacing = 0.5
-
+"""
+WALL_GRID = """
 [[grid]]
 name = "wall"
 origin = [0.0, 0.0, 0.0]
@@ -98,7 +95,16 @@ u = [4.0, 0.0, 0.0]
 v = [0.0, 0.0, 3.0]
 spacing = 0.5
 normal = [0.0, 1.0, 0.0]
-""" + CAMERA
+"""
+
+AREA = """# CIE 171:2006 5.3-style: a 1 x 1 m Lambertian area source in the ceiling of a 4 x 4 x 3 m
+# room whose surfaces are black (reflectance 0): the illuminance at each point is the direct
+# light of the source alone, pi Le F(point -> source), exact by Howell's B-3 (floor) and by
+# quadrature (walls). Le = 10 W sr^-1 m^-2 grey: 683 x pi x 10 x F lx.
+name = "cie171-area-source"
+description = "CIE 171 5.3-style: area source, black room, floor and wall grids"
+""" + SOURCE_TOML + FLOOR_GRID + """spacing = 0.5
+""" + WALL_GRID + CAMERA
 
 CUBE = """# CIE 171:2006 5.8-style interreflections: a closed 4 m cube, every surface of reflectance
 # RHO, a 1 x 1 m source in the ceiling (Le = 10 W sr^-1 m^-2 grey, reflectance RHO too). In a
@@ -142,14 +148,7 @@ REFLECTION = """# CIE 171:2006 5.6-style diffuse reflections: the area source of
 # (E_floor exact by Howell's B-3), nothing else.
 name = "cie171-diffuse-reflection"
 description = "CIE 171 5.6-style: one diffuse reflection off the floor"
-
-[[mesh]]
-path = "OBJ"
-
-[material.emitter]
-reflectance = [0.0, 0.0, 0.0]
-emission = [10.0, 10.0, 10.0]
-
+""" + SOURCE_TOML + """
 [material.floor]
 reflectance = [0.5, 0.5, 0.5]
 
@@ -159,15 +158,7 @@ origin = [0.0, 0.0, 3.0]
 u = [0.0, 4.0, 0.0]
 v = [4.0, 0.0, 0.0]
 spacing = 0.5
-
-[[grid]]
-name = "wall"
-origin = [0.0, 0.0, 0.0]
-u = [4.0, 0.0, 0.0]
-v = [0.0, 0.0, 3.0]
-spacing = 0.5
-normal = [0.0, 1.0, 0.0]
-""" + CAMERA
+""" + WALL_GRID + CAMERA
 
 OBSTRUCTION = """# CIE 171:2006 5.7-style internal obstruction: the area source of area-source/ and, half way
 # down (z = 1.5), a black opaque square plate 1 x 1 m centred at (2.5, 2, 1.5), in an
@@ -175,23 +166,10 @@ OBSTRUCTION = """# CIE 171:2006 5.7-style internal obstruction: the area source 
 # by quadrature over the source with the plate's shadow tested segment by segment.
 name = "cie171-obstruction"
 description = "CIE 171 5.7-style: an opaque plate between an area source and the floor"
-
-[[mesh]]
-path = "OBJ"
-
-[material.emitter]
-reflectance = [0.0, 0.0, 0.0]
-emission = [10.0, 10.0, 10.0]
-
+""" + SOURCE_TOML + """
 [material.plate]
 two_sided = true
-
-[[grid]]
-name = "floor"
-origin = [0.0, 0.0, 0.0]
-u = [4.0, 0.0, 0.0]
-v = [0.0, 4.0, 0.0]
-spacing = 0.25
+""" + FLOOR_GRID + """spacing = 0.25
 """ + CAMERA
 
 if __name__ == "__main__":
